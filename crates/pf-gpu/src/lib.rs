@@ -1,1 +1,15 @@
+//! # pf-gpu: the wgpu runtime of streampf
+//!
+//! Today this crate finds the machine's GPU adapters ([`list_adapters`], behind `streampf
+//! devices`) and defines the runtime's error type. It will grow into the runtime that runs a whole
+//! filter step on the GPU for many targets at once: a device context with the adapter's real
+//! limits, typed device streams, WGSL kernels from `shaders/`, and the generic stages (diffuse,
+//! normalise, estimate, resample), each with a CPU twin in `pf-core`.
+//!
+//! Adapter choice honours `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`.
 
+pub mod adapters;
+pub mod error;
+
+pub use adapters::{AdapterSummary, list_adapters};
+pub use error::{GpuError, NO_ADAPTER_HELP};

@@ -1,1 +1,36 @@
-fn main() {}
+//! `streampf`: GPU particle filtering for visual tracking, from the command line.
+
+mod demo;
+mod devices;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "streampf",
+    version,
+    about = "GPU particle filtering (Condensation) for visual tracking",
+    long_about = "GPU particle filtering (Condensation) for visual tracking.\n\n\
+                  `streampf demo` runs the main job on a synthetic sequence the program generates; \
+                  `streampf devices` lists the GPU adapters wgpu can use."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// List the GPU adapters (name, type, backend); honours WGPU_BACKEND and WGPU_ADAPTER_NAME.
+    Devices,
+    /// Track a synthetic target and print the per-step error and a summary.
+    Demo(demo::DemoArgs),
+}
+
+fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Devices => devices::run(),
+        Command::Demo(args) => demo::run(&args),
+    }
+}
