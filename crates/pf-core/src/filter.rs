@@ -46,12 +46,12 @@ impl<const D: usize> FilterConfig<D> {
         if self.particles == 0 {
             return Err(PfError::EmptyParticleSet);
         }
-        if let ResamplePolicy::EssBelow(f) = self.policy {
-            if !(f > 0.0 && f <= 1.0) {
-                return Err(PfError::InvalidConfig(format!(
-                    "the ESS threshold must be a fraction in (0, 1], got {f}"
-                )));
-            }
+        if let ResamplePolicy::EssBelow(f) = self.policy
+            && !(f > 0.0 && f <= 1.0)
+        {
+            return Err(PfError::InvalidConfig(format!(
+                "the ESS threshold must be a fraction in (0, 1], got {f}"
+            )));
         }
         Ok(())
     }

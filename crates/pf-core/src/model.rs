@@ -59,7 +59,9 @@ impl<const D: usize> GaussianDiffusion<D> {
         lower: SVector<f32, D>,
         upper: SVector<f32, D>,
     ) -> Result<Self, PfError> {
-        if let Some(d) = (0..D).find(|&d| !(lower[d] <= upper[d])) {
+        if let Some(d) =
+            (0..D).find(|&d| lower[d].is_nan() || upper[d].is_nan() || lower[d] > upper[d])
+        {
             return Err(PfError::InvalidConfig(format!(
                 "diffusion bounds of dimension {d} are [{}, {}]",
                 lower[d], upper[d]

@@ -64,10 +64,16 @@ impl Resampler for Metropolis {
             .with_min_len(1024)
             .enumerate()
             .for_each(|(k, out)| {
+                // Step b reads draws 2b (proposal) and 2b + 1 (acceptance): two steps per block.
                 let mut current = k % n;
+                let mut block = [0.0; 4];
                 for b in 0..self.steps {
-                    let proposal = uniform_index(uniforms.uniform(k as u32, 2 * b), n);
-                    let u = uniforms.uniform(k as u32, 2 * b + 1);
+                    if b % 2 == 0 {
+                        block = uniforms.uniform4(k as u32, b / 2);
+                    }
+                    let lane = 2 * (b % 2) as usize;
+                    let proposal = uniform_index(block[lane], n);
+                    let u = block[lane + 1];
                     // u < w_j / w_cur, written without a division (w_cur may be 0).
                     if u * weights[current] < weights[proposal] {
                         current = proposal;

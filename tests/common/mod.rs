@@ -1,0 +1,24 @@
+//! The shared helper of the GPU tests.
+//!
+//! A GPU test never passes silently for lack of an adapter: [`require_gpu`] fails the test with a
+//! message that says how to get one, unless the run opts out explicitly with
+//! `STREAMPF_ALLOW_NO_GPU=1`, in which case it returns `None` and says so on stderr.
+
+#![allow(dead_code)]
+
+/// The environment variable that lets a run without any adapter skip the GPU tests.
+pub const OPT_OUT: &str = "STREAMPF_ALLOW_NO_GPU";
+
+/// The adapters of this machine, or the opt-out.
+pub fn require_gpu(test: &str) -> Option<Vec<pf_gpu::AdapterSummary>> {
+    match pf_gpu::list_adapters() {
+        Ok(adapters) => Some(adapters),
+        Err(err) if std::env::var(OPT_OUT).is_ok_and(|v| v == "1") => {
+            eprintln!("{test}: SKIPPED, no GPU adapter and {OPT_OUT}=1 ({err})");
+            None
+        }
+        Err(err) => panic!(
+            "{test} needs a GPU adapter: {err}.\nSet {OPT_OUT}=1 to skip the GPU tests explicitly."
+        ),
+    }
+}
