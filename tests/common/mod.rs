@@ -22,3 +22,13 @@ pub fn require_gpu(test: &str) -> Option<Vec<pf_gpu::AdapterSummary>> {
         ),
     }
 }
+
+/// A GPU context for tests: the software adapter first, validation on, a generous timeout.
+/// `None` only when the run opted out and there is no adapter.
+pub fn gpu_context(test: &str) -> Option<pf_gpu::GpuContext> {
+    require_gpu(test)?;
+    match pf_gpu::GpuContext::new(&pf_gpu::ContextOptions::for_tests()) {
+        Ok(ctx) => Some(ctx),
+        Err(err) => panic!("{test}: opening the GPU failed: {err}"),
+    }
+}

@@ -32,6 +32,7 @@
 //!
 //! pf-core has no GPU type and does no file or image I/O.
 
+pub mod batch;
 pub mod error;
 pub mod estimate;
 pub mod filter;

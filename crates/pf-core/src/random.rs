@@ -80,8 +80,7 @@ impl RandomStreams {
 
     /// The counter-based uniforms of one target and stage at one filter step.
     pub fn counter_uniforms(&self, target: u32, stage: Stage, step: u64) -> CounterUniforms {
-        let key = self.key(target, stage);
-        CounterUniforms::new([key as u32, (key >> 32) as u32], step)
+        CounterUniforms::new(key_words(self.key(target, stage)), step)
     }
 }
 
@@ -170,6 +169,38 @@ pub fn philox4x32_10(counter: [u32; 4], key: [u32; 2]) -> [u32; 4] {
     c
 }
 
+/// `-2 ln(u)` for `u = ((word >> 8) + 1) / 2^24` in (0, 1]; near u = 1 the same series as the
+/// WGSL twin (`shaders/philox.wgsl`), so that both round alike.
+pub fn minus_two_log_unit(word: u32) -> f64 {
+    let u = f64::from((word >> 8) + 1) * (1.0 / 16_777_216.0);
+    let v = 1.0 - u;
+    if v < 0.015625 {
+        2.0 * v * (1.0 + v * (0.5 + v * (1.0 / 3.0 + v * 0.25)))
+    } else {
+        -2.0 * u.ln()
+    }
+}
+
+/// The counter-based standard normal draw of dimension `dim` of `particle` at `step`: Box–Muller
+/// on lanes 2(dim % 2), 2(dim % 2) + 1 of Philox block `[particle, dim / 2, step]`. The CPU twin of
+/// `counter_gaussian` in `shaders/philox.wgsl` (24-bit uniforms, which f32 holds exactly).
+pub fn counter_gaussian(key: [u32; 2], particle: u32, dim: u32, step: u64) -> f64 {
+    let block = philox4x32_10([particle, dim / 2, step as u32, (step >> 32) as u32], key);
+    let (w0, w1) = if dim % 2 == 0 {
+        (block[0], block[1])
+    } else {
+        (block[2], block[3])
+    };
+    let radius = minus_two_log_unit(w0).sqrt();
+    let angle = std::f64::consts::TAU * (f64::from(w1 >> 8) * (1.0 / 16_777_216.0));
+    radius * angle.cos()
+}
+
+/// Splits a 64-bit key into the two Philox key words (low, high).
+pub fn key_words(key: u64) -> [u32; 2] {
+    [key as u32, (key >> 32) as u32]
+}
+
 /// Counter-based uniforms: draw `d` of particle `i` at step `s` is lane `d % 4` of
 /// Philox4x32-10(counter = [i, d / 4, s_lo, s_hi], key), scaled by 2^-32.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -247,6 +278,27 @@ mod tests {
         }
         let closure = |p: u32, d: u32| f64::from(p * 100 + d) / 1e6;
         assert_eq!(closure.uniform4(3, 2), [308e-6, 309e-6, 310e-6, 311e-6]);
+    }
+
+    #[test]
+    fn counter_gaussian_has_unit_moments_and_a_smooth_log_near_one() {
+        let key = [17, 4];
+        let n = 100_000u32;
+        let draws: Vec<f64> = (0..n).map(|i| counter_gaussian(key, i, i % 7, 3)).collect();
+        let mean = draws.iter().sum::<f64>() / f64::from(n);
+        let var = draws.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / f64::from(n);
+        assert!(
+            mean.abs() < 0.016 && (var - 1.0).abs() < 0.023,
+            "mean {mean} var {var}"
+        );
+        // The series branch meets the log branch continuously.
+        let edge = (((1.0 - 0.015625) * 16_777_216.0) as u32 - 1) << 8;
+        let below = minus_two_log_unit(edge - 256);
+        let above = minus_two_log_unit(edge + 256);
+        let exact = -2.0 * (f64::from((edge >> 8) + 1) / 16_777_216.0).ln();
+        assert!((minus_two_log_unit(edge) - exact).abs() < 1e-9);
+        assert!(below > above);
+        assert_eq!(minus_two_log_unit(u32::MAX), 0.0);
     }
 
     #[test]

@@ -16,6 +16,63 @@ pub enum GpuError {
     #[error("{NO_ADAPTER_HELP}{}", filter_note(.filter))]
     NoAdapter { filter: Option<String> },
 
+    /// Only software adapters matched, and the options did not allow one.
+    #[error(
+        "only software adapters were found ({names}); pass allow_software (tests do) or set WGPU_ADAPTER_NAME to choose one explicitly"
+    )]
+    OnlySoftwareAdapters { names: String },
+
+    /// The adapter refused to open a device.
+    #[error("opening a device on {adapter} failed: {message}")]
+    RequestDevice { adapter: String, message: String },
+
+    /// A WGSL kernel failed to parse, validate or build into a pipeline.
+    #[error("kernel {kernel} is invalid: {message}")]
+    Shader { kernel: String, message: String },
+
+    /// wgpu reported a validation error while doing `what`.
+    #[error("GPU validation error while {what}: {message}")]
+    Validation { what: String, message: String },
+
+    /// The device ran out of memory while doing `what`.
+    #[error("the GPU ran out of memory while {what}: {message}")]
+    OutOfMemory { what: String, message: String },
+
+    /// A buffer larger than the adapter allows was requested.
+    #[error(
+        "buffer {label} needs {bytes} bytes, over the adapter's limit of {limit} bytes ({limit_name}); use fewer targets or particles, or split the work across adapters"
+    )]
+    BufferTooLarge {
+        label: String,
+        bytes: u64,
+        limit: u64,
+        limit_name: &'static str,
+    },
+
+    /// Data handed to a device stream has the wrong length.
+    #[error("{what}: got {got} elements, expected {expected}")]
+    LengthMismatch {
+        what: String,
+        expected: usize,
+        got: usize,
+    },
+
+    /// The device was lost (driver reset, GPU removed, out of resources).
+    #[error("the GPU device was lost: {0}")]
+    DeviceLost(String),
+
+    /// Waiting on the GPU took longer than the context's poll timeout.
+    #[error("the GPU did not finish within {seconds} s ({what})")]
+    Timeout { what: String, seconds: u64 },
+
+    /// Mapping a buffer for reading back failed.
+    #[error("reading back {what} failed: {message}")]
+    Readback { what: String, message: String },
+
+    /// A configuration value is out of its domain.
+    #[error("invalid configuration: {0}")]
+    InvalidConfig(String),
+
     /// A lower pf-core error surfaced through a GPU stage.
     #[error(transparent)]
     Core(#[from] pf_core::PfError),

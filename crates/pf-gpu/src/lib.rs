@@ -13,3 +13,16 @@ pub mod error;
 
 pub use adapters::{AdapterSummary, list_adapters};
 pub use error::{GpuError, NO_ADAPTER_HELP};
+pub mod context;
+pub mod filter;
+pub mod kernels;
+pub mod stream;
+pub mod toy;
+
+pub use context::{ContextOptions, GpuContext};
+pub use filter::{
+    GpuFilter, GpuLikelihood, GpuResampler, GpuStage, GpuStepReport, LikelihoodInputs,
+    NoLikelihood, TargetStats,
+};
+pub use kernels::Kernel;
+pub use stream::{DeviceStream, Readback};

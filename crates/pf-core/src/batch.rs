@@ -1,0 +1,389 @@
+//! Batched filtering: T independent targets × M particles in one set of buffers, the layout of
+//! the GPU runtime. The functions here are the CPU twins of pf-gpu's stages (same inputs, same
+//! random numbers, f64 accumulation) and [`BatchFilter`] is the twin of its filter driver.
+//!
+//! Layout: states `[(t·D + d)·M + m]`, per-particle values `[t·M + m]`.
+
+use crate::error::PfError;
+use crate::random::{CounterUniforms, RandomStreams, Stage, counter_gaussian, key_words};
+use crate::resample::Resampler;
+use crate::weights;
+
+/// The shape of a batch.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BatchShape {
+    pub targets: usize,
+    pub particles: usize,
+    pub dims: usize,
+}
+
+impl BatchShape {
+    pub fn new(targets: usize, particles: usize, dims: usize) -> Result<Self, PfError> {
+        if targets == 0 || particles == 0 || dims == 0 {
+            return Err(PfError::InvalidConfig(format!(
+                "a batch needs at least one target, particle and dimension (got {targets} x {particles} x {dims})"
+            )));
+        }
+        if targets
+            .checked_mul(particles)
+            .and_then(|n| n.checked_mul(dims))
+            .is_none_or(|n| n > u32::MAX as usize)
+        {
+            return Err(PfError::InvalidConfig(format!(
+                "{targets} x {particles} x {dims} values do not fit 32-bit indices"
+            )));
+        }
+        Ok(Self {
+            targets,
+            particles,
+            dims,
+        })
+    }
+
+    pub fn state_index(&self, t: usize, d: usize, m: usize) -> usize {
+        (t * self.dims + d) * self.particles + m
+    }
+
+    pub fn state_len(&self) -> usize {
+        self.targets * self.dims * self.particles
+    }
+
+    pub fn particle_len(&self) -> usize {
+        self.targets * self.particles
+    }
+}
+
+/// The GPU's wrap into [−π, π): `x − 2π·floor((x + π) / 2π)`. (pf-core's scalar
+/// [`crate::estimate::wrap_angle`] gives (−π, π]; the two differ only at −π ≡ π.)
+pub fn wrap_angle_floor(x: f32) -> f32 {
+    let pi = std::f32::consts::PI;
+    x - std::f32::consts::TAU * ((x + pi) / std::f32::consts::TAU).floor()
+}
+
+/// The per-target keys of one stage.
+pub fn stage_keys(seed: u64, targets: usize, stage: Stage) -> Vec<[u32; 2]> {
+    let streams = RandomStreams::new(seed);
+    (0..targets as u32)
+        .map(|t| key_words(streams.key(t, stage)))
+        .collect()
+}
+
+/// Twin of `diffuse.wgsl`: x += σ_d·n with n = counter_gaussian(key_t, m, d, step), then clamp
+/// and angle wrap.
+#[allow(clippy::too_many_arguments)]
+pub fn diffuse(
+    shape: &BatchShape,
+    states: &mut [f32],
+    sigma: &[f32],
+    bounds: Option<(&[f32], &[f32])>,
+    angular: &[bool],
+    keys: &[[u32; 2]],
+    step: u64,
+) {
+    for t in 0..shape.targets {
+        for d in 0..shape.dims {
+            for m in 0..shape.particles {
+                let i = shape.state_index(t, d, m);
+                let z = counter_gaussian(keys[t], m as u32, d as u32, step);
+                let mut x = (f64::from(states[i]) + f64::from(sigma[d]) * z) as f32;
+                if let Some((lo, hi)) = bounds {
+                    x = x.clamp(lo[d], hi[d]);
+                }
+                if angular[d] {
+                    x = wrap_angle_floor(x);
+                }
+                states[i] = x;
+            }
+        }
+    }
+}
+
+/// Twin of `normalise.wgsl` for one target: adds the log-likelihood, normalises (f64), writes the
+/// weights and returns the ESS; on a degenerate target it leaves uniform weights and returns the
+/// error.
+pub fn normalise_target(
+    log_weights: &mut [f32],
+    log_likelihood: &[f32],
+    weights_out: &mut [f64],
+) -> Result<f64, PfError> {
+    for (lw, ll) in log_weights.iter_mut().zip(log_likelihood) {
+        *lw += ll;
+    }
+    match weights::normalise(log_weights, weights_out) {
+        Ok(lse) => {
+            for lw in log_weights.iter_mut() {
+                *lw = lse.normalised_log(*lw) as f32;
+            }
+            Ok(weights::effective_sample_size(weights_out))
+        }
+        Err(err) => {
+            let n = log_weights.len();
+            log_weights.fill(-(n as f32).ln());
+            weights_out.fill(1.0 / n as f64);
+            Err(err)
+        }
+    }
+}
+
+/// Twin of the weighted-mean kernel: per target and dimension, angles on the circle.
+pub fn weighted_means(
+    shape: &BatchShape,
+    states: &[f32],
+    weights: &[f64],
+    angular: &[bool],
+) -> Vec<f32> {
+    let mut out = vec![0.0; shape.targets * shape.dims];
+    for t in 0..shape.targets {
+        let w = &weights[t * shape.particles..(t + 1) * shape.particles];
+        for d in 0..shape.dims {
+            let xs =
+                &states[shape.state_index(t, d, 0)..shape.state_index(t, d, 0) + shape.particles];
+            let (mut a, mut b) = (0.0f64, 0.0f64);
+            for (&x, &wi) in xs.iter().zip(w) {
+                let x = f64::from(x);
+                if angular[d] {
+                    a += wi * x.sin();
+                    b += wi * x.cos();
+                } else {
+                    a += wi * x;
+                    b += wi;
+                }
+            }
+            out[t * shape.dims + d] = if angular[d] {
+                a.atan2(b) as f32
+            } else if b > 0.0 {
+                (a / b) as f32
+            } else {
+                0.0
+            };
+        }
+    }
+    out
+}
+
+/// What one batched step produced, per target.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BatchReport {
+    /// `[t·D + d]`.
+    pub estimates: Vec<f32>,
+    pub ess: Vec<f64>,
+    pub resampled: Vec<bool>,
+    /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
+    pub status: Vec<Result<(), PfError>>,
+}
+
+/// The CPU twin of pf-gpu's filter driver: T targets stepped together, with counter-based random
+/// numbers so that it draws exactly what the GPU draws.
+pub struct BatchFilter<R> {
+    shape: BatchShape,
+    resampler: R,
+    sigma: Vec<f32>,
+    bounds: Option<(Vec<f32>, Vec<f32>)>,
+    angular: Vec<bool>,
+    /// Resample a target when ESS < threshold·M (`f64::INFINITY`: every step).
+    ess_threshold: f64,
+    diffusion_keys: Vec<[u32; 2]>,
+    resampling_keys: Vec<[u32; 2]>,
+    pub states: Vec<f32>,
+    pub log_weights: Vec<f32>,
+    pub weights: Vec<f64>,
+    ess: Vec<f64>,
+    ancestors: Vec<u32>,
+    scratch: Vec<f32>,
+    log_likelihood: Vec<f32>,
+    step: u64,
+}
+
+/// The filter's settings shared by the CPU twin and the GPU driver.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BatchConfig {
+    pub shape: BatchShape,
+    pub seed: u64,
+    /// Diffusion σ per dimension.
+    pub sigma: Vec<f32>,
+    pub bounds: Option<(Vec<f32>, Vec<f32>)>,
+    pub angular: Vec<bool>,
+    pub ess_threshold: f64,
+}
+
+impl BatchConfig {
+    pub fn validate(&self) -> Result<(), PfError> {
+        let d = self.shape.dims;
+        let check = |what: &str, len: usize| {
+            if len == d {
+                Ok(())
+            } else {
+                Err(PfError::InvalidConfig(format!(
+                    "{what} has {len} entries for {d} dimensions"
+                )))
+            }
+        };
+        check("sigma", self.sigma.len())?;
+        check("angular", self.angular.len())?;
+        if let Some((lo, hi)) = &self.bounds {
+            check("lower bounds", lo.len())?;
+            check("upper bounds", hi.len())?;
+            if (0..d).any(|i| lo[i].is_nan() || hi[i].is_nan() || lo[i] > hi[i]) {
+                return Err(PfError::InvalidConfig(
+                    "a lower bound exceeds its upper bound".into(),
+                ));
+            }
+        }
+        if self.sigma.iter().any(|s| !(s.is_finite() && *s >= 0.0)) {
+            return Err(PfError::InvalidConfig(
+                "every sigma must be finite and >= 0".into(),
+            ));
+        }
+        if self.ess_threshold.is_nan() || self.ess_threshold <= 0.0 {
+            return Err(PfError::InvalidConfig(format!(
+                "the ESS threshold must be > 0 (infinity: every step), got {}",
+                self.ess_threshold
+            )));
+        }
+        if d > 32 {
+            return Err(PfError::InvalidConfig(format!(
+                "at most 32 dimensions, got {d}"
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl<R: Resampler> BatchFilter<R> {
+    /// A filter over `initial_states` (layout `[(t·D + d)·M + m]`) with equal weights.
+    pub fn new(
+        config: &BatchConfig,
+        resampler: R,
+        initial_states: Vec<f32>,
+    ) -> Result<Self, PfError> {
+        config.validate()?;
+        let shape = config.shape;
+        if initial_states.len() != shape.state_len() {
+            return Err(PfError::LengthMismatch {
+                what: "initial states",
+                expected: shape.state_len(),
+                got: initial_states.len(),
+            });
+        }
+        let n = shape.particle_len();
+        Ok(Self {
+            shape,
+            resampler,
+            sigma: config.sigma.clone(),
+            bounds: config.bounds.clone(),
+            angular: config.angular.clone(),
+            ess_threshold: config.ess_threshold,
+            diffusion_keys: stage_keys(config.seed, shape.targets, Stage::Diffusion),
+            resampling_keys: stage_keys(config.seed, shape.targets, Stage::Resampling),
+            scratch: vec![0.0; initial_states.len()],
+            states: initial_states,
+            log_weights: vec![-(shape.particles as f32).ln(); n],
+            weights: vec![1.0 / shape.particles as f64; n],
+            ess: vec![shape.particles as f64; shape.targets],
+            ancestors: vec![0; n],
+            log_likelihood: vec![0.0; n],
+            step: 0,
+        })
+    }
+
+    pub fn shape(&self) -> &BatchShape {
+        &self.shape
+    }
+
+    /// One step: resample the targets whose ESS is below the threshold, gather, diffuse, measure
+    /// with `log_likelihood(t, m, state)`, normalise, estimate.
+    pub fn step(
+        &mut self,
+        log_likelihood: impl Fn(usize, usize, &[f32]) -> f32,
+    ) -> Result<BatchReport, PfError> {
+        let shape = self.shape;
+        let (m_count, dims) = (shape.particles, shape.dims);
+        let step = self.step;
+        self.step += 1;
+
+        let mut resampled = vec![false; shape.targets];
+        for t in 0..shape.targets {
+            let range = t * m_count..(t + 1) * m_count;
+            let ancestors = &mut self.ancestors[range.clone()];
+            if self.ess[t] < self.ess_threshold * m_count as f64 {
+                resampled[t] = true;
+                let uniforms = CounterUniforms::new(self.resampling_keys[t], step);
+                self.resampler
+                    .resample(&self.weights[range.clone()], &uniforms, ancestors)?;
+                self.log_weights[range].fill(-(m_count as f32).ln());
+            } else {
+                for (k, a) in ancestors.iter_mut().enumerate() {
+                    *a = k as u32;
+                }
+            }
+        }
+        for t in 0..shape.targets {
+            for d in 0..dims {
+                for k in 0..m_count {
+                    let a = self.ancestors[t * m_count + k] as usize;
+                    self.scratch[shape.state_index(t, d, k)] =
+                        self.states[shape.state_index(t, d, a)];
+                }
+            }
+        }
+        std::mem::swap(&mut self.states, &mut self.scratch);
+
+        let bounds = self
+            .bounds
+            .as_ref()
+            .map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
+        diffuse(
+            &shape,
+            &mut self.states,
+            &self.sigma,
+            bounds,
+            &self.angular,
+            &self.diffusion_keys,
+            step,
+        );
+
+        let mut state = vec![0.0f32; dims];
+        for t in 0..shape.targets {
+            for m in 0..m_count {
+                for (d, x) in state.iter_mut().enumerate() {
+                    *x = self.states[shape.state_index(t, d, m)];
+                }
+                self.log_likelihood[t * m_count + m] = log_likelihood(t, m, &state);
+            }
+        }
+        let mut status = Vec::with_capacity(shape.targets);
+        for t in 0..shape.targets {
+            let range = t * m_count..(t + 1) * m_count;
+            let result = normalise_target(
+                &mut self.log_weights[range.clone()],
+                &self.log_likelihood[range.clone()],
+                &mut self.weights[range],
+            );
+            self.ess[t] = *result.as_ref().unwrap_or(&(m_count as f64));
+            status.push(result.map(|_| ()));
+        }
+        Ok(BatchReport {
+            estimates: weighted_means(&shape, &self.states, &self.weights, &self.angular),
+            ess: self.ess.clone(),
+            resampled,
+            status,
+        })
+    }
+}
+
+/// Initial clouds `mean_t + σ ⊙ n` for every target (n from each target's init stream), in the
+/// batch layout. `means` is `[t·D + d]`.
+pub fn gaussian_clouds(shape: &BatchShape, seed: u64, means: &[f32], sigma: &[f32]) -> Vec<f32> {
+    let streams = RandomStreams::new(seed);
+    let mut states = vec![0.0; shape.state_len()];
+    for t in 0..shape.targets {
+        let mut rng = streams.stream(t as u32, Stage::Init);
+        for m in 0..shape.particles {
+            for d in 0..shape.dims {
+                states[shape.state_index(t, d, m)] =
+                    means[t * shape.dims + d] + sigma[d] * rng.gaussian_f32();
+            }
+        }
+    }
+    states
+}

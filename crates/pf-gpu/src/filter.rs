@@ -1,0 +1,587 @@
+//! The GPU filter driver: a frame's whole step — resample → gather → diffuse → likelihood →
+//! normalise → estimate — for T targets × M particles, recorded into one command submission. The
+//! host uploads nothing but the per-frame parameters (and what the likelihood needs) and reads
+//! back only the estimates and the per-target statistics.
+//!
+//! CPU twin: `pf_core::batch::BatchFilter` (same layout, same counter-based random numbers).
+
+use bytemuck::{Pod, Zeroable};
+use pf_core::batch::{BatchConfig, BatchShape, stage_keys};
+use pf_core::{PfError, Stage};
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::kernels::{Kernel, sources, stage_source};
+use crate::stream::{DeviceStream, Readback};
+
+/// The per-frame parameters, `Params` in `shaders/common.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct FrameParams {
+    pub targets: u32,
+    pub particles: u32,
+    pub dims: u32,
+    pub angular_mask: u32,
+    pub step_lo: u32,
+    pub step_hi: u32,
+    pub has_bounds: u32,
+    pub metropolis_steps: u32,
+    pub ess_threshold: f32,
+    pub best: u32,
+    pub _pad: [u32; 2],
+}
+
+/// Per-target results, `TargetStats` in `shaders/common.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct TargetStats {
+    pub max_log_weight: f32,
+    pub log_sum_shifted: f32,
+    pub ess: f32,
+    /// 0 ok, 1 every weight zero, 2 NaN log-weight, 3 +inf log-weight.
+    pub status: u32,
+    pub bad_particle: u32,
+    pub resampled: u32,
+    pub _pad: [u32; 2],
+}
+
+impl TargetStats {
+    /// The status as pf-core's typed error.
+    pub fn result(&self, particles: usize) -> Result<(), PfError> {
+        match self.status {
+            0 => Ok(()),
+            1 => Err(PfError::AllWeightsZero { particles }),
+            2 => Err(PfError::NanLogWeight {
+                particle: self.bad_particle as usize,
+            }),
+            _ => Err(PfError::InfiniteLogWeight {
+                particle: self.bad_particle as usize,
+            }),
+        }
+    }
+}
+
+/// The resamplers that run on the GPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GpuResampler {
+    Systematic,
+    Stratified,
+    /// Metropolis with this many steps.
+    Metropolis(u32),
+}
+
+/// One stage of the step, for running stages alone ([`GpuFilter::run_stages`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GpuStage {
+    Resample,
+    Gather,
+    Diffuse,
+    Likelihood,
+    Normalise,
+    Estimate,
+}
+
+/// The streams a likelihood reads and writes, handed to [`GpuLikelihood::prepare`].
+pub struct LikelihoodInputs<'a> {
+    pub shape: BatchShape,
+    /// The frame parameters (uniform buffer, `Params` of `shaders/common.wgsl`).
+    pub params: &'a wgpu::Buffer,
+    /// States, `[(t·D + d)·M + m]`, already diffused when the likelihood runs.
+    pub states: &'a DeviceStream<f32>,
+    /// Where the likelihood writes `log p(z | x)`, `[t·M + m]`.
+    pub log_likelihood: &'a DeviceStream<f32>,
+}
+
+/// An observation model on the GPU. A tracker builds its pipelines and bind groups once in
+/// `prepare`, uploads each frame's observation before the step, and records its dispatches.
+pub trait GpuLikelihood {
+    fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError>;
+    fn record(&self, pass: &mut wgpu::ComputePass<'_>);
+}
+
+/// What one GPU step read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GpuStepReport {
+    /// `[t·D + d]`.
+    pub estimates: Vec<f32>,
+    pub stats: Vec<TargetStats>,
+}
+
+struct Stages {
+    resample: Kernel,
+    mark_resampled: Option<Kernel>,
+    gather: Kernel,
+    diffuse: Kernel,
+    normalise: Kernel,
+    estimate: Kernel,
+}
+
+struct BindGroups {
+    resample: wgpu::BindGroup,
+    mark_resampled: Option<wgpu::BindGroup>,
+    gather: wgpu::BindGroup,
+    diffuse: wgpu::BindGroup,
+    normalise: wgpu::BindGroup,
+    estimate: wgpu::BindGroup,
+}
+
+/// T targets × M particles on one GPU.
+pub struct GpuFilter {
+    shape: BatchShape,
+    params: FrameParams,
+    params_buffer: wgpu::Buffer,
+    states: DeviceStream<f32>,
+    selected: DeviceStream<f32>,
+    log_weights: DeviceStream<f32>,
+    log_likelihood: DeviceStream<f32>,
+    weights: DeviceStream<f32>,
+    cdf: DeviceStream<f32>,
+    ancestors: DeviceStream<u32>,
+    stats: DeviceStream<TargetStats>,
+    estimates: DeviceStream<f32>,
+    // Kept alive for the bind groups.
+    _sigma: DeviceStream<f32>,
+    _lower: DeviceStream<f32>,
+    _upper: DeviceStream<f32>,
+    _diffusion_keys: DeviceStream<[u32; 2]>,
+    _resampling_keys: DeviceStream<[u32; 2]>,
+    stages: Stages,
+    groups: BindGroups,
+    estimates_back: Readback<f32>,
+    stats_back: Readback<TargetStats>,
+    step: u64,
+}
+
+fn groups_for(count: usize, size: usize) -> u32 {
+    count.div_ceil(size) as u32
+}
+
+impl GpuFilter {
+    /// Uploads `initial_states` (`[(t·D + d)·M + m]`) with equal weights and builds every stage.
+    pub fn new(
+        ctx: &GpuContext,
+        config: &BatchConfig,
+        resampler: GpuResampler,
+        initial_states: &[f32],
+    ) -> Result<Self, GpuError> {
+        config.validate()?;
+        let shape = config.shape;
+        if initial_states.len() != shape.state_len() {
+            return Err(GpuError::LengthMismatch {
+                what: "initial states".into(),
+                expected: shape.state_len(),
+                got: initial_states.len(),
+            });
+        }
+        let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
+        if shape.targets > max_groups || shape.particles.div_ceil(64) > max_groups {
+            return Err(GpuError::InvalidConfig(format!(
+                "{} targets x {} particles exceed the adapter's {max_groups} workgroups per dimension",
+                shape.targets, shape.particles
+            )));
+        }
+        let n = shape.particle_len();
+        let angular_mask = config
+            .angular
+            .iter()
+            .enumerate()
+            .fold(0u32, |mask, (d, &a)| if a { mask | (1 << d) } else { mask });
+        let params = FrameParams {
+            targets: shape.targets as u32,
+            particles: shape.particles as u32,
+            dims: shape.dims as u32,
+            angular_mask,
+            step_lo: 0,
+            step_hi: 0,
+            has_bounds: u32::from(config.bounds.is_some()),
+            metropolis_steps: match resampler {
+                GpuResampler::Metropolis(b) => b,
+                _ => 0,
+            },
+            // f32::MAX stands for "every step": ESS is always below it.
+            ess_threshold: if config.ess_threshold.is_finite() {
+                config.ess_threshold as f32
+            } else {
+                f32::MAX
+            },
+            best: 1,
+            _pad: [0; 2],
+        };
+        let params_buffer = ctx.scoped("creating the parameter buffer", || {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("frame params"),
+                size: std::mem::size_of::<FrameParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        })?;
+        ctx.queue
+            .write_buffer(&params_buffer, 0, bytemuck::bytes_of(&params));
+
+        let uniform_lw = -(shape.particles as f32).ln();
+        let states = DeviceStream::from_slice(ctx, "states", initial_states)?;
+        let selected = DeviceStream::zeroed(ctx, "selected states", shape.state_len())?;
+        let log_weights = DeviceStream::from_slice(ctx, "log-weights", &vec![uniform_lw; n])?;
+        let log_likelihood = DeviceStream::zeroed(ctx, "log-likelihood", n)?;
+        let weights =
+            DeviceStream::from_slice(ctx, "weights", &vec![1.0 / shape.particles as f32; n])?;
+        let cdf = DeviceStream::zeroed(ctx, "cdf", n)?;
+        let ancestors = DeviceStream::zeroed(ctx, "ancestors", n)?;
+        let initial_stats = TargetStats {
+            ess: shape.particles as f32,
+            bad_particle: u32::MAX,
+            ..TargetStats::zeroed()
+        };
+        let stats =
+            DeviceStream::from_slice(ctx, "target stats", &vec![initial_stats; shape.targets])?;
+        let estimates = DeviceStream::zeroed(ctx, "estimates", shape.targets * shape.dims)?;
+        let sigma = DeviceStream::from_slice(ctx, "sigma", &config.sigma)?;
+        let (lo, hi) = match &config.bounds {
+            Some((lo, hi)) => (lo.clone(), hi.clone()),
+            None => (vec![0.0; shape.dims], vec![0.0; shape.dims]),
+        };
+        let lower = DeviceStream::from_slice(ctx, "lower bounds", &lo)?;
+        let upper = DeviceStream::from_slice(ctx, "upper bounds", &hi)?;
+        let diffusion_keys = DeviceStream::from_slice(
+            ctx,
+            "diffusion keys",
+            &stage_keys(config.seed, shape.targets, Stage::Diffusion),
+        )?;
+        let resampling_keys = DeviceStream::from_slice(
+            ctx,
+            "resampling keys",
+            &stage_keys(config.seed, shape.targets, Stage::Resampling),
+        )?;
+
+        let resample_src = stage_source(sources::RESAMPLE);
+        let (entry, needs_mark) = match resampler {
+            GpuResampler::Systematic => ("systematic", false),
+            GpuResampler::Stratified => ("stratified", false),
+            GpuResampler::Metropolis(_) => ("metropolis", true),
+        };
+        let stages = Stages {
+            resample: Kernel::new(ctx, entry, &resample_src, entry)?,
+            mark_resampled: if needs_mark {
+                Some(Kernel::new(
+                    ctx,
+                    "mark_resampled",
+                    &resample_src,
+                    "mark_resampled",
+                )?)
+            } else {
+                None
+            },
+            gather: Kernel::new(ctx, "gather", &stage_source(sources::GATHER), "gather")?,
+            diffuse: Kernel::new(ctx, "diffuse", &stage_source(sources::DIFFUSE), "diffuse")?,
+            normalise: Kernel::new(
+                ctx,
+                "normalise",
+                &stage_source(sources::NORMALISE),
+                "normalise",
+            )?,
+            estimate: Kernel::new(
+                ctx,
+                "weighted_mean",
+                &stage_source(sources::ESTIMATE),
+                "weighted_mean",
+            )?,
+        };
+        let p = || params_buffer.as_entire_binding();
+        let resample_entries = [
+            (0, p()),
+            (1, weights.binding()),
+            (2, cdf.binding()),
+            (3, ancestors.binding()),
+            (4, stats.binding()),
+            (5, resampling_keys.binding()),
+        ];
+        // Auto layouts drop unused bindings: bind only what each entry point uses.
+        let resample_group = match resampler {
+            GpuResampler::Metropolis(_) => stages.resample.bind(
+                ctx,
+                &[
+                    (0, p()),
+                    (1, weights.binding()),
+                    (3, ancestors.binding()),
+                    (4, stats.binding()),
+                    (5, resampling_keys.binding()),
+                ],
+            )?,
+            _ => stages.resample.bind(ctx, &resample_entries)?,
+        };
+        let groups = BindGroups {
+            resample: resample_group,
+            mark_resampled: match &stages.mark_resampled {
+                Some(k) => Some(k.bind(ctx, &[(0, p()), (4, stats.binding())])?),
+                None => None,
+            },
+            gather: stages.gather.bind(
+                ctx,
+                &[
+                    (0, p()),
+                    (1, states.binding()),
+                    (2, selected.binding()),
+                    (3, ancestors.binding()),
+                    (4, stats.binding()),
+                    (5, log_weights.binding()),
+                ],
+            )?,
+            diffuse: stages.diffuse.bind(
+                ctx,
+                &[
+                    (0, p()),
+                    (1, states.binding()),
+                    (2, sigma.binding()),
+                    (3, lower.binding()),
+                    (4, upper.binding()),
+                    (5, diffusion_keys.binding()),
+                ],
+            )?,
+            normalise: stages.normalise.bind(
+                ctx,
+                &[
+                    (0, p()),
+                    (1, log_weights.binding()),
+                    (2, log_likelihood.binding()),
+                    (3, weights.binding()),
+                    (4, stats.binding()),
+                ],
+            )?,
+            estimate: stages.estimate.bind(
+                ctx,
+                &[
+                    (0, p()),
+                    (1, states.binding()),
+                    (2, weights.binding()),
+                    (3, estimates.binding()),
+                ],
+            )?,
+        };
+        Ok(Self {
+            shape,
+            params,
+            params_buffer,
+            estimates_back: Readback::new(ctx, "estimates readback", shape.targets * shape.dims)?,
+            stats_back: Readback::new(ctx, "stats readback", shape.targets)?,
+            states,
+            selected,
+            log_weights,
+            log_likelihood,
+            weights,
+            cdf,
+            ancestors,
+            stats,
+            estimates,
+            _sigma: sigma,
+            _lower: lower,
+            _upper: upper,
+            _diffusion_keys: diffusion_keys,
+            _resampling_keys: resampling_keys,
+            stages,
+            groups,
+            step: 0,
+        })
+    }
+
+    pub fn shape(&self) -> &BatchShape {
+        &self.shape
+    }
+
+    /// The streams a likelihood binds; pass to [`GpuLikelihood::prepare`] once.
+    pub fn likelihood_inputs(&self) -> LikelihoodInputs<'_> {
+        LikelihoodInputs {
+            shape: self.shape,
+            params: &self.params_buffer,
+            states: &self.states,
+            log_likelihood: &self.log_likelihood,
+        }
+    }
+
+    /// Records a frame's whole step into `encoder` (no submission).
+    pub fn record_step(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        use GpuStage::*;
+        self.record_stages(
+            ctx,
+            encoder,
+            &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
+            likelihood,
+        );
+    }
+
+    /// Records the given stages, in the step's order, with the next step index.
+    fn record_stages(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        let step = self.step;
+        self.step += 1;
+        self.params.step_lo = step as u32;
+        self.params.step_hi = (step >> 32) as u32;
+        ctx.queue
+            .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.params));
+
+        let (t, m) = (self.shape.targets, self.shape.particles);
+        let per_particle = [groups_for(m, 64), t as u32, 1];
+        let per_target = [1, t as u32, 1];
+        let wants = |s: GpuStage| stages.contains(&s);
+        if wants(GpuStage::Resample) || wants(GpuStage::Gather) {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("select"),
+                timestamp_writes: None,
+            });
+            if wants(GpuStage::Resample) {
+                if let (Some(k), Some(g)) =
+                    (&self.stages.mark_resampled, &self.groups.mark_resampled)
+                {
+                    k.record(&mut pass, g, [groups_for(t, 64), 1, 1]);
+                    self.stages
+                        .resample
+                        .record(&mut pass, &self.groups.resample, per_particle);
+                } else {
+                    self.stages
+                        .resample
+                        .record(&mut pass, &self.groups.resample, per_target);
+                }
+            }
+            if wants(GpuStage::Gather) {
+                self.stages
+                    .gather
+                    .record(&mut pass, &self.groups.gather, per_particle);
+            }
+        }
+        if wants(GpuStage::Gather) {
+            let bytes = (self.shape.state_len() * 4) as u64;
+            encoder.copy_buffer_to_buffer(
+                self.selected.buffer(),
+                0,
+                self.states.buffer(),
+                0,
+                bytes,
+            );
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("diffuse, measure, normalise, estimate"),
+                timestamp_writes: None,
+            });
+            if wants(GpuStage::Diffuse) {
+                self.stages
+                    .diffuse
+                    .record(&mut pass, &self.groups.diffuse, per_particle);
+            }
+            if wants(GpuStage::Likelihood) {
+                likelihood.record(&mut pass);
+            }
+            if wants(GpuStage::Normalise) {
+                self.stages
+                    .normalise
+                    .record(&mut pass, &self.groups.normalise, per_target);
+            }
+            if wants(GpuStage::Estimate) {
+                self.stages
+                    .estimate
+                    .record(&mut pass, &self.groups.estimate, per_target);
+            }
+        }
+        self.estimates_back.record_copy(encoder, &self.estimates);
+        self.stats_back.record_copy(encoder, &self.stats);
+    }
+
+    /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.
+    /// Stages that are left out keep their streams as they are.
+    pub fn run_stages(
+        &mut self,
+        ctx: &GpuContext,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) -> Result<GpuStepReport, GpuError> {
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        let submission = ctx.scoped("recording filter stages", || {
+            self.record_stages(ctx, &mut encoder, stages, likelihood);
+            ctx.queue.submit([encoder.finish()])
+        })?;
+        let estimates = self.estimates_back.read(ctx, Some(submission))?;
+        let stats = self.stats_back.read(ctx, None)?;
+        Ok(GpuStepReport { estimates, stats })
+    }
+
+    /// Sets the index of the next step (it keys the step's random numbers).
+    pub fn set_step(&mut self, step: u64) {
+        self.step = step;
+    }
+
+    /// One frame: record, submit once, wait, read back the estimates and statistics.
+    pub fn step(
+        &mut self,
+        ctx: &GpuContext,
+        likelihood: &dyn GpuLikelihood,
+    ) -> Result<GpuStepReport, GpuError> {
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("filter step"),
+            });
+        let submission = ctx.scoped("recording a filter step", || {
+            self.record_step(ctx, &mut encoder, likelihood);
+            ctx.queue.submit([encoder.finish()])
+        })?;
+        let estimates = self.estimates_back.read(ctx, Some(submission))?;
+        let stats = self.stats_back.read(ctx, None)?;
+        Ok(GpuStepReport { estimates, stats })
+    }
+
+    /// Reads the particle states back (tests and debugging; allocates).
+    pub fn download_states(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.states.download(ctx)
+    }
+
+    pub fn download_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.weights.download(ctx)
+    }
+
+    pub fn download_ancestors(&self, ctx: &GpuContext) -> Result<Vec<u32>, GpuError> {
+        self.ancestors.download(ctx)
+    }
+
+    /// The streams of the stages, for stage-by-stage tests.
+    pub fn streams(&self) -> FilterStreams<'_> {
+        FilterStreams {
+            states: &self.states,
+            log_weights: &self.log_weights,
+            log_likelihood: &self.log_likelihood,
+            weights: &self.weights,
+            cdf: &self.cdf,
+            ancestors: &self.ancestors,
+            stats: &self.stats,
+        }
+    }
+}
+
+/// A likelihood that records nothing (the log-likelihood stream keeps its contents).
+pub struct NoLikelihood;
+
+impl GpuLikelihood for NoLikelihood {
+    fn prepare(&mut self, _: &GpuContext, _: &LikelihoodInputs<'_>) -> Result<(), GpuError> {
+        Ok(())
+    }
+    fn record(&self, _: &mut wgpu::ComputePass<'_>) {}
+}
+
+/// Borrowed views of a filter's device streams.
+pub struct FilterStreams<'a> {
+    pub states: &'a DeviceStream<f32>,
+    pub log_weights: &'a DeviceStream<f32>,
+    pub log_likelihood: &'a DeviceStream<f32>,
+    pub weights: &'a DeviceStream<f32>,
+    pub cdf: &'a DeviceStream<f32>,
+    pub ancestors: &'a DeviceStream<u32>,
+    pub stats: &'a DeviceStream<TargetStats>,
+}

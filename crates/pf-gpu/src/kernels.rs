@@ -1,0 +1,174 @@
+//! WGSL kernels: sources from `shaders/` (include_str!), checked by naga, built into pipelines.
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+
+/// The WGSL files of the generic stages. `PHILOX` and `COMMON` are libraries prepended to the
+/// stage files (see [`stage_source`]).
+pub mod sources {
+    pub const PHILOX: &str = include_str!("../../../shaders/philox.wgsl");
+    pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
+    pub const DIFFUSE: &str = include_str!("../../../shaders/diffuse.wgsl");
+    pub const NORMALISE: &str = include_str!("../../../shaders/normalise.wgsl");
+    pub const RESAMPLE: &str = include_str!("../../../shaders/resample.wgsl");
+    pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
+    pub const ESTIMATE: &str = include_str!("../../../shaders/estimate.wgsl");
+    pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/toy_likelihood.wgsl");
+
+    /// Every stage file, by name, for the validation tests.
+    pub const STAGES: [(&str, &str); 6] = [
+        ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
+        ("diffuse.wgsl", DIFFUSE),
+        ("normalise.wgsl", NORMALISE),
+        ("resample.wgsl", RESAMPLE),
+        ("gather.wgsl", GATHER),
+        ("estimate.wgsl", ESTIMATE),
+    ];
+}
+
+/// A stage file with the libraries it uses prepended.
+pub fn stage_source(stage: &str) -> String {
+    [sources::PHILOX, sources::COMMON, stage].join("\n")
+}
+
+/// Parses and validates WGSL with naga (the one wgpu uses); the error names line and column.
+pub fn validate_wgsl(source: &str) -> Result<(), String> {
+    use wgpu::naga;
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    )
+    .validate(&module)
+    .map_err(|e| e.emit_to_string(source))?;
+    Ok(())
+}
+
+/// One compute entry point built into a pipeline, with the layout of its bind group 0.
+#[derive(Debug)]
+pub struct Kernel {
+    name: String,
+    pipeline: wgpu::ComputePipeline,
+    layout: wgpu::BindGroupLayout,
+}
+
+impl Kernel {
+    /// Builds `entry` of `source`. Invalid WGSL is a [`GpuError::Shader`] with naga's message.
+    pub fn new(ctx: &GpuContext, name: &str, source: &str, entry: &str) -> Result<Self, GpuError> {
+        validate_wgsl(source).map_err(|message| GpuError::Shader {
+            kernel: name.to_string(),
+            message,
+        })?;
+        let built = ctx.scoped(&format!("building kernel {name}"), || {
+            let module = ctx
+                .device
+                .create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(name),
+                    source: wgpu::ShaderSource::Wgsl(source.into()),
+                });
+            let pipeline = ctx
+                .device
+                .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(name),
+                    layout: None,
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                });
+            let layout = pipeline.get_bind_group_layout(0);
+            (pipeline, layout)
+        });
+        let (pipeline, layout) = built.map_err(|e| GpuError::Shader {
+            kernel: name.to_string(),
+            message: e.to_string(),
+        })?;
+        Ok(Self {
+            name: name.to_string(),
+            pipeline,
+            layout,
+        })
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    pub fn pipeline(&self) -> &wgpu::ComputePipeline {
+        &self.pipeline
+    }
+
+    /// A bind group 0 for this kernel from `(binding, resource)` pairs (created once, reused).
+    pub fn bind(
+        &self,
+        ctx: &GpuContext,
+        entries: &[(u32, wgpu::BindingResource<'_>)],
+    ) -> Result<wgpu::BindGroup, GpuError> {
+        let entries: Vec<wgpu::BindGroupEntry> = entries
+            .iter()
+            .map(|(binding, resource)| wgpu::BindGroupEntry {
+                binding: *binding,
+                resource: resource.clone(),
+            })
+            .collect();
+        ctx.scoped(&format!("binding kernel {}", self.name), || {
+            ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(&self.name),
+                layout: &self.layout,
+                entries: &entries,
+            })
+        })
+    }
+
+    /// Records one dispatch of `groups` workgroups.
+    pub fn record(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        bind_group: &wgpu::BindGroup,
+        groups: [u32; 3],
+    ) {
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, bind_group, &[]);
+        pass.dispatch_workgroups(groups[0], groups[1], groups[2]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_stage_kernel_parses_and_validates() {
+        for (file, stage) in sources::STAGES {
+            if let Err(message) = validate_wgsl(&stage_source(stage)) {
+                panic!("{file}:\n{message}");
+            }
+        }
+    }
+
+    #[test]
+    fn every_wgsl_file_in_shaders_is_covered() {
+        // A new shader file must be added to the validated list (and to ARCHITECTURE.md).
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
+        let mut on_disk: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".wgsl"))
+            .collect();
+        on_disk.sort();
+        let mut known: Vec<String> = sources::STAGES.iter().map(|(f, _)| f.to_string()).collect();
+        known.extend(["philox.wgsl".to_string(), "common.wgsl".to_string()]);
+        known.sort();
+        assert_eq!(on_disk, known);
+    }
+
+    #[test]
+    fn invalid_wgsl_is_reported_with_its_location() {
+        let err = validate_wgsl("fn broken( { }").unwrap_err();
+        assert!(err.contains("expected"), "{err}");
+        let err = validate_wgsl("@compute @workgroup_size(1) fn main() { let x: u32 = 1.5; }")
+            .unwrap_err();
+        assert!(!err.is_empty());
+    }
+}

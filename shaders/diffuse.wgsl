@@ -1,0 +1,31 @@
+// Diffusion: x_d += sigma_d * n, n ~ N(0, 1) from counter_gaussian(key_t, m, d, step); optional
+// clamping to [lower, upper]; angle dimensions wrapped. One invocation per (particle, target).
+// CPU twin: pf_core::batch::diffuse.
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read_write> states: array<f32>;
+@group(0) @binding(2) var<storage, read> sigma: array<f32>;
+@group(0) @binding(3) var<storage, read> lower: array<f32>;
+@group(0) @binding(4) var<storage, read> upper: array<f32>;
+@group(0) @binding(5) var<storage, read> diffusion_keys: array<vec2<u32>>;
+
+@compute @workgroup_size(64)
+fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let m = gid.x;
+    let t = gid.y;
+    if (m >= params.particles || t >= params.targets) {
+        return;
+    }
+    let step = vec2<u32>(params.step_lo, params.step_hi);
+    for (var d = 0u; d < params.dims; d = d + 1u) {
+        let i = state_index(t, d, m);
+        var x = states[i] + sigma[d] * counter_gaussian(diffusion_keys[t], m, d, step);
+        if (params.has_bounds == 1u) {
+            x = clamp(x, lower[d], upper[d]);
+        }
+        if (is_angle(d)) {
+            x = wrap_angle(x);
+        }
+        states[i] = x;
+    }
+}

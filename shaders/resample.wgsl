@@ -1,0 +1,153 @@
+// Resampling per target on the GPU, from normalised weights to ancestor indices, then the gather
+// of the ancestors' states. A target resamples only when stats[t].ess < ess_threshold * M;
+// otherwise its ancestors are the identity.
+//
+// - systematic / stratified: one workgroup per target; a parallel prefix sum of the weights
+//   (each invocation scans a contiguous chunk, a workgroup scan joins the chunks) into cdf[], then
+//   a binary search per offspring for the smallest i with point * total < cdf[i].
+// - metropolis: one invocation per (offspring, target), B steps, no collective operation.
+// CPU twins: pf_core::resample::{Systematic, Stratified, Metropolis} fed CounterUniforms with the
+// target's resampling key (pf_core::batch::resample).
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> weights: array<f32>;
+@group(0) @binding(2) var<storage, read_write> cdf: array<f32>;
+@group(0) @binding(3) var<storage, read_write> ancestors: array<u32>;
+@group(0) @binding(4) var<storage, read_write> stats: array<TargetStats>;
+@group(0) @binding(5) var<storage, read> resample_keys: array<vec2<u32>>;
+
+const WG: u32 = 256u;
+var<workgroup> chunk_sums: array<f32, 256>;
+var<workgroup> due: u32;
+
+fn resampling_due(t: u32) -> bool {
+    return stats[t].ess < params.ess_threshold * f32(params.particles);
+}
+
+fn step_words() -> vec2<u32> {
+    return vec2<u32>(params.step_lo, params.step_hi);
+}
+
+fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
+    let n = params.particles;
+    let base = t * n;
+    if (lid == 0u) {
+        due = select(0u, 1u, resampling_due(t));
+        stats[t].resampled = due;
+    }
+    workgroupBarrier();
+    if (workgroupUniformLoad(&due) == 0u) {
+        for (var k = lid; k < n; k = k + WG) {
+            ancestors[base + k] = k;
+        }
+        return;
+    }
+    // Chunk sums, then an inclusive Hillis-Steele scan over the 256 chunks.
+    let chunk = (n + WG - 1u) / WG;
+    let begin = min(lid * chunk, n);
+    let end = min(begin + chunk, n);
+    var sum = 0.0;
+    for (var i = begin; i < end; i = i + 1u) {
+        sum = sum + weights[base + i];
+    }
+    chunk_sums[lid] = sum;
+    workgroupBarrier();
+    for (var offset = 1u; offset < WG; offset = offset * 2u) {
+        var add = 0.0;
+        if (lid >= offset) {
+            add = chunk_sums[lid - offset];
+        }
+        workgroupBarrier();
+        chunk_sums[lid] = chunk_sums[lid] + add;
+        workgroupBarrier();
+    }
+    var running = 0.0;
+    if (lid > 0u) {
+        running = chunk_sums[lid - 1u];
+    }
+    for (var i = begin; i < end; i = i + 1u) {
+        running = running + weights[base + i];
+        cdf[base + i] = running;
+    }
+    let total = chunk_sums[WG - 1u];
+    storageBarrier();
+    workgroupBarrier();
+
+    let systematic_offset = unit_from_word(
+        philox4x32_10(vec4<u32>(0u, 0u, params.step_lo, params.step_hi), resample_keys[t]).x);
+    for (var k = lid; k < n; k = k + WG) {
+        var u = systematic_offset;
+        if (stratified) {
+            u = unit_from_word(
+                philox4x32_10(vec4<u32>(k, 0u, params.step_lo, params.step_hi), resample_keys[t]).x);
+        }
+        let point = (f32(k) + u) / f32(n) * total;
+        // Smallest i with point < cdf[i].
+        var lo = 0u;
+        var hi = n - 1u;
+        while (lo < hi) {
+            let mid = (lo + hi) / 2u;
+            if (cdf[base + mid] <= point) {
+                lo = mid + 1u;
+            } else {
+                hi = mid;
+            }
+        }
+        ancestors[base + k] = lo;
+    }
+}
+
+@compute @workgroup_size(256)
+fn systematic(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    prefix_sum_and_search(lid.x, wid.y, false);
+}
+
+@compute @workgroup_size(256)
+fn stratified(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    prefix_sum_and_search(lid.x, wid.y, true);
+}
+
+@compute @workgroup_size(64)
+fn metropolis(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let k = gid.x;
+    let t = gid.y;
+    let n = params.particles;
+    if (k >= n || t >= params.targets) {
+        return;
+    }
+    let base = t * n;
+    let is_due = resampling_due(t);
+    if (!is_due) {
+        ancestors[base + k] = k;
+        return;
+    }
+    var current = k;
+    var block = vec4<u32>(0u);
+    for (var b = 0u; b < params.metropolis_steps; b = b + 1u) {
+        if ((b & 1u) == 0u) {
+            block = philox4x32_10(vec4<u32>(k, b / 2u, params.step_lo, params.step_hi), resample_keys[t]);
+        }
+        var index_word = block.x;
+        var accept_word = block.y;
+        if ((b & 1u) == 1u) {
+            index_word = block.z;
+            accept_word = block.w;
+        }
+        let proposal = uniform_index(index_word, n);
+        let u = unit_from_word(accept_word);
+        if (u * weights[base + current] < weights[base + proposal]) {
+            current = proposal;
+        }
+    }
+    ancestors[base + k] = current;
+}
+
+// Marks whether the target resamples this step, for the Metropolis path (whose invocations do
+// not share a workgroup per target). One invocation per target.
+@compute @workgroup_size(64)
+fn mark_resampled(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let t = gid.x;
+    if (t < params.targets) {
+        stats[t].resampled = select(0u, 1u, resampling_due(t));
+    }
+}
