@@ -37,9 +37,12 @@ impl AdapterSummary {
     }
 }
 
-/// A wgpu instance configured from the environment (`WGPU_BACKEND`, `WGPU_VALIDATION`, ...).
+/// A wgpu instance configured from the environment (`WGPU_BACKEND`, `WGPU_VALIDATION`, ...),
+/// with the primary backends (Vulkan, Metal, DX12) unless `WGPU_BACKEND` says otherwise.
 pub fn instance_from_env() -> wgpu::Instance {
-    wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+    let mut descriptor = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    descriptor.backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
+    wgpu::Instance::new(descriptor)
 }
 
 /// Every adapter of the backends `WGPU_BACKEND` allows (by default the primary ones: Vulkan,

@@ -1,0 +1,182 @@
+//! The whole filter step per frame — resample, diffuse, measure (toy 7-D Gaussian likelihood),
+//! normalise, estimate — for T ∈ {1, 16, 64} targets × M = 1000 particles: the CPU on all cores
+//! (one pf-core filter per target, targets in parallel with rayon) against the GPU driver (one
+//! submission per frame, estimates and statistics read back). Then resampling alone on the GPU
+//! for one target of N = 10^3 … 10^6 particles, against pf-core's CPU resamplers.
+//!
+//! Every GPU timing includes the submission, the device wait and the readback. The adapter is
+//! printed at the start; set WGPU_ADAPTER_NAME to choose one.
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use nalgebra::SVector;
+use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_core::resample::{Metropolis, Systematic};
+use pf_core::{
+    FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStreams, Resampler,
+    Stage, StateSpace,
+};
+use pf_gpu::toy::ToyGaussianLikelihood;
+use pf_gpu::{
+    ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
+};
+use rayon::prelude::*;
+
+const D: usize = 7;
+const M: usize = 1000;
+const ANGLES: [bool; D] = [false, false, false, true, true, true, false];
+const OBS_SIGMA: [f32; D] = [4.0, 4.0, 0.05, 0.1, 0.1, 0.1, 0.05];
+const DIFFUSION: [f32; D] = [3.0, 3.0, 0.02, 0.05, 0.08, 0.05, 0.02];
+
+fn observed(t: usize, s: usize) -> [f32; D] {
+    let (t, s) = (t as f32, s as f32);
+    [
+        100.0 + 20.0 * t + 2.0 * s,
+        50.0 + 40.0 * (0.05 * s).sin(),
+        1.0,
+        0.1,
+        0.05 * s % 3.0,
+        0.0,
+        1.0,
+    ]
+}
+
+fn context() -> GpuContext {
+    // Benchmarks want the real GPU; a software adapter only when nothing else exists.
+    let ctx = GpuContext::new(&ContextOptions::default())
+        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
+        .expect("a GPU adapter (see `streampf devices`)");
+    let a = ctx.adapter();
+    eprintln!("GPU adapter: {} ({}, {})", a.name, a.device_type, a.backend);
+    ctx
+}
+
+fn bench_whole_step(c: &mut Criterion) {
+    let ctx = context();
+    let mut group = c.benchmark_group("whole_step_7d_1000");
+    group.sample_size(20);
+    for &targets in &[1usize, 16, 64] {
+        group.throughput(Throughput::Elements((targets * M) as u64));
+        let shape = BatchShape::new(targets, M, D).unwrap();
+        let config = BatchConfig {
+            shape,
+            seed: 1,
+            sigma: DIFFUSION.to_vec(),
+            bounds: None,
+            angular: ANGLES.to_vec(),
+            ess_threshold: f64::INFINITY,
+        };
+        let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
+        let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+
+        // GPU: one submission per frame.
+        let mut gpu = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &initial).unwrap();
+        let mut toy = ToyGaussianLikelihood::new(&ctx, targets, &OBS_SIGMA).unwrap();
+        toy.prepare(&ctx, &gpu.likelihood_inputs()).unwrap();
+        let mut frame = 0;
+        group.bench_function(BenchmarkId::new("gpu", targets), |b| {
+            b.iter(|| {
+                let obs: Vec<f32> = (0..targets).flat_map(|t| observed(t, frame)).collect();
+                toy.upload_observations(&ctx, &obs).unwrap();
+                frame += 1;
+                std::hint::black_box(gpu.step(&ctx, &toy).unwrap());
+            })
+        });
+
+        // CPU, all cores: one pf-core filter per target, targets in parallel.
+        let space = StateSpace::<D> { angular: ANGLES };
+        let mut filters: Vec<_> = (0..targets)
+            .map(|t| {
+                ParticleFilter::new(
+                    FilterConfig {
+                        particles: M,
+                        policy: pf_core::ResamplePolicy::EveryStep,
+                        seed: 1,
+                        target: t as u32,
+                        space,
+                    },
+                    GaussianDiffusion::new(SVector::from(DIFFUSION)).unwrap(),
+                    Systematic,
+                    &SVector::from(observed(t, 0)),
+                    &SVector::from(OBS_SIGMA),
+                )
+                .unwrap()
+            })
+            .collect();
+        let mut frame = 0;
+        group.bench_function(BenchmarkId::new("cpu_all_cores", targets), |b| {
+            b.iter(|| {
+                let s = frame;
+                frame += 1;
+                filters.par_iter_mut().enumerate().for_each(|(t, f)| {
+                    let obs = GaussianObservation {
+                        observed: SVector::from(observed(t, s)),
+                        sigma: SVector::from(OBS_SIGMA),
+                        space,
+                    };
+                    std::hint::black_box(f.step(&obs).unwrap());
+                });
+            })
+        });
+    }
+    group.finish();
+}
+
+fn bench_resampling_alone(c: &mut Criterion) {
+    let ctx = context();
+    let mut group = c.benchmark_group("resample_alone");
+    group.sample_size(10);
+    for &n in &[1_000usize, 10_000, 100_000, 1_000_000] {
+        group.throughput(Throughput::Elements(n as u64));
+        let shape = BatchShape::new(1, n, 1).unwrap();
+        let config = BatchConfig {
+            shape,
+            seed: 2,
+            sigma: vec![0.0],
+            bounds: None,
+            angular: vec![false],
+            ess_threshold: f64::INFINITY,
+        };
+        // Uneven weights: a Gaussian likelihood over a Gaussian cloud.
+        let mut rng = RandomStreams::new(3).stream(0, Stage::Model(0));
+        let states: Vec<f32> = (0..n).map(|_| rng.gaussian_f32()).collect();
+        let loglik: Vec<f32> = states.iter().map(|x| -0.5 * x * x).collect();
+        let lse = pf_core::weights::log_sum_exp(&loglik).unwrap();
+        let weights: Vec<f64> = loglik
+            .iter()
+            .map(|&l| lse.normalised_log(l).exp())
+            .collect();
+        let weights_f32: Vec<f32> = weights.iter().map(|&w| w as f32).collect();
+        for (name, resampler) in [
+            ("systematic", GpuResampler::Systematic),
+            ("metropolis_b32", GpuResampler::Metropolis(32)),
+        ] {
+            let mut gpu = GpuFilter::new(&ctx, &config, resampler, &states).unwrap();
+            gpu.streams().weights.upload(&ctx, &weights_f32).unwrap();
+            group.bench_function(BenchmarkId::new(format!("gpu_{name}"), n), |b| {
+                b.iter(|| {
+                    std::hint::black_box(
+                        gpu.run_stages(&ctx, &[GpuStage::Resample], &NoLikelihood)
+                            .unwrap(),
+                    )
+                })
+            });
+        }
+        let uniforms = RandomStreams::new(4).counter_uniforms(0, Stage::Resampling, 0);
+        let mut ancestors = vec![0u32; n];
+        for (name, r) in [
+            ("systematic", Box::new(Systematic) as Box<dyn Resampler>),
+            ("metropolis_b32", Box::new(Metropolis::new(32))),
+        ] {
+            group.bench_function(BenchmarkId::new(format!("cpu_{name}"), n), |b| {
+                b.iter(|| {
+                    r.resample(&weights, &uniforms, &mut ancestors).unwrap();
+                    std::hint::black_box(&ancestors);
+                })
+            });
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_whole_step, bench_resampling_alone);
+criterion_main!(benches);
