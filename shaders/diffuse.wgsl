@@ -20,7 +20,8 @@ fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
     for (var d = 0u; d < params.dims; d = d + 1u) {
         let i = state_index(t, d, m);
         var x = states[i] + sigma[d] * counter_gaussian(diffusion_keys[t], m, d, step);
-        if (params.has_bounds == 1u) {
+        // A NaN state stays NaN (clamp would turn it into a bound), so the failure policy sees it.
+        if (params.has_bounds == 1u && !is_nan(x)) {
             x = clamp(x, lower[d], upper[d]);
         }
         if (is_angle(d)) {

@@ -72,7 +72,8 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     let inf_at = atomicLoad(&first_inf);
     var status = 0u;
     var bad = 0xffffffffu;
-    if (nan_at != 0xffffffffu) {
+    // The first bad particle in index order names the cause (as pf-core does).
+    if (nan_at != 0xffffffffu && nan_at < inf_at) {
         status = 2u;
         bad = nan_at;
     } else if (inf_at != 0xffffffffu) {

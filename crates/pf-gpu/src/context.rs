@@ -18,6 +18,8 @@ pub struct ContextOptions {
     pub prefer_software: bool,
     /// How long a wait on the GPU may take before it is a [`GpuError::Timeout`].
     pub poll_timeout: Duration,
+    /// Only adapters whose name contains this (case-insensitive); `WGPU_ADAPTER_NAME` by default.
+    pub adapter_name: Option<String>,
 }
 
 impl Default for ContextOptions {
@@ -27,6 +29,7 @@ impl Default for ContextOptions {
             allow_software: false,
             prefer_software: false,
             poll_timeout: Duration::from_secs(60),
+            adapter_name: std::env::var("WGPU_ADAPTER_NAME").ok(),
         }
     }
 }
@@ -68,7 +71,7 @@ impl std::fmt::Debug for GpuContext {
 fn ranked_adapters(options: &ContextOptions) -> Result<Vec<wgpu::Adapter>, GpuError> {
     let instance = instance_from_env();
     let backends = wgpu::Backends::from_env().unwrap_or(wgpu::Backends::PRIMARY);
-    let name_filter = std::env::var("WGPU_ADAPTER_NAME").ok();
+    let name_filter = options.adapter_name.clone();
     let mut adapters: Vec<wgpu::Adapter> =
         pollster::block_on(instance.enumerate_adapters(backends))
             .into_iter()
@@ -80,7 +83,7 @@ fn ranked_adapters(options: &ContextOptions) -> Result<Vec<wgpu::Adapter>, GpuEr
             .collect();
     if adapters.is_empty() {
         return Err(GpuError::NoAdapter {
-            filter: name_filter.map(|n| format!("WGPU_ADAPTER_NAME={n}")),
+            filter: name_filter.map(|n| format!("adapter name {n:?}")),
         });
     }
     // A software adapter named explicitly counts as asked for.

@@ -33,7 +33,7 @@ pub struct FrameParams {
 
 /// Per-target results, `TargetStats` in `shaders/common.wgsl`.
 #[repr(C)]
-#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
 pub struct TargetStats {
     pub max_log_weight: f32,
     pub log_sum_shifted: f32,

@@ -14,6 +14,7 @@ pub mod sources {
     pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
     pub const ESTIMATE: &str = include_str!("../../../shaders/estimate.wgsl");
     pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/toy_likelihood.wgsl");
+    pub const RANDOM: &str = include_str!("../../../shaders/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
     pub const STAGES: [(&str, &str); 6] = [
@@ -144,6 +145,10 @@ mod tests {
                 panic!("{file}:\n{message}");
             }
         }
+        let random = [sources::PHILOX, sources::RANDOM].join("\n");
+        if let Err(message) = validate_wgsl(&random) {
+            panic!("random.wgsl:\n{message}");
+        }
     }
 
     #[test]
@@ -158,7 +163,7 @@ mod tests {
             .collect();
         on_disk.sort();
         let mut known: Vec<String> = sources::STAGES.iter().map(|(f, _)| f.to_string()).collect();
-        known.extend(["philox.wgsl".to_string(), "common.wgsl".to_string()]);
+        known.extend(["philox.wgsl", "common.wgsl", "random.wgsl"].map(String::from));
         known.sort();
         assert_eq!(on_disk, known);
     }

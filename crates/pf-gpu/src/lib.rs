@@ -16,6 +16,7 @@ pub use error::{GpuError, NO_ADAPTER_HELP};
 pub mod context;
 pub mod filter;
 pub mod kernels;
+pub mod random;
 pub mod stream;
 pub mod toy;
 

@@ -1,0 +1,646 @@
+//! Every GPU stage against its CPU twin, on random inputs (proptest): Philox blocks and Gaussian
+//! draws, diffusion, normalisation, the three GPU resamplers, the gather and the weighted mean.
+//! Shapes include a single particle, non-powers of two and up to 16 targets. Tolerances follow
+//! the design brief: relative 1e-4 (absolute 1e-5 near zero) per term, same ancestors except
+//! where a resampling point lies within float rounding of a CDF boundary.
+
+mod common;
+
+use pf_core::batch::{self, BatchConfig, BatchShape};
+use pf_core::random::{CounterUniforms, counter_gaussian, philox4x32_10};
+use pf_core::resample::{Metropolis, Stratified, Systematic};
+use pf_core::{PfError, Resampler, Stage};
+use pf_gpu::{GpuFilter, GpuResampler, GpuStage, NoLikelihood, TargetStats};
+use proptest::prelude::*;
+use proptest::test_runner::{Config, TestCaseError, TestRunner};
+
+fn runner(cases: u32) -> TestRunner {
+    TestRunner::new(Config {
+        cases,
+        failure_persistence: None,
+        ..Config::default()
+    })
+}
+
+fn shapes() -> impl Strategy<Value = BatchShape> {
+    (
+        1usize..=16,
+        prop_oneof![Just(1usize), Just(256), Just(1000), 2usize..300],
+        1usize..=8,
+    )
+        .prop_map(|(t, m, d)| BatchShape::new(t, m, d).unwrap())
+}
+
+fn config(
+    shape: BatchShape,
+    angular: Vec<bool>,
+    sigma: Vec<f32>,
+    bounds: Option<(Vec<f32>, Vec<f32>)>,
+) -> BatchConfig {
+    BatchConfig {
+        shape,
+        seed: 5,
+        sigma,
+        bounds,
+        angular,
+        ess_threshold: f64::INFINITY,
+    }
+}
+
+fn close(gpu: f32, cpu: f64, rel: f64, abs: f64) -> bool {
+    if cpu.is_nan() {
+        return gpu.is_nan();
+    }
+    (f64::from(gpu) - cpu).abs() <= rel * cpu.abs() + abs
+}
+
+// ---- counter-based random numbers -------------------------------------------------------------
+
+#[test]
+fn philox_blocks_bit_exact_vs_cpu() {
+    let Some(ctx) = common::gpu_context("philox_blocks_bit_exact_vs_cpu") else {
+        return;
+    };
+    let mut runner = runner(16);
+    let strategy = (
+        any::<[u32; 2]>(),
+        prop::collection::vec(
+            prop_oneof![any::<[u32; 4]>(), Just([u32::MAX; 4]), Just([0; 4])],
+            1..200,
+        ),
+    );
+    runner
+        .run(&strategy, |(key, counters)| {
+            let gpu = pf_gpu::random::philox_blocks(&ctx, key, &counters).unwrap();
+            for (c, g) in counters.iter().zip(&gpu) {
+                prop_assert_eq!(*g, philox4x32_10(*c, key));
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn gaussian_draws_match_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("gaussian_draws_match_cpu_within_tolerance") else {
+        return;
+    };
+    let mut runner = runner(12);
+    runner
+        .run(
+            &(any::<[u32; 2]>(), 1u32..2000, 1u32..9, any::<u64>()),
+            |(key, particles, dims, step)| {
+                let gpu = pf_gpu::random::gaussians(&ctx, key, particles, dims, step).unwrap();
+                for m in 0..particles {
+                    for d in 0..dims {
+                        let cpu = counter_gaussian(key, m, d, step);
+                        let g = gpu[(m * dims + d) as usize];
+                        prop_assert!(
+                            close(g, cpu, 1e-4, 1e-5),
+                            "m {} d {}: GPU {} vs CPU {}",
+                            m,
+                            d,
+                            g,
+                            cpu
+                        );
+                    }
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+// ---- diffusion ----------------------------------------------------------------------------------
+
+fn state_value() -> impl Strategy<Value = f32> {
+    prop_oneof![8 => -10.0f32..10.0, 1 => -1e6f32..1e6, 1 => Just(f32::NAN), 1 => Just(3.14159)]
+}
+
+#[test]
+fn diffusion_matches_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("diffusion_matches_cpu_within_tolerance") else {
+        return;
+    };
+    let mut runner = runner(16);
+    let strategy = shapes().prop_flat_map(|shape| {
+        let d = shape.dims;
+        (
+            Just(shape),
+            prop::collection::vec(state_value(), shape.state_len()),
+            prop::collection::vec(0.0f32..5.0, d),
+            prop::collection::vec(any::<bool>(), d),
+            any::<bool>(),
+            any::<u64>(),
+        )
+    });
+    runner
+        .run(
+            &strategy,
+            |(shape, states, sigma, angular, bounded, step)| {
+                let bounds = bounded.then(|| (vec![-3.0; shape.dims], vec![3.0; shape.dims]));
+                let cfg = config(shape, angular.clone(), sigma.clone(), bounds.clone());
+                let mut gpu =
+                    GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+                gpu.set_step(step);
+                gpu.run_stages(&ctx, &[GpuStage::Diffuse], &NoLikelihood)
+                    .unwrap();
+                let got = gpu.download_states(&ctx).unwrap();
+                let mut want = states.clone();
+                let keys = batch::stage_keys(5, shape.targets, Stage::Diffusion);
+                let b = bounds.as_ref().map(|(l, h)| (l.as_slice(), h.as_slice()));
+                batch::diffuse(&shape, &mut want, &sigma, b, &angular, &keys, step);
+                for t in 0..shape.targets {
+                    for d in 0..shape.dims {
+                        for m in 0..shape.particles {
+                            let i = shape.state_index(t, d, m);
+                            let (g, c) = (got[i], want[i]);
+                            let ok = if c.is_nan() {
+                                g.is_nan()
+                            } else if angular[d] {
+                                batch::wrap_angle_floor(g - c).abs() <= 1e-5 * (1.0 + sigma[d])
+                            } else {
+                                close(g, f64::from(c), 1e-4, 1e-5 * f64::from(1.0 + sigma[d]))
+                            };
+                            prop_assert!(
+                                ok,
+                                "t {} d {} m {}: GPU {} vs CPU {} (start {})",
+                                t,
+                                d,
+                                m,
+                                g,
+                                c,
+                                states[i]
+                            );
+                        }
+                    }
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+// ---- normalisation ------------------------------------------------------------------------------
+
+fn log_value() -> impl Strategy<Value = f32> {
+    prop_oneof![
+        20 => -60.0f32..10.0,
+        2 => Just(f32::NEG_INFINITY),
+        1 => Just(-1e30f32),
+        1 => -1e6f32..1e6,
+        1 => Just(f32::NAN),
+        1 => Just(f32::INFINITY),
+    ]
+}
+
+#[test]
+fn normalisation_matches_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("normalisation_matches_cpu_within_tolerance") else {
+        return;
+    };
+    let mut runner = runner(24);
+    let strategy = shapes().prop_flat_map(|shape| {
+        let n = shape.particle_len();
+        (
+            Just(shape),
+            prop::collection::vec(log_value(), n),
+            prop::collection::vec(log_value(), n),
+        )
+    });
+    runner
+        .run(&strategy, |(shape, log_weights, log_likelihood)| {
+            let cfg = config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None);
+            let mut gpu = GpuFilter::new(
+                &ctx,
+                &cfg,
+                GpuResampler::Systematic,
+                &vec![0.0; shape.state_len()],
+            )
+            .unwrap();
+            gpu.streams()
+                .log_weights
+                .upload(&ctx, &log_weights)
+                .unwrap();
+            gpu.streams()
+                .log_likelihood
+                .upload(&ctx, &log_likelihood)
+                .unwrap();
+            let report = gpu
+                .run_stages(&ctx, &[GpuStage::Normalise], &NoLikelihood)
+                .unwrap();
+            let weights = gpu.download_weights(&ctx).unwrap();
+            let m = shape.particles;
+            for t in 0..shape.targets {
+                let range = t * m..(t + 1) * m;
+                let mut lw = log_weights[range.clone()].to_vec();
+                let mut w = vec![0.0; m];
+                let cpu = batch::normalise_target(&mut lw, &log_likelihood[range.clone()], &mut w);
+                let stats = report.stats[t];
+                match &cpu {
+                    Ok(ess) => {
+                        prop_assert_eq!(stats.status, 0, "target {}", t);
+                        prop_assert!(
+                            close(stats.ess, *ess, 1e-4, 1e-5),
+                            "ESS {} vs {}",
+                            stats.ess,
+                            ess
+                        );
+                    }
+                    Err(e) => prop_assert_eq!(stats.result(m).unwrap_err(), e.clone()),
+                }
+                for (i, (&g, &c)) in weights[range].iter().zip(&w).enumerate() {
+                    prop_assert!(
+                        close(g, c, 1e-4, 1e-6),
+                        "target {} particle {}: GPU {} vs CPU {}",
+                        t,
+                        i,
+                        g,
+                        c
+                    );
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn normalisation_names_the_first_nan_particle() {
+    let Some(ctx) = common::gpu_context("normalisation_names_the_first_nan_particle") else {
+        return;
+    };
+    let shape = BatchShape::new(3, 300, 1).unwrap();
+    let cfg = config(shape, vec![false], vec![0.0], None);
+    let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &vec![0.0; 900]).unwrap();
+    let mut ll = vec![0.0f32; 900];
+    ll[300 + 123] = f32::NAN;
+    ll[300 + 200] = f32::NAN;
+    ll[600..].fill(f32::NEG_INFINITY);
+    gpu.streams().log_likelihood.upload(&ctx, &ll).unwrap();
+    let report = gpu
+        .run_stages(&ctx, &[GpuStage::Normalise], &NoLikelihood)
+        .unwrap();
+    assert_eq!(report.stats[0].result(300), Ok(()));
+    assert_eq!(
+        report.stats[1].result(300),
+        Err(PfError::NanLogWeight { particle: 123 })
+    );
+    assert_eq!(
+        report.stats[2].result(300),
+        Err(PfError::AllWeightsZero { particles: 300 })
+    );
+}
+
+// ---- resampling ---------------------------------------------------------------------------------
+
+/// Normalised f32 weights (what the GPU holds) with zeros and a dominating particle, and their f64
+/// renormalisation (what the CPU twin reads).
+fn weight_sets(shape: BatchShape) -> impl Strategy<Value = (Vec<f32>, Vec<f64>)> {
+    let m = shape.particles;
+    prop::collection::vec(
+        prop_oneof![6 => 0.0f32..1.0, 1 => Just(0.0f32), 1 => Just(50.0f32)],
+        shape.particle_len(),
+    )
+    .prop_map(move |raw| {
+        let mut gpu = raw.clone();
+        let mut cpu = vec![0.0f64; raw.len()];
+        for t in 0..raw.len() / m {
+            let r = t * m..(t + 1) * m;
+            if raw[r.clone()].iter().all(|&x| x == 0.0) {
+                gpu[t * m] = 1.0;
+            }
+            let sum: f32 = gpu[r.clone()].iter().sum();
+            for i in r.clone() {
+                gpu[i] /= sum;
+            }
+            let sum64: f64 = gpu[r.clone()].iter().map(|&x| f64::from(x)).sum();
+            for i in r {
+                cpu[i] = f64::from(gpu[i]) / sum64;
+            }
+        }
+        (gpu, cpu)
+    })
+}
+
+/// Whether `point` lies within `eps` of one of the cumulative sums at `indices`.
+fn near_boundary(cdf: &[f64], point: f64, indices: &[usize], eps: f64) -> bool {
+    indices.iter().any(|&i| {
+        (cdf[i] - point).abs() <= eps
+            || (i > 0 && (cdf[i - 1] - point).abs() <= eps)
+            || (i == 0 && point.abs() <= eps)
+    })
+}
+
+fn check_ordered(stratified: bool) {
+    let Some(ctx) = common::gpu_context("ordered resampling") else {
+        return;
+    };
+    let mut runner = runner(16);
+    let strategy = shapes()
+        .prop_flat_map(|shape| (Just(shape), weight_sets(shape), any::<u64>(), any::<bool>()));
+    runner
+        .run(
+            &strategy,
+            |(shape, (w32, w64), step, due)| -> Result<(), TestCaseError> {
+                let m = shape.particles;
+                let cfg = BatchConfig {
+                    ess_threshold: 0.5,
+                    ..config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None)
+                };
+                let kind = if stratified {
+                    GpuResampler::Stratified
+                } else {
+                    GpuResampler::Systematic
+                };
+                let mut gpu =
+                    GpuFilter::new(&ctx, &cfg, kind, &vec![0.0; shape.state_len()]).unwrap();
+                gpu.streams().weights.upload(&ctx, &w32).unwrap();
+                // With a threshold of M/2, ESS 0 makes every target due and ESS M none.
+                let stats = TargetStats {
+                    ess: if due { 0.0 } else { m as f32 },
+                    ..TargetStats::default()
+                };
+                gpu.streams()
+                    .stats
+                    .upload(&ctx, &vec![stats; shape.targets])
+                    .unwrap();
+                gpu.set_step(step);
+                let report = gpu
+                    .run_stages(&ctx, &[GpuStage::Resample], &NoLikelihood)
+                    .unwrap();
+                let got = gpu.download_ancestors(&ctx).unwrap();
+                let keys = batch::stage_keys(5, shape.targets, Stage::Resampling);
+                for t in 0..shape.targets {
+                    let r = t * m..(t + 1) * m;
+                    prop_assert_eq!(report.stats[t].resampled == 1, due);
+                    if !due {
+                        prop_assert!(got[r].iter().enumerate().all(|(k, &a)| a as usize == k));
+                        continue;
+                    }
+                    let uniforms = CounterUniforms::new(keys[t], step);
+                    let mut want = vec![0u32; m];
+                    if stratified {
+                        Stratified
+                            .resample(&w64[r.clone()], &uniforms, &mut want)
+                            .unwrap();
+                    } else {
+                        Systematic
+                            .resample(&w64[r.clone()], &uniforms, &mut want)
+                            .unwrap();
+                    }
+                    let cdf: Vec<f64> = w64[r.clone()]
+                        .iter()
+                        .scan(0.0, |acc, &w| {
+                            *acc += w;
+                            Some(*acc)
+                        })
+                        .collect();
+                    for k in 0..m {
+                        let (g, c) = (got[t * m + k] as usize, want[k] as usize);
+                        if g != c {
+                            use pf_core::UniformSource;
+                            let u = if stratified {
+                                uniforms.uniform(k as u32, 0)
+                            } else {
+                                uniforms.uniform(0, 0)
+                            };
+                            let point = (k as f64 + u) / m as f64;
+                            // f32 prefix sums over up to 1000 weights and f32 points: 1e-5 covers both.
+                            prop_assert!(
+                                near_boundary(&cdf, point, &[g.min(m - 1), c], 1e-5),
+                                "target {} offspring {}: GPU {} vs CPU {} (point {}, cdf {:?})",
+                                t,
+                                k,
+                                g,
+                                c,
+                                point,
+                                &cdf[c.saturating_sub(1)..(c + 1).min(m)]
+                            );
+                        }
+                        prop_assert!(
+                            w64[t * m + g] > 0.0 || m == 1,
+                            "GPU chose zero-weight particle {}",
+                            g
+                        );
+                    }
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+}
+
+#[test]
+fn systematic_resampling_same_ancestors_as_cpu() {
+    check_ordered(false);
+}
+
+#[test]
+fn stratified_resampling_same_ancestors_as_cpu() {
+    check_ordered(true);
+}
+
+/// Metropolis on the CPU in f64, flagging chains that met a near-tie acceptance test (where the
+/// GPU's f32 product may decide the other way).
+fn metropolis_with_ties(
+    weights: &[f64],
+    uniforms: &CounterUniforms,
+    steps: u32,
+) -> Vec<(u32, bool)> {
+    use pf_core::UniformSource;
+    let n = weights.len();
+    (0..n)
+        .map(|k| {
+            let mut current = k;
+            let mut tie = false;
+            for b in 0..steps {
+                let block = uniforms.uniform4(k as u32, b / 2);
+                let lane = 2 * (b % 2) as usize;
+                let proposal = ((block[lane] * n as f64) as usize).min(n - 1);
+                let lhs = block[lane + 1] * weights[current];
+                let rhs = weights[proposal];
+                tie |= (lhs - rhs).abs() <= 1e-5 * rhs.max(lhs);
+                if lhs < rhs {
+                    current = proposal;
+                }
+            }
+            (current as u32, tie)
+        })
+        .collect()
+}
+
+#[test]
+fn metropolis_resampling_same_ancestors_as_cpu() {
+    let Some(ctx) = common::gpu_context("metropolis_resampling_same_ancestors_as_cpu") else {
+        return;
+    };
+    let mut runner = runner(16);
+    let strategy =
+        shapes().prop_flat_map(|shape| (Just(shape), weight_sets(shape), any::<u64>(), 1u32..40));
+    runner
+        .run(&strategy, |(shape, (w32, w64), step, steps)| {
+            let m = shape.particles;
+            let cfg = config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None);
+            let mut gpu = GpuFilter::new(
+                &ctx,
+                &cfg,
+                GpuResampler::Metropolis(steps),
+                &vec![0.0; shape.state_len()],
+            )
+            .unwrap();
+            gpu.streams().weights.upload(&ctx, &w32).unwrap();
+            let stats = TargetStats {
+                ess: 0.0,
+                ..TargetStats::default()
+            };
+            gpu.streams()
+                .stats
+                .upload(&ctx, &vec![stats; shape.targets])
+                .unwrap();
+            gpu.set_step(step);
+            gpu.run_stages(&ctx, &[GpuStage::Resample], &NoLikelihood)
+                .unwrap();
+            let got = gpu.download_ancestors(&ctx).unwrap();
+            let keys = batch::stage_keys(5, shape.targets, Stage::Resampling);
+            for t in 0..shape.targets {
+                let r = t * m..(t + 1) * m;
+                let uniforms = CounterUniforms::new(keys[t], step);
+                // The library resampler and the traced chain agree with each other exactly.
+                let mut lib = vec![0u32; m];
+                Metropolis::new(steps)
+                    .resample(&w64[r.clone()], &uniforms, &mut lib)
+                    .unwrap();
+                let traced = metropolis_with_ties(&w64[r.clone()], &uniforms, steps);
+                for k in 0..m {
+                    prop_assert_eq!(lib[k], traced[k].0);
+                    let g = got[t * m + k];
+                    prop_assert!(
+                        g == lib[k] || traced[k].1,
+                        "target {} offspring {}: GPU {} vs CPU {}",
+                        t,
+                        k,
+                        g,
+                        lib[k]
+                    );
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+// ---- gather and estimate ------------------------------------------------------------------------
+
+#[test]
+fn gather_bit_exact_vs_cpu() {
+    let Some(ctx) = common::gpu_context("gather_bit_exact_vs_cpu") else {
+        return;
+    };
+    let mut runner = runner(12);
+    let strategy = shapes().prop_flat_map(|shape| {
+        (
+            Just(shape),
+            prop::collection::vec(state_value(), shape.state_len()),
+            prop::collection::vec(0..shape.particles as u32, shape.particle_len()),
+            prop::collection::vec(any::<bool>(), shape.targets),
+        )
+    });
+    runner
+        .run(&strategy, |(shape, states, ancestors, resampled)| {
+            let m = shape.particles;
+            let cfg = config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None);
+            let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.streams().ancestors.upload(&ctx, &ancestors).unwrap();
+            let stats: Vec<TargetStats> = resampled
+                .iter()
+                .map(|&r| TargetStats {
+                    resampled: u32::from(r),
+                    ..TargetStats::default()
+                })
+                .collect();
+            gpu.streams().stats.upload(&ctx, &stats).unwrap();
+            gpu.streams()
+                .log_weights
+                .upload(&ctx, &vec![-7.0; shape.particle_len()])
+                .unwrap();
+            gpu.run_stages(&ctx, &[GpuStage::Gather], &NoLikelihood)
+                .unwrap();
+            let got = gpu.download_states(&ctx).unwrap();
+            let lw = gpu.streams().log_weights.download(&ctx).unwrap();
+            for t in 0..shape.targets {
+                let mut set = pf_core::ParticleSet::<1>::zeros(m).unwrap();
+                for d in 0..shape.dims {
+                    set.dim_mut(0).copy_from_slice(
+                        &states[shape.state_index(t, d, 0)..shape.state_index(t, d, 0) + m],
+                    );
+                    set.select(&ancestors[t * m..(t + 1) * m]).unwrap();
+                    for k in 0..m {
+                        prop_assert_eq!(
+                            got[shape.state_index(t, d, k)].to_bits(),
+                            set.dim(0)[k].to_bits()
+                        );
+                    }
+                }
+                let want_lw = if resampled[t] { -(m as f32).ln() } else { -7.0 };
+                prop_assert!(
+                    lw[t * m..(t + 1) * m]
+                        .iter()
+                        .all(|&x| (x - want_lw).abs() <= 1e-6 * want_lw.abs())
+                );
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn weighted_mean_matches_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("weighted_mean_matches_cpu_within_tolerance") else {
+        return;
+    };
+    let mut runner = runner(16);
+    let strategy = shapes().prop_flat_map(|shape| {
+        (
+            Just(shape),
+            prop::collection::vec(-100.0f32..100.0, shape.state_len()),
+            weight_sets(shape),
+            prop::collection::vec(any::<bool>(), shape.dims),
+        )
+    });
+    runner
+        .run(&strategy, |(shape, states, (w32, w64), angular)| {
+            let states: Vec<f32> = states
+                .iter()
+                .enumerate()
+                .map(|(i, &x)| {
+                    let d = (i / shape.particles) % shape.dims;
+                    if angular[d] {
+                        batch::wrap_angle_floor(x)
+                    } else {
+                        x
+                    }
+                })
+                .collect();
+            let cfg = config(shape, angular.clone(), vec![0.0; shape.dims], None);
+            let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.streams().weights.upload(&ctx, &w32).unwrap();
+            let report = gpu
+                .run_stages(&ctx, &[GpuStage::Estimate], &NoLikelihood)
+                .unwrap();
+            let want = batch::weighted_means(&shape, &states, &w64, &angular);
+            for (i, (&g, &c)) in report.estimates.iter().zip(&want).enumerate() {
+                let d = i % shape.dims;
+                // Angles: the circular mean is ill-conditioned when the resultant vector is short
+                // (weights spread around the circle), so compare the resultant direction loosely.
+                let ok = if angular[d] {
+                    batch::wrap_angle_floor(g - c).abs() <= 2e-3
+                } else {
+                    (g - c).abs() <= 1e-4 * 100.0
+                };
+                prop_assert!(ok, "estimate {}: GPU {} vs CPU {}", i, g, c);
+            }
+            Ok(())
+        })
+        .unwrap();
+}
