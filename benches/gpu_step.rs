@@ -64,6 +64,7 @@ fn bench_whole_step(c: &mut Criterion) {
             bounds: None,
             angular: ANGLES.to_vec(),
             ess_threshold: f64::INFINITY,
+            best: 0,
         };
         let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
         let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
@@ -135,6 +136,7 @@ fn bench_resampling_alone(c: &mut Criterion) {
             bounds: None,
             angular: vec![false],
             ess_threshold: f64::INFINITY,
+            best: 0,
         };
         // Uneven weights: a Gaussian likelihood over a Gaussian cloud.
         let mut rng = RandomStreams::new(3).stream(0, Stage::Model(0));

@@ -59,3 +59,117 @@ fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgro
         }
     }
 }
+
+// ---- best-M' weighted mean (eq. 14 of the face paper) ------------------------------------------
+// The weighted mean of the M' = params.best heaviest particles of each target, ties broken by the
+// lower index. Non-negative f32 weights order like their bit patterns, so a 31-step bisection on
+// the bits finds the M'-th largest weight tau with workgroup counts; the particles above tau are
+// in, and the first (M' - count above) particles equal to tau in index order. One workgroup per
+// target; each invocation owns a contiguous chunk so that index order is chunk order.
+// CPU twin: pf_core::batch::best_weighted_means (pf_core::estimate::best_weighted_mean).
+
+@group(0) @binding(4) var<storage, read_write> best_estimates: array<f32>;
+
+var<workgroup> counter: atomic<u32>;
+var<workgroup> tie_offsets: array<u32, 256>;
+
+fn count_at_least(lid: u32, base: u32, begin: u32, end: u32, bits: u32) -> u32 {
+    if (lid == 0u) {
+        atomicStore(&counter, 0u);
+    }
+    workgroupBarrier();
+    var local = 0u;
+    for (var i = begin; i < end; i = i + 1u) {
+        if (bitcast<u32>(weights[base + i]) >= bits) {
+            local = local + 1u;
+        }
+    }
+    atomicAdd(&counter, local);
+    workgroupBarrier();
+    let total = atomicLoad(&counter);
+    workgroupBarrier();
+    return total;
+}
+
+@compute @workgroup_size(256)
+fn best_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let t = wid.y;
+    let n = params.particles;
+    let base = t * n;
+    let best = min(max(params.best, 1u), n);
+    let chunk = (n + WG - 1u) / WG;
+    let begin = min(lid * chunk, n);
+    let end = min(begin + chunk, n);
+
+    // Largest bit pattern tau with count(w >= tau) >= best.
+    var lo = 0u;
+    var hi = 0x7f800000u;
+    while (lo < hi) {
+        let mid = lo + (hi - lo + 1u) / 2u;
+        if (count_at_least(lid, base, begin, end, mid) >= best) {
+            lo = mid;
+        } else {
+            hi = mid - 1u;
+        }
+    }
+    let tau = lo;
+    let above = count_at_least(lid, base, begin, end, tau + 1u);
+    let ties_needed = best - above;
+
+    // Rank of each tie in index order: exclusive scan of the chunks' tie counts.
+    var my_ties = 0u;
+    for (var i = begin; i < end; i = i + 1u) {
+        if (bitcast<u32>(weights[base + i]) == tau) {
+            my_ties = my_ties + 1u;
+        }
+    }
+    tie_offsets[lid] = my_ties;
+    workgroupBarrier();
+    for (var offset = 1u; offset < WG; offset = offset * 2u) {
+        var add = 0u;
+        if (lid >= offset) {
+            add = tie_offsets[lid - offset];
+        }
+        workgroupBarrier();
+        tie_offsets[lid] = tie_offsets[lid] + add;
+        workgroupBarrier();
+    }
+    let first_tie_rank = tie_offsets[lid] - my_ties;
+
+    for (var d = 0u; d < params.dims; d = d + 1u) {
+        let angle = is_angle(d);
+        var a = 0.0;
+        var b = 0.0;
+        var rank = first_tie_rank;
+        for (var i = begin; i < end; i = i + 1u) {
+            let bits = bitcast<u32>(weights[base + i]);
+            var take = bits > tau;
+            if (bits == tau) {
+                take = rank < ties_needed;
+                rank = rank + 1u;
+            }
+            if (take) {
+                let w = weights[base + i];
+                let x = states[state_index(t, d, i)];
+                if (angle) {
+                    a = a + w * sin(x);
+                    b = b + w * cos(x);
+                } else {
+                    a = a + w * x;
+                    b = b + w;
+                }
+            }
+        }
+        let sums = reduce_pair(lid, a, b);
+        if (lid == 0u) {
+            var value = 0.0;
+            if (angle) {
+                value = atan2(sums.x, sums.y);
+            } else if (sums.y > 0.0) {
+                value = sums.x / sums.y;
+            }
+            best_estimates[t * params.dims + d] = value;
+        }
+    }
+}

@@ -110,6 +110,7 @@ fn wrong_lengths_and_configurations_are_typed_errors() {
         bounds: None,
         angular: vec![false; 3],
         ess_threshold: 0.5,
+        best: 0,
     };
     let states = vec![0.0; shape.state_len()];
     let bad_sigma = BatchConfig {
@@ -142,6 +143,7 @@ fn every_adapter_can_be_opened_and_run_a_step() {
         bounds: None,
         angular: vec![false, true],
         ess_threshold: f64::INFINITY,
+        best: 16,
     };
     for ctx in &contexts {
         let mut filter = GpuFilter::new(

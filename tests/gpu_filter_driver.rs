@@ -91,6 +91,7 @@ fn run(
         bounds: None,
         angular: ANGLES.to_vec(),
         ess_threshold,
+        best: 100,
     };
     let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
     let initial = gaussian_clouds(&shape, 77, &means, &OBS_SIGMA.map(|s| 2.0 * s));
@@ -151,6 +152,25 @@ fn run(
                     sd[d],
                     g.stats[t].ess,
                     c.ess[t]
+                );
+            }
+            for d in 0..D {
+                let diff = circular_diff(
+                    g.best_estimates[t * D + d],
+                    c.best_estimates[t * D + d],
+                    ANGLES[d],
+                );
+                // The best-M' mean averages 100 particles: allow the Monte Carlo error of 100.
+                let tol = if strict {
+                    1e-3 * OBS_SIGMA[d]
+                } else {
+                    10.0 * sd[d] * (2.0f32 / 100.0).sqrt() + 1e-3 * OBS_SIGMA[d]
+                };
+                assert!(
+                    diff <= tol,
+                    "step {s} target {t} dim {d}: best-M' GPU {} vs CPU {}",
+                    g.best_estimates[t * D + d],
+                    c.best_estimates[t * D + d]
                 );
             }
             // And both track the target.

@@ -44,6 +44,7 @@ fn config(
         bounds,
         angular,
         ess_threshold: f64::INFINITY,
+        best: 0,
     }
 }
 
@@ -639,6 +640,67 @@ fn weighted_mean_matches_cpu_within_tolerance() {
                     (g - c).abs() <= 1e-4 * 100.0
                 };
                 prop_assert!(ok, "estimate {}: GPU {} vs CPU {}", i, g, c);
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
+#[test]
+fn best_weighted_mean_matches_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("best_weighted_mean_matches_cpu_within_tolerance") else {
+        return;
+    };
+    let mut runner = runner(16);
+    let strategy = shapes().prop_flat_map(|shape| {
+        (
+            Just(shape),
+            prop::collection::vec(-100.0f32..100.0, shape.state_len()),
+            // Few distinct levels, so that ties at the M'-th weight are common.
+            prop::collection::vec(
+                prop_oneof![Just(0.0f32), Just(1.0), Just(2.0), Just(4.0), 0.0f32..8.0],
+                shape.particle_len(),
+            ),
+            1..=shape.particles,
+        )
+    });
+    runner
+        .run(&strategy, |(shape, states, raw, best)| {
+            let m = shape.particles;
+            // Normalise per target in f32 (what the GPU holds); the CPU reads the same values.
+            let mut w32 = raw.clone();
+            for t in 0..shape.targets {
+                let r = t * m..(t + 1) * m;
+                let sum: f32 = w32[r.clone()].iter().sum();
+                for i in r {
+                    w32[i] = if sum > 0.0 {
+                        w32[i] / sum
+                    } else {
+                        1.0 / m as f32
+                    };
+                }
+            }
+            let w64: Vec<f64> = w32.iter().map(|&w| f64::from(w)).collect();
+            let angular = vec![false; shape.dims];
+            let cfg = BatchConfig {
+                best,
+                ..config(shape, angular.clone(), vec![0.0; shape.dims], None)
+            };
+            let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.streams().weights.upload(&ctx, &w32).unwrap();
+            let report = gpu
+                .run_stages(&ctx, &[GpuStage::Estimate], &NoLikelihood)
+                .unwrap();
+            let want = batch::best_weighted_means(&shape, &states, &w64, &angular, best);
+            for (i, (&g, &c)) in report.best_estimates.iter().zip(&want).enumerate() {
+                prop_assert!(
+                    (g - c).abs() <= 1e-4 * 100.0,
+                    "estimate {} (M' = {}): GPU {} vs CPU {}",
+                    i,
+                    best,
+                    g,
+                    c
+                );
             }
             Ok(())
         })

@@ -161,11 +161,39 @@ pub fn weighted_means(
     out
 }
 
+/// Twin of the best-M′ kernel: per target, the weighted mean of the `best` heaviest particles,
+/// ties to the lower index (the rule of [`crate::estimate::best_weighted_mean`]).
+pub fn best_weighted_means(
+    shape: &BatchShape,
+    states: &[f32],
+    weights: &[f64],
+    angular: &[bool],
+    best: usize,
+) -> Vec<f32> {
+    let m = shape.particles;
+    let best = best.clamp(1, m);
+    // Zero the weights of the particles left out, then take the plain weighted mean.
+    let mut selected = vec![0.0f64; weights.len()];
+    let mut order: Vec<usize> = Vec::with_capacity(m);
+    for t in 0..shape.targets {
+        let w = &weights[t * m..(t + 1) * m];
+        order.clear();
+        order.extend(0..m);
+        order.sort_by(|&a, &b| w[b].total_cmp(&w[a]).then(a.cmp(&b)));
+        for &i in &order[..best] {
+            selected[t * m + i] = w[i];
+        }
+    }
+    weighted_means(shape, states, &selected, angular)
+}
+
 /// What one batched step produced, per target.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BatchReport {
     /// `[t·D + d]`.
     pub estimates: Vec<f32>,
+    /// The best-M′ weighted means, `[t·D + d]` (empty when `best` is 0).
+    pub best_estimates: Vec<f32>,
     pub ess: Vec<f64>,
     pub resampled: Vec<bool>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
@@ -182,6 +210,7 @@ pub struct BatchFilter<R> {
     angular: Vec<bool>,
     /// Resample a target when ESS < threshold·M (`f64::INFINITY`: every step).
     ess_threshold: f64,
+    best: usize,
     diffusion_keys: Vec<[u32; 2]>,
     resampling_keys: Vec<[u32; 2]>,
     pub states: Vec<f32>,
@@ -204,6 +233,8 @@ pub struct BatchConfig {
     pub bounds: Option<(Vec<f32>, Vec<f32>)>,
     pub angular: Vec<bool>,
     pub ess_threshold: f64,
+    /// M′ of the best-M′ weighted mean (eq. 14 of the face paper); 0: not computed.
+    pub best: usize,
 }
 
 impl BatchConfig {
@@ -240,6 +271,12 @@ impl BatchConfig {
                 self.ess_threshold
             )));
         }
+        if self.best > self.shape.particles {
+            return Err(PfError::InvalidConfig(format!(
+                "best-M' of {} exceeds the {} particles per target",
+                self.best, self.shape.particles
+            )));
+        }
         if d > 32 {
             return Err(PfError::InvalidConfig(format!(
                 "at most 32 dimensions, got {d}"
@@ -273,6 +310,7 @@ impl<R: Resampler> BatchFilter<R> {
             bounds: config.bounds.clone(),
             angular: config.angular.clone(),
             ess_threshold: config.ess_threshold,
+            best: config.best,
             diffusion_keys: stage_keys(config.seed, shape.targets, Stage::Diffusion),
             resampling_keys: stage_keys(config.seed, shape.targets, Stage::Resampling),
             scratch: vec![0.0; initial_states.len()],
@@ -362,8 +400,20 @@ impl<R: Resampler> BatchFilter<R> {
             self.ess[t] = *result.as_ref().unwrap_or(&(m_count as f64));
             status.push(result.map(|_| ()));
         }
+        let best_estimates = if self.best > 0 {
+            best_weighted_means(
+                &shape,
+                &self.states,
+                &self.weights,
+                &self.angular,
+                self.best,
+            )
+        } else {
+            Vec::new()
+        };
         Ok(BatchReport {
             estimates: weighted_means(&shape, &self.states, &self.weights, &self.angular),
+            best_estimates,
             ess: self.ess.clone(),
             resampled,
             status,

@@ -13,6 +13,7 @@ use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::kernels::{Kernel, sources, stage_source};
 use crate::stream::{DeviceStream, Readback};
+use crate::timing::{GpuTime, StepTimer};
 
 /// The per-frame parameters, `Params` in `shaders/common.wgsl`.
 #[repr(C)]
@@ -105,6 +106,10 @@ pub struct GpuStepReport {
     /// `[t·D + d]`.
     pub estimates: Vec<f32>,
     pub stats: Vec<TargetStats>,
+    /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
+    pub best_estimates: Vec<f32>,
+    /// The step's duration: GPU timestamps where the adapter has them, else wall clock.
+    pub time: GpuTime,
 }
 
 struct Stages {
@@ -114,6 +119,7 @@ struct Stages {
     diffuse: Kernel,
     normalise: Kernel,
     estimate: Kernel,
+    best_mean: Option<Kernel>,
 }
 
 struct BindGroups {
@@ -123,6 +129,7 @@ struct BindGroups {
     diffuse: wgpu::BindGroup,
     normalise: wgpu::BindGroup,
     estimate: wgpu::BindGroup,
+    best_mean: Option<wgpu::BindGroup>,
 }
 
 /// T targets × M particles on one GPU.
@@ -139,6 +146,7 @@ pub struct GpuFilter {
     ancestors: DeviceStream<u32>,
     stats: DeviceStream<TargetStats>,
     estimates: DeviceStream<f32>,
+    best_estimates: DeviceStream<f32>,
     // Kept alive for the bind groups.
     _sigma: DeviceStream<f32>,
     _lower: DeviceStream<f32>,
@@ -148,7 +156,9 @@ pub struct GpuFilter {
     stages: Stages,
     groups: BindGroups,
     estimates_back: Readback<f32>,
+    best_back: Option<Readback<f32>>,
     stats_back: Readback<TargetStats>,
+    timer: Option<StepTimer>,
     step: u64,
 }
 
@@ -204,7 +214,7 @@ impl GpuFilter {
             } else {
                 f32::MAX
             },
-            best: 1,
+            best: config.best as u32,
             _pad: [0; 2],
         };
         let params_buffer = ctx.scoped("creating the parameter buffer", || {
@@ -235,6 +245,8 @@ impl GpuFilter {
         let stats =
             DeviceStream::from_slice(ctx, "target stats", &vec![initial_stats; shape.targets])?;
         let estimates = DeviceStream::zeroed(ctx, "estimates", shape.targets * shape.dims)?;
+        let best_estimates =
+            DeviceStream::zeroed(ctx, "best-M' estimates", shape.targets * shape.dims)?;
         let sigma = DeviceStream::from_slice(ctx, "sigma", &config.sigma)?;
         let (lo, hi) = match &config.bounds {
             Some((lo, hi)) => (lo.clone(), hi.clone()),
@@ -285,6 +297,16 @@ impl GpuFilter {
                 &stage_source(sources::ESTIMATE),
                 "weighted_mean",
             )?,
+            best_mean: if config.best > 0 {
+                Some(Kernel::new(
+                    ctx,
+                    "best_mean",
+                    &stage_source(sources::ESTIMATE),
+                    "best_mean",
+                )?)
+            } else {
+                None
+            },
         };
         let p = || params_buffer.as_entire_binding();
         let resample_entries = [
@@ -356,6 +378,18 @@ impl GpuFilter {
                     (3, estimates.binding()),
                 ],
             )?,
+            best_mean: match &stages.best_mean {
+                Some(k) => Some(k.bind(
+                    ctx,
+                    &[
+                        (0, p()),
+                        (1, states.binding()),
+                        (2, weights.binding()),
+                        (4, best_estimates.binding()),
+                    ],
+                )?),
+                None => None,
+            },
         };
         Ok(Self {
             shape,
@@ -363,6 +397,16 @@ impl GpuFilter {
             params_buffer,
             estimates_back: Readback::new(ctx, "estimates readback", shape.targets * shape.dims)?,
             stats_back: Readback::new(ctx, "stats readback", shape.targets)?,
+            best_back: if config.best > 0 {
+                Some(Readback::new(
+                    ctx,
+                    "best-M' readback",
+                    shape.targets * shape.dims,
+                )?)
+            } else {
+                None
+            },
+            timer: StepTimer::new(ctx)?,
             states,
             selected,
             log_weights,
@@ -372,6 +416,7 @@ impl GpuFilter {
             ancestors,
             stats,
             estimates,
+            best_estimates,
             _sigma: sigma,
             _lower: lower,
             _upper: upper,
@@ -489,9 +534,15 @@ impl GpuFilter {
                 self.stages
                     .estimate
                     .record(&mut pass, &self.groups.estimate, per_target);
+                if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
+                    k.record(&mut pass, g, per_target);
+                }
             }
         }
         self.estimates_back.record_copy(encoder, &self.estimates);
+        if let Some(back) = &self.best_back {
+            back.record_copy(encoder, &self.best_estimates);
+        }
         self.stats_back.record_copy(encoder, &self.stats);
     }
 
@@ -503,14 +554,38 @@ impl GpuFilter {
         stages: &[GpuStage],
         likelihood: &dyn GpuLikelihood,
     ) -> Result<GpuStepReport, GpuError> {
-        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("filter step"),
+            });
+        let started = std::time::Instant::now();
         let submission = ctx.scoped("recording filter stages", || {
+            if let Some(timer) = &self.timer {
+                timer.begin(&mut encoder);
+            }
             self.record_stages(ctx, &mut encoder, stages, likelihood);
+            if let Some(timer) = &self.timer {
+                timer.end(&mut encoder);
+            }
             ctx.queue.submit([encoder.finish()])
         })?;
         let estimates = self.estimates_back.read(ctx, Some(submission))?;
         let stats = self.stats_back.read(ctx, None)?;
-        Ok(GpuStepReport { estimates, stats })
+        let best_estimates = match &self.best_back {
+            Some(back) => back.read(ctx, None)?,
+            None => Vec::new(),
+        };
+        let time = match &self.timer {
+            Some(timer) => GpuTime::Timestamps(timer.read(ctx)?),
+            None => GpuTime::WallClock(started.elapsed()),
+        };
+        Ok(GpuStepReport {
+            estimates,
+            stats,
+            best_estimates,
+            time,
+        })
     }
 
     /// Sets the index of the next step (it keys the step's random numbers).
@@ -524,18 +599,12 @@ impl GpuFilter {
         ctx: &GpuContext,
         likelihood: &dyn GpuLikelihood,
     ) -> Result<GpuStepReport, GpuError> {
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("filter step"),
-            });
-        let submission = ctx.scoped("recording a filter step", || {
-            self.record_step(ctx, &mut encoder, likelihood);
-            ctx.queue.submit([encoder.finish()])
-        })?;
-        let estimates = self.estimates_back.read(ctx, Some(submission))?;
-        let stats = self.stats_back.read(ctx, None)?;
-        Ok(GpuStepReport { estimates, stats })
+        use GpuStage::*;
+        self.run_stages(
+            ctx,
+            &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
+            likelihood,
+        )
     }
 
     /// Reads the particle states back (tests and debugging; allocates).

@@ -18,6 +18,7 @@ pub mod filter;
 pub mod kernels;
 pub mod random;
 pub mod stream;
+pub mod timing;
 pub mod toy;
 
 pub use context::{ContextOptions, GpuContext};
@@ -27,3 +28,4 @@ pub use filter::{
 };
 pub use kernels::Kernel;
 pub use stream::{DeviceStream, Readback};
+pub use timing::GpuTime;

@@ -137,6 +137,14 @@ impl<T: Pod> Readback<T> {
         }
     }
 
+    /// Records a copy of the first `len` values of a raw buffer (a resolved query set, say).
+    pub fn record_raw_copy(&self, encoder: &mut wgpu::CommandEncoder, source: &wgpu::Buffer) {
+        let bytes = (self.len * std::mem::size_of::<T>()) as u64;
+        if bytes > 0 {
+            encoder.copy_buffer_to_buffer(source, 0, &self.staging, 0, bytes);
+        }
+    }
+
     /// Waits for `submission`, maps the staging buffer and returns its values.
     pub fn read(
         &self,
