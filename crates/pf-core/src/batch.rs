@@ -1,3 +1,6 @@
+// Index loops mirror the GPU kernels (t, d, m) and read clearer than zipped iterators here.
+#![allow(clippy::needless_range_loop)]
+
 //! Batched filtering: T independent targets × M particles in one set of buffers, the layout of
 //! the GPU runtime. The functions here are the CPU twins of pf-gpu's stages (same inputs, same
 //! random numbers, f64 accumulation) and [`BatchFilter`] is the twin of its filter driver.

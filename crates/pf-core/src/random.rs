@@ -186,7 +186,7 @@ pub fn minus_two_log_unit(word: u32) -> f64 {
 /// `counter_gaussian` in `shaders/philox.wgsl` (24-bit uniforms, which f32 holds exactly).
 pub fn counter_gaussian(key: [u32; 2], particle: u32, dim: u32, step: u64) -> f64 {
     let block = philox4x32_10([particle, dim / 2, step as u32, (step >> 32) as u32], key);
-    let (w0, w1) = if dim % 2 == 0 {
+    let (w0, w1) = if dim.is_multiple_of(2) {
         (block[0], block[1])
     } else {
         (block[2], block[3])

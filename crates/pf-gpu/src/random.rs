@@ -32,7 +32,7 @@ fn run(
     normals_len: usize,
 ) -> Result<(Vec<[u32; 4]>, Vec<f32>), GpuError> {
     let kernel = Kernel::new(ctx, entry, &source(), entry)?;
-    let counters_stream = DeviceStream::from_slice(ctx, "counters", &counters.to_vec())?;
+    let counters_stream = DeviceStream::from_slice(ctx, "counters", counters)?;
     let words = DeviceStream::<[u32; 4]>::zeroed(ctx, "philox words", counters.len())?;
     let normals = DeviceStream::<f32>::zeroed(ctx, "normals", normals_len)?;
     let uniform = ctx.device.create_buffer(&wgpu::BufferDescriptor {
