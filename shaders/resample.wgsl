@@ -5,6 +5,10 @@
 // - systematic / stratified: one workgroup per target; a parallel prefix sum of the weights
 //   (each invocation scans a contiguous chunk, a workgroup scan joins the chunks) into cdf[], then
 //   a binary search per offspring for the smallest i with point * total < cdf[i].
+//   For more than 4096 particles per target the driver uses a device-wide scan instead, in four
+//   dispatches: block_sums (one workgroup per 1024 weights), scan_block_sums (one workgroup per
+//   target), block_cdf (each block's inclusive scan plus its offset) and search_* (one invocation
+//   per offspring).
 // - metropolis: one invocation per (offspring, target), B steps, no collective operation.
 // CPU twins: pf_core::resample::{Systematic, Stratified, Metropolis} fed CounterUniforms with the
 // target's resampling key (pf_core::batch::resample).
@@ -15,6 +19,7 @@
 @group(0) @binding(3) var<storage, read_write> ancestors: array<u32>;
 @group(0) @binding(4) var<storage, read_write> stats: array<TargetStats>;
 @group(0) @binding(5) var<storage, read> resample_keys: array<vec2<u32>>;
+@group(0) @binding(6) var<storage, read_write> block_sums: array<f32>;
 
 const WG: u32 = 256u;
 var<workgroup> chunk_sums: array<f32, 256>;
@@ -24,8 +29,20 @@ fn resampling_due(t: u32) -> bool {
     return stats[t].ess < params.ess_threshold * f32(params.particles);
 }
 
-fn step_words() -> vec2<u32> {
-    return vec2<u32>(params.step_lo, params.step_hi);
+// The CDF is summed in parallel, so rounding can leave a zero-weight particle a hair above its
+// predecessor (or a point a hair past the end); the search would then pick a particle that must
+// never be picked. Move to the nearest positive weight: forward first, then backward.
+fn positive_weight_near(base: u32, i: u32, n: u32) -> u32 {
+    for (var j = i; j < n; j = j + 1u) {
+        if (weights[base + j] > 0.0) {
+            return j;
+        }
+    }
+    var j = i;
+    while (j > 0u && !(weights[base + j] > 0.0)) {
+        j = j - 1u;
+    }
+    return j;
 }
 
 fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
@@ -93,7 +110,7 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
                 hi = mid;
             }
         }
-        ancestors[base + k] = lo;
+        ancestors[base + k] = positive_weight_near(base, lo, n);
     }
 }
 
@@ -150,4 +167,141 @@ fn mark_resampled(@builtin(global_invocation_id) gid: vec3<u32>) {
     if (t < params.targets) {
         stats[t].resampled = select(0u, 1u, resampling_due(t));
     }
+}
+
+// ---- device-wide scan for large targets ---------------------------------------------------------
+
+const BLOCK: u32 = 1024u;
+var<workgroup> block_partial: array<f32, 256>;
+
+fn blocks_per_target() -> u32 {
+    return (params.particles + BLOCK - 1u) / BLOCK;
+}
+
+// Inclusive Hillis-Steele scan of block_partial across the workgroup.
+fn scan_block_partial(lid: u32) {
+    workgroupBarrier();
+    for (var offset = 1u; offset < WG; offset = offset * 2u) {
+        var add = 0.0;
+        if (lid >= offset) {
+            add = block_partial[lid - offset];
+        }
+        workgroupBarrier();
+        block_partial[lid] = block_partial[lid] + add;
+        workgroupBarrier();
+    }
+}
+
+// The weight of element i of target t, or 0 past the end.
+fn weight_or_zero(t: u32, i: u32) -> f32 {
+    if (i < params.particles) {
+        return weights[t * params.particles + i];
+    }
+    return 0.0;
+}
+
+@compute @workgroup_size(256)
+fn block_sums_kernel(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let b = wid.x;
+    let t = wid.y;
+    let first = b * BLOCK + lid * 4u;
+    block_partial[lid] = weight_or_zero(t, first) + weight_or_zero(t, first + 1u)
+        + weight_or_zero(t, first + 2u) + weight_or_zero(t, first + 3u);
+    scan_block_partial(lid);
+    if (lid == WG - 1u) {
+        block_sums[t * blocks_per_target() + b] = block_partial[lid];
+    }
+}
+
+// Turns each target's block sums into exclusive offsets, in place.
+@compute @workgroup_size(256)
+fn scan_block_sums(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let t = wid.y;
+    let nb = blocks_per_target();
+    let base = t * nb;
+    let chunk = (nb + WG - 1u) / WG;
+    let begin = min(lid * chunk, nb);
+    let end = min(begin + chunk, nb);
+    var sum = 0.0;
+    for (var i = begin; i < end; i = i + 1u) {
+        sum = sum + block_sums[base + i];
+    }
+    block_partial[lid] = sum;
+    scan_block_partial(lid);
+    var running = 0.0;
+    if (lid > 0u) {
+        running = block_partial[lid - 1u];
+    }
+    for (var i = begin; i < end; i = i + 1u) {
+        let value = block_sums[base + i];
+        block_sums[base + i] = running;
+        running = running + value;
+    }
+}
+
+@compute @workgroup_size(256)
+fn block_cdf(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let b = wid.x;
+    let t = wid.y;
+    let first = b * BLOCK + lid * 4u;
+    let w0 = weight_or_zero(t, first);
+    let w1 = weight_or_zero(t, first + 1u);
+    let w2 = weight_or_zero(t, first + 2u);
+    let w3 = weight_or_zero(t, first + 3u);
+    block_partial[lid] = w0 + w1 + w2 + w3;
+    scan_block_partial(lid);
+    var running = block_sums[t * blocks_per_target() + b];
+    if (lid > 0u) {
+        running = running + block_partial[lid - 1u];
+    }
+    let base = t * params.particles;
+    let values = array<f32, 4>(w0, w1, w2, w3);
+    for (var j = 0u; j < 4u; j = j + 1u) {
+        running = running + values[j];
+        if (first + j < params.particles) {
+            cdf[base + first + j] = running;
+        }
+    }
+}
+
+fn search_offspring(k: u32, t: u32, stratified: bool) {
+    let n = params.particles;
+    if (k >= n || t >= params.targets) {
+        return;
+    }
+    let base = t * n;
+    if (!resampling_due(t)) {
+        ancestors[base + k] = k;
+        return;
+    }
+    var word = philox4x32_10(vec4<u32>(0u, 0u, params.step_lo, params.step_hi), resample_keys[t]).x;
+    if (stratified) {
+        word = philox4x32_10(vec4<u32>(k, 0u, params.step_lo, params.step_hi), resample_keys[t]).x;
+    }
+    let total = cdf[base + n - 1u];
+    let point = (f32(k) + unit_from_word(word)) / f32(n) * total;
+    var lo = 0u;
+    var hi = n - 1u;
+    while (lo < hi) {
+        let mid = (lo + hi) / 2u;
+        if (cdf[base + mid] <= point) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    ancestors[base + k] = positive_weight_near(base, lo, n);
+}
+
+@compute @workgroup_size(64)
+fn search_systematic(@builtin(global_invocation_id) gid: vec3<u32>) {
+    search_offspring(gid.x, gid.y, false);
+}
+
+@compute @workgroup_size(64)
+fn search_stratified(@builtin(global_invocation_id) gid: vec3<u32>) {
+    search_offspring(gid.x, gid.y, true);
 }

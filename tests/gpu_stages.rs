@@ -333,12 +333,27 @@ fn near_boundary(cdf: &[f64], point: f64, indices: &[usize], eps: f64) -> bool {
     })
 }
 
-fn check_ordered(stratified: bool) {
+/// Targets large enough for the device-wide scan (more than 4096 particles).
+fn large_shapes() -> impl Strategy<Value = BatchShape> {
+    (
+        1usize..=3,
+        prop_oneof![Just(4097usize), 4097usize..20_000],
+        1usize..=2,
+    )
+        .prop_map(|(t, m, d)| BatchShape::new(t, m, d).unwrap())
+}
+
+fn check_ordered(stratified: bool, large: bool) {
     let Some(ctx) = common::gpu_context("ordered resampling") else {
         return;
     };
-    let mut runner = runner(16);
-    let strategy = shapes()
+    let mut runner = runner(if large { 6 } else { 16 });
+    let shape_strategy = if large {
+        large_shapes().boxed()
+    } else {
+        shapes().boxed()
+    };
+    let strategy = shape_strategy
         .prop_flat_map(|shape| (Just(shape), weight_sets(shape), any::<u64>(), any::<bool>()));
     runner
         .run(
@@ -407,7 +422,7 @@ fn check_ordered(stratified: bool) {
                                 uniforms.uniform(0, 0)
                             };
                             let point = (k as f64 + u) / m as f64;
-                            // f32 prefix sums over up to 1000 weights and f32 points: 1e-5 covers both.
+                            // f32 prefix sums (up to 20 000 weights) and f32 points: 1e-5 covers both.
                             prop_assert!(
                                 near_boundary(&cdf, point, &[g.min(m - 1), c], 1e-5),
                                 "target {} offspring {}: GPU {} vs CPU {} (point {}, cdf {:?})",
@@ -434,12 +449,22 @@ fn check_ordered(stratified: bool) {
 
 #[test]
 fn systematic_resampling_same_ancestors_as_cpu() {
-    check_ordered(false);
+    check_ordered(false, false);
 }
 
 #[test]
 fn stratified_resampling_same_ancestors_as_cpu() {
-    check_ordered(true);
+    check_ordered(true, false);
+}
+
+#[test]
+fn systematic_resampling_device_wide_scan_same_ancestors_as_cpu() {
+    check_ordered(false, true);
+}
+
+#[test]
+fn stratified_resampling_device_wide_scan_same_ancestors_as_cpu() {
+    check_ordered(true, true);
 }
 
 /// Metropolis on the CPU in f64, flagging chains that met a near-tie acceptance test (where the

@@ -113,8 +113,6 @@ pub struct GpuStepReport {
 }
 
 struct Stages {
-    resample: Kernel,
-    mark_resampled: Option<Kernel>,
     gather: Kernel,
     diffuse: Kernel,
     normalise: Kernel,
@@ -123,8 +121,6 @@ struct Stages {
 }
 
 struct BindGroups {
-    resample: wgpu::BindGroup,
-    mark_resampled: Option<wgpu::BindGroup>,
     gather: wgpu::BindGroup,
     diffuse: wgpu::BindGroup,
     normalise: wgpu::BindGroup,
@@ -155,6 +151,9 @@ pub struct GpuFilter {
     _resampling_keys: DeviceStream<[u32; 2]>,
     stages: Stages,
     groups: BindGroups,
+    /// The resample stage: one to five dispatches depending on the resampler and M.
+    resample_steps: Vec<Dispatch>,
+    _block_sums: DeviceStream<f32>,
     estimates_back: Readback<f32>,
     best_back: Option<Readback<f32>>,
     stats_back: Readback<TargetStats>,
@@ -164,6 +163,97 @@ pub struct GpuFilter {
 
 fn groups_for(count: usize, size: usize) -> u32 {
     count.div_ceil(size) as u32
+}
+
+/// Above this many particles per target, systematic and stratified resampling scan the weights
+/// device-wide (four dispatches) instead of in one workgroup per target.
+pub const SINGLE_WORKGROUP_SCAN_LIMIT: usize = 4096;
+
+/// Weights per block of the device-wide scan (`BLOCK` in `resample.wgsl`).
+const RESAMPLE_BLOCK: usize = 1024;
+
+/// A kernel, its bind group and its grid, prepared once.
+struct Dispatch {
+    kernel: Kernel,
+    group: wgpu::BindGroup,
+    groups: [u32; 3],
+}
+
+struct ResampleBindings<'a> {
+    params: &'a wgpu::Buffer,
+    weights: &'a DeviceStream<f32>,
+    cdf: &'a DeviceStream<f32>,
+    ancestors: &'a DeviceStream<u32>,
+    stats: &'a DeviceStream<TargetStats>,
+    keys: &'a DeviceStream<[u32; 2]>,
+    block_sums: &'a DeviceStream<f32>,
+}
+
+/// The dispatches of the resample stage. Auto layouts keep only the bindings an entry point uses,
+/// so each entry point is bound with exactly those.
+fn resample_dispatches(
+    ctx: &GpuContext,
+    resampler: GpuResampler,
+    shape: &BatchShape,
+    b: &ResampleBindings<'_>,
+) -> Result<Vec<Dispatch>, GpuError> {
+    let source = stage_source(sources::RESAMPLE);
+    let (t, m) = (shape.targets as u32, shape.particles);
+    let per_particle = [groups_for(m, 64), t, 1];
+    let blocks = [groups_for(m, RESAMPLE_BLOCK), t, 1];
+    let make = |entry: &str, bindings: &[u32], groups: [u32; 3]| -> Result<Dispatch, GpuError> {
+        let kernel = Kernel::new(ctx, entry, &source, entry)?;
+        let entries: Vec<(u32, wgpu::BindingResource<'_>)> = bindings
+            .iter()
+            .map(|&i| {
+                let resource = match i {
+                    0 => b.params.as_entire_binding(),
+                    1 => b.weights.binding(),
+                    2 => b.cdf.binding(),
+                    3 => b.ancestors.binding(),
+                    4 => b.stats.binding(),
+                    5 => b.keys.binding(),
+                    _ => b.block_sums.binding(),
+                };
+                (i, resource)
+            })
+            .collect();
+        let group = kernel.bind(ctx, &entries)?;
+        Ok(Dispatch {
+            kernel,
+            group,
+            groups,
+        })
+    };
+    let mark = || {
+        make(
+            "mark_resampled",
+            &[0, 4],
+            [groups_for(shape.targets, 64), 1, 1],
+        )
+    };
+    let large = m > SINGLE_WORKGROUP_SCAN_LIMIT;
+    Ok(match resampler {
+        GpuResampler::Metropolis(_) => {
+            vec![mark()?, make("metropolis", &[0, 1, 3, 4, 5], per_particle)?]
+        }
+        GpuResampler::Systematic | GpuResampler::Stratified if large => {
+            let search = if resampler == GpuResampler::Systematic {
+                "search_systematic"
+            } else {
+                "search_stratified"
+            };
+            vec![
+                mark()?,
+                make("block_sums_kernel", &[0, 1, 6], blocks)?,
+                make("scan_block_sums", &[0, 6], [1, t, 1])?,
+                make("block_cdf", &[0, 1, 2, 6], blocks)?,
+                make(search, &[0, 1, 2, 3, 4, 5], per_particle)?,
+            ]
+        }
+        GpuResampler::Systematic => vec![make("systematic", &[0, 1, 2, 3, 4, 5], [1, t, 1])?],
+        GpuResampler::Stratified => vec![make("stratified", &[0, 1, 2, 3, 4, 5], [1, t, 1])?],
+    })
 }
 
 impl GpuFilter {
@@ -265,24 +355,7 @@ impl GpuFilter {
             &stage_keys(config.seed, shape.targets, Stage::Resampling),
         )?;
 
-        let resample_src = stage_source(sources::RESAMPLE);
-        let (entry, needs_mark) = match resampler {
-            GpuResampler::Systematic => ("systematic", false),
-            GpuResampler::Stratified => ("stratified", false),
-            GpuResampler::Metropolis(_) => ("metropolis", true),
-        };
         let stages = Stages {
-            resample: Kernel::new(ctx, entry, &resample_src, entry)?,
-            mark_resampled: if needs_mark {
-                Some(Kernel::new(
-                    ctx,
-                    "mark_resampled",
-                    &resample_src,
-                    "mark_resampled",
-                )?)
-            } else {
-                None
-            },
             gather: Kernel::new(ctx, "gather", &stage_source(sources::GATHER), "gather")?,
             diffuse: Kernel::new(ctx, "diffuse", &stage_source(sources::DIFFUSE), "diffuse")?,
             normalise: Kernel::new(
@@ -309,34 +382,26 @@ impl GpuFilter {
             },
         };
         let p = || params_buffer.as_entire_binding();
-        let resample_entries = [
-            (0, p()),
-            (1, weights.binding()),
-            (2, cdf.binding()),
-            (3, ancestors.binding()),
-            (4, stats.binding()),
-            (5, resampling_keys.binding()),
-        ];
-        // Auto layouts drop unused bindings: bind only what each entry point uses.
-        let resample_group = match resampler {
-            GpuResampler::Metropolis(_) => stages.resample.bind(
-                ctx,
-                &[
-                    (0, p()),
-                    (1, weights.binding()),
-                    (3, ancestors.binding()),
-                    (4, stats.binding()),
-                    (5, resampling_keys.binding()),
-                ],
-            )?,
-            _ => stages.resample.bind(ctx, &resample_entries)?,
-        };
-        let groups = BindGroups {
-            resample: resample_group,
-            mark_resampled: match &stages.mark_resampled {
-                Some(k) => Some(k.bind(ctx, &[(0, p()), (4, stats.binding())])?),
-                None => None,
+        let block_sums = DeviceStream::zeroed(
+            ctx,
+            "resampling block sums",
+            shape.targets * shape.particles.div_ceil(RESAMPLE_BLOCK),
+        )?;
+        let resample_steps = resample_dispatches(
+            ctx,
+            resampler,
+            &shape,
+            &ResampleBindings {
+                params: &params_buffer,
+                weights: &weights,
+                cdf: &cdf,
+                ancestors: &ancestors,
+                stats: &stats,
+                keys: &resampling_keys,
+                block_sums: &block_sums,
             },
+        )?;
+        let groups = BindGroups {
             gather: stages.gather.bind(
                 ctx,
                 &[
@@ -424,6 +489,8 @@ impl GpuFilter {
             _resampling_keys: resampling_keys,
             stages,
             groups,
+            resample_steps,
+            _block_sums: block_sums,
             step: 0,
         })
     }
@@ -483,17 +550,8 @@ impl GpuFilter {
                 timestamp_writes: None,
             });
             if wants(GpuStage::Resample) {
-                if let (Some(k), Some(g)) =
-                    (&self.stages.mark_resampled, &self.groups.mark_resampled)
-                {
-                    k.record(&mut pass, g, [groups_for(t, 64), 1, 1]);
-                    self.stages
-                        .resample
-                        .record(&mut pass, &self.groups.resample, per_particle);
-                } else {
-                    self.stages
-                        .resample
-                        .record(&mut pass, &self.groups.resample, per_target);
+                for step in &self.resample_steps {
+                    step.kernel.record(&mut pass, &step.group, step.groups);
                 }
             }
             if wants(GpuStage::Gather) {
