@@ -27,6 +27,25 @@ fn reduce_pair(lid: u32, a: f32, b: f32) -> vec2<f32> {
     return result;
 }
 
+// The two sums one particle adds: (w sin x, w cos x) for an angle, (w x, w) otherwise.
+fn mean_terms(angle: bool, w: f32, x: f32) -> vec2<f32> {
+    if (angle) {
+        return vec2<f32>(w * sin(x), w * cos(x));
+    }
+    return vec2<f32>(w * x, w);
+}
+
+// The mean from the reduced sums: atan2 for an angle, the weighted average otherwise.
+fn mean_from_sums(angle: bool, sums: vec2<f32>) -> f32 {
+    if (angle) {
+        return atan2(sums.x, sums.y);
+    }
+    if (sums.y > 0.0) {
+        return sums.x / sums.y;
+    }
+    return 0.0;
+}
+
 @compute @workgroup_size(256)
 fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
@@ -34,28 +53,13 @@ fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgro
     let n = params.particles;
     for (var d = 0u; d < params.dims; d = d + 1u) {
         let angle = is_angle(d);
-        var a = 0.0;
-        var b = 0.0;
+        var acc = vec2<f32>(0.0);
         for (var i = lid; i < n; i = i + WG) {
-            let w = weights[t * n + i];
-            let x = states[state_index(t, d, i)];
-            if (angle) {
-                a = a + w * sin(x);
-                b = b + w * cos(x);
-            } else {
-                a = a + w * x;
-                b = b + w;
-            }
+            acc = acc + mean_terms(angle, weights[t * n + i], states[state_index(t, d, i)]);
         }
-        let sums = reduce_pair(lid, a, b);
+        let sums = reduce_pair(lid, acc.x, acc.y);
         if (lid == 0u) {
-            var value = 0.0;
-            if (angle) {
-                value = atan2(sums.x, sums.y);
-            } else if (sums.y > 0.0) {
-                value = sums.x / sums.y;
-            }
-            estimates[t * params.dims + d] = value;
+            estimates[t * params.dims + d] = mean_from_sums(angle, sums);
         }
     }
 }
@@ -139,8 +143,7 @@ fn best_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
 
     for (var d = 0u; d < params.dims; d = d + 1u) {
         let angle = is_angle(d);
-        var a = 0.0;
-        var b = 0.0;
+        var acc = vec2<f32>(0.0);
         var rank = first_tie_rank;
         for (var i = begin; i < end; i = i + 1u) {
             let bits = bitcast<u32>(weights[base + i]);
@@ -150,26 +153,12 @@ fn best_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
                 rank = rank + 1u;
             }
             if (take) {
-                let w = weights[base + i];
-                let x = states[state_index(t, d, i)];
-                if (angle) {
-                    a = a + w * sin(x);
-                    b = b + w * cos(x);
-                } else {
-                    a = a + w * x;
-                    b = b + w;
-                }
+                acc = acc + mean_terms(angle, weights[base + i], states[state_index(t, d, i)]);
             }
         }
-        let sums = reduce_pair(lid, a, b);
+        let sums = reduce_pair(lid, acc.x, acc.y);
         if (lid == 0u) {
-            var value = 0.0;
-            if (angle) {
-                value = atan2(sums.x, sums.y);
-            } else if (sums.y > 0.0) {
-                value = sums.x / sums.y;
-            }
-            best_estimates[t * params.dims + d] = value;
+            best_estimates[t * params.dims + d] = mean_from_sums(angle, sums);
         }
     }
 }

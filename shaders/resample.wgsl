@@ -45,6 +45,31 @@ fn positive_weight_near(base: u32, i: u32, n: u32) -> u32 {
     return j;
 }
 
+// The uniform of offspring k: one per target (systematic) or one per offspring (stratified).
+fn ordered_uniform(t: u32, k: u32, stratified: bool) -> f32 {
+    var particle = 0u;
+    if (stratified) {
+        particle = k;
+    }
+    let block = philox4x32_10(vec4<u32>(particle, 0u, params.step_lo, params.step_hi), resample_keys[t]);
+    return unit_from_word(block.x);
+}
+
+// The smallest i with point < cdf[base + i] (n - 1 when none), moved to a positive weight.
+fn search_cdf(base: u32, n: u32, point: f32) -> u32 {
+    var lo = 0u;
+    var hi = n - 1u;
+    while (lo < hi) {
+        let mid = (lo + hi) / 2u;
+        if (cdf[base + mid] <= point) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return positive_weight_near(base, lo, n);
+}
+
 fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
     let n = params.particles;
     let base = t * n;
@@ -90,27 +115,9 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
     storageBarrier();
     workgroupBarrier();
 
-    let systematic_offset = unit_from_word(
-        philox4x32_10(vec4<u32>(0u, 0u, params.step_lo, params.step_hi), resample_keys[t]).x);
     for (var k = lid; k < n; k = k + WG) {
-        var u = systematic_offset;
-        if (stratified) {
-            u = unit_from_word(
-                philox4x32_10(vec4<u32>(k, 0u, params.step_lo, params.step_hi), resample_keys[t]).x);
-        }
-        let point = (f32(k) + u) / f32(n) * total;
-        // Smallest i with point < cdf[i].
-        var lo = 0u;
-        var hi = n - 1u;
-        while (lo < hi) {
-            let mid = (lo + hi) / 2u;
-            if (cdf[base + mid] <= point) {
-                lo = mid + 1u;
-            } else {
-                hi = mid;
-            }
-        }
-        ancestors[base + k] = positive_weight_near(base, lo, n);
+        let point = (f32(k) + ordered_uniform(t, k, stratified)) / f32(n) * total;
+        ancestors[base + k] = search_cdf(base, n, point);
     }
 }
 
@@ -277,23 +284,9 @@ fn search_offspring(k: u32, t: u32, stratified: bool) {
         ancestors[base + k] = k;
         return;
     }
-    var word = philox4x32_10(vec4<u32>(0u, 0u, params.step_lo, params.step_hi), resample_keys[t]).x;
-    if (stratified) {
-        word = philox4x32_10(vec4<u32>(k, 0u, params.step_lo, params.step_hi), resample_keys[t]).x;
-    }
     let total = cdf[base + n - 1u];
-    let point = (f32(k) + unit_from_word(word)) / f32(n) * total;
-    var lo = 0u;
-    var hi = n - 1u;
-    while (lo < hi) {
-        let mid = (lo + hi) / 2u;
-        if (cdf[base + mid] <= point) {
-            lo = mid + 1u;
-        } else {
-            hi = mid;
-        }
-    }
-    ancestors[base + k] = positive_weight_near(base, lo, n);
+    let point = (f32(k) + ordered_uniform(t, k, stratified)) / f32(n) * total;
+    ancestors[base + k] = search_cdf(base, n, point);
 }
 
 @compute @workgroup_size(64)

@@ -107,12 +107,8 @@ pub fn gaussians(
         step_hi: (step >> 32) as u32,
         _pad: [0; 2],
     };
-    Ok(run(
-        ctx,
-        "gaussians",
-        params,
-        &[[0; 4]],
-        (particles * dims) as usize,
-    )?
-    .1)
+    let len = particles
+        .checked_mul(dims)
+        .ok_or_else(|| GpuError::InvalidConfig(format!("{particles} x {dims} draws overflow")))?;
+    Ok(run(ctx, "gaussians", params, &[[0; 4]], len as usize)?.1)
 }
