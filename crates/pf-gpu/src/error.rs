@@ -18,7 +18,7 @@ pub enum GpuError {
 
     /// Only software adapters matched, and the options did not allow one.
     #[error(
-        "only software adapters were found ({names}); pass allow_software (tests do) or set WGPU_ADAPTER_NAME to choose one explicitly"
+        "only software adapters were found ({names}): they are far too slow to track with, so they are used only when allowed explicitly (ContextOptions::allow_software; `streampf demo --gpu --allow-software`) or named with WGPU_ADAPTER_NAME"
     )]
     OnlySoftwareAdapters { names: String },
 

@@ -1,16 +1,21 @@
-//! `streampf demo`: a synthetic 7-D pose target (Tx, Ty, S, Rx, Ry, Rz, α — the face tracker's
-//! state) observed with noise and tracked by pf-core with the face tracker's random-walk
-//! diffusion. The yaw Ry turns full circles, so the run also shows angle estimates crossing ±π.
+//! `streampf demo`: synthetic 7-D pose targets (Tx, Ty, S, Rx, Ry, Rz, α — the face tracker's
+//! state) observed with noise and tracked with the face tracker's random-walk diffusion, on the
+//! CPU (one pf-core filter per target, targets in parallel) or on the GPU (pf-gpu's driver: one
+//! submission per frame for all targets). The yaw Ry turns full circles, so the run also shows
+//! angle estimates crossing ±π.
 
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use clap::Args;
 use nalgebra::{SVector, vector};
+use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::{
-    FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStreams,
-    ResamplePolicy, ResamplerKind, Stage, StateSpace,
+    FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStream,
+    RandomStreams, ResamplePolicy, ResamplerKind, Stage, StateSpace,
 };
+use pf_gpu::{ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler};
+use rayon::prelude::*;
 
 type Pose = SVector<f32, 7>;
 
@@ -23,31 +28,41 @@ pub struct DemoArgs {
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub steps: u32,
     /// Particles per target.
-    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=100_000_000))]
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
     pub particles: u32,
+    /// Number of targets tracked at once.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=65_535))]
+    pub targets: u32,
     /// Seed of every random number of the run (the sequence and the filter).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Resampler: multinomial, stratified, systematic, residual, metropolis or rejection.
+    /// Resampler: multinomial, stratified, systematic, residual, metropolis or rejection (the GPU
+    /// runs systematic, stratified and metropolis).
     #[arg(long, default_value = "systematic")]
     pub resampler: ResamplerKind,
     /// Resample only when ESS/N falls below this fraction (default: every step).
     #[arg(long)]
     pub ess_threshold: Option<f64>,
+    /// Run the whole filter step on the GPU.
+    #[arg(long)]
+    pub gpu: bool,
+    /// With --gpu: accept a software adapter (Mesa's lavapipe) when there is no GPU.
+    #[arg(long, requires = "gpu")]
+    pub allow_software: bool,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
 }
 
-/// The ground-truth pose at frame `t`: a head drifting over a 1024×768 frame and turning.
-fn truth(t: u32) -> Pose {
-    let t = t as f32;
+/// Target `k`'s ground-truth pose at frame `t`: a head drifting over a 1024×768 frame and turning.
+fn truth(k: u32, t: u32) -> Pose {
+    let (k, t) = (k as f32, t as f32);
     vector![
-        512.0 + 100.0 * (0.02 * t).sin(),
-        384.0 + 60.0 * (0.03 * t).cos(),
+        512.0 + 100.0 * (0.02 * t + k).sin(),
+        384.0 + 60.0 * (0.03 * t + 0.5 * k).cos(),
         1.0 + 0.2 * (0.03 * t).sin(),
         0.3 * (0.04 * t).sin(),
-        pf_core::estimate::wrap_angle(0.02 * t),
+        pf_core::estimate::wrap_angle(0.02 * t + 0.7 * k),
         0.2 * (0.05 * t).sin(),
         1.0 + 0.1 * (0.02 * t).sin()
     ]
@@ -70,6 +85,172 @@ fn errors(space: &StateSpace<7>, estimate: &Pose, truth: &Pose) -> (f32, f32) {
     (translation, rotation)
 }
 
+/// One frame's estimates and ESS per target, from either path.
+struct Frame {
+    estimates: Vec<Pose>,
+    ess: Vec<f64>,
+    resampled: usize,
+}
+
+/// The filters of every target: CPU (all cores) or GPU.
+enum Trackers {
+    Cpu(Vec<ParticleFilter<7, GaussianDiffusion<7>, Box<dyn pf_core::Resampler>>>),
+    Gpu {
+        ctx: Box<GpuContext>,
+        filter: Box<GpuFilter>,
+        likelihood: Box<pf_gpu::toy::ToyGaussianLikelihood>,
+    },
+}
+
+impl Trackers {
+    fn new(args: &DemoArgs, policy: ResamplePolicy, space: StateSpace<7>) -> anyhow::Result<Self> {
+        let start_sigma = observation_sigma() * 2.0;
+        if !args.gpu {
+            let filters = (0..args.targets)
+                .map(|k| {
+                    let config = FilterConfig {
+                        particles: args.particles as usize,
+                        policy,
+                        seed: args.seed,
+                        target: k,
+                        space,
+                    };
+                    let dynamics = GaussianDiffusion::new(diffusion_sigma())?;
+                    ParticleFilter::new(
+                        config,
+                        dynamics,
+                        args.resampler.build(),
+                        &truth(k, 0),
+                        &start_sigma,
+                    )
+                })
+                .collect::<Result<Vec<_>, _>>()
+                .context("building the filters")?;
+            return Ok(Trackers::Cpu(filters));
+        }
+        let resampler = match args.resampler {
+            ResamplerKind::Systematic => GpuResampler::Systematic,
+            ResamplerKind::Stratified => GpuResampler::Stratified,
+            ResamplerKind::Metropolis => {
+                GpuResampler::Metropolis(pf_core::resample::Metropolis::DEFAULT_STEPS)
+            }
+            other => bail!(
+                "--resampler {other} does not run on the GPU; use systematic, stratified or metropolis"
+            ),
+        };
+        let options = ContextOptions {
+            allow_software: args.allow_software,
+            ..ContextOptions::default()
+        };
+        let ctx = GpuContext::new(&options).context("opening the GPU (see `streampf devices`)")?;
+        let shape = BatchShape::new(args.targets as usize, args.particles as usize, 7)?;
+        let config = BatchConfig {
+            shape,
+            seed: args.seed,
+            sigma: diffusion_sigma().as_slice().to_vec(),
+            bounds: None,
+            angular: space.angular.to_vec(),
+            ess_threshold: match policy {
+                ResamplePolicy::EveryStep => f64::INFINITY,
+                ResamplePolicy::EssBelow(f) => f,
+            },
+            best: 0,
+        };
+        let means: Vec<f32> = (0..args.targets)
+            .flat_map(|k| truth(k, 0).as_slice().to_vec())
+            .collect();
+        let initial = gaussian_clouds(&shape, args.seed, &means, start_sigma.as_slice());
+        let filter = GpuFilter::new(&ctx, &config, resampler, &initial)
+            .context("building the GPU filter")?;
+        let mut likelihood = pf_gpu::toy::ToyGaussianLikelihood::new(
+            &ctx,
+            shape.targets,
+            observation_sigma().as_slice(),
+        )?;
+        likelihood.prepare(&ctx, &filter.likelihood_inputs())?;
+        Ok(Trackers::Gpu {
+            ctx: Box::new(ctx),
+            filter: Box::new(filter),
+            likelihood: Box::new(likelihood),
+        })
+    }
+
+    fn device(&self) -> String {
+        match self {
+            Trackers::Cpu(_) => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Trackers::Gpu { ctx, .. } => {
+                format!("GPU: {} ({})", ctx.adapter().name, ctx.adapter().backend)
+            }
+        }
+    }
+
+    /// One frame for every target; returns the frame and the GPU's own timing when there is one.
+    fn step(
+        &mut self,
+        observed: &[Pose],
+        space: StateSpace<7>,
+    ) -> anyhow::Result<(Frame, Option<pf_gpu::GpuTime>)> {
+        match self {
+            Trackers::Cpu(filters) => {
+                let reports = filters
+                    .par_iter_mut()
+                    .zip(observed)
+                    .map(|(f, z)| {
+                        f.step(&GaussianObservation {
+                            observed: *z,
+                            sigma: observation_sigma(),
+                            space,
+                        })
+                    })
+                    .collect::<Result<Vec<_>, _>>()?;
+                Ok((
+                    Frame {
+                        estimates: reports.iter().map(|r| r.estimate).collect(),
+                        ess: reports.iter().map(|r| r.ess).collect(),
+                        resampled: reports.iter().filter(|r| r.resampled).count(),
+                    },
+                    None,
+                ))
+            }
+            Trackers::Gpu {
+                ctx,
+                filter,
+                likelihood,
+            } => {
+                let flat: Vec<f32> = observed
+                    .iter()
+                    .flat_map(|z| z.as_slice().to_vec())
+                    .collect();
+                likelihood.upload_observations(ctx, &flat)?;
+                let report = filter.step(ctx, likelihood.as_ref())?;
+                let particles = filter.shape().particles;
+                for (k, s) in report.stats.iter().enumerate() {
+                    s.result(particles).with_context(|| format!("target {k}"))?;
+                }
+                Ok((
+                    Frame {
+                        estimates: report
+                            .estimates
+                            .chunks(7)
+                            .map(Pose::from_column_slice)
+                            .collect(),
+                        ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
+                        resampled: report.stats.iter().filter(|s| s.resampled == 1).count(),
+                    },
+                    Some(report.time),
+                ))
+            }
+        }
+    }
+}
+
+fn observe(k: u32, t: u32, noise: &mut RandomStream, space: &StateSpace<7>) -> Pose {
+    let sigma = observation_sigma();
+    let mut z = truth(k, t) + Pose::from_fn(|d, _| sigma[d] * noise.gaussian_f32());
+    space.wrap(&mut z);
+    z
+}
+
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let policy = match args.ess_threshold {
         None => ResamplePolicy::EveryStep,
@@ -77,60 +258,62 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         Some(f) => bail!("--ess-threshold must be a fraction in (0, 1], got {f}"),
     };
     let space = StateSpace::with_angles(&ANGLES)?;
-    let config = FilterConfig {
-        particles: args.particles as usize,
-        policy,
-        seed: args.seed,
-        target: 0,
-        space,
-    };
-    let mut filter = ParticleFilter::new(
-        config,
-        GaussianDiffusion::new(diffusion_sigma())?,
-        args.resampler.build(),
-        &truth(0),
-        &(observation_sigma() * 2.0),
-    )
-    .context("building the filter")?;
-    // The sequence's noise has its own stream, apart from the filter's.
-    let mut noise = RandomStreams::new(args.seed).stream(0, Stage::Model(0));
-    let sigma = observation_sigma();
+    let mut trackers = Trackers::new(args, policy, space)?;
+    // The sequence's noise has its own stream per target, apart from the filters'.
+    let streams = RandomStreams::new(args.seed);
+    let mut noise: Vec<RandomStream> = (0..args.targets)
+        .map(|k| streams.stream(k, Stage::Model(0)))
+        .collect();
 
     println!(
-        "streampf demo: 7-D pose target, {} particles, {} resampling, {} steps, seed {}",
-        args.particles, args.resampler, args.steps, args.seed
+        "streampf demo: {} 7-D pose target(s) x {} particles, {} resampling, {} steps, seed {}, on {}",
+        args.targets,
+        args.particles,
+        args.resampler,
+        args.steps,
+        args.seed,
+        trackers.device()
     );
     if !args.quiet {
-        println!("step  transl.err(px)  rot.err(deg)  obs.transl.err(px)       ESS  resampled");
+        println!("step  transl.err(px)  rot.err(deg)  obs.transl.err(px)  mean ESS  resampled");
     }
+    let n_targets = args.targets as f32;
     let (mut sum_t, mut sum_r, mut max_t, mut max_r) = (0.0, 0.0, 0.0f32, 0.0f32);
     let (mut sum_obs_t, mut sum_obs_r) = (0.0, 0.0);
+    let mut gpu_time = Duration::ZERO;
+    let mut gpu_time_source = "";
     let start = Instant::now();
     for t in 0..args.steps {
-        let x = truth(t);
-        let mut observed = x + Pose::from_fn(|d, _| sigma[d] * noise.gaussian_f32());
-        space.wrap(&mut observed);
-        let likelihood = GaussianObservation {
-            observed,
-            sigma,
-            space,
-        };
-        let report = filter
-            .step(&likelihood)
+        let observed: Vec<Pose> = (0..args.targets)
+            .map(|k| observe(k, t, &mut noise[k as usize], &space))
+            .collect();
+        let (frame, time) = trackers
+            .step(&observed, space)
             .with_context(|| format!("step {t}"))?;
-        let (et, er) = errors(&space, &report.estimate, &x);
-        let (obs_t, obs_r) = errors(&space, &observed, &x);
-        sum_t += et;
-        sum_r += er;
-        sum_obs_t += obs_t;
-        sum_obs_r += obs_r;
-        max_t = max_t.max(et);
-        max_r = max_r.max(er);
+        if let Some(time) = time {
+            gpu_time += time.duration();
+            gpu_time_source = time.source();
+        }
+        let (mut step_t, mut step_r, mut step_obs_t) = (0.0, 0.0, 0.0);
+        for k in 0..args.targets {
+            let x = truth(k, t);
+            let (et, er) = errors(&space, &frame.estimates[k as usize], &x);
+            let (obs_t, obs_r) = errors(&space, &observed[k as usize], &x);
+            step_t += et / n_targets;
+            step_r += er / n_targets;
+            step_obs_t += obs_t / n_targets;
+            sum_obs_r += obs_r / n_targets;
+            max_t = max_t.max(et);
+            max_r = max_r.max(er);
+        }
+        sum_t += step_t;
+        sum_r += step_r;
+        sum_obs_t += step_obs_t;
         if !args.quiet {
+            let mean_ess = frame.ess.iter().sum::<f64>() / frame.ess.len() as f64;
             println!(
-                "{t:4}  {et:14.2}  {er:12.2}  {obs_t:18.2}  {:8.1}  {}",
-                report.ess,
-                if report.resampled { "yes" } else { "no" }
+                "{t:4}  {step_t:14.2}  {step_r:12.2}  {step_obs_t:18.2}  {mean_ess:8.1}  {}/{}",
+                frame.resampled, args.targets
             );
         }
     }
@@ -146,11 +329,19 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         sum_obs_t / n,
         sum_obs_r / n
     );
-    println!(
-        "         {:.3} ms per step on the CPU ({} steps in {:.2} s)",
-        elapsed.as_secs_f64() * 1e3 / f64::from(args.steps),
-        args.steps,
-        elapsed.as_secs_f64()
-    );
+    let per_step_ms = elapsed.as_secs_f64() * 1e3 / f64::from(args.steps);
+    match &trackers {
+        Trackers::Cpu(_) => println!(
+            "         {per_step_ms:.3} ms per step on the CPU, all targets ({} steps in {:.2} s, observation synthesis included)",
+            args.steps,
+            elapsed.as_secs_f64()
+        ),
+        Trackers::Gpu { .. } => println!(
+            "         {per_step_ms:.3} ms per step on the host, {:.3} ms of it the GPU step ({gpu_time_source}), all targets ({} steps in {:.2} s)",
+            gpu_time.as_secs_f64() * 1e3 / f64::from(args.steps),
+            args.steps,
+            elapsed.as_secs_f64()
+        ),
+    }
     Ok(())
 }

@@ -119,3 +119,72 @@ fn devices_with_an_unmatched_name_says_what_to_install() {
         "{err}"
     );
 }
+
+/// Runs `args`, or returns `None` when there is no adapter and the run opted out of GPU tests
+/// (`STREAMPF_ALLOW_NO_GPU=1`); without the opt-out a missing adapter fails the test.
+fn streampf_gpu(args: &[&str]) -> Option<std::process::Output> {
+    let out = streampf(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success() && err.contains("no GPU adapter was found") {
+        assert!(
+            std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
+            "this test needs a GPU adapter (or Mesa's lavapipe: apt-get install mesa-vulkan-drivers); \
+             set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly.\n{err}"
+        );
+        eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
+        return None;
+    }
+    Some(out)
+}
+
+#[test]
+fn demo_on_the_gpu_tracks_several_targets_as_well_as_the_cpu() {
+    let common = [
+        "demo",
+        "--steps",
+        "60",
+        "--particles",
+        "500",
+        "--targets",
+        "4",
+        "--quiet",
+    ];
+    let Some(gpu) = streampf_gpu(&[&common[..], &["--gpu", "--allow-software"]].concat()) else {
+        return;
+    };
+    assert!(
+        gpu.status.success(),
+        "{}",
+        String::from_utf8_lossy(&gpu.stderr)
+    );
+    let gpu_text = String::from_utf8_lossy(&gpu.stdout);
+    assert!(gpu_text.contains("on GPU:"), "{gpu_text}");
+    assert!(gpu_text.contains("of it the GPU step"), "{gpu_text}");
+    let cpu = streampf(&common);
+    let cpu_text = String::from_utf8_lossy(&cpu.stdout);
+    let (g, c) = (
+        number_after(&gpu_text, "mean translation error"),
+        number_after(&cpu_text, "mean translation error"),
+    );
+    let raw = number_after(&gpu_text, "raw observations were off by");
+    assert!(g < 0.8 * raw, "GPU {g} px vs raw {raw} px\n{gpu_text}");
+    // Two Monte Carlo runs of the same filter: within 30 % of each other.
+    assert!((g - c).abs() <= 0.3 * c, "GPU {g} px vs CPU {c} px");
+}
+
+#[test]
+fn gpu_demo_refuses_what_the_gpu_cannot_do() {
+    let out = streampf(&[
+        "demo",
+        "--gpu",
+        "--allow-software",
+        "--resampler",
+        "rejection",
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("does not run on the GPU"), "{err}");
+    let out = streampf(&["demo", "--allow-software"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--gpu"));
+}
