@@ -1,14 +1,26 @@
-//! # body-tracker (not yet built)
+//! # body-tracker
 //!
-//! This crate will hold the stereo articulated body tracker of Friborg, Hauberg & Erleben ("GPU
-//! accelerated likelihoods for stereo-based articulated tracking"), rebuilt on `pf-core` and
-//! `pf-gpu`:
+//! The stereo articulated body tracker of Friborg, Hauberg & Erleben ("GPU accelerated
+//! likelihoods for stereo-based articulated tracking"), rebuilt on `pf-core`:
 //!
-//! - the kinematic skeleton (a tree of rigid bones with joint limits) and forward kinematics to
-//!   capsules (a, b, r);
-//! - the ray–capsule intersection of the paper's Appendix A, the truncated metric and the
-//!   log-likelihood over a stereo point cloud;
-//! - the CPU reference likelihood (the paper's Listing 1.2 loop) that the GPU kernel is tested
-//!   against, point-cloud inputs and the tracker itself.
+//! - [`skeleton`]: a tree of rigid bones with 0–3 joint angles and limits, a root pose, forward
+//!   kinematics to capsules, a JSON file form; [`human`]: the default human with 19–96 capsules;
+//! - [`capsule`]: the ray–capsule intersection of the paper's Appendix A and the truncated metric
+//!   (eq. 6);
+//! - [`likelihood`]: the log-likelihood (eq. 3) with Listing 1.2's single-thread loop (the
+//!   reference and speed baseline) and a rayon version over samples.
 //!
-//! It deliberately exposes no API yet: nothing here is usable until that work lands.
+//! Still to come (issue 4): the GPU kernels, point-cloud inputs, the synthetic sequence and the
+//! tracker.
+
+pub mod capsule;
+pub mod error;
+pub mod human;
+pub mod likelihood;
+pub mod skeleton;
+
+pub use capsule::{Capsule, ray_capsule, truncated_distance};
+pub use error::BodyError;
+pub use human::human_skeleton;
+pub use likelihood::{CapsuleLikelihoodParams, Rays, listing_1_2, parallel_over_samples};
+pub use skeleton::{Skeleton, SkeletonSpec};

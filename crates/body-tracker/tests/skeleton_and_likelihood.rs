@@ -1,0 +1,220 @@
+//! Forward kinematics, the skeleton file, and the capsule likelihood on the CPU.
+
+use body_tracker::capsule::ray_capsule;
+use body_tracker::human::{BASE_CAPSULES, human_skeleton, standing_pose};
+use body_tracker::likelihood::{
+    CapsuleLikelihoodParams, Rays, listing_1_2, parallel_over_samples, sum_of_squared_distances,
+};
+use body_tracker::{BodyError, Skeleton, SkeletonSpec};
+use nalgebra::{Vector3, vector};
+use proptest::prelude::*;
+
+#[test]
+fn capsule_count_is_configurable_up_to_48_and_beyond() {
+    for k in [BASE_CAPSULES, 40, 48, 96] {
+        let s = human_skeleton(k).unwrap();
+        assert_eq!(s.capsule_count(), k);
+        assert_eq!(s.capsules(&standing_pose(&s, 3.0)).unwrap().len(), k);
+    }
+    assert!(human_skeleton(18).is_err());
+    assert!(human_skeleton(97).is_err());
+}
+
+#[test]
+fn splitting_bones_keeps_the_body_the_same_shape() {
+    // The rest pose of the 48-capsule body covers the same points as the 19-capsule one: every
+    // joint of the base body is still a capsule end point.
+    let base = human_skeleton(BASE_CAPSULES).unwrap();
+    let fine = human_skeleton(48).unwrap();
+    let base_caps = base.capsules(&standing_pose(&base, 3.0)).unwrap();
+    let fine_caps = fine.capsules(&standing_pose(&fine, 3.0)).unwrap();
+    for c in &base_caps {
+        for end in [c.a, c.b] {
+            let near = fine_caps
+                .iter()
+                .any(|f| (f.a - end).norm() < 1e-5 || (f.b - end).norm() < 1e-5);
+            assert!(
+                near,
+                "end point {end:?} of the base body is missing from the split body"
+            );
+        }
+    }
+    let total =
+        |caps: &[body_tracker::Capsule]| caps.iter().map(|c| (c.b - c.a).norm()).sum::<f32>();
+    assert!((total(&base_caps) - total(&fine_caps)).abs() < 1e-4);
+}
+
+#[test]
+fn rest_pose_matches_hand_computed_joints() {
+    let s = human_skeleton(BASE_CAPSULES).unwrap();
+    let theta = standing_pose(&s, 3.0);
+    let joints = s.joint_positions(&theta).unwrap();
+    let at = |name: &str| joints[s.bone_index(name).unwrap()];
+    // Head: pelvis 0.10 + spine 0.22 + chest 0.22 + neck 0.08 above the root at y = −0.05.
+    assert!((at("head") - vector![0.0, -0.05 + 0.62, 3.0]).norm() < 1e-5);
+    // Left shoulder: chest origin (y = 0.27) + 0.18 up, then the clavicle's 0.16 to +x.
+    assert!((at("left_upper_arm") - vector![0.16, 0.27 + 0.18, 3.0]).norm() < 1e-5);
+    // Right knee: hip at x = −0.10, 0.42 below.
+    assert!((at("right_shin") - vector![-0.10, -0.05 - 0.42, 3.0]).norm() < 1e-5);
+}
+
+proptest! {
+    #[test]
+    fn forward_kinematics_keeps_bone_lengths_and_attaches_children(seed in any::<u64>()) {
+        let s = human_skeleton(48).unwrap();
+        let (lo, hi) = s.limits();
+        let mut rng = pf_core::RandomStreams::new(seed).stream(0, pf_core::Stage::Model(0));
+        let theta: Vec<f32> = (0..s.dofs()).map(|i| {
+            if lo[i].is_finite() { lo[i] + (hi[i] - lo[i]) * rng.uniform() as f32 } else { rng.gaussian_f32() }
+        }).collect();
+        let caps = s.capsules(&theta).unwrap();
+        for (bone, c) in s.bones().iter().zip(&caps) {
+            prop_assert!(((c.b - c.a).norm() - bone.length).abs() < 1e-4);
+        }
+        // A chained child (offset = parent's length along its direction) starts where its parent ends.
+        let fore = s.bone_index("left_forearm").unwrap();
+        let upper_end = caps.iter().zip(s.bones()).filter(|(_, b)| b.name.starts_with("left_upper_arm")).map(|(c, _)| c.b);
+        prop_assert!(upper_end.clone().any(|e| (e - caps[fore].a).norm() < 1e-4));
+    }
+}
+
+#[test]
+fn skeleton_files_round_trip_and_bad_files_are_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("streampf-skeleton-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("human.json");
+    let s = human_skeleton(40).unwrap();
+    s.save(&path).unwrap();
+    assert_eq!(Skeleton::load(&path).unwrap(), s);
+
+    let write = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    };
+    let corrupt = write("corrupt.json", "{ \"bones\": [ {\"name\": ");
+    assert!(matches!(
+        Skeleton::load(&corrupt),
+        Err(BodyError::SkeletonFile { .. })
+    ));
+    assert!(matches!(
+        Skeleton::load(&dir.join("missing.json")),
+        Err(BodyError::SkeletonFile { .. })
+    ));
+    let mut spec = s.spec();
+    spec.bones[3].parent = Some("no_such_bone".into());
+    let err = Skeleton::new(spec).unwrap_err().to_string();
+    assert!(err.contains("no_such_bone"), "{err}");
+    let mut spec = s.spec();
+    spec.bones[2].radius = -1.0;
+    assert!(Skeleton::new(spec).is_err());
+    let mut spec = s.spec();
+    spec.bones[5].name = spec.bones[4].name.clone();
+    assert!(
+        Skeleton::new(spec)
+            .unwrap_err()
+            .to_string()
+            .contains("used twice")
+    );
+    assert!(Skeleton::new(SkeletonSpec { bones: vec![] }).is_err());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn unknown_joints_and_bad_poses_are_clear_errors() {
+    let s = human_skeleton(BASE_CAPSULES).unwrap();
+    match s.angles_of("left_tentacle") {
+        Err(BodyError::UnknownJoint { name, known }) => {
+            assert_eq!(name, "left_tentacle");
+            assert!(known.contains("left_forearm"));
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        s.capsules(&[0.0; 3]),
+        Err(BodyError::InvalidPose(_))
+    ));
+    let mut theta = standing_pose(&s, 3.0);
+    theta[7] = f32::NAN;
+    assert!(matches!(s.capsules(&theta), Err(BodyError::InvalidPose(_))));
+}
+
+/// Points from ray-casting `caps` from the origin over a grid of directions (the synthetic
+/// stereo cloud of a pose, without noise).
+fn cast(caps: &[body_tracker::Capsule], n: usize) -> Vec<Vector3<f32>> {
+    let mut points = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            let dir = vector![
+                -0.35 + 0.7 * i as f32 / n as f32,
+                -0.45 + 0.9 * j as f32 / n as f32,
+                1.0
+            ]
+            .normalize();
+            let hit = caps
+                .iter()
+                .filter_map(|c| ray_capsule(&Vector3::zeros(), &dir, c))
+                .fold(f32::INFINITY, f32::min);
+            if hit.is_finite() {
+                points.push(dir * hit);
+            }
+        }
+    }
+    points
+}
+
+#[test]
+fn the_true_pose_explains_its_own_points_and_a_moved_pose_does_not() {
+    let s = human_skeleton(48).unwrap();
+    let theta = standing_pose(&s, 3.0);
+    let caps = s.capsules(&theta).unwrap();
+    let points = cast(&caps, 40);
+    assert!(points.len() > 100, "{} points", points.len());
+    let rays = Rays::through(Vector3::zeros(), &points).unwrap();
+    let params = CapsuleLikelihoodParams::new(0.1, 0.02).unwrap();
+    let own = sum_of_squared_distances(&caps, &rays, params.tau);
+    assert!(own < 1e-8 * points.len() as f64, "M = {own}");
+    let mut moved = theta.clone();
+    moved[0] += 0.05;
+    let other = sum_of_squared_distances(&s.capsules(&moved).unwrap(), &rays, params.tau);
+    assert!(other > 100.0 * (own + 1e-9));
+    assert!(params.log_likelihood(own) > params.log_likelihood(other));
+    // No capsule at all: every point is τ away.
+    let none = sum_of_squared_distances(&[], &rays, params.tau);
+    assert!((none - points.len() as f64 * 0.01).abs() < 1e-6);
+}
+
+#[test]
+fn the_rayon_version_matches_listing_1_2_bit_for_bit() {
+    let s = human_skeleton(48).unwrap();
+    let base = standing_pose(&s, 3.0);
+    let points = cast(&s.capsules(&base).unwrap(), 30);
+    let rays = Rays::through(Vector3::zeros(), &points).unwrap();
+    let mut rng = pf_core::RandomStreams::new(4).stream(0, pf_core::Stage::Model(0));
+    let samples: Vec<_> = (0..37)
+        .map(|_| {
+            let theta: Vec<f32> = base.iter().map(|x| x + 0.05 * rng.gaussian_f32()).collect();
+            s.capsules(&theta).unwrap()
+        })
+        .collect();
+    let a = listing_1_2(&samples, &rays, 0.1);
+    let b = parallel_over_samples(&samples, &rays, 0.1);
+    assert_eq!(
+        a.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+        b.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn bad_points_and_parameters_are_clear_errors() {
+    let origin = Vector3::zeros();
+    let err = Rays::through(
+        origin,
+        &[vector![0.0, 0.0, 1.0], vector![f32::NAN, 0.0, 1.0]],
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("point 1"), "{err}");
+    assert!(Rays::through(origin, &[origin]).is_err());
+    assert!(CapsuleLikelihoodParams::new(0.0, 1.0).is_err());
+    assert!(CapsuleLikelihoodParams::new(0.1, f32::NAN).is_err());
+}
