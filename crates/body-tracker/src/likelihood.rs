@@ -53,6 +53,15 @@ impl Rays {
         self.depths.len()
     }
 
+    /// The GPU layout: `[dir.x, dir.y, dir.z, depth]` per point.
+    pub fn gpu_layout(&self) -> Vec<[f32; 4]> {
+        self.directions
+            .iter()
+            .zip(&self.depths)
+            .map(|(d, &depth)| [d.x, d.y, d.z, depth])
+            .collect()
+    }
+
     pub fn is_empty(&self) -> bool {
         self.depths.is_empty()
     }
@@ -85,11 +94,7 @@ impl CapsuleLikelihoodParams {
 pub fn sum_of_squared_distances(capsules: &[Capsule], rays: &Rays, tau: f32) -> f64 {
     let mut sum = 0.0f64;
     for (dir, &depth) in rays.directions.iter().zip(&rays.depths) {
-        let mut best = tau;
-        for c in capsules {
-            let d = truncated_distance(ray_capsule(&rays.origin, dir, c), depth, tau);
-            best = best.min(d);
-        }
+        let best = point_min_distance(capsules, &rays.origin, dir, depth, tau);
         sum += f64::from(best) * f64::from(best);
     }
     sum
@@ -110,4 +115,27 @@ pub fn parallel_over_samples(samples: &[Vec<Capsule>], rays: &Rays, tau: f32) ->
         .par_iter()
         .map(|c| sum_of_squared_distances(c, rays, tau))
         .collect()
+}
+
+/// The GPU layout of capsules: `[a.x, a.y, a.z, r]`, `[b.x, b.y, b.z, 0]` per capsule, appended
+/// to `out` (call once per sample, in sample order).
+pub fn capsules_gpu_layout(capsules: &[Capsule], out: &mut Vec<[f32; 4]>) {
+    for c in capsules {
+        out.push([c.a.x, c.a.y, c.a.z, c.radius]);
+        out.push([c.b.x, c.b.y, c.b.z, 0.0]);
+    }
+}
+
+/// min_k d_ik for one ray (the inner loops of Listing 1.2).
+pub fn point_min_distance(
+    capsules: &[Capsule],
+    origin: &Vector3<f32>,
+    dir: &Vector3<f32>,
+    depth: f32,
+    tau: f32,
+) -> f32 {
+    capsules
+        .iter()
+        .map(|c| truncated_distance(ray_capsule(origin, dir, c), depth, tau))
+        .fold(tau, f32::min)
 }

@@ -15,6 +15,7 @@ pub mod sources {
     pub const ESTIMATE: &str = include_str!("../../../shaders/estimate.wgsl");
     pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/toy_likelihood.wgsl");
     pub const RANDOM: &str = include_str!("../../../shaders/random.wgsl");
+    pub const CAPSULE_LIKELIHOOD: &str = include_str!("../../../shaders/capsule_likelihood.wgsl");
 
     /// Every stage file, by name, for the validation tests.
     pub const STAGES: [(&str, &str); 6] = [
@@ -149,6 +150,9 @@ mod tests {
         if let Err(message) = validate_wgsl(&random) {
             panic!("random.wgsl:\n{message}");
         }
+        if let Err(message) = validate_wgsl(sources::CAPSULE_LIKELIHOOD) {
+            panic!("capsule_likelihood.wgsl:\n{message}");
+        }
     }
 
     #[test]
@@ -163,7 +167,15 @@ mod tests {
             .collect();
         on_disk.sort();
         let mut known: Vec<String> = sources::STAGES.iter().map(|(f, _)| f.to_string()).collect();
-        known.extend(["philox.wgsl", "common.wgsl", "random.wgsl"].map(String::from));
+        known.extend(
+            [
+                "philox.wgsl",
+                "common.wgsl",
+                "random.wgsl",
+                "capsule_likelihood.wgsl",
+            ]
+            .map(String::from),
+        );
         known.sort();
         assert_eq!(on_disk, known);
     }

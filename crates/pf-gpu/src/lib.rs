@@ -13,6 +13,7 @@ pub mod error;
 
 pub use adapters::{AdapterSummary, list_adapters};
 pub use error::{GpuError, NO_ADAPTER_HELP};
+pub mod capsules;
 pub mod context;
 pub mod filter;
 pub mod kernels;

@@ -1,0 +1,252 @@
+//! The launcher of the body paper's ray-cast capsule likelihood (`shaders/capsule_likelihood.wgsl`)
+//! over plain layouts: rays `[dir.x, dir.y, dir.z, depth]` and, per sample, per capsule, two
+//! `[f32; 4]`: `[a.x, a.y, a.z, r]`, `[b.x, b.y, b.z, 0]`. It returns M_j = Σ_i (min_k d_ik)² per
+//! sample. CPU twin: `body_tracker::likelihood::listing_1_2`.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::kernels::{Kernel, sources};
+use crate::stream::{DeviceStream, Readback};
+
+/// Points per workgroup tile (`TILE` in the shader).
+const TILE: usize = 256;
+/// The most capsules per sample the kernels stage in workgroup memory.
+pub const MAX_CAPSULES: usize = 128;
+
+/// Which kernel evaluates the pairs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CapsuleKernel {
+    /// The paper's design: every (point, capsule) pair solves the quadratics from a, b, r.
+    PaperLayout,
+    /// Per-capsule terms once per sample and a bounding-sphere test before any quadratic.
+    Fast,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct CapsuleParams {
+    samples: u32,
+    points: u32,
+    capsules: u32,
+    tiles: u32,
+    sample_offset: u32,
+    _pad: [u32; 3],
+    origin: [f32; 3],
+    tau: f32,
+}
+
+/// One dispatch chunk of samples (the grid's y dimension is limited by the adapter).
+struct Chunk {
+    samples: u32,
+    groups: Vec<wgpu::BindGroup>,
+    _params: wgpu::Buffer,
+}
+
+/// The GPU likelihood for `samples` samples × `points` points × `capsules` capsules.
+pub struct CapsuleLikelihoodGpu {
+    kind: CapsuleKernel,
+    samples: usize,
+    points: usize,
+    capsules_per_sample: usize,
+    tiles: usize,
+    rays: DeviceStream<[f32; 4]>,
+    capsules: DeviceStream<[f32; 4]>,
+    sums: DeviceStream<f32>,
+    _partials: DeviceStream<f32>,
+    _terms: DeviceStream<[f32; 24]>,
+    kernels: Vec<Kernel>,
+    chunks: Vec<Chunk>,
+    sums_back: Readback<f32>,
+}
+
+impl CapsuleLikelihoodGpu {
+    pub fn new(
+        ctx: &GpuContext,
+        kind: CapsuleKernel,
+        samples: usize,
+        points: usize,
+        capsules_per_sample: usize,
+        origin: [f32; 3],
+        tau: f32,
+    ) -> Result<Self, GpuError> {
+        if samples == 0 || points == 0 || capsules_per_sample == 0 {
+            return Err(GpuError::InvalidConfig(format!(
+                "the capsule likelihood needs samples, points and capsules (got {samples}, {points}, {capsules_per_sample})"
+            )));
+        }
+        if capsules_per_sample > MAX_CAPSULES {
+            return Err(GpuError::InvalidConfig(format!(
+                "{capsules_per_sample} capsules per sample; the kernels hold at most {MAX_CAPSULES}"
+            )));
+        }
+        if !(tau.is_finite() && tau > 0.0 && origin.iter().all(|x| x.is_finite())) {
+            return Err(GpuError::InvalidConfig(format!(
+                "invalid tau {tau} or camera origin {origin:?}"
+            )));
+        }
+        let tiles = points.div_ceil(TILE);
+        let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
+        if tiles > max_groups {
+            return Err(GpuError::InvalidConfig(format!(
+                "{points} points need {tiles} tiles, over the adapter's {max_groups} workgroups per dimension"
+            )));
+        }
+        let too_big =
+            |what: &str| GpuError::InvalidConfig(format!("{what} overflow 32-bit indices"));
+        let capsule_values = samples
+            .checked_mul(capsules_per_sample * 2)
+            .ok_or_else(|| too_big("capsules"))?;
+        let partial_values = samples
+            .checked_mul(tiles)
+            .ok_or_else(|| too_big("partial sums"))?;
+        if capsule_values > u32::MAX as usize
+            || partial_values > u32::MAX as usize
+            || points > u32::MAX as usize
+        {
+            return Err(too_big("the buffers"));
+        }
+        let rays = DeviceStream::zeroed(ctx, "rays", points)?;
+        let capsules = DeviceStream::zeroed(ctx, "capsules", capsule_values)?;
+        let partials = DeviceStream::zeroed(ctx, "likelihood partial sums", partial_values)?;
+        let terms = DeviceStream::zeroed(
+            ctx,
+            "capsule terms",
+            if kind == CapsuleKernel::Fast {
+                samples * capsules_per_sample
+            } else {
+                1
+            },
+        )?;
+        let sums = DeviceStream::zeroed(ctx, "likelihood sums", samples)?;
+        let entries: &[&str] = match kind {
+            CapsuleKernel::PaperLayout => &["paper_layout", "reduce_partials"],
+            CapsuleKernel::Fast => &["capsule_terms", "fast", "reduce_partials"],
+        };
+        let kernels = entries
+            .iter()
+            .map(|e| Kernel::new(ctx, e, sources::CAPSULE_LIKELIHOOD, e))
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut chunks = Vec::new();
+        let mut offset = 0;
+        while offset < samples {
+            let count = (samples - offset).min(max_groups);
+            let params = CapsuleParams {
+                samples: samples as u32,
+                points: points as u32,
+                capsules: capsules_per_sample as u32,
+                tiles: tiles as u32,
+                sample_offset: offset as u32,
+                _pad: [0; 3],
+                origin,
+                tau,
+            };
+            let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("capsule likelihood params"),
+                size: std::mem::size_of::<CapsuleParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            ctx.queue
+                .write_buffer(&buffer, 0, bytemuck::bytes_of(&params));
+            let groups = kernels
+                .iter()
+                .map(|k| {
+                    let p = buffer.as_entire_binding();
+                    let entries: Vec<(u32, wgpu::BindingResource<'_>)> = match k.name() {
+                        "paper_layout" => vec![
+                            (0, p),
+                            (1, capsules.binding()),
+                            (2, rays.binding()),
+                            (3, partials.binding()),
+                        ],
+                        "capsule_terms" => {
+                            vec![(0, p), (1, capsules.binding()), (4, terms.binding())]
+                        }
+                        "fast" => vec![
+                            (0, p),
+                            (2, rays.binding()),
+                            (3, partials.binding()),
+                            (4, terms.binding()),
+                        ],
+                        _ => vec![(0, p), (3, partials.binding()), (5, sums.binding())],
+                    };
+                    k.bind(ctx, &entries)
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            chunks.push(Chunk {
+                samples: count as u32,
+                groups,
+                _params: buffer,
+            });
+            offset += count;
+        }
+        Ok(Self {
+            kind,
+            samples,
+            points,
+            capsules_per_sample,
+            tiles,
+            sums_back: Readback::new(ctx, "likelihood sums readback", samples)?,
+            rays,
+            capsules,
+            sums,
+            _partials: partials,
+            _terms: terms,
+            kernels,
+            chunks,
+        })
+    }
+
+    pub fn kind(&self) -> CapsuleKernel {
+        self.kind
+    }
+
+    /// This frame's rays, `[dir, depth]` per point (exactly `points` of them).
+    pub fn upload_rays(&self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
+        self.rays.upload(ctx, rays)
+    }
+
+    /// Every sample's capsules, `samples × capsules × 2` values.
+    pub fn upload_capsules(&self, ctx: &GpuContext, capsules: &[[f32; 4]]) -> Result<(), GpuError> {
+        self.capsules.upload(ctx, capsules)
+    }
+
+    /// Records the evaluation: per chunk, (terms,) pairs, reduction.
+    pub fn record(&self, encoder: &mut wgpu::CommandEncoder) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("capsule likelihood"),
+            timestamp_writes: None,
+        });
+        for chunk in &self.chunks {
+            for (kernel, group) in self.kernels.iter().zip(&chunk.groups) {
+                let groups = match kernel.name() {
+                    "capsule_terms" => [
+                        self.capsules_per_sample.div_ceil(64) as u32,
+                        chunk.samples,
+                        1,
+                    ],
+                    "reduce_partials" => [1, chunk.samples, 1],
+                    _ => [self.tiles as u32, chunk.samples, 1],
+                };
+                kernel.record(&mut pass, group, groups);
+            }
+        }
+    }
+
+    /// Evaluates M_j for every sample: one submission, the sums read back.
+    pub fn evaluate(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        let submission = ctx.scoped("evaluating the capsule likelihood", || {
+            self.record(&mut encoder);
+            self.sums_back.record_copy(&mut encoder, &self.sums);
+            ctx.queue.submit([encoder.finish()])
+        })?;
+        self.sums_back.read(ctx, Some(submission))
+    }
+
+    pub fn shape(&self) -> (usize, usize, usize) {
+        (self.samples, self.points, self.capsules_per_sample)
+    }
+}

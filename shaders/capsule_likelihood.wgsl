@@ -1,0 +1,295 @@
+// The ray-cast capsule likelihood of the body paper on the GPU: M_j = sum_i (min_k d_ik)^2 for
+// every sample j, with d_ik the truncated distance (eq. 6) between point i's depth and the first
+// hit of its camera ray on capsule k (Appendix A).
+//
+// Layouts (plain, see pf_gpu::capsules): capsules[(j * K + k) * 2] = (a.xyz, r) and
+// [.. + 1] = (b.xyz, 0); rays[i] = (unit direction from the camera origin, depth); partials[j *
+// tiles + tile]; sums[j]. Samples j = sample_offset + workgroup_id.y, so that any J fits the
+// adapter's dispatch limit (the launcher dispatches sample tiles).
+//
+// Two kernels with the grid of the paper (point tile x sample; capsules and points staged in
+// workgroup memory; partial sums per tile, then a reduction kernel):
+// - paper_layout: every (point, capsule) pair solves the quadratics from a, b, r (Listing 1.2's
+//   arithmetic);
+// - fast: capsule_terms first computes each capsule's per-sample terms once (axis, length, and
+//   every camera-origin term of P_c, P_a, P_b, since every ray starts at the camera), then each
+//   pair tests the capsule's bounding sphere before any quadratic: a ray that misses it, or meets
+//   it only farther than tau from the point's depth, has d = tau without solving anything.
+// CPU twin: body_tracker::likelihood::listing_1_2.
+
+struct CapsuleParams {
+    samples: u32,
+    points: u32,
+    capsules: u32,
+    tiles: u32,
+    sample_offset: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+    origin: vec3<f32>,
+    tau: f32,
+}
+
+// Per (sample, capsule): everything about the capsule that does not depend on the ray.
+struct CapsuleTerms {
+    // Unit axis u and length L (u = 0 for a zero-length bone).
+    axis: vec4<f32>,
+    // w_perp, the part of w = p - a orthogonal to the axis, and w.u. The cylinder's q1 is
+    // v_perp.w_perp = v.w_perp: one dot product, and no cancellation (v.w - (v.u)(w.u) loses
+    // digits for bones that point at the camera).
+    w_perp: vec4<f32>,
+    // w = p - a, and |w|^2 - r^2 (sphere a).
+    wa: vec4<f32>,
+    // p - b, and |p - b|^2 - r^2 (sphere b).
+    wb: vec4<f32>,
+    // p - c for the bounding sphere's centre c = (a + b) / 2, and |p - c|^2 - R^2, R = L/2 + r.
+    wc: vec4<f32>,
+    // |w_perp|^2 - r^2 (cylinder), unused.
+    q0: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> cp: CapsuleParams;
+@group(0) @binding(1) var<storage, read> capsules: array<vec4<f32>>;
+@group(0) @binding(2) var<storage, read> rays: array<vec4<f32>>;
+@group(0) @binding(3) var<storage, read_write> partials: array<f32>;
+@group(0) @binding(4) var<storage, read_write> terms: array<CapsuleTerms>;
+@group(0) @binding(5) var<storage, read_write> sums: array<f32>;
+
+const TILE: u32 = 256u;
+const MAX_CAPSULES: u32 = 128u;
+const NO_HIT: f32 = -1.0;
+
+var<workgroup> staged_capsules: array<vec4<f32>, 256>;
+var<workgroup> staged_rays: array<vec4<f32>, 256>;
+var<workgroup> staged_terms: array<CapsuleTerms, 128>;
+var<workgroup> partial_sum: array<f32, 256>;
+
+// The smallest root >= 0 of q2 D^2 + 2 q1 D + q0 = 0, or NO_HIT.
+fn first_nonnegative_root(q2: f32, q1: f32, q0: f32) -> f32 {
+    let disc = q1 * q1 - q2 * q0;
+    if (disc < 0.0) {
+        return NO_HIT;
+    }
+    let s = sqrt(disc);
+    let near = (-q1 - s) / q2;
+    if (near >= 0.0) {
+        return near;
+    }
+    let far = (-q1 + s) / q2;
+    if (far >= 0.0) {
+        return far;
+    }
+    return NO_HIT;
+}
+
+fn keep_nearest(best: f32, hit: f32) -> f32 {
+    if (hit < 0.0) {
+        return best;
+    }
+    if (best < 0.0) {
+        return hit;
+    }
+    return min(best, hit);
+}
+
+fn truncated(hit: f32, depth: f32) -> f32 {
+    if (hit < 0.0) {
+        return cp.tau;
+    }
+    return min(abs(hit - depth), cp.tau);
+}
+
+// Appendix A from a, b, r, as the CPU's ray_capsule.
+fn ray_capsule(dir: vec3<f32>, a: vec3<f32>, b: vec3<f32>, r: f32) -> f32 {
+    let axis = b - a;
+    let len = length(axis);
+    var best = NO_HIT;
+    if (len > 0.0) {
+        let u = axis / len;
+        let w = cp.origin - a;
+        let v_perp = dir - u * dot(dir, u);
+        let w_perp = w - u * dot(w, u);
+        let q2 = dot(v_perp, v_perp);
+        if (q2 > 0.0) {
+            let hit = first_nonnegative_root(q2, dot(v_perp, w_perp), dot(w_perp, w_perp) - r * r);
+            if (hit >= 0.0) {
+                let along = dot(w + dir * hit, u);
+                if (along >= 0.0 && along <= len) {
+                    best = keep_nearest(best, hit);
+                }
+            }
+        }
+    }
+    let wa = cp.origin - a;
+    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, wa), dot(wa, wa) - r * r));
+    let wb = cp.origin - b;
+    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, wb), dot(wb, wb) - r * r));
+    return best;
+}
+
+fn finish_tile(lid: u32, tile: u32, j: u32, value: f32) {
+    partial_sum[lid] = value;
+    workgroupBarrier();
+    for (var stride = TILE / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial_sum[lid] = partial_sum[lid] + partial_sum[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if (lid == 0u) {
+        partials[j * cp.tiles + tile] = partial_sum[0];
+    }
+}
+
+@compute @workgroup_size(256)
+fn paper_layout(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let tile = wid.x;
+    let j = cp.sample_offset + wid.y;
+    let i = tile * TILE + lid;
+    if (j >= cp.samples) {
+        return;
+    }
+    let k_count = min(cp.capsules, MAX_CAPSULES);
+    for (var s = lid; s < 2u * k_count; s = s + TILE) {
+        staged_capsules[s] = capsules[j * cp.capsules * 2u + s];
+    }
+    if (i < cp.points) {
+        staged_rays[lid] = rays[i];
+    }
+    workgroupBarrier();
+    var value = 0.0;
+    if (i < cp.points) {
+        let ray = staged_rays[lid];
+        var best = cp.tau;
+        for (var k = 0u; k < k_count; k = k + 1u) {
+            let a = staged_capsules[2u * k];
+            let b = staged_capsules[2u * k + 1u];
+            best = min(best, truncated(ray_capsule(ray.xyz, a.xyz, b.xyz, a.w), ray.w));
+        }
+        value = best * best;
+    }
+    finish_tile(lid, tile, j, value);
+}
+
+// Per-capsule terms, once per (sample, capsule).
+@compute @workgroup_size(64)
+fn capsule_terms(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let flat = gid.x;
+    let j = cp.sample_offset + gid.y;
+    if (flat >= cp.capsules || j >= cp.samples) {
+        return;
+    }
+    let index = j * cp.capsules + flat;
+    let a4 = capsules[index * 2u];
+    let b4 = capsules[index * 2u + 1u];
+    let a = a4.xyz;
+    let b = b4.xyz;
+    let r = a4.w;
+    let axis = b - a;
+    let len = length(axis);
+    var u = vec3<f32>(0.0);
+    if (len > 0.0) {
+        u = axis / len;
+    }
+    let w = cp.origin - a;
+    let wu = dot(w, u);
+    let wb = cp.origin - b;
+    let c = 0.5 * (a + b);
+    let wc = cp.origin - c;
+    // A hair larger than L/2 + r, so that rounding never culls a capsule the ray touches.
+    let big_r = (0.5 * len + r) * 1.0001 + 1e-6;
+    let w_perp = w - u * wu;
+    var t: CapsuleTerms;
+    t.axis = vec4<f32>(u, len);
+    t.w_perp = vec4<f32>(w_perp, wu);
+    t.wa = vec4<f32>(w, dot(w, w) - r * r);
+    t.wb = vec4<f32>(wb, dot(wb, wb) - r * r);
+    t.wc = vec4<f32>(wc, dot(wc, wc) - big_r * big_r);
+    t.q0 = vec4<f32>(dot(w_perp, w_perp) - r * r, 0.0, 0.0, 0.0);
+    terms[index] = t;
+}
+
+// Appendix A from the precomputed terms, after the bounding-sphere test.
+fn ray_capsule_fast(dir: vec3<f32>, depth: f32, t: CapsuleTerms) -> f32 {
+    let qc1 = dot(dir, t.wc.xyz);
+    let disc = qc1 * qc1 - t.wc.w;
+    if (disc < 0.0) {
+        return cp.tau;
+    }
+    let s = sqrt(disc);
+    let exit = -qc1 + s;
+    if (exit < 0.0 || -qc1 - s > depth + cp.tau || exit < depth - cp.tau) {
+        return cp.tau;
+    }
+    var best = NO_HIT;
+    let len = t.axis.w;
+    if (len > 0.0) {
+        let vu = dot(dir, t.axis.xyz);
+        let v_perp = dir - t.axis.xyz * vu;
+        let q2 = dot(v_perp, v_perp);
+        if (q2 > 0.0) {
+            let hit = first_nonnegative_root(q2, dot(dir, t.w_perp.xyz), t.q0.x);
+            if (hit >= 0.0) {
+                let along = t.w_perp.w + hit * vu;
+                if (along >= 0.0 && along <= len) {
+                    best = hit;
+                }
+            }
+        }
+    }
+    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, t.wa.xyz), t.wa.w));
+    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, t.wb.xyz), t.wb.w));
+    return truncated(best, depth);
+}
+
+@compute @workgroup_size(256)
+fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let tile = wid.x;
+    let j = cp.sample_offset + wid.y;
+    let i = tile * TILE + lid;
+    if (j >= cp.samples) {
+        return;
+    }
+    let k_count = min(cp.capsules, MAX_CAPSULES);
+    for (var k = lid; k < k_count; k = k + TILE) {
+        staged_terms[k] = terms[j * cp.capsules + k];
+    }
+    workgroupBarrier();
+    var value = 0.0;
+    if (i < cp.points) {
+        let ray = rays[i];
+        var best = cp.tau;
+        for (var k = 0u; k < k_count; k = k + 1u) {
+            best = min(best, ray_capsule_fast(ray.xyz, ray.w, staged_terms[k]));
+        }
+        value = best * best;
+    }
+    finish_tile(lid, tile, j, value);
+}
+
+// sums[j] = the sum of sample j's tile partials. One workgroup per sample.
+@compute @workgroup_size(256)
+fn reduce_partials(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let j = cp.sample_offset + wid.y;
+    if (j >= cp.samples) {
+        return;
+    }
+    var value = 0.0;
+    for (var tile = lid; tile < cp.tiles; tile = tile + TILE) {
+        value = value + partials[j * cp.tiles + tile];
+    }
+    partial_sum[lid] = value;
+    workgroupBarrier();
+    for (var stride = TILE / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial_sum[lid] = partial_sum[lid] + partial_sum[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if (lid == 0u) {
+        sums[j] = partial_sum[0];
+    }
+}
