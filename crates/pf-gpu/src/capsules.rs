@@ -10,8 +10,10 @@ use crate::error::GpuError;
 use crate::kernels::{Kernel, sources};
 use crate::stream::{DeviceStream, Readback};
 
-/// Points per workgroup tile (`TILE` in the shader).
+/// Points per workgroup tile of the paper's layout (`TILE` in the shader).
 const TILE: usize = 256;
+/// Points per workgroup tile of the fast kernel (`FAST_POINTS * TILE`).
+const FAST_TILE: usize = 4 * TILE;
 /// The most capsules per sample the kernels stage in workgroup memory.
 pub const MAX_CAPSULES: usize = 128;
 
@@ -86,7 +88,11 @@ impl CapsuleLikelihoodGpu {
                 "invalid tau {tau} or camera origin {origin:?}"
             )));
         }
-        let tiles = points.div_ceil(TILE);
+        let tiles = points.div_ceil(if kind == CapsuleKernel::Fast {
+            FAST_TILE
+        } else {
+            TILE
+        });
         let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
         if tiles > max_groups {
             return Err(GpuError::InvalidConfig(format!(

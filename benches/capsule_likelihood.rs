@@ -1,0 +1,140 @@
+//! The body paper's likelihood on its figure axes (Fig. 5/6): time against points (I up to
+//! 43 000) and against samples (J up to 3 500), K = 48 capsules. Variants: one CPU thread
+//! (Listing 1.2), all CPU cores (rayon over samples), and the GPU (the paper's layout and the fast
+//! kernel). Throughput is in (sample, point, capsule) pairs per second, so that the CPU runs,
+//! which use a sub-sampled J (stated in their names), compare per pair with the GPU's full J.
+//! GPU timings include the submission, the wait and the readback of the J sums; the capsules are
+//! already on the device (forward kinematics on the GPU is still to come).
+
+use body_tracker::capsule::{Capsule, ray_capsule};
+use body_tracker::human::{human_skeleton, standing_pose};
+use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2, parallel_over_samples};
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use nalgebra::{Vector3, vector};
+use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
+use pf_gpu::{ContextOptions, GpuContext};
+
+const K: usize = 48;
+const TAU: f32 = 0.1;
+
+/// `count` points ray-cast from the camera onto the rest pose, with depth noise.
+fn cloud(count: usize) -> Rays {
+    let s = human_skeleton(K).unwrap();
+    let caps = s.capsules(&standing_pose(&s, 3.0)).unwrap();
+    let mut rng = pf_core::RandomStreams::new(7).stream(0, pf_core::Stage::Model(0));
+    let mut points = Vec::with_capacity(count);
+    while points.len() < count {
+        let dir = vector![
+            0.35 * (2.0 * rng.uniform() as f32 - 1.0),
+            0.45 * (2.0 * rng.uniform() as f32 - 1.0),
+            1.0
+        ]
+        .normalize();
+        let hit = caps
+            .iter()
+            .filter_map(|c| ray_capsule(&Vector3::zeros(), &dir, c))
+            .fold(f32::INFINITY, f32::min);
+        if hit.is_finite() {
+            points.push(dir * (hit + 0.01 * rng.gaussian_f32()));
+        }
+    }
+    Rays::through(Vector3::zeros(), &points).unwrap()
+}
+
+/// `count` samples: the rest pose with every angle perturbed.
+fn samples(count: usize) -> Vec<Vec<Capsule>> {
+    let s = human_skeleton(K).unwrap();
+    let base = standing_pose(&s, 3.0);
+    let mut rng = pf_core::RandomStreams::new(8).stream(0, pf_core::Stage::Model(0));
+    (0..count)
+        .map(|_| {
+            let theta: Vec<f32> = base.iter().map(|x| x + 0.05 * rng.gaussian_f32()).collect();
+            s.capsules(&theta).unwrap()
+        })
+        .collect()
+}
+
+fn context() -> GpuContext {
+    let ctx = GpuContext::new(&ContextOptions::default())
+        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
+        .expect("a GPU adapter (see `streampf devices`)");
+    eprintln!(
+        "GPU adapter: {} ({}, {})",
+        ctx.adapter().name,
+        ctx.adapter().device_type,
+        ctx.adapter().backend
+    );
+    ctx
+}
+
+fn gpu(
+    ctx: &GpuContext,
+    kind: CapsuleKernel,
+    rays: &Rays,
+    samples: &[Vec<Capsule>],
+) -> CapsuleLikelihoodGpu {
+    let g =
+        CapsuleLikelihoodGpu::new(ctx, kind, samples.len(), rays.len(), K, [0.0; 3], TAU).unwrap();
+    g.upload_rays(ctx, &rays.gpu_layout()).unwrap();
+    let mut flat = Vec::new();
+    for c in samples {
+        capsules_gpu_layout(c, &mut flat);
+    }
+    g.upload_capsules(ctx, &flat).unwrap();
+    g
+}
+
+fn run_axis(c: &mut Criterion, ctx: &GpuContext, group_name: &str, sizes: &[(usize, usize)]) {
+    let mut group = c.benchmark_group(group_name);
+    group.sample_size(10);
+    let all = samples(3500);
+    for &(j, i) in sizes {
+        let rays = cloud(i);
+        let label = if group_name.ends_with("points") { i } else { j };
+        for (name, kind) in [
+            ("gpu_paper_layout", CapsuleKernel::PaperLayout),
+            ("gpu_fast", CapsuleKernel::Fast),
+        ] {
+            let g = gpu(ctx, kind, &rays, &all[..j]);
+            group.throughput(Throughput::Elements((j * i * K) as u64));
+            group.bench_function(BenchmarkId::new(name, label), |b| {
+                b.iter(|| std::hint::black_box(g.evaluate(ctx).unwrap()))
+            });
+        }
+        // CPU: sub-sampled J, same per-pair work.
+        let j_cores = (j / 50).max(16).min(j);
+        group.throughput(Throughput::Elements((j_cores * i * K) as u64));
+        group.bench_function(
+            BenchmarkId::new(format!("cpu_all_cores_j{j_cores}"), label),
+            |b| b.iter(|| std::hint::black_box(parallel_over_samples(&all[..j_cores], &rays, TAU))),
+        );
+        let j_one = 2.min(j);
+        group.throughput(Throughput::Elements((j_one * i * K) as u64));
+        group.bench_function(
+            BenchmarkId::new(format!("cpu_one_thread_listing_1_2_j{j_one}"), label),
+            |b| b.iter(|| std::hint::black_box(listing_1_2(&all[..j_one], &rays, TAU))),
+        );
+    }
+    group.finish();
+}
+
+/// `cargo bench` passes `--bench`; under `cargo test --benches` (CI, on a software adapter) each
+/// benchmark runs once, so the sizes shrink by 100 to keep that a smoke test.
+fn scale(n: usize) -> usize {
+    if std::env::args().any(|a| a == "--bench") {
+        n
+    } else {
+        (n / 100).max(1)
+    }
+}
+
+fn bench(c: &mut Criterion) {
+    let ctx = context();
+    let points = [1000, 5000, 10_000, 20_000, 43_000].map(|i| (scale(3500), scale(i)));
+    let samples = [100, 500, 1000, 2000, 3500].map(|j| (scale(j), scale(43_000)));
+    run_axis(c, &ctx, "capsules_vs_points", &points);
+    run_axis(c, &ctx, "capsules_vs_samples", &samples);
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
