@@ -4,7 +4,9 @@
 //! kernel). Throughput is in (sample, point, capsule) pairs per second, so that the CPU runs,
 //! which use a sub-sampled J (stated in their names), compare per pair with the GPU's full J.
 //! GPU timings include the submission, the wait and the readback of the J sums; the capsules are
-//! already on the device (forward kinematics on the GPU is still to come).
+//! already on the device (forward kinematics on the GPU is still to come). The points come in
+//! raster order, as a camera delivers them: neighbouring invocations see neighbouring rays, which
+//! is what lets the fast kernel's bounding-sphere test skip work for whole warps.
 
 use body_tracker::capsule::{Capsule, ray_capsule};
 use body_tracker::human::{human_skeleton, standing_pose};
@@ -17,28 +19,36 @@ use pf_gpu::{ContextOptions, GpuContext};
 const K: usize = 48;
 const TAU: f32 = 0.1;
 
-/// `count` points ray-cast from the camera onto the rest pose, with depth noise.
+/// `count` points ray-cast from the camera onto the rest pose, with depth noise, in raster order
+/// (row by row, as a stereo or depth camera delivers them): a grid of pixel directions over the
+/// body, the hits kept, then an evenly strided subset of `count`.
 fn cloud(count: usize) -> Rays {
     let s = human_skeleton(K).unwrap();
     let caps = s.capsules(&standing_pose(&s, 3.0)).unwrap();
     let mut rng = pf_core::RandomStreams::new(7).stream(0, pf_core::Stage::Model(0));
-    let mut points = Vec::with_capacity(count);
-    while points.len() < count {
-        let dir = vector![
-            0.35 * (2.0 * rng.uniform() as f32 - 1.0),
-            0.45 * (2.0 * rng.uniform() as f32 - 1.0),
-            1.0
-        ]
-        .normalize();
-        let hit = caps
-            .iter()
-            .filter_map(|c| ray_capsule(&Vector3::zeros(), &dir, c))
-            .fold(f32::INFINITY, f32::min);
-        if hit.is_finite() {
-            points.push(dir * (hit + 0.01 * rng.gaussian_f32()));
+    let mut side = 128;
+    loop {
+        let mut hits = Vec::new();
+        for row in 0..side {
+            for col in 0..side {
+                let x = -0.35 + 0.7 * (col as f32 + 0.5) / side as f32;
+                let y = 0.45 - 0.9 * (row as f32 + 0.5) / side as f32;
+                let dir = vector![x, y, 1.0].normalize();
+                let hit = caps
+                    .iter()
+                    .filter_map(|c| ray_capsule(&Vector3::zeros(), &dir, c))
+                    .fold(f32::INFINITY, f32::min);
+                if hit.is_finite() {
+                    hits.push(dir * (hit + 0.01 * rng.gaussian_f32()));
+                }
+            }
         }
+        if hits.len() >= count {
+            let points: Vec<_> = (0..count).map(|n| hits[n * hits.len() / count]).collect();
+            return Rays::through(Vector3::zeros(), &points).unwrap();
+        }
+        side *= 2;
     }
-    Rays::through(Vector3::zeros(), &points).unwrap()
 }
 
 /// `count` samples: the rest pose with every angle perturbed.

@@ -251,6 +251,30 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
 // Points per invocation of the fast kernel (a fast tile is FAST_POINTS * TILE points).
 const FAST_POINTS: u32 = 4u;
 
+// Ray i, or a marker (depth -1) past the last point.
+fn load_ray(i: u32) -> vec4<f32> {
+    if (i < cp.points) {
+        return rays[i];
+    }
+    return vec4<f32>(0.0, 0.0, 1.0, -1.0);
+}
+
+// The point's min distance so far, updated with staged capsule k.
+fn nearer(ray: vec4<f32>, best: f32, wc: vec4<f32>, k: u32) -> f32 {
+    if (ray.w >= 0.0 && may_matter(ray.xyz, ray.w, wc)) {
+        return min(best, ray_capsule_fast(ray.xyz, ray.w, k));
+    }
+    return best;
+}
+
+// The point's squared distance (0 for a marker).
+fn term(ray: vec4<f32>, best: f32) -> f32 {
+    if (ray.w >= 0.0) {
+        return best * best;
+    }
+    return 0.0;
+}
+
 @compute @workgroup_size(256)
 fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
@@ -265,31 +289,25 @@ fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wi
     }
     workgroupBarrier();
     // Points (tile * FAST_POINTS + p) * TILE + lid, p < FAST_POINTS: coalesced loads, and each
-    // bounding-sphere term read from workgroup memory serves four points.
-    var ray: array<vec4<f32>, 4>;
-    var best: array<f32, 4>;
-    for (var p = 0u; p < FAST_POINTS; p = p + 1u) {
-        let index = (tile * FAST_POINTS + p) * TILE + lid;
-        ray[p] = vec4<f32>(0.0, 0.0, 1.0, -1.0);
-        if (index < cp.points) {
-            ray[p] = rays[index];
-        }
-        best[p] = cp.tau;
-    }
+    // bounding-sphere term read from workgroup memory serves four points. Four named registers
+    // rather than an array, which a compiler may place in (slow) local memory.
+    let base = tile * FAST_POINTS * TILE + lid;
+    let ray0 = load_ray(base);
+    let ray1 = load_ray(base + TILE);
+    let ray2 = load_ray(base + 2u * TILE);
+    let ray3 = load_ray(base + 3u * TILE);
+    var best0 = cp.tau;
+    var best1 = cp.tau;
+    var best2 = cp.tau;
+    var best3 = cp.tau;
     for (var k = 0u; k < k_count; k = k + 1u) {
         let wc = staged_terms[k].wc;
-        for (var p = 0u; p < FAST_POINTS; p = p + 1u) {
-            if (ray[p].w >= 0.0 && may_matter(ray[p].xyz, ray[p].w, wc)) {
-                best[p] = min(best[p], ray_capsule_fast(ray[p].xyz, ray[p].w, k));
-            }
-        }
+        best0 = nearer(ray0, best0, wc, k);
+        best1 = nearer(ray1, best1, wc, k);
+        best2 = nearer(ray2, best2, wc, k);
+        best3 = nearer(ray3, best3, wc, k);
     }
-    var value = 0.0;
-    for (var p = 0u; p < FAST_POINTS; p = p + 1u) {
-        if (ray[p].w >= 0.0) {
-            value = value + best[p] * best[p];
-        }
-    }
+    let value = term(ray0, best0) + term(ray1, best1) + term(ray2, best2) + term(ray3, best3);
     finish_tile(lid, tile, j, value);
 }
 
