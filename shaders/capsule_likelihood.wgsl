@@ -54,15 +54,21 @@ struct CapsuleTerms {
 @group(0) @binding(3) var<storage, read_write> partials: array<f32>;
 @group(0) @binding(4) var<storage, read_write> terms: array<CapsuleTerms>;
 @group(0) @binding(5) var<storage, read_write> sums: array<f32>;
+// Per fast tile: the cone holding its rays, (unit axis, half-angle); computed by the launcher
+// when the rays are uploaded.
+@group(0) @binding(6) var<storage, read> tile_cones: array<vec4<f32>>;
 
 const TILE: u32 = 256u;
 const MAX_CAPSULES: u32 = 128u;
 const NO_HIT: f32 = -1.0;
+const PI_F: f32 = 3.14159265358979;
 
 var<workgroup> staged_capsules: array<vec4<f32>, 256>;
 var<workgroup> staged_rays: array<vec4<f32>, 256>;
 var<workgroup> staged_terms: array<CapsuleTerms, 128>;
 var<workgroup> partial_sum: array<f32, 256>;
+var<workgroup> candidates: array<u32, 128>;
+var<workgroup> candidate_count: atomic<u32>;
 
 // The smallest root >= 0 of q2 D^2 + 2 q1 D + q0 = 0, or NO_HIT.
 fn first_nonnegative_root(q2: f32, q1: f32, q0: f32) -> f32 {
@@ -284,10 +290,34 @@ fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wi
         return;
     }
     let k_count = min(cp.capsules, MAX_CAPSULES);
-    for (var k = lid; k < k_count; k = k + TILE) {
-        staged_terms[k] = terms[j * cp.capsules + k];
+    if (lid == 0u) {
+        atomicStore(&candidate_count, 0u);
     }
     workgroupBarrier();
+    // Stage the capsules whose bounding sphere meets the tile's cone of rays; the others are at
+    // tau from every point of the tile. (Candidate order varies; the min over them does not.)
+    let cone = tile_cones[tile];
+    for (var k = lid; k < k_count; k = k + TILE) {
+        let t = terms[j * cp.capsules + k];
+        let to_centre = -t.wc.xyz;
+        let dist = length(to_centre);
+        let radius_sq = dot(t.wc.xyz, t.wc.xyz) - t.wc.w;
+        // The sphere meets the cone when the angle to its centre is at most alpha + beta, with
+        // sin(beta) = R / dist; compared as cosines (acos is ill-conditioned near 1), with a margin.
+        var meets = dist * dist <= radius_sq;
+        if (!meets) {
+            let sin_beta = sqrt(max(radius_sq, 0.0)) / dist;
+            let cos_beta = sqrt(max(1.0 - sin_beta * sin_beta, 0.0));
+            let cos_limit = cos(cone.w) * cos_beta - sin(cone.w) * sin_beta;
+            let beyond_half_turn = cone.w + asin(min(sin_beta, 1.0)) >= PI_F;
+            meets = beyond_half_turn || dot(cone.xyz, to_centre) / dist >= cos_limit - 1e-4;
+        }
+        if (meets) {
+            let slot = atomicAdd(&candidate_count, 1u);
+            staged_terms[slot] = t;
+        }
+    }
+    let n_candidates = workgroupUniformLoad(&candidate_count);
     // Points (tile * FAST_POINTS + p) * TILE + lid, p < FAST_POINTS: coalesced loads, and each
     // bounding-sphere term read from workgroup memory serves four points. Four named registers
     // rather than an array, which a compiler may place in (slow) local memory.
@@ -300,7 +330,7 @@ fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wi
     var best1 = cp.tau;
     var best2 = cp.tau;
     var best3 = cp.tau;
-    for (var k = 0u; k < k_count; k = k + 1u) {
+    for (var k = 0u; k < n_candidates; k = k + 1u) {
         let wc = staged_terms[k].wc;
         best0 = nearer(ray0, best0, wc, k);
         best1 = nearer(ray1, best1, wc, k);

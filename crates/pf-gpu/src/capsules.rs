@@ -56,6 +56,8 @@ pub struct CapsuleLikelihoodGpu {
     rays: DeviceStream<[f32; 4]>,
     capsules: DeviceStream<[f32; 4]>,
     sums: DeviceStream<f32>,
+    /// Per fast tile: (unit axis, half-angle) of the cone holding its rays.
+    tile_cones: DeviceStream<[f32; 4]>,
     _partials: DeviceStream<f32>,
     _terms: DeviceStream<[f32; 24]>,
     kernels: Vec<Kernel>,
@@ -126,6 +128,7 @@ impl CapsuleLikelihoodGpu {
             },
         )?;
         let sums = DeviceStream::zeroed(ctx, "likelihood sums", samples)?;
+        let tile_cones = DeviceStream::zeroed(ctx, "tile cones", tiles)?;
         let entries: &[&str] = match kind {
             CapsuleKernel::PaperLayout => &["paper_layout", "reduce_partials"],
             CapsuleKernel::Fast => &["capsule_terms", "fast", "reduce_partials"],
@@ -175,6 +178,7 @@ impl CapsuleLikelihoodGpu {
                             (2, rays.binding()),
                             (3, partials.binding()),
                             (4, terms.binding()),
+                            (6, tile_cones.binding()),
                         ],
                         _ => vec![(0, p), (3, partials.binding()), (5, sums.binding())],
                     };
@@ -198,6 +202,7 @@ impl CapsuleLikelihoodGpu {
             rays,
             capsules,
             sums,
+            tile_cones,
             _partials: partials,
             _terms: terms,
             kernels,
@@ -211,7 +216,11 @@ impl CapsuleLikelihoodGpu {
 
     /// This frame's rays, `[dir, depth]` per point (exactly `points` of them).
     pub fn upload_rays(&self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
-        self.rays.upload(ctx, rays)
+        self.rays.upload(ctx, rays)?;
+        if self.kind == CapsuleKernel::Fast {
+            self.tile_cones.upload(ctx, &tile_cones(rays, FAST_TILE))?;
+        }
+        Ok(())
     }
 
     /// Every sample's capsules, `samples × capsules × 2` values.
@@ -254,5 +263,75 @@ impl CapsuleLikelihoodGpu {
 
     pub fn shape(&self) -> (usize, usize, usize) {
         (self.samples, self.points, self.capsules_per_sample)
+    }
+}
+
+/// For each tile of `tile` consecutive rays: the unit axis of a cone holding every ray's
+/// direction (their normalised mean) and its half-angle, widened a little for rounding.
+fn tile_cones(rays: &[[f32; 4]], tile: usize) -> Vec<[f32; 4]> {
+    rays.chunks(tile)
+        .map(|chunk| {
+            let mut axis = [0.0f64; 3];
+            for r in chunk {
+                for (a, &x) in axis.iter_mut().zip(r) {
+                    *a += f64::from(x);
+                }
+            }
+            let norm = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+            if norm <= 1e-9 || norm.is_nan() {
+                // Rays in every direction: a cone that holds everything.
+                return [0.0, 0.0, 1.0, std::f32::consts::PI];
+            }
+            let axis = axis.map(|a| a / norm);
+            let half_angle = chunk
+                .iter()
+                .map(|r| {
+                    let cos = axis[0] * f64::from(r[0])
+                        + axis[1] * f64::from(r[1])
+                        + axis[2] * f64::from(r[2]);
+                    cos.clamp(-1.0, 1.0).acos()
+                })
+                .fold(0.0f64, f64::max);
+            [
+                axis[0] as f32,
+                axis[1] as f32,
+                axis[2] as f32,
+                (half_angle + 1e-4) as f32,
+            ]
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tile_cones_hold_every_ray_of_their_tile() {
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 33) as f32 / (1u64 << 31) as f32) - 0.5
+        };
+        let rays: Vec<[f32; 4]> = (0..3000)
+            .map(|_| {
+                let (x, y) = (next(), next());
+                let n = (x * x + y * y + 1.0).sqrt();
+                [x / n, y / n, 1.0 / n, 3.0]
+            })
+            .collect();
+        let cones = tile_cones(&rays, 1024);
+        assert_eq!(cones.len(), 3);
+        for (t, cone) in cones.iter().enumerate() {
+            for r in &rays[t * 1024..((t + 1) * 1024).min(rays.len())] {
+                let cos = cone[0] * r[0] + cone[1] * r[1] + cone[2] * r[2];
+                assert!(cos.clamp(-1.0, 1.0).acos() <= cone[3] + 1e-5);
+            }
+        }
+        // Opposite rays: the axis is undefined, so the cone holds everything.
+        let opposite = tile_cones(&[[0.0, 0.0, 1.0, 1.0], [0.0, 0.0, -1.0, 1.0]], 4);
+        assert!(opposite[0][3] >= std::f32::consts::PI);
     }
 }
