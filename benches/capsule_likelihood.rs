@@ -138,8 +138,23 @@ fn scale(n: usize) -> usize {
     }
 }
 
+/// The per-frame host cost of the fast kernel's ray upload (Morton sort, tile cones, queue write).
+fn bench_upload(c: &mut Criterion, ctx: &GpuContext) {
+    let mut group = c.benchmark_group("capsules_upload_rays");
+    group.sample_size(20);
+    let i = scale(43_000);
+    let rays = cloud(i).gpu_layout();
+    let g = CapsuleLikelihoodGpu::new(ctx, CapsuleKernel::Fast, 1, i, K, [0.0; 3], TAU).unwrap();
+    group.throughput(Throughput::Elements(i as u64));
+    group.bench_function(BenchmarkId::new("fast", i), |b| {
+        b.iter(|| g.upload_rays(ctx, &rays).unwrap())
+    });
+    group.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let ctx = context();
+    bench_upload(c, &ctx);
     let points = [1000, 5000, 10_000, 20_000, 43_000].map(|i| (scale(3500), scale(i)));
     let samples = [100, 500, 1000, 2000, 3500].map(|j| (scale(j), scale(43_000)));
     run_axis(c, &ctx, "capsules_vs_points", &points);

@@ -215,12 +215,18 @@ impl CapsuleLikelihoodGpu {
     }
 
     /// This frame's rays, `[dir, depth]` per point (exactly `points` of them).
+    ///
+    /// For the fast kernel the rays are first put in Morton (Z-curve) order of their direction, so
+    /// that each tile of 1 024 rays covers a compact patch of the view and its cone is narrow;
+    /// M_j is a sum over points, so their order does not change it.
     pub fn upload_rays(&self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
-        self.rays.upload(ctx, rays)?;
-        if self.kind == CapsuleKernel::Fast {
-            self.tile_cones.upload(ctx, &tile_cones(rays, FAST_TILE))?;
+        if self.kind != CapsuleKernel::Fast {
+            return self.rays.upload(ctx, rays);
         }
-        Ok(())
+        let ordered = morton_ordered(rays);
+        self.rays.upload(ctx, &ordered)?;
+        self.tile_cones
+            .upload(ctx, &tile_cones(&ordered, FAST_TILE))
     }
 
     /// Every sample's capsules, `samples × capsules × 2` values.
@@ -266,6 +272,50 @@ impl CapsuleLikelihoodGpu {
     }
 }
 
+/// Spreads the low 16 bits of `v` to the even bits of a u32.
+fn spread_bits(v: u32) -> u32 {
+    let mut x = v & 0xffff;
+    x = (x | (x << 8)) & 0x00ff_00ff;
+    x = (x | (x << 4)) & 0x0f0f_0f0f;
+    x = (x | (x << 2)) & 0x3333_3333;
+    (x | (x << 1)) & 0x5555_5555
+}
+
+/// The rays sorted by the Morton code of their direction's (azimuth, elevation), quantised to 16
+/// bits each over the rays' own range.
+fn morton_ordered(rays: &[[f32; 4]]) -> Vec<[f32; 4]> {
+    let angles: Vec<(f32, f32)> = rays
+        .iter()
+        .map(|r| (r[0].atan2(r[2]), r[1].clamp(-1.0, 1.0).asin()))
+        .collect();
+    let (mut lo, mut hi) = (
+        (f32::INFINITY, f32::INFINITY),
+        (f32::NEG_INFINITY, f32::NEG_INFINITY),
+    );
+    for &(a, e) in &angles {
+        lo = (lo.0.min(a), lo.1.min(e));
+        hi = (hi.0.max(a), hi.1.max(e));
+    }
+    let quantise = |x: f32, lo: f32, hi: f32| {
+        if hi > lo {
+            (((x - lo) / (hi - lo)) * 65535.0) as u32
+        } else {
+            0
+        }
+    };
+    let mut keyed: Vec<(u32, usize)> = angles
+        .iter()
+        .enumerate()
+        .map(|(i, &(a, e))| {
+            let key =
+                spread_bits(quantise(a, lo.0, hi.0)) | (spread_bits(quantise(e, lo.1, hi.1)) << 1);
+            (key, i)
+        })
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| rays[i]).collect()
+}
+
 /// For each tile of `tile` consecutive rays: the unit axis of a cone holding every ray's
 /// direction (their normalised mean) and its half-angle, widened a little for rounding.
 fn tile_cones(rays: &[[f32; 4]], tile: usize) -> Vec<[f32; 4]> {
@@ -305,6 +355,22 @@ fn tile_cones(rays: &[[f32; 4]], tile: usize) -> Vec<[f32; 4]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn morton_order_is_a_permutation() {
+        let rays: Vec<[f32; 4]> = (0..500)
+            .map(|i| {
+                let (x, y) = ((i % 23) as f32 / 23.0 - 0.5, (i % 17) as f32 / 17.0 - 0.5);
+                let n = (x * x + y * y + 1.0).sqrt();
+                [x / n, y / n, 1.0 / n, i as f32]
+            })
+            .collect();
+        let mut ordered: Vec<u32> = morton_ordered(&rays).iter().map(|r| r[3] as u32).collect();
+        assert_ne!(ordered, (0..500).collect::<Vec<_>>(), "the order changed");
+        ordered.sort_unstable();
+        assert_eq!(ordered, (0..500).collect::<Vec<_>>());
+        assert_eq!(spread_bits(0b1011), 0b1000101);
+    }
 
     #[test]
     fn tile_cones_hold_every_ray_of_their_tile() {
