@@ -17,6 +17,7 @@ pub mod capsule;
 pub mod error;
 pub mod human;
 pub mod likelihood;
+pub mod ply;
 pub mod skeleton;
 
 pub use capsule::{Capsule, ray_capsule, truncated_distance};
