@@ -133,7 +133,8 @@ fn ray_capsule(dir: vec3<f32>, a: vec3<f32>, b: vec3<f32>, r: f32) -> f32 {
     return best;
 }
 
-fn finish_tile(lid: u32, tile: u32, j: u32, value: f32) {
+// The sum of `value` over the workgroup (valid in every invocation).
+fn workgroup_sum(lid: u32, value: f32) -> f32 {
     partial_sum[lid] = value;
     workgroupBarrier();
     for (var stride = TILE / 2u; stride > 0u; stride = stride / 2u) {
@@ -142,8 +143,13 @@ fn finish_tile(lid: u32, tile: u32, j: u32, value: f32) {
         }
         workgroupBarrier();
     }
+    return partial_sum[0];
+}
+
+fn finish_tile(lid: u32, tile: u32, j: u32, value: f32) {
+    let total = workgroup_sum(lid, value);
     if (lid == 0u) {
-        partials[j * cp.tiles + tile] = partial_sum[0];
+        partials[j * cp.tiles + tile] = total;
     }
 }
 
@@ -353,15 +359,8 @@ fn reduce_partials(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workg
     for (var tile = lid; tile < cp.tiles; tile = tile + TILE) {
         value = value + partials[j * cp.tiles + tile];
     }
-    partial_sum[lid] = value;
-    workgroupBarrier();
-    for (var stride = TILE / 2u; stride > 0u; stride = stride / 2u) {
-        if (lid < stride) {
-            partial_sum[lid] = partial_sum[lid] + partial_sum[lid + stride];
-        }
-        workgroupBarrier();
-    }
+    let total = workgroup_sum(lid, value);
     if (lid == 0u) {
-        sums[j] = partial_sum[0];
+        sums[j] = total;
     }
 }

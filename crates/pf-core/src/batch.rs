@@ -177,13 +177,9 @@ pub fn best_weighted_means(
     let best = best.clamp(1, m);
     // Zero the weights of the particles left out, then take the plain weighted mean.
     let mut selected = vec![0.0f64; weights.len()];
-    let mut order: Vec<usize> = Vec::with_capacity(m);
     for t in 0..shape.targets {
         let w = &weights[t * m..(t + 1) * m];
-        order.clear();
-        order.extend(0..m);
-        order.sort_by(|&a, &b| w[b].total_cmp(&w[a]).then(a.cmp(&b)));
-        for &i in &order[..best] {
+        for i in crate::estimate::heaviest(w, best) {
             selected[t * m + i] = w[i];
         }
     }

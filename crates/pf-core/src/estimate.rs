@@ -152,14 +152,21 @@ pub fn best_weighted_mean<const D: usize>(
             "the best-M' estimate needs M' >= 1".into(),
         ));
     }
-    let best = best.min(particles.len());
-    let mut order: Vec<usize> = (0..particles.len()).collect();
+    let order = heaviest(weights, best);
+    Ok(weighted_mean_of(particles, weights, Some(&order), space))
+}
+
+/// The indices of the `best` heaviest weights (all when `best` ≥ len), ties to the lower index:
+/// the selection rule of the best-M′ estimate, shared with `batch::best_weighted_means`.
+pub fn heaviest(weights: &[f64], best: usize) -> Vec<usize> {
+    let best = best.min(weights.len());
+    let mut order: Vec<usize> = (0..weights.len()).collect();
     let heavier_first = |&a: &usize, &b: &usize| weights[b].total_cmp(&weights[a]).then(a.cmp(&b));
-    if best < order.len() {
+    if best > 0 && best < order.len() {
         order.select_nth_unstable_by(best - 1, heavier_first);
     }
     order.truncate(best);
-    Ok(weighted_mean_of(particles, weights, Some(&order), space))
+    order
 }
 
 /// The state of the heaviest particle (lowest index on ties).
