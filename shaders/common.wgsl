@@ -6,7 +6,8 @@ struct Params {
     targets: u32,
     particles: u32,
     dims: u32,
-    // Bit d set: dimension d is an angle (wrapped to [-pi, pi), averaged on the circle).
+    // Bit d set: dimension d is an angle (wrapped to [-pi, pi), averaged on the circle). Only the
+    // first 32 dimensions can be angles.
     angular_mask: u32,
     step_lo: u32,
     step_hi: u32,
@@ -53,7 +54,7 @@ fn is_neg_inf(x: f32) -> bool {
 }
 
 fn is_angle(d: u32) -> bool {
-    return ((params.angular_mask >> d) & 1u) == 1u;
+    return d < 32u && ((params.angular_mask >> d) & 1u) == 1u;
 }
 
 fn wrap_angle(x: f32) -> f32 {

@@ -27,4 +27,11 @@ pub enum BodyError {
 
     #[error(transparent)]
     Core(#[from] pf_core::PfError),
+
+    #[error(transparent)]
+    Gpu(#[from] pf_gpu::GpuError),
+
+    /// A frame, sequence or output file could not be read or written.
+    #[error("{path}: {message}")]
+    File { path: String, message: String },
 }

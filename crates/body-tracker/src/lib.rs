@@ -8,20 +8,28 @@
 //! - [`capsule`]: the ray–capsule intersection of the paper's Appendix A and the truncated metric
 //!   (eq. 6);
 //! - [`likelihood`]: the log-likelihood (eq. 3) with Listing 1.2's single-thread loop (the
-//!   reference and speed baseline) and a rayon version over samples.
-//!
-//! Still to come (issue 4): the GPU kernels, point-cloud inputs, the synthetic sequence and the
-//! tracker.
+//!   reference and speed baseline) and a rayon version over samples (the GPU kernels are in
+//!   `pf_gpu::capsules` and `pf_gpu::body`, fed by [`Skeleton::gpu_bones`]);
+//! - [`camera`], [`ply`], [`sequence`]: depth cameras and 16-bit depth PNGs, PLY point clouds,
+//!   sequence directories with ground truth, CSV output;
+//! - [`synth`]: synthetic sequences (walking, arm waving) with noise, dropout, outliers and
+//!   self-occlusion;
+//! - [`tracker`]: the particle filter over θ on the CPU, one GPU, or several GPUs.
 
+pub mod camera;
 pub mod capsule;
 pub mod error;
 pub mod human;
 pub mod likelihood;
 pub mod ply;
+pub mod sequence;
 pub mod skeleton;
+pub mod synth;
+pub mod tracker;
 
 pub use capsule::{Capsule, ray_capsule, truncated_distance};
 pub use error::BodyError;
 pub use human::human_skeleton;
 pub use likelihood::{CapsuleLikelihoodParams, Rays, listing_1_2, parallel_over_samples};
 pub use skeleton::{Skeleton, SkeletonSpec};
+pub use tracker::{Backend, BodyTracker, FrameResult, TrackerConfig, Weighing, mean_joint_error};

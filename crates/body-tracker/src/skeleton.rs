@@ -228,6 +228,25 @@ impl Skeleton {
             })
     }
 
+    /// A name for every value of θ: `root_tx … root_rz`, then `{bone}_{axis}` (the CSV header).
+    pub fn pose_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = ["tx", "ty", "tz", "rx", "ry", "rz"]
+            .iter()
+            .map(|n| format!("root_{n}"))
+            .collect();
+        for bone in &self.bones {
+            for j in &bone.joint {
+                let axis = match j.axis {
+                    Axis::X => "x",
+                    Axis::Y => "y",
+                    Axis::Z => "z",
+                };
+                names.push(format!("{}_{axis}", bone.name));
+            }
+        }
+        names
+    }
+
     /// The range of θ holding the joint angles of bone `name`.
     pub fn angles_of(&self, name: &str) -> Result<std::ops::Range<usize>, BodyError> {
         let i = self.bone_index(name)?;
@@ -307,6 +326,47 @@ impl Skeleton {
         let mut out = Vec::with_capacity(self.bones.len());
         self.capsules_into(theta, &mut out)?;
         Ok(out)
+    }
+
+    /// The bones in the layout of pf-gpu's kinematics kernel (`shaders/body_kinematics.wgsl`).
+    pub fn gpu_bones(&self) -> Vec<pf_gpu::body::GpuBone> {
+        self.bones
+            .iter()
+            .enumerate()
+            .map(|(i, bone)| {
+                let extent = self.directions[i] * bone.length;
+                let axes = bone.joint.iter().enumerate().fold(0u32, |packed, (k, j)| {
+                    let code = match j.axis {
+                        Axis::X => 0,
+                        Axis::Y => 1,
+                        Axis::Z => 2,
+                    };
+                    packed | (code << (2 * k))
+                });
+                pf_gpu::body::GpuBone {
+                    offset: bone.offset,
+                    radius: bone.radius,
+                    extent: [extent.x, extent.y, extent.z],
+                    parent: self.parents[i].map_or(pf_gpu::body::NO_PARENT, |p| p as u32),
+                    joint: [bone.joint.len() as u32, self.first_angle[i] as u32, axes, 0],
+                }
+            })
+            .collect()
+    }
+
+    /// The bones whose start is a tracked joint: the root and every bone with a joint angle.
+    /// Collinear segments added to reach a capsule count have none, so the set (and the joint
+    /// error) does not depend on the number of capsules.
+    pub fn joint_bones(&self) -> Vec<usize> {
+        (0..self.bones.len())
+            .filter(|&i| self.parents[i].is_none() || !self.bones[i].joint.is_empty())
+            .collect()
+    }
+
+    /// The positions of the tracked joints ([`Self::joint_bones`]) for θ.
+    pub fn tracked_joint_positions(&self, theta: &[f32]) -> Result<Vec<Vector3<f32>>, BodyError> {
+        let all = self.joint_positions(theta)?;
+        Ok(self.joint_bones().into_iter().map(|i| all[i]).collect())
     }
 
     /// The start point of every bone (the joint positions) for θ.

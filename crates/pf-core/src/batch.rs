@@ -276,9 +276,11 @@ impl BatchConfig {
                 self.best, self.shape.particles
             )));
         }
-        if d > 32 {
+        // The GPU keeps the angle flags in one 32-bit mask; later dimensions are plain values.
+        if let Some(d) = self.angular.iter().skip(32).position(|&a| a) {
             return Err(PfError::InvalidConfig(format!(
-                "at most 32 dimensions, got {d}"
+                "dimension {} is marked as an angle; only the first 32 dimensions can be angles",
+                d + 32
             )));
         }
         Ok(())
@@ -333,6 +335,29 @@ impl<R: Resampler> BatchFilter<R> {
         &mut self,
         log_likelihood: impl Fn(usize, usize, &[f32]) -> f32,
     ) -> Result<BatchReport, PfError> {
+        self.step_batched(|shape, states, out| {
+            let mut state = vec![0.0f32; shape.dims];
+            for t in 0..shape.targets {
+                for m in 0..shape.particles {
+                    for (d, x) in state.iter_mut().enumerate() {
+                        *x = states[shape.state_index(t, d, m)];
+                    }
+                    out[t * shape.particles + m] = log_likelihood(t, m, &state);
+                }
+            }
+            Ok(())
+        })
+    }
+
+    /// The same step with the whole measurement in one call: `measure(shape, states, out)` fills
+    /// the log-likelihood of every particle, `out[t·M + m]`, from the diffused states (batch
+    /// layout). This is the form for likelihoods that evaluate many particles at once (on all
+    /// cores, or on GPUs). An error from it is returned as is: the particles have then been moved but
+    /// not reweighted.
+    pub fn step_batched(
+        &mut self,
+        measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
+    ) -> Result<BatchReport, PfError> {
         let shape = self.shape;
         let (m_count, dims) = (shape.particles, shape.dims);
         let step = self.step;
@@ -379,15 +404,7 @@ impl<R: Resampler> BatchFilter<R> {
             step,
         );
 
-        let mut state = vec![0.0f32; dims];
-        for t in 0..shape.targets {
-            for m in 0..m_count {
-                for (d, x) in state.iter_mut().enumerate() {
-                    *x = self.states[shape.state_index(t, d, m)];
-                }
-                self.log_likelihood[t * m_count + m] = log_likelihood(t, m, &state);
-            }
-        }
+        measure(&shape, &self.states, &mut self.log_likelihood)?;
         let mut status = Vec::with_capacity(shape.targets);
         for t in 0..shape.targets {
             let range = t * m_count..(t + 1) * m_count;

@@ -234,12 +234,17 @@ impl CapsuleLikelihoodGpu {
         self.capsules.upload(ctx, capsules)
     }
 
-    /// Records the evaluation: per chunk, (terms,) pairs, reduction.
+    /// Records the evaluation in its own compute pass: per chunk, (terms,) pairs, reduction.
     pub fn record(&self, encoder: &mut wgpu::CommandEncoder) {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("capsule likelihood"),
             timestamp_writes: None,
         });
+        self.record_in(&mut pass);
+    }
+
+    /// Records the evaluation into an open compute pass.
+    pub fn record_in(&self, pass: &mut wgpu::ComputePass<'_>) {
         for chunk in &self.chunks {
             for (kernel, group) in self.kernels.iter().zip(&chunk.groups) {
                 let groups = match kernel.name() {
@@ -251,7 +256,7 @@ impl CapsuleLikelihoodGpu {
                     "reduce_partials" => [1, chunk.samples, 1],
                     _ => [self.tiles as u32, chunk.samples, 1],
                 };
-                kernel.record(&mut pass, group, groups);
+                kernel.record(pass, group, groups);
             }
         }
     }
@@ -265,6 +270,16 @@ impl CapsuleLikelihoodGpu {
             ctx.queue.submit([encoder.finish()])
         })?;
         self.sums_back.read(ctx, Some(submission))
+    }
+
+    /// The capsules the kernels read, for a producer on the GPU (forward kinematics).
+    pub(crate) fn capsule_stream(&self) -> &DeviceStream<[f32; 4]> {
+        &self.capsules
+    }
+
+    /// M_j per sample, as the last recorded evaluation left them.
+    pub(crate) fn sum_stream(&self) -> &DeviceStream<f32> {
+        &self.sums
     }
 
     pub fn shape(&self) -> (usize, usize, usize) {

@@ -16,6 +16,7 @@ pub mod sources {
     pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/toy_likelihood.wgsl");
     pub const RANDOM: &str = include_str!("../../../shaders/random.wgsl");
     pub const CAPSULE_LIKELIHOOD: &str = include_str!("../../../shaders/capsule_likelihood.wgsl");
+    pub const BODY_KINEMATICS: &str = include_str!("../../../shaders/body_kinematics.wgsl");
 
     /// Every stage file, by name, for the validation tests.
     pub const STAGES: [(&str, &str); 6] = [
@@ -153,6 +154,9 @@ mod tests {
         if let Err(message) = validate_wgsl(sources::CAPSULE_LIKELIHOOD) {
             panic!("capsule_likelihood.wgsl:\n{message}");
         }
+        if let Err(message) = validate_wgsl(sources::BODY_KINEMATICS) {
+            panic!("body_kinematics.wgsl:\n{message}");
+        }
     }
 
     #[test]
@@ -173,6 +177,7 @@ mod tests {
                 "common.wgsl",
                 "random.wgsl",
                 "capsule_likelihood.wgsl",
+                "body_kinematics.wgsl",
             ]
             .map(String::from),
         );

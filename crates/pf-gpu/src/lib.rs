@@ -1,10 +1,10 @@
 //! # pf-gpu: the wgpu runtime of streampf
 //!
-//! Today this crate finds the machine's GPU adapters ([`list_adapters`], behind `streampf
-//! devices`) and defines the runtime's error type. It will grow into the runtime that runs a whole
-//! filter step on the GPU for many targets at once: a device context with the adapter's real
-//! limits, typed device streams, WGSL kernels from `shaders/`, and the generic stages (diffuse,
-//! normalise, estimate, resample), each with a CPU twin in `pf-core`.
+//! The runtime that runs a whole filter step on the GPU for many targets at once: adapter choice
+//! ([`list_adapters`], [`GpuContext`] with the adapter's real limits), typed device streams, WGSL
+//! kernels from `shaders/`, the generic stages (diffuse, normalise, estimate, resample; [`filter`])
+//! each with a CPU twin in `pf-core`, and the launchers of the trackers' likelihoods over plain
+//! layouts ([`capsules`], [`body`]).
 //!
 //! Adapter choice honours `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`.
 
@@ -13,6 +13,7 @@ pub mod error;
 
 pub use adapters::{AdapterSummary, list_adapters};
 pub use error::{GpuError, NO_ADAPTER_HELP};
+pub mod body;
 pub mod capsules;
 pub mod context;
 pub mod filter;

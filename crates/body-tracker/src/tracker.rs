@@ -1,0 +1,343 @@
+//! The body tracker: a particle filter over the pose θ weighed by the ray-cast capsule
+//! likelihood, with the weighted-mean pose (eq. 1) as the estimate.
+//!
+//! Three engines, one filter (the batch filter of pf-core and its GPU twin draw the same random
+//! numbers, so they follow the same law):
+//! - [`Backend::Cpu`]: `pf_core::batch::BatchFilter`, the likelihood on all cores;
+//! - [`Backend::Gpu`]: the whole step on one GPU (`pf_gpu::GpuFilter` with forward kinematics and
+//!   the likelihood on the GPU): a frame uploads only its rays;
+//! - [`Backend::SplitGpus`]: the filter on the host, the likelihood's samples split over several
+//!   GPUs (`pf_gpu::body::SplitBodyLikelihood`).
+//!
+//! Diffusion is a Gaussian random walk, clamped to the joint limits; the root's rotations are
+//! angles (wrapped, averaged on the circle).
+
+use nalgebra::Vector3;
+use pf_core::PfError;
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
+use pf_core::resample::Systematic;
+use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
+use pf_gpu::{GpuContext, GpuFilter, GpuResampler, NoLikelihood};
+use rayon::prelude::*;
+
+use crate::error::BodyError;
+use crate::likelihood::{CapsuleLikelihoodParams, Rays, sum_of_squared_distances};
+use crate::skeleton::{ROOT_DOFS, Skeleton};
+
+/// Where the filter and the likelihood run.
+pub enum Backend {
+    Cpu,
+    Gpu(Box<GpuContext>),
+    SplitGpus(Vec<GpuContext>),
+}
+
+impl Backend {
+    pub fn describe(&self) -> String {
+        match self {
+            Backend::Cpu => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Backend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
+            Backend::SplitGpus(contexts) => format!(
+                "{} GPUs: {}",
+                contexts.len(),
+                contexts
+                    .iter()
+                    .map(|c| c.adapter().name.clone())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        }
+    }
+}
+
+/// What weighs the particles.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Weighing {
+    /// The ray-cast capsule likelihood (eq. 3).
+    Capsules,
+    /// Every particle weighs the same: the filter only diffuses. The baseline a real likelihood
+    /// must beat.
+    Flat,
+}
+
+/// The tracker's settings.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackerConfig {
+    /// Pose samples J.
+    pub particles: usize,
+    /// τ of eq. 6 (m).
+    pub tau: f32,
+    /// σ of eq. 3 (m) for a frame of 1 000 points. For I points the tracker uses
+    /// σ·√(I/1000): M sums I terms, so this keeps the spread of the log-weights, and the
+    /// effective sample size, independent of the point density.
+    pub sigma_at_1000_points: f32,
+    /// Diffusion σ per frame: root translation (m), root rotation (rad), joint angles (rad).
+    pub translation_sigma: f32,
+    pub rotation_sigma: f32,
+    pub joint_sigma: f32,
+    /// Frames with more points are thinned to at most this many (every k-th point).
+    pub max_points: usize,
+    pub seed: u64,
+    pub weighing: Weighing,
+}
+
+impl Default for TrackerConfig {
+    fn default() -> Self {
+        Self {
+            particles: 1000,
+            tau: 0.1,
+            sigma_at_1000_points: 0.3,
+            translation_sigma: 0.02,
+            rotation_sigma: 0.03,
+            joint_sigma: 0.08,
+            max_points: 20_000,
+            seed: 1,
+            weighing: Weighing::Capsules,
+        }
+    }
+}
+
+/// One frame's result.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FrameResult {
+    /// The weighted-mean pose (eq. 1).
+    pub pose: Vec<f32>,
+    /// The effective sample size after weighing.
+    pub ess: f64,
+    /// Points used (after thinning).
+    pub points: usize,
+}
+
+struct GpuEngine {
+    ctx: GpuContext,
+    filter: GpuFilter,
+    likelihood: BodyLikelihoodGpu,
+}
+
+enum Engine {
+    Cpu(BatchFilter<Systematic>),
+    Gpu(Box<GpuEngine>),
+    Split {
+        contexts: Vec<GpuContext>,
+        filter: BatchFilter<Systematic>,
+        likelihood: SplitBodyLikelihood,
+    },
+}
+
+pub struct BodyTracker {
+    skeleton: Skeleton,
+    config: TrackerConfig,
+    engine: Engine,
+}
+
+impl BodyTracker {
+    /// A tracker whose particles start around `initial_pose` (spread by one frame's diffusion).
+    pub fn new(
+        skeleton: Skeleton,
+        initial_pose: &[f32],
+        config: TrackerConfig,
+        backend: Backend,
+    ) -> Result<Self, BodyError> {
+        CapsuleLikelihoodParams::new(config.tau, config.sigma_at_1000_points)?;
+        if config.max_points == 0 {
+            return Err(BodyError::InvalidInput(
+                "max points per frame must be > 0".into(),
+            ));
+        }
+        // Checks the pose's length and values.
+        skeleton.capsules(initial_pose)?;
+        let dims = skeleton.dofs();
+        let shape = BatchShape::new(1, config.particles, dims)?;
+        let mut sigma = vec![config.joint_sigma; dims];
+        sigma[..3].fill(config.translation_sigma);
+        sigma[3..ROOT_DOFS].fill(config.rotation_sigma);
+        let mut angular = vec![false; dims];
+        angular[3..ROOT_DOFS].fill(true);
+        let (lower, upper) = skeleton.limits();
+        let mut start = initial_pose.to_vec();
+        for d in 0..dims {
+            start[d] = start[d].clamp(lower[d], upper[d]);
+        }
+        let batch = BatchConfig {
+            shape,
+            seed: config.seed,
+            sigma: sigma.clone(),
+            bounds: Some((lower.clone(), upper.clone())),
+            angular,
+            ess_threshold: f64::INFINITY,
+            best: 0,
+        };
+        batch.validate()?;
+        let mut states = gaussian_clouds(&shape, config.seed, &start, &sigma);
+        // The initial cloud respects the joint limits too.
+        for d in 0..dims {
+            for m in 0..config.particles {
+                let x = &mut states[shape.state_index(0, d, m)];
+                *x = x.clamp(lower[d], upper[d]);
+            }
+        }
+        let gpu_config = || BodyLikelihoodConfig {
+            bones: skeleton.gpu_bones(),
+            dims,
+            points: config.max_points,
+            origin: [0.0; 3],
+            tau: config.tau,
+            sigma: config.sigma_at_1000_points,
+        };
+        let engine = match backend {
+            Backend::Cpu => Engine::Cpu(BatchFilter::new(&batch, Systematic, states)?),
+            Backend::Gpu(ctx) => {
+                let filter = GpuFilter::new(&ctx, &batch, GpuResampler::Systematic, &states)?;
+                let mut likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config(), config.particles)?;
+                pf_gpu::GpuLikelihood::prepare(&mut likelihood, &ctx, &filter.likelihood_inputs())?;
+                Engine::Gpu(Box::new(GpuEngine {
+                    ctx: *ctx,
+                    filter,
+                    likelihood,
+                }))
+            }
+            Backend::SplitGpus(contexts) => {
+                let likelihood =
+                    SplitBodyLikelihood::new(&contexts, &gpu_config(), config.particles)?;
+                Engine::Split {
+                    contexts,
+                    filter: BatchFilter::new(&batch, Systematic, states)?,
+                    likelihood,
+                }
+            }
+        };
+        Ok(Self {
+            skeleton,
+            config,
+            engine,
+        })
+    }
+
+    pub fn skeleton(&self) -> &Skeleton {
+        &self.skeleton
+    }
+
+    /// Thins `points` to at most `max_points` by taking every k-th one.
+    fn thinned<'a>(&self, points: &'a [Vector3<f32>]) -> std::borrow::Cow<'a, [Vector3<f32>]> {
+        if points.len() <= self.config.max_points {
+            return points.into();
+        }
+        let step = points.len().div_ceil(self.config.max_points);
+        points
+            .iter()
+            .step_by(step)
+            .copied()
+            .collect::<Vec<_>>()
+            .into()
+    }
+
+    /// One frame: predict, weigh against `points` (camera frame, camera at the origin), estimate.
+    pub fn step(&mut self, points: &[Vector3<f32>]) -> Result<FrameResult, BodyError> {
+        let points = self.thinned(points);
+        let rays = Rays::through(Vector3::zeros(), &points)?;
+        let flat = self.config.weighing == Weighing::Flat;
+        let sigma = self.config.sigma_at_1000_points * (points.len().max(1) as f32 / 1000.0).sqrt();
+        let params = CapsuleLikelihoodParams::new(self.config.tau, sigma)?;
+        let (pose, ess) = match &mut self.engine {
+            Engine::Cpu(filter) => {
+                let skeleton = &self.skeleton;
+                step_on_host(filter, |poses, out| {
+                    if flat {
+                        out.fill(0.0);
+                        return Ok(());
+                    }
+                    let particles = out.len();
+                    out.par_iter_mut().enumerate().try_for_each(
+                        |(m, out)| -> Result<(), BodyError> {
+                            let theta = pose_of(poses, particles, skeleton, m);
+                            let capsules = skeleton.capsules(&theta)?;
+                            let sum = sum_of_squared_distances(&capsules, &rays, params.tau);
+                            *out = params.log_likelihood(sum) as f32;
+                            Ok(())
+                        },
+                    )
+                })?
+            }
+            Engine::Split {
+                contexts,
+                filter,
+                likelihood,
+            } => {
+                likelihood.upload_rays(contexts, &rays.gpu_layout())?;
+                step_on_host(filter, |poses, out| {
+                    if flat {
+                        out.fill(0.0);
+                        return Ok(());
+                    }
+                    let sums = likelihood.evaluate(contexts, poses)?;
+                    for (o, m) in out.iter_mut().zip(sums) {
+                        *o = params.log_likelihood(m) as f32;
+                    }
+                    Ok(())
+                })?
+            }
+            Engine::Gpu(gpu) => {
+                let GpuEngine {
+                    ctx,
+                    filter,
+                    likelihood,
+                } = gpu.as_mut();
+                likelihood.upload_rays(ctx, &rays.gpu_layout())?;
+                likelihood.set_sigma(ctx, sigma)?;
+                let report = if flat {
+                    filter.step(ctx, &NoLikelihood)?
+                } else {
+                    filter.step(ctx, &*likelihood)?
+                };
+                let stats = report.stats[0];
+                stats.result(self.config.particles)?;
+                (report.estimates, f64::from(stats.ess))
+            }
+        };
+        Ok(FrameResult {
+            pose,
+            ess,
+            points: points.len(),
+        })
+    }
+}
+
+/// Sample `m` of a single-target batch (`[d·M + m]`).
+fn pose_of(poses: &[f32], particles: usize, skeleton: &Skeleton, m: usize) -> Vec<f32> {
+    (0..skeleton.dofs())
+        .map(|d| poses[d * particles + m])
+        .collect()
+}
+
+/// A host filter step with the measurement `measure(poses, log_likelihood)`, its error kept.
+fn step_on_host(
+    filter: &mut BatchFilter<Systematic>,
+    measure: impl FnOnce(&[f32], &mut [f32]) -> Result<(), BodyError>,
+) -> Result<(Vec<f32>, f64), BodyError> {
+    let mut failure = None;
+    let report = filter.step_batched(|_, poses, out| {
+        measure(poses, out).map_err(|e| {
+            let message = e.to_string();
+            failure = Some(e);
+            PfError::InvalidConfig(message)
+        })
+    });
+    if let Some(e) = failure {
+        return Err(e);
+    }
+    let report = report?;
+    if let Some(Err(e)) = report.status.into_iter().next() {
+        return Err(e.into());
+    }
+    Ok((report.estimates, report.ess[0]))
+}
+
+/// The mean distance (m) between the tracked joints of two poses.
+pub fn mean_joint_error(
+    skeleton: &Skeleton,
+    estimate: &[f32],
+    truth: &[f32],
+) -> Result<f32, BodyError> {
+    let a = skeleton.tracked_joint_positions(estimate)?;
+    let b = skeleton.tracked_joint_positions(truth)?;
+    Ok(a.iter().zip(&b).map(|(p, q)| (p - q).norm()).sum::<f32>() / a.len() as f32)
+}

@@ -1,0 +1,460 @@
+//! The whole body likelihood on the GPU: forward kinematics from pose samples
+//! (`shaders/body_kinematics.wgsl`), then the fast capsule likelihood
+//! (`shaders/capsule_likelihood.wgsl`), then log-likelihoods (eq. 3). Inside the GPU filter the
+//! poses are the filter's own state buffer, so a frame uploads only its rays; [`SplitBodyLikelihood`]
+//! spreads the samples of a host-held filter over several GPUs.
+//!
+//! The skeleton arrives as plain [`GpuBone`]s (body-tracker builds them); CPU twins:
+//! `body_tracker::Skeleton::capsules` and `body_tracker::likelihood::listing_1_2`.
+
+use std::ops::Range;
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::capsules::{CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES};
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::filter::{GpuLikelihood, LikelihoodInputs};
+use crate::kernels::{Kernel, sources};
+use crate::stream::{DeviceStream, Readback};
+
+/// Marks the root in [`GpuBone::parent`].
+pub const NO_PARENT: u32 = u32::MAX;
+
+/// One bone as the kinematics kernel reads it (`Bone` in the shader).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct GpuBone {
+    /// Where the bone starts in its parent's frame.
+    pub offset: [f32; 3],
+    pub radius: f32,
+    /// direction · length in the bone's own frame.
+    pub extent: [f32; 3],
+    /// The parent's index (smaller than this bone's), or [`NO_PARENT`] for bone 0.
+    pub parent: u32,
+    /// (number of joint axes ≤ 3, index in θ of the first angle, axes 2 bits each — 0 x, 1 y,
+    /// 2 z —, 0).
+    pub joint: [u32; 4],
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct KinematicsParams {
+    samples: u32,
+    particles: u32,
+    dims: u32,
+    bones: u32,
+    log_scale: f32,
+    _pad: [u32; 3],
+}
+
+/// The likelihood's settings that do not change between frames.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BodyLikelihoodConfig {
+    pub bones: Vec<GpuBone>,
+    /// Pose values per sample (the skeleton's degrees of freedom).
+    pub dims: usize,
+    /// Points per frame; frames with fewer are padded with rays that cost τ² each.
+    pub points: usize,
+    pub origin: [f32; 3],
+    /// τ of eq. 6 and σ of eq. 3 (σ can change per frame: [`BodyLikelihoodGpu::set_sigma`]).
+    pub tau: f32,
+    pub sigma: f32,
+}
+
+impl BodyLikelihoodConfig {
+    fn validate(&self) -> Result<(), GpuError> {
+        let bad = |m: String| Err(GpuError::InvalidConfig(m));
+        if self.bones.is_empty() || self.bones.len() > MAX_CAPSULES {
+            return bad(format!(
+                "a skeleton of {} bones; the GPU kernels take 1 to {MAX_CAPSULES}",
+                self.bones.len()
+            ));
+        }
+        if !(self.sigma.is_finite() && self.sigma > 0.0) {
+            return bad(format!("sigma must be finite and > 0, got {}", self.sigma));
+        }
+        if self.dims < 6 {
+            return bad(format!(
+                "a pose needs the 6 root values, got {} dims",
+                self.dims
+            ));
+        }
+        for (k, bone) in self.bones.iter().enumerate() {
+            let parent_ok = if k == 0 {
+                bone.parent == NO_PARENT
+            } else {
+                (bone.parent as usize) < k
+            };
+            let [count, first, axes, _] = bone.joint;
+            let angles_ok = count <= 3
+                && (first as usize) + (count as usize) <= self.dims
+                && (0..count).all(|i| (axes >> (2 * i)) & 3 < 3);
+            if !parent_ok || !angles_ok {
+                return bad(format!(
+                    "bone {k} is inconsistent (parent {}, joint {:?}, {} dims)",
+                    bone.parent, bone.joint, self.dims
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Forward kinematics plus the fast capsule likelihood for `samples` pose samples on one GPU.
+pub struct BodyLikelihoodGpu {
+    config: BodyLikelihoodConfig,
+    samples: usize,
+    capsules: CapsuleLikelihoodGpu,
+    params: wgpu::Buffer,
+    params_value: KinematicsParams,
+    bones: DeviceStream<GpuBone>,
+    frames: DeviceStream<[f32; 4]>,
+    kinematics: Kernel,
+    to_log_likelihood: Kernel,
+    /// Poses uploaded from the host ([`Self::submit_poses`]); unused inside the GPU filter.
+    host_poses: DeviceStream<f32>,
+    host_group: wgpu::BindGroup,
+    /// Bound by [`GpuLikelihood::prepare`] to the filter's states and log-likelihoods.
+    filter_groups: Option<(wgpu::BindGroup, wgpu::BindGroup)>,
+    sums_back: Readback<f32>,
+    /// The real points of the current frame (the rest are padding).
+    frame_points: usize,
+}
+
+impl BodyLikelihoodGpu {
+    pub fn new(
+        ctx: &GpuContext,
+        config: BodyLikelihoodConfig,
+        samples: usize,
+    ) -> Result<Self, GpuError> {
+        config.validate()?;
+        let bones_count = config.bones.len();
+        let capsules = CapsuleLikelihoodGpu::new(
+            ctx,
+            CapsuleKernel::Fast,
+            samples,
+            config.points,
+            bones_count,
+            config.origin,
+            config.tau,
+        )?;
+        let frames_len = samples
+            .checked_mul(bones_count * 4)
+            .filter(|&n| n <= u32::MAX as usize)
+            .ok_or_else(|| {
+                GpuError::InvalidConfig(format!(
+                    "{samples} samples x {bones_count} bones overflow 32-bit indices"
+                ))
+            })?;
+        let params_value = KinematicsParams {
+            samples: samples as u32,
+            particles: samples as u32,
+            dims: config.dims as u32,
+            bones: bones_count as u32,
+            log_scale: -1.0 / (2.0 * config.sigma * config.sigma),
+            _pad: [0; 3],
+        };
+        let params = ctx.scoped("creating the kinematics parameters", || {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("kinematics params"),
+                size: std::mem::size_of::<KinematicsParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        })?;
+        ctx.queue
+            .write_buffer(&params, 0, bytemuck::bytes_of(&params_value));
+        let bones = DeviceStream::from_slice(ctx, "bones", &config.bones)?;
+        let frames = DeviceStream::zeroed(ctx, "bone frames", frames_len)?;
+        let kinematics = Kernel::new(
+            ctx,
+            "forward kinematics",
+            sources::BODY_KINEMATICS,
+            "forward_kinematics",
+        )?;
+        let to_log_likelihood = Kernel::new(
+            ctx,
+            "log-likelihood from sums",
+            sources::BODY_KINEMATICS,
+            "log_likelihood_from_sums",
+        )?;
+        let host_poses = DeviceStream::zeroed(ctx, "pose samples", samples * config.dims)?;
+        let host_group = kinematics.bind(
+            ctx,
+            &[
+                (0, params.as_entire_binding()),
+                (1, bones.binding()),
+                (2, host_poses.binding()),
+                (3, frames.binding()),
+                (4, capsules.capsule_stream().binding()),
+            ],
+        )?;
+        Ok(Self {
+            frame_points: config.points,
+            config,
+            samples,
+            sums_back: Readback::new(ctx, "body likelihood sums", samples)?,
+            capsules,
+            params,
+            params_value,
+            bones,
+            frames,
+            kinematics,
+            to_log_likelihood,
+            host_poses,
+            host_group,
+            filter_groups: None,
+        })
+    }
+
+    pub fn samples(&self) -> usize {
+        self.samples
+    }
+
+    /// This frame's rays, `[dir, depth]` per point: at most the configured number. Missing
+    /// points are padded with rays at depth −2τ that can never come within τ of a capsule hit
+    /// (hits are at Δ ≥ 0), so each adds exactly τ² to every sample's M and leaves the weights
+    /// unchanged.
+    pub fn upload_rays(&mut self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
+        if rays.len() > self.config.points {
+            return Err(GpuError::LengthMismatch {
+                what: "frame points (at most)".into(),
+                expected: self.config.points,
+                got: rays.len(),
+            });
+        }
+        self.frame_points = rays.len();
+        let mut padded = rays.to_vec();
+        padded.resize(self.config.points, [0.0, 0.0, 1.0, -2.0 * self.config.tau]);
+        self.capsules.upload_rays(ctx, &padded)
+    }
+
+    /// σ of eq. 3 from the next evaluation on.
+    pub fn set_sigma(&mut self, ctx: &GpuContext, sigma: f32) -> Result<(), GpuError> {
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(GpuError::InvalidConfig(format!(
+                "sigma must be finite and > 0, got {sigma}"
+            )));
+        }
+        self.config.sigma = sigma;
+        self.params_value.log_scale = -1.0 / (2.0 * sigma * sigma);
+        ctx.queue
+            .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params_value));
+        Ok(())
+    }
+
+    /// τ² for each padding ray: subtract from a read-back M to get the frame's own sum.
+    pub fn padding_sum(&self) -> f64 {
+        let tau = f64::from(self.config.tau);
+        (self.config.points - self.frame_points) as f64 * tau * tau
+    }
+
+    fn kinematics_groups(&self) -> [u32; 3] {
+        [self.samples.div_ceil(64) as u32, 1, 1]
+    }
+
+    /// Uploads poses (`[d·J + j]`, J = samples) and submits kinematics and likelihood; read the
+    /// sums with [`Self::read_sums`]. Two steps so that several GPUs can work at once.
+    pub fn submit_poses(
+        &self,
+        ctx: &GpuContext,
+        poses: &[f32],
+    ) -> Result<wgpu::SubmissionIndex, GpuError> {
+        self.host_poses.upload(ctx, poses)?;
+        let mut encoder = ctx.device.create_command_encoder(&Default::default());
+        ctx.scoped("evaluating the body likelihood", || {
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("body likelihood"),
+                    timestamp_writes: None,
+                });
+                self.kinematics
+                    .record(&mut pass, &self.host_group, self.kinematics_groups());
+                self.capsules.record_in(&mut pass);
+            }
+            self.sums_back
+                .record_copy(&mut encoder, self.capsules.sum_stream());
+            ctx.queue.submit([encoder.finish()])
+        })
+    }
+
+    /// M_j of the submitted poses (padding removed).
+    pub fn read_sums(
+        &self,
+        ctx: &GpuContext,
+        submission: wgpu::SubmissionIndex,
+    ) -> Result<Vec<f64>, GpuError> {
+        let padding = self.padding_sum();
+        Ok(self
+            .sums_back
+            .read(ctx, Some(submission))?
+            .into_iter()
+            .map(|m| (f64::from(m) - padding).max(0.0))
+            .collect())
+    }
+
+    /// The capsules of every uploaded pose (`[(j·K + k)·2]`, as `capsules_gpu_layout`), for
+    /// checking the kinematics against the CPU.
+    pub fn pose_capsules(
+        &self,
+        ctx: &GpuContext,
+        poses: &[f32],
+    ) -> Result<Vec<[f32; 4]>, GpuError> {
+        let submission = self.submit_poses(ctx, poses)?;
+        ctx.wait(Some(submission), "forward kinematics")?;
+        self.capsules.capsule_stream().download(ctx)
+    }
+}
+
+impl GpuLikelihood for BodyLikelihoodGpu {
+    fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError> {
+        let shape = inputs.shape;
+        if shape.particle_len() != self.samples || shape.dims != self.config.dims {
+            return Err(GpuError::InvalidConfig(format!(
+                "the body likelihood was built for {} samples of {} values; the filter has {} x {} of {}",
+                self.samples, self.config.dims, shape.targets, shape.particles, shape.dims
+            )));
+        }
+        // The filter's layout has a stride of M particles per target.
+        self.params_value.particles = shape.particles as u32;
+        ctx.queue
+            .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params_value));
+        let kinematics = self.kinematics.bind(
+            ctx,
+            &[
+                (0, self.params.as_entire_binding()),
+                (1, self.bones.binding()),
+                (2, inputs.states.binding()),
+                (3, self.frames.binding()),
+                (4, self.capsules.capsule_stream().binding()),
+            ],
+        )?;
+        let to_log_likelihood = self.to_log_likelihood.bind(
+            ctx,
+            &[
+                (0, self.params.as_entire_binding()),
+                (5, self.capsules.sum_stream().binding()),
+                (6, inputs.log_likelihood.binding()),
+            ],
+        )?;
+        self.filter_groups = Some((kinematics, to_log_likelihood));
+        Ok(())
+    }
+
+    fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
+        if let Some((kinematics, to_log_likelihood)) = &self.filter_groups {
+            let groups = self.kinematics_groups();
+            self.kinematics.record(pass, kinematics, groups);
+            self.capsules.record_in(pass);
+            // The padding adds the same τ² to every sample: a constant the normalisation removes.
+            self.to_log_likelihood
+                .record(pass, to_log_likelihood, groups);
+        }
+    }
+}
+
+/// The samples of a host-held filter split over several GPUs, one contiguous share each.
+pub struct SplitBodyLikelihood {
+    /// (context index, sample range, that context's likelihood).
+    parts: Vec<(usize, Range<usize>, BodyLikelihoodGpu)>,
+    contexts: usize,
+    dims: usize,
+    samples: usize,
+}
+
+impl SplitBodyLikelihood {
+    /// One share per context, as equal as possible (a context gets none when samples < contexts).
+    pub fn new(
+        contexts: &[GpuContext],
+        config: &BodyLikelihoodConfig,
+        samples: usize,
+    ) -> Result<Self, GpuError> {
+        if contexts.is_empty() {
+            return Err(GpuError::InvalidConfig(
+                "splitting samples needs at least one GPU context".into(),
+            ));
+        }
+        let mut parts = Vec::new();
+        let n = contexts.len();
+        for (i, ctx) in contexts.iter().enumerate() {
+            let range = samples * i / n..samples * (i + 1) / n;
+            if range.is_empty() {
+                continue;
+            }
+            let share = BodyLikelihoodGpu::new(ctx, config.clone(), range.len())?;
+            parts.push((i, range, share));
+        }
+        if parts.is_empty() {
+            return Err(GpuError::InvalidConfig(
+                "the split body likelihood needs at least one sample".into(),
+            ));
+        }
+        Ok(Self {
+            parts,
+            contexts: n,
+            dims: config.dims,
+            samples,
+        })
+    }
+
+    /// The sample range each context evaluates, by context index (empty when it got none).
+    pub fn shares(&self) -> Vec<Range<usize>> {
+        let mut shares = vec![0..0; self.contexts];
+        for (i, range, _) in &self.parts {
+            shares[*i] = range.clone();
+        }
+        shares
+    }
+
+    fn check_contexts(&self, contexts: &[GpuContext]) -> Result<(), GpuError> {
+        if contexts.len() == self.contexts {
+            Ok(())
+        } else {
+            Err(GpuError::LengthMismatch {
+                what: "GPU contexts of the split likelihood".into(),
+                expected: self.contexts,
+                got: contexts.len(),
+            })
+        }
+    }
+
+    /// This frame's rays, to every GPU.
+    pub fn upload_rays(
+        &mut self,
+        contexts: &[GpuContext],
+        rays: &[[f32; 4]],
+    ) -> Result<(), GpuError> {
+        self.check_contexts(contexts)?;
+        for (i, _, part) in &mut self.parts {
+            part.upload_rays(&contexts[*i], rays)?;
+        }
+        Ok(())
+    }
+
+    /// M_j for every pose (`[d·J + j]`): every GPU is submitted its share before any is read.
+    pub fn evaluate(&self, contexts: &[GpuContext], poses: &[f32]) -> Result<Vec<f64>, GpuError> {
+        self.check_contexts(contexts)?;
+        if poses.len() != self.samples * self.dims {
+            return Err(GpuError::LengthMismatch {
+                what: "pose samples".into(),
+                expected: self.samples * self.dims,
+                got: poses.len(),
+            });
+        }
+        let mut submissions = Vec::with_capacity(self.parts.len());
+        for (i, range, part) in &self.parts {
+            let mut share = Vec::with_capacity(range.len() * self.dims);
+            for d in 0..self.dims {
+                let row = d * self.samples;
+                share.extend_from_slice(&poses[row + range.start..row + range.end]);
+            }
+            submissions.push(part.submit_poses(&contexts[*i], &share)?);
+        }
+        let mut sums = Vec::with_capacity(self.samples);
+        for ((i, _, part), submission) in self.parts.iter().zip(submissions) {
+            sums.extend(part.read_sums(&contexts[*i], submission)?);
+        }
+        Ok(sums)
+    }
+}
