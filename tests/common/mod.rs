@@ -6,6 +6,8 @@
 
 #![allow(dead_code)]
 
+pub mod capsule_cases;
+
 /// The environment variable that lets a run without any adapter skip the GPU tests.
 pub const OPT_OUT: &str = "STREAMPF_ALLOW_NO_GPU";
 

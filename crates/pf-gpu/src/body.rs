@@ -54,7 +54,7 @@ pub struct BodyLikelihoodConfig {
     pub bones: Vec<GpuBone>,
     /// Pose values per sample (the skeleton's degrees of freedom).
     pub dims: usize,
-    /// Points per frame; frames with fewer are padded with rays that cost τ² each.
+    /// Points per frame at most; a frame may have fewer.
     pub points: usize,
     pub origin: [f32; 3],
     /// τ of eq. 6 and σ of eq. 3 (σ can change per frame: [`BodyLikelihoodGpu::set_sigma`]).
@@ -118,8 +118,6 @@ pub struct BodyLikelihoodGpu {
     /// Bound by [`GpuLikelihood::prepare`] to the filter's states and log-likelihoods.
     filter_groups: Option<(wgpu::BindGroup, wgpu::BindGroup)>,
     sums_back: Readback<f32>,
-    /// The real points of the current frame (the rest are padding).
-    frame_points: usize,
 }
 
 impl BodyLikelihoodGpu {
@@ -191,7 +189,6 @@ impl BodyLikelihoodGpu {
             ],
         )?;
         Ok(Self {
-            frame_points: config.points,
             config,
             samples,
             sums_back: Readback::new(ctx, "body likelihood sums", samples)?,
@@ -212,10 +209,9 @@ impl BodyLikelihoodGpu {
         self.samples
     }
 
-    /// This frame's rays, `[dir, depth]` per point: at most the configured number. Missing
-    /// points are padded with rays at depth −2τ that can never come within τ of a capsule hit
-    /// (hits are at Δ ≥ 0), so each adds exactly τ² to every sample's M and leaves the weights
-    /// unchanged.
+    /// This frame's rays, `[dir, depth]` per point: at most the configured number. The rest of
+    /// the buffer is filled with the fast kernel's end marker (depth −1), which adds nothing to
+    /// any sum.
     pub fn upload_rays(&mut self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
         if rays.len() > self.config.points {
             return Err(GpuError::LengthMismatch {
@@ -224,9 +220,14 @@ impl BodyLikelihoodGpu {
                 got: rays.len(),
             });
         }
-        self.frame_points = rays.len();
+        if let Some(i) = rays.iter().position(|r| !(r[3] >= 0.0)) {
+            return Err(GpuError::InvalidConfig(format!(
+                "ray {i} has depth {}; depths must be >= 0",
+                rays[i][3]
+            )));
+        }
         let mut padded = rays.to_vec();
-        padded.resize(self.config.points, [0.0, 0.0, 1.0, -2.0 * self.config.tau]);
+        padded.resize(self.config.points, [0.0, 0.0, 1.0, -1.0]);
         self.capsules.upload_rays(ctx, &padded)
     }
 
@@ -242,12 +243,6 @@ impl BodyLikelihoodGpu {
         ctx.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params_value));
         Ok(())
-    }
-
-    /// τ² for each padding ray: subtract from a read-back M to get the frame's own sum.
-    pub fn padding_sum(&self) -> f64 {
-        let tau = f64::from(self.config.tau);
-        (self.config.points - self.frame_points) as f64 * tau * tau
     }
 
     fn kinematics_groups(&self) -> [u32; 3] {
@@ -279,18 +274,17 @@ impl BodyLikelihoodGpu {
         })
     }
 
-    /// M_j of the submitted poses (padding removed).
+    /// M_j of the submitted poses.
     pub fn read_sums(
         &self,
         ctx: &GpuContext,
         submission: wgpu::SubmissionIndex,
     ) -> Result<Vec<f64>, GpuError> {
-        let padding = self.padding_sum();
         Ok(self
             .sums_back
             .read(ctx, Some(submission))?
             .into_iter()
-            .map(|m| (f64::from(m) - padding).max(0.0))
+            .map(f64::from)
             .collect())
     }
 
@@ -347,7 +341,6 @@ impl GpuLikelihood for BodyLikelihoodGpu {
             let groups = self.kinematics_groups();
             self.kinematics.record(pass, kinematics, groups);
             self.capsules.record_in(pass);
-            // The padding adds the same τ² to every sample: a constant the normalisation removes.
             self.to_log_likelihood
                 .record(pass, to_log_likelihood, groups);
         }
