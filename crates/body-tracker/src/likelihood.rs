@@ -126,6 +126,54 @@ pub fn capsules_gpu_layout(capsules: &[Capsule], out: &mut Vec<[f32; 4]>) {
     }
 }
 
+/// A capsule's bounding sphere (centre, radius) for [`culled_sum_of_squared_distances`].
+fn bounding_sphere(c: &Capsule) -> (Vector3<f32>, f32) {
+    ((c.a + c.b) * 0.5, (c.b - c.a).norm() * 0.5 + c.radius)
+}
+
+/// Whether the ray can meet the sphere within τ of `depth`: if not, the capsule inside it is at
+/// distance τ for this point and its quadratics need not be solved.
+fn sphere_may_matter(
+    origin: &Vector3<f32>,
+    dir: &Vector3<f32>,
+    sphere: &(Vector3<f32>, f32),
+    depth: f32,
+    tau: f32,
+) -> bool {
+    let w = origin - sphere.0;
+    let b = dir.dot(&w);
+    let disc = b * b - (w.norm_squared() - sphere.1 * sphere.1);
+    if disc < 0.0 {
+        return false;
+    }
+    let s = disc.sqrt();
+    let (enter, exit) = (-b - s, -b + s);
+    // A small margin keeps rounding from culling a capsule whose hit is right at depth ± τ.
+    let margin = 1e-4 * (1.0 + depth);
+    exit >= 0.0 && enter <= depth + tau + margin && exit >= depth - tau - margin
+}
+
+/// M for one sample, as [`sum_of_squared_distances`], but each capsule's bounding sphere is
+/// tested first (the CPU form of the fast GPU kernel's culling): the tracker's CPU path.
+pub fn culled_sum_of_squared_distances(capsules: &[Capsule], rays: &Rays, tau: f32) -> f64 {
+    let spheres: Vec<_> = capsules.iter().map(bounding_sphere).collect();
+    let mut sum = 0.0f64;
+    for (dir, &depth) in rays.directions.iter().zip(&rays.depths) {
+        let mut best = tau;
+        for (c, sphere) in capsules.iter().zip(&spheres) {
+            if sphere_may_matter(&rays.origin, dir, sphere, depth, tau) {
+                best = best.min(truncated_distance(
+                    ray_capsule(&rays.origin, dir, c),
+                    depth,
+                    tau,
+                ));
+            }
+        }
+        sum += f64::from(best) * f64::from(best);
+    }
+    sum
+}
+
 /// min_k d_ik for one ray (the inner loops of Listing 1.2).
 pub fn point_min_distance(
     capsules: &[Capsule],

@@ -21,7 +21,7 @@ use pf_gpu::{GpuContext, GpuFilter, GpuResampler, NoLikelihood};
 use rayon::prelude::*;
 
 use crate::error::BodyError;
-use crate::likelihood::{CapsuleLikelihoodParams, Rays, sum_of_squared_distances};
+use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
 
 /// Where the filter and the likelihood run.
@@ -250,7 +250,7 @@ impl BodyTracker {
                         |(m, out)| -> Result<(), BodyError> {
                             let theta = pose_of(poses, particles, skeleton, m);
                             let capsules = skeleton.capsules(&theta)?;
-                            let sum = sum_of_squared_distances(&capsules, &rays, params.tau);
+                            let sum = culled_sum_of_squared_distances(&capsules, &rays, params.tau);
                             *out = params.log_likelihood(sum) as f32;
                             Ok(())
                         },

@@ -3,7 +3,8 @@
 use body_tracker::capsule::ray_capsule;
 use body_tracker::human::{BASE_CAPSULES, human_skeleton, standing_pose};
 use body_tracker::likelihood::{
-    CapsuleLikelihoodParams, Rays, listing_1_2, parallel_over_samples, sum_of_squared_distances,
+    CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances, listing_1_2,
+    parallel_over_samples, sum_of_squared_distances,
 };
 use body_tracker::{BodyError, Skeleton, SkeletonSpec};
 use nalgebra::{Vector3, vector};
@@ -217,4 +218,27 @@ fn bad_points_and_parameters_are_clear_errors() {
     assert!(Rays::through(origin, &[origin]).is_err());
     assert!(CapsuleLikelihoodParams::new(0.0, 1.0).is_err());
     assert!(CapsuleLikelihoodParams::new(0.1, f32::NAN).is_err());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 200, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// Bounding-sphere culling only skips capsules that are τ away: the culled sum is Listing
+    /// 1.2's, for poses far from the points' own, points behind the camera and any τ.
+    #[test]
+    fn culled_sum_matches_listing_1_2(seed in any::<u64>(), tau in 0.005f32..0.5, spread in 0.0f32..0.5) {
+        let s = human_skeleton(48).unwrap();
+        let base = standing_pose(&s, 3.0);
+        let mut rng = pf_core::RandomStreams::new(seed).stream(0, pf_core::Stage::Model(0));
+        let mut points = cast(&s.capsules(&base).unwrap(), 16);
+        for _ in 0..40 {
+            points.push(vector![rng.gaussian_f32(), rng.gaussian_f32(), 3.0 * rng.gaussian_f32()]);
+        }
+        let rays = Rays::through(Vector3::zeros(), &points).unwrap();
+        let theta: Vec<f32> = base.iter().map(|x| x + spread * rng.gaussian_f32()).collect();
+        let caps = s.capsules(&theta).unwrap();
+        let want = sum_of_squared_distances(&caps, &rays, tau);
+        let got = culled_sum_of_squared_distances(&caps, &rays, tau);
+        prop_assert!((got - want).abs() <= 1e-6 * (1.0 + want), "culled {} vs {}", got, want);
+    }
 }

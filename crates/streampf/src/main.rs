@@ -1,5 +1,6 @@
 //! `streampf`: GPU particle filtering for visual tracking, from the command line.
 
+mod body;
 mod demo;
 mod devices;
 
@@ -11,7 +12,8 @@ use clap::{Parser, Subcommand};
     version,
     about = "GPU particle filtering (Condensation) for visual tracking",
     long_about = "GPU particle filtering (Condensation) for visual tracking.\n\n\
-                  `streampf demo` runs the main job on a synthetic sequence the program generates; \
+                  `streampf body track --synthetic` tracks a synthetic walking body; \
+                  `streampf demo` tracks synthetic 7-D pose targets; \
                   `streampf devices` lists the GPU adapters wgpu can use."
 )]
 struct Cli {
@@ -25,6 +27,11 @@ enum Command {
     Devices,
     /// Track a synthetic target and print the per-step error and a summary.
     Demo(demo::DemoArgs),
+    /// Stereo articulated body tracking: `body track DIR`, `body track --synthetic`, `body synth`.
+    Body {
+        #[command(subcommand)]
+        command: body::BodyCommand,
+    },
 }
 
 fn main() -> anyhow::Result<()> {
@@ -32,5 +39,6 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Devices => devices::run(),
         Command::Demo(args) => demo::run(&args),
+        Command::Body { command } => body::run(&command),
     }
 }

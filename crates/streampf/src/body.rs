@@ -1,0 +1,384 @@
+//! `streampf body`: the stereo articulated body tracker.
+//!
+//! - `body synth --out DIR`: renders a synthetic sequence with ground truth;
+//! - `body track DIR` or `body track --synthetic`: tracks a sequence, writes per-frame joint
+//!   angles (`poses.csv`) and joint positions (`joints.csv`), and, when the ground truth is known,
+//!   the per-frame mean joint position error (`errors.csv`) and its mean.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use body_tracker::human::{BASE_CAPSULES, MAX_CAPSULES, human_skeleton, standing_pose};
+use body_tracker::sequence::{
+    FrameFormat, SequenceDir, joint_columns, joint_row, read_numeric_csv, write_csv,
+    write_synthetic,
+};
+use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
+use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_error};
+use clap::{Args, Subcommand, ValueEnum};
+use nalgebra::Vector3;
+use pf_gpu::{ContextOptions, GpuContext};
+
+#[derive(Debug, Subcommand)]
+pub enum BodyCommand {
+    /// Render a synthetic sequence (frames, camera, skeleton, ground truth) into a directory.
+    Synth(SynthArgs),
+    /// Track a body through a directory of frames, or through a generated sequence.
+    Track(TrackArgs),
+}
+
+/// The synthetic sequence's settings, shared by `synth` and `track --synthetic`.
+#[derive(Debug, Clone, Args)]
+pub struct SequenceArgs {
+    /// Frames to generate.
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub frames: u32,
+    /// Capsules of the default human (19 to 96; the paper used 40 to 48).
+    #[arg(long, default_value_t = 48, value_parser = clap::value_parser!(u32).range(BASE_CAPSULES as i64..=MAX_CAPSULES as i64))]
+    pub capsules: u32,
+    /// The movement: walk, wave or walk-wave.
+    #[arg(long, default_value = "walk-wave")]
+    pub motion: Motion,
+    /// Camera width and height in pixels.
+    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(1..=8192))]
+    pub width: u32,
+    #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u32).range(1..=8192))]
+    pub height: u32,
+    /// Horizontal field of view in degrees.
+    #[arg(long, default_value_t = 60.0)]
+    pub fov: f32,
+    /// Depth noise σ at 1 m, in metres (grows with the square of the depth).
+    #[arg(long, default_value_t = 0.005)]
+    pub noise: f32,
+    /// Fraction of body pixels lost.
+    #[arg(long, default_value_t = 0.1)]
+    pub dropout: f32,
+    /// Fraction of points moved to a random depth along their ray.
+    #[arg(long, default_value_t = 0.02)]
+    pub outliers: f32,
+    /// Seed of the sequence's noise.
+    #[arg(long, default_value_t = 7)]
+    pub sequence_seed: u64,
+}
+
+impl SequenceArgs {
+    fn config(&self) -> anyhow::Result<SynthConfig> {
+        if !(self.fov.is_finite() && self.fov > 1.0 && self.fov < 179.0) {
+            bail!("--fov must be between 1 and 179 degrees, got {}", self.fov);
+        }
+        let config = SynthConfig {
+            frames: self.frames as usize,
+            motion: self.motion,
+            fps: 30.0,
+            camera: body_tracker::camera::Intrinsics::with_fov(self.width, self.height, self.fov)?,
+            distance: 3.0,
+            depth_noise: self.noise,
+            dropout: self.dropout,
+            outliers: self.outliers,
+            seed: self.sequence_seed,
+        };
+        config.validate()?;
+        Ok(config)
+    }
+
+    fn skeleton(&self) -> anyhow::Result<Skeleton> {
+        Ok(human_skeleton(self.capsules as usize)?)
+    }
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FormatArg {
+    Ply,
+    DepthPng,
+}
+
+#[derive(Debug, Clone, Args)]
+pub struct SynthArgs {
+    /// The directory to write (created if needed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Frame files: PLY point clouds or 16-bit depth PNGs.
+    #[arg(long, value_enum, default_value_t = FormatArg::Ply)]
+    pub format: FormatArg,
+    #[command(flatten)]
+    pub sequence: SequenceArgs,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum BackendArg {
+    /// A hardware GPU when there is one, else the CPU.
+    Auto,
+    Cpu,
+    /// The whole step on one GPU.
+    Gpu,
+    /// The likelihood's samples split over every GPU.
+    AllGpus,
+}
+
+#[derive(Debug, Clone, Args)]
+pub struct TrackArgs {
+    /// A sequence directory: *.ply frames, or *.png depth images with camera.json; optional
+    /// skeleton.json and ground_truth.csv.
+    #[arg(required_unless_present = "synthetic", conflicts_with = "synthetic")]
+    pub dir: Option<PathBuf>,
+    /// Track a synthetic sequence generated in memory (see the sequence options).
+    #[arg(long)]
+    pub synthetic: bool,
+    /// Where to write poses.csv, joints.csv and errors.csv.
+    #[arg(long, default_value = "streampf-body-out")]
+    pub out: PathBuf,
+    /// Pose samples (particles).
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    pub particles: u32,
+    /// Frames are thinned to at most this many points.
+    #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
+    pub max_points: u32,
+    /// The starting pose: a CSV like ground_truth.csv (its first row is used). Default: the
+    /// ground truth's first row, else an upright body facing the camera at the points' median.
+    #[arg(long)]
+    pub init_pose: Option<PathBuf>,
+    #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
+    pub backend: BackendArg,
+    /// Accept a software GPU adapter (Mesa's lavapipe) for --backend gpu or all-gpus.
+    #[arg(long)]
+    pub allow_software: bool,
+    /// Seed of the filter's random numbers.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Print only the summary.
+    #[arg(long)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub sequence: SequenceArgs,
+}
+
+pub fn run(command: &BodyCommand) -> anyhow::Result<()> {
+    match command {
+        BodyCommand::Synth(args) => synth(args),
+        BodyCommand::Track(args) => track(args),
+    }
+}
+
+fn progress_bar(frames: usize, quiet: bool) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    if let Ok(style) =
+        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {per_sec} {msg}")
+    {
+        bar.set_style(style);
+    }
+    bar
+}
+
+fn synth(args: &SynthArgs) -> anyhow::Result<()> {
+    let config = args.sequence.config()?;
+    let skeleton = args.sequence.skeleton()?;
+    let format = match args.format {
+        FormatArg::Ply => FrameFormat::Ply,
+        FormatArg::DepthPng => FrameFormat::DepthPng,
+    };
+    let bar = progress_bar(config.frames, false);
+    write_synthetic(&args.out, &skeleton, &config, format, |_| bar.inc(1))
+        .with_context(|| format!("writing the sequence to {}", args.out.display()))?;
+    bar.finish_and_clear();
+    println!(
+        "wrote {} frames ({:?}, {} capsules, {:?}) with ground truth to {}",
+        config.frames,
+        format,
+        skeleton.capsule_count(),
+        config.motion,
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Where the frames come from.
+enum Source {
+    Directory(SequenceDir),
+    Synthetic(SynthConfig),
+}
+
+impl Source {
+    fn frames(&self) -> usize {
+        match self {
+            Source::Directory(dir) => dir.frames.len(),
+            Source::Synthetic(config) => config.frames,
+        }
+    }
+
+    fn points(&self, skeleton: &Skeleton, frame: usize) -> anyhow::Result<Vec<Vector3<f32>>> {
+        Ok(match self {
+            Source::Directory(dir) => dir.read_frame(frame)?,
+            Source::Synthetic(config) => {
+                let truth = pose_at(skeleton, config, frame)?;
+                render(skeleton, &truth, config, frame)?.points
+            }
+        })
+    }
+}
+
+fn open_backend(args: &TrackArgs) -> anyhow::Result<Backend> {
+    let options = ContextOptions {
+        allow_software: args.allow_software,
+        ..ContextOptions::default()
+    };
+    Ok(match args.backend {
+        BackendArg::Cpu => Backend::Cpu,
+        BackendArg::Gpu => Backend::Gpu(Box::new(
+            GpuContext::new(&options).context("opening the GPU (see `streampf devices`)")?,
+        )),
+        BackendArg::AllGpus => Backend::SplitGpus(
+            GpuContext::all(&options).context("opening the GPUs (see `streampf devices`)")?,
+        ),
+        BackendArg::Auto => match GpuContext::new(&options) {
+            Ok(ctx) => Backend::Gpu(Box::new(ctx)),
+            Err(err) => {
+                if !args.quiet {
+                    eprintln!("no hardware GPU ({err}); tracking on the CPU");
+                }
+                Backend::Cpu
+            }
+        },
+    })
+}
+
+/// An upright body facing the camera, its pelvis placed from the points' medians.
+fn pose_from_points(skeleton: &Skeleton, points: &[Vector3<f32>]) -> anyhow::Result<Vec<f32>> {
+    if points.is_empty() {
+        bail!("the first frame has no points to start from; give --init-pose");
+    }
+    let median = |axis: usize| {
+        let mut values: Vec<f32> = points.iter().map(|p| p[axis]).collect();
+        values.sort_by(f32::total_cmp);
+        values[values.len() / 2]
+    };
+    let mut theta = standing_pose(skeleton, median(2) + 0.12);
+    theta[0] = median(0);
+    // The visible points centre on the torso, about 0.15 m above the pelvis.
+    theta[1] = median(1) - 0.15;
+    Ok(theta)
+}
+
+fn track(args: &TrackArgs) -> anyhow::Result<()> {
+    let (source, skeleton, truth) = if args.synthetic {
+        let config = args.sequence.config()?;
+        let skeleton = args.sequence.skeleton()?;
+        let truth = (0..config.frames)
+            .map(|f| pose_at(&skeleton, &config, f))
+            .collect::<Result<Vec<_>, _>>()?;
+        (Source::Synthetic(config), skeleton, Some(truth))
+    } else {
+        let dir = args.dir.as_deref().unwrap_or(Path::new("."));
+        let sequence = SequenceDir::open(dir)?;
+        let skeleton = match sequence.skeleton()? {
+            Some(s) => s,
+            None => args.sequence.skeleton()?,
+        };
+        let truth = sequence.ground_truth(&skeleton)?;
+        if let Some(t) = &truth
+            && t.len() < sequence.frames.len()
+        {
+            bail!(
+                "{} has {} rows for {} frames",
+                dir.join(body_tracker::sequence::GROUND_TRUTH_FILE)
+                    .display(),
+                t.len(),
+                sequence.frames.len()
+            );
+        }
+        (Source::Directory(sequence), skeleton, truth)
+    };
+    let frames = source.frames();
+    let first_points = source.points(&skeleton, 0)?;
+    let start = match (&args.init_pose, &truth) {
+        (Some(path), _) => read_numeric_csv(path, skeleton.dofs() + 1)?
+            .first()
+            .map(|row| row[1..].to_vec())
+            .with_context(|| format!("{} has no pose row", path.display()))?,
+        (None, Some(truth)) => truth[0].clone(),
+        (None, None) => pose_from_points(&skeleton, &first_points)?,
+    };
+    let backend = open_backend(args)?;
+    let backend_name = backend.describe();
+    let config = TrackerConfig {
+        particles: args.particles as usize,
+        max_points: args.max_points as usize,
+        seed: args.seed,
+        ..TrackerConfig::default()
+    };
+    let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    if !args.quiet {
+        println!(
+            "tracking {frames} frames, {} capsules, {} particles on {backend_name}",
+            skeleton.capsule_count(),
+            args.particles
+        );
+    }
+
+    let bar = progress_bar(frames, args.quiet);
+    let mut poses = Vec::with_capacity(frames);
+    let mut joints = Vec::with_capacity(frames);
+    let mut errors = Vec::new();
+    let mut points_seen = 0usize;
+    let started = Instant::now();
+    let mut tracking_time = 0.0f64;
+    for frame in 0..frames {
+        let points = if frame == 0 {
+            first_points.clone()
+        } else {
+            source.points(&skeleton, frame)?
+        };
+        let step_started = Instant::now();
+        let result = tracker
+            .step(&points)
+            .with_context(|| format!("frame {frame}"))?;
+        tracking_time += step_started.elapsed().as_secs_f64();
+        points_seen += result.points;
+        joints.push(joint_row(&skeleton.tracked_joint_positions(&result.pose)?));
+        if let Some(truth) = &truth {
+            let error = mean_joint_error(&skeleton, &result.pose, &truth[frame])?;
+            errors.push(vec![error]);
+            bar.set_message(format!("joint error {:.1} cm", 100.0 * error));
+        }
+        poses.push(result.pose);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+
+    write_csv(&args.out.join("poses.csv"), &skeleton.pose_names(), &poses)?;
+    write_csv(
+        &args.out.join("joints.csv"),
+        &joint_columns(&skeleton),
+        &joints,
+    )?;
+    println!(
+        "tracked {frames} frames ({:.0} points a frame) in {:.2} s: {:.1} frames/s in the tracker",
+        points_seen as f64 / frames as f64,
+        started.elapsed().as_secs_f64(),
+        frames as f64 / tracking_time.max(1e-9)
+    );
+    if !errors.is_empty() {
+        write_csv(
+            &args.out.join("errors.csv"),
+            &["mean_joint_error_m".to_string()],
+            &errors,
+        )?;
+        let mean = errors.iter().map(|e| f64::from(e[0])).sum::<f64>() / errors.len() as f64;
+        println!("mean joint position error: {mean:.4} m over {frames} frames");
+    }
+    println!(
+        "wrote poses.csv, joints.csv{} to {}",
+        if errors.is_empty() {
+            ""
+        } else {
+            ", errors.csv"
+        },
+        args.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,241 @@
+//! `streampf body synth` and `streampf body track` as a user runs them.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn streampf(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_streampf"))
+        .args(args)
+        .env("NODEVICE_SELECT", "1")
+        .output()
+        .expect("the streampf binary runs")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn failure(out: &Output) -> String {
+    assert!(
+        !out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("streampf-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+/// The number after `label` in `text`.
+fn number_after(text: &str, label: &str) -> f64 {
+    let start = text
+        .find(label)
+        .unwrap_or_else(|| panic!("{label:?} not in {text}"))
+        + label.len();
+    text[start..]
+        .split_whitespace()
+        .next()
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| panic!("no number after {label:?} in {text}"))
+}
+
+const SMALL: [&str; 10] = [
+    "--frames",
+    "6",
+    "--capsules",
+    "19",
+    "--width",
+    "96",
+    "--height",
+    "72",
+    "--sequence-seed",
+    "3",
+];
+
+fn lines(path: &Path) -> Vec<String> {
+    std::fs::read_to_string(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .lines()
+        .map(str::to_string)
+        .collect()
+}
+
+#[test]
+fn synth_then_track_a_directory_of_ply_and_of_depth_pngs() {
+    for format in ["ply", "depth-png"] {
+        let data = scratch(&format!("data-{format}"));
+        let out = scratch(&format!("out-{format}"));
+        let d = data.to_str().unwrap();
+        let o = out.to_str().unwrap();
+        let mut args = vec!["body", "synth", "--out", d, "--format", format];
+        args.extend(SMALL);
+        let text = ok(&streampf(&args));
+        assert!(text.contains("wrote 6 frames"), "{text}");
+        let text = ok(&streampf(&[
+            "body",
+            "track",
+            d,
+            "--out",
+            o,
+            "--particles",
+            "200",
+            "--backend",
+            "cpu",
+            "--quiet",
+        ]));
+        let error = number_after(&text, "mean joint position error:");
+        assert!(error > 0.0 && error < 0.15, "{format}: {text}");
+        // One header and one row per frame; every pose has the skeleton's 38 values.
+        let poses = lines(&out.join("poses.csv"));
+        assert_eq!(poses.len(), 7);
+        assert!(poses[0].starts_with("frame,root_tx,root_ty,root_tz,root_rx"));
+        assert!(poses.iter().all(|l| l.split(',').count() == 39));
+        assert_eq!(lines(&out.join("joints.csv")).len(), 7);
+        assert_eq!(lines(&out.join("errors.csv")).len(), 7);
+        std::fs::remove_dir_all(&data).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+}
+
+#[test]
+fn track_synthetic_prints_the_joint_error_and_the_frame_rate() {
+    let out = scratch("synthetic");
+    let mut args = vec![
+        "body",
+        "track",
+        "--synthetic",
+        "--out",
+        out.to_str().unwrap(),
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+    ];
+    args.extend(SMALL);
+    let text = ok(&streampf(&args));
+    assert!(
+        text.contains("tracking 6 frames, 19 capsules, 200 particles on CPU"),
+        "{text}"
+    );
+    assert!(
+        number_after(&text, "mean joint position error:") < 0.15,
+        "{text}"
+    );
+    assert!(text.contains("frames/s"), "{text}");
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn bad_body_inputs_are_clear_errors() {
+    let data = scratch("bad");
+    let d = data.to_str().unwrap();
+    // A directory that does not exist, and one without frames.
+    let err = failure(&streampf(&["body", "track", d]));
+    assert!(err.contains(d), "{err}");
+    std::fs::create_dir_all(&data).unwrap();
+    let err = failure(&streampf(&["body", "track", d]));
+    assert!(err.contains("no frames"), "{err}");
+    // A corrupt PLY frame.
+    std::fs::write(
+        data.join("frame_0.ply"),
+        "ply\nformat ascii 1.0\nelement vertex 2\n",
+    )
+    .unwrap();
+    let err = failure(&streampf(&["body", "track", d, "--backend", "cpu"]));
+    assert!(err.contains("frame_0.ply"), "{err}");
+    std::fs::remove_file(data.join("frame_0.ply")).unwrap();
+    // An 8-bit PNG where a 16-bit depth image belongs.
+    let mut args = vec!["body", "synth", "--out", d, "--format", "depth-png"];
+    args.extend(SMALL);
+    ok(&streampf(&args));
+    let eight_bit: Vec<u8> = {
+        // The smallest valid 8-bit gray PNG, 1x1.
+        let mut png = Vec::new();
+        let encoder = image::codecs::png::PngEncoder::new(&mut png);
+        image::ImageEncoder::write_image(encoder, &[0u8], 1, 1, image::ExtendedColorType::L8)
+            .unwrap();
+        png
+    };
+    std::fs::write(data.join("depth_00002.png"), eight_bit).unwrap();
+    let err = failure(&streampf(&[
+        "body",
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]));
+    assert!(err.contains("16-bit single-channel"), "{err}");
+    // A starting pose of the wrong width, and bad numbers.
+    let pose = data.join("pose.csv");
+    std::fs::write(&pose, "frame,a\n0,1\n").unwrap();
+    let err = failure(&streampf(&[
+        "body",
+        "track",
+        "--synthetic",
+        "--init-pose",
+        pose.to_str().unwrap(),
+    ]));
+    assert!(err.contains("columns"), "{err}");
+    for bad in [
+        vec!["body", "track", "--synthetic", "--capsules", "200"],
+        vec!["body", "track", "--synthetic", "--dropout", "1.5"],
+        vec!["body", "track", "--synthetic", "--motion", "dance"],
+        vec!["body", "track", "--synthetic", "--fov", "0"],
+        vec!["body", "track", "--synthetic", "--particles", "0"],
+        vec!["body", "track"],
+        vec!["body", "synth", "--out", d, "--frames", "0"],
+    ] {
+        let err = failure(&streampf(&bad));
+        assert!(err.len() > 10, "{bad:?}: {err}");
+    }
+    std::fs::remove_dir_all(&data).unwrap();
+}
+
+#[test]
+fn track_synthetic_on_the_gpu() {
+    let out = scratch("gpu");
+    let mut args = vec![
+        "body",
+        "track",
+        "--synthetic",
+        "--out",
+        out.to_str().unwrap(),
+        "--particles",
+        "200",
+        "--backend",
+        "gpu",
+        "--allow-software",
+    ];
+    args.extend(SMALL);
+    let result = streampf(&args);
+    let err = String::from_utf8_lossy(&result.stderr);
+    if !result.status.success() && err.contains("no GPU adapter was found") {
+        assert!(
+            std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
+            "this test needs a GPU adapter (or Mesa's lavapipe: apt-get install mesa-vulkan-drivers); \
+             set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly.\n{err}"
+        );
+        eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
+        return;
+    }
+    let text = ok(&result);
+    assert!(text.contains("on GPU: "), "{text}");
+    assert!(
+        number_after(&text, "mean joint position error:") < 0.15,
+        "{text}"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+}
