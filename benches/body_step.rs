@@ -1,0 +1,98 @@
+//! The body tracker's whole step per frame — resample, diffuse, forward kinematics, the capsule
+//! likelihood, normalise, weighted mean — on the GPU (`Backend::Gpu`: one submission, the frame's
+//! rays the only upload) against all CPU cores (`Backend::Cpu`: the same filter with the culled
+//! likelihood on rayon). Frames are synthetic (48 capsules, walking and waving, noise, dropout,
+//! outliers); the camera's size sets the points: 160×120 gives about 1 000 points, 1024×768 about
+//! 43 000 (the paper's largest cloud). GPU times include the host's ray preparation (Morton sort,
+//! tile cones), the submission, the wait and the readback of the estimate.
+
+use body_tracker::camera::Intrinsics;
+use body_tracker::human::human_skeleton;
+use body_tracker::synth::{SynthConfig, pose_at, render};
+use body_tracker::{Backend, BodyTracker, TrackerConfig};
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use nalgebra::Vector3;
+use pf_gpu::{ContextOptions, GpuContext};
+
+const K: usize = 48;
+
+/// `cargo bench` passes `--bench`; under `cargo test --benches` each benchmark runs once on tiny
+/// sizes, as a smoke test.
+fn full_size() -> bool {
+    std::env::args().any(|a| a == "--bench")
+}
+
+fn context() -> GpuContext {
+    let ctx = GpuContext::new(&ContextOptions::default())
+        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
+        .expect("a GPU adapter (see `streampf devices`)");
+    eprintln!(
+        "GPU adapter: {} ({}, {})",
+        ctx.adapter().name,
+        ctx.adapter().device_type,
+        ctx.adapter().backend
+    );
+    ctx
+}
+
+/// Frame 10 of the default synthetic sequence seen by a `width × height` camera, and the pose
+/// of frame 9 to start from.
+fn frame(width: u32, height: u32) -> (Vec<Vector3<f32>>, Vec<f32>) {
+    let skeleton = human_skeleton(K).unwrap();
+    let config = SynthConfig {
+        camera: Intrinsics::with_fov(width, height, 60.0).unwrap(),
+        ..SynthConfig::small(20).unwrap()
+    };
+    let points = render(
+        &skeleton,
+        &pose_at(&skeleton, &config, 10).unwrap(),
+        &config,
+        10,
+    )
+    .unwrap()
+    .points;
+    (points, pose_at(&skeleton, &config, 9).unwrap())
+}
+
+fn tracker(particles: usize, points: usize, start: &[f32], backend: Backend) -> BodyTracker {
+    let config = TrackerConfig {
+        particles,
+        max_points: points,
+        ..TrackerConfig::default()
+    };
+    BodyTracker::new(human_skeleton(K).unwrap(), start, config, backend).unwrap()
+}
+
+fn bench(c: &mut Criterion) {
+    let sizes: &[(usize, u32, u32)] = if full_size() {
+        &[
+            (1000, 160, 120),
+            (1000, 320, 240),
+            (3500, 320, 240),
+            (3500, 1024, 768),
+        ]
+    } else {
+        &[(20, 48, 36)]
+    };
+    let mut group = c.benchmark_group("body_step");
+    group.sample_size(10);
+    for &(j, width, height) in sizes {
+        let (points, start) = frame(width, height);
+        let i = points.len();
+        let label = format!("j{j}_i{i}");
+        group.throughput(Throughput::Elements((j * i * K) as u64));
+        let mut gpu = tracker(j, i, &start, Backend::Gpu(Box::new(context())));
+        group.bench_function(BenchmarkId::new("gpu_whole_step", &label), |b| {
+            b.iter(|| std::hint::black_box(gpu.step(&points).unwrap()))
+        });
+        drop(gpu);
+        let mut cpu = tracker(j, i, &start, Backend::Cpu);
+        group.bench_function(BenchmarkId::new("cpu_all_cores", &label), |b| {
+            b.iter(|| std::hint::black_box(cpu.step(&points).unwrap()))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
