@@ -4,9 +4,10 @@
 //! kernel). Throughput is in (sample, point, capsule) pairs per second, so that the CPU runs,
 //! which use a sub-sampled J (stated in their names), compare per pair with the GPU's full J.
 //! GPU timings include the submission, the wait and the readback of the J sums; the capsules are
-//! already on the device (`benches/body_step.rs` times the whole tracker step, forward kinematics on the GPU included). The points come in
-//! raster order, as a camera delivers them: neighbouring invocations see neighbouring rays, which
-//! is what lets the fast kernel's bounding-sphere test skip work for whole warps.
+//! already on the device (`benches/body_step.rs` times the whole tracker step, forward kinematics
+//! on the GPU included). The points come in raster order, as a camera delivers them: neighbouring
+//! invocations see neighbouring rays, which is what lets the fast kernel's bounding-sphere test
+//! skip work for whole warps.
 
 use body_tracker::capsule::{Capsule, ray_capsule};
 use body_tracker::human::{human_skeleton, standing_pose};
