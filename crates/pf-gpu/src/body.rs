@@ -220,7 +220,7 @@ impl BodyLikelihoodGpu {
                 got: rays.len(),
             });
         }
-        if let Some(i) = rays.iter().position(|r| !(r[3] >= 0.0)) {
+        if let Some(i) = rays.iter().position(|r| r[3].is_nan() || r[3] < 0.0) {
             return Err(GpuError::InvalidConfig(format!(
                 "ray {i} has depth {}; depths must be >= 0",
                 rays[i][3]
