@@ -1,13 +1,22 @@
-//! # face-tracker (not yet built)
+//! # face-tracker
 //!
-//! This crate will hold the sparse-template 3D face tracker of Lozano & Otsuka ("Real-time visual
-//! tracker by stream processing"), rebuilt on `pf-core` and `pf-gpu`:
+//! The sparse-template 3D face tracker of Lozano & Otsuka ("Real-time visual tracker by stream
+//! processing"), rebuilt on `pf-core` and `pf-gpu`:
 //!
-//! - the 7-D state (Tx, Ty, S, Rx, Ry, Rz, α) and its Gaussian diffusion;
-//! - the weak-perspective projection and the robust relative-residual likelihood with
-//!   self-occlusion by rotated normals (see `shared/DESIGN.md` and `ARCHITECTURE.md`);
-//! - the generic face model (heightmap + normalmap) and sparse template extraction
-//!   (grey-level extrema and Laplacian-of-Gaussian boundary dipoles);
-//! - the CPU reference likelihood that the GPU kernel is tested against, and the tracker itself.
-//!
-//! It deliberately exposes no API yet: nothing here is usable until that work lands.
+//! - [`projection`]: the 7-D state (Tx, Ty, S, Rx, Ry, Rz, α) and the weak-perspective projection
+//!   with self-occlusion by rotated normals;
+//! - [`template`]: feature points (P, N, J);
+//! - [`likelihood`]: the robust relative residual ε and π ∝ 1/ε on the CPU (one thread: the
+//!   Fig. 6 baseline; and rayon); the GPU kernels are in `pf_gpu::faces`;
+//! - [`image`]: gray frames with bilinear sampling.
+
+pub mod error;
+pub mod image;
+pub mod likelihood;
+pub mod projection;
+pub mod template;
+
+pub use error::FaceError;
+pub use image::GrayImage;
+pub use projection::{DIMS, Pose, rotation};
+pub use template::{FeaturePoint, Template};

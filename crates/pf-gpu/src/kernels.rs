@@ -17,10 +17,12 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/random.wgsl");
     pub const CAPSULE_LIKELIHOOD: &str = include_str!("../../../shaders/capsule_likelihood.wgsl");
     pub const BODY_KINEMATICS: &str = include_str!("../../../shaders/body_kinematics.wgsl");
+    pub const FACE_LIKELIHOOD: &str = include_str!("../../../shaders/face_likelihood.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 6] = [
+    pub const STAGES: [(&str, &str); 7] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
+        ("face_likelihood.wgsl", FACE_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
         ("resample.wgsl", RESAMPLE),

@@ -4,7 +4,7 @@
 //! ([`list_adapters`], [`GpuContext`] with the adapter's real limits), typed device streams, WGSL
 //! kernels from `shaders/`, the generic stages (diffuse, normalise, estimate, resample; [`filter`])
 //! each with a CPU twin in `pf-core`, and the launchers of the trackers' likelihoods over plain
-//! layouts ([`capsules`], [`body`]).
+//! layouts ([`capsules`], [`body`], [`faces`]).
 //!
 //! Adapter choice honours `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`.
 
@@ -16,6 +16,7 @@ pub use error::{GpuError, NO_ADAPTER_HELP};
 pub mod body;
 pub mod capsules;
 pub mod context;
+pub mod faces;
 pub mod filter;
 pub mod kernels;
 pub mod random;

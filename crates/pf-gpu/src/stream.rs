@@ -62,6 +62,25 @@ impl<T: Pod> DeviceStream<T> {
         Ok(())
     }
 
+    /// Queues a write of `data` at value `offset` (the rest of the stream is left as it is).
+    pub fn upload_at(&self, ctx: &GpuContext, offset: usize, data: &[T]) -> Result<(), GpuError> {
+        if offset + data.len() > self.len {
+            return Err(GpuError::LengthMismatch {
+                what: format!("stream {} (values {offset}.. written)", self.label),
+                expected: self.len.saturating_sub(offset),
+                got: data.len(),
+            });
+        }
+        if !data.is_empty() {
+            ctx.queue.write_buffer(
+                &self.buffer,
+                (offset * std::mem::size_of::<T>()) as u64,
+                bytemuck::cast_slice(data),
+            );
+        }
+        Ok(())
+    }
+
     fn check_len(&self, got: usize) -> Result<(), GpuError> {
         if got != self.len {
             return Err(GpuError::LengthMismatch {

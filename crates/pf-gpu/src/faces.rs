@@ -1,0 +1,229 @@
+//! The launcher of the face paper's sparse-template likelihood (`shaders/face_likelihood.wgsl`)
+//! over plain layouts: the frame as f32 gray levels, and per face up to `max_points` feature
+//! points as two `[f32; 4]` each, (P, J) and (N, 0). It is a [`GpuLikelihood`]: inside the GPU
+//! filter it reads the particles where they are and writes log π = −sharpness·ln ε, and it keeps
+//! ε per particle for failure detection. CPU twin: `face_tracker::likelihood::residual_error`.
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::filter::{GpuLikelihood, LikelihoodInputs};
+use crate::kernels::{Kernel, sources, stage_source};
+use crate::stream::DeviceStream;
+
+/// How the faces of a frame are dispatched.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaceDispatch {
+    /// One dispatch per face, as the paper launches one kernel per face.
+    PerFace,
+    /// Every face of the frame in one dispatch (grid: particles × faces).
+    Batched,
+}
+
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct FaceParams {
+    width: u32,
+    height: u32,
+    max_points: u32,
+    face_offset: u32,
+    sharpness: f32,
+    min_error: f32,
+    _pad: [u32; 2],
+}
+
+/// The face likelihood for `faces` faces of up to `max_points` points on `width × height` frames.
+pub struct FaceLikelihoodGpu {
+    dispatch: FaceDispatch,
+    faces: usize,
+    max_points: usize,
+    width: u32,
+    height: u32,
+    frame: DeviceStream<f32>,
+    points: DeviceStream<[f32; 4]>,
+    counts: DeviceStream<u32>,
+    errors: Option<DeviceStream<f32>>,
+    /// One parameter buffer per dispatch (face offsets 0.. for PerFace, one for Batched).
+    params: Vec<wgpu::Buffer>,
+    kernel: Kernel,
+    groups: Vec<wgpu::BindGroup>,
+    particles: u32,
+}
+
+impl FaceLikelihoodGpu {
+    /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1); ε is floored at `min_error`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        ctx: &GpuContext,
+        dispatch: FaceDispatch,
+        faces: usize,
+        max_points: usize,
+        width: u32,
+        height: u32,
+        sharpness: f32,
+        min_error: f32,
+    ) -> Result<Self, GpuError> {
+        if faces == 0 || max_points == 0 || width < 2 || height < 2 {
+            return Err(GpuError::InvalidConfig(format!(
+                "the face likelihood needs faces, points and a frame of at least 2x2 (got {faces} faces, {max_points} points, {width}x{height})"
+            )));
+        }
+        if !(sharpness.is_finite() && sharpness > 0.0 && min_error.is_finite() && min_error > 0.0) {
+            return Err(GpuError::InvalidConfig(format!(
+                "sharpness and the error floor must be finite and > 0 (got {sharpness}, {min_error})"
+            )));
+        }
+        let pixels = width as usize * height as usize;
+        let point_values = faces
+            .checked_mul(max_points * 2)
+            .filter(|&n| n <= u32::MAX as usize)
+            .ok_or_else(|| GpuError::InvalidConfig("too many feature points".into()))?;
+        let frame = DeviceStream::zeroed(ctx, "face frame", pixels)?;
+        let points = DeviceStream::zeroed(ctx, "feature points", point_values)?;
+        let counts = DeviceStream::zeroed(ctx, "feature point counts", faces)?;
+        let kernel = Kernel::new(
+            ctx,
+            "face likelihood",
+            &stage_source(sources::FACE_LIKELIHOOD),
+            "weigh_faces",
+        )?;
+        let offsets: Vec<u32> = match dispatch {
+            FaceDispatch::PerFace => (0..faces as u32).collect(),
+            FaceDispatch::Batched => vec![0],
+        };
+        let params = offsets
+            .iter()
+            .map(|&face_offset| {
+                let value = FaceParams {
+                    width,
+                    height,
+                    max_points: max_points as u32,
+                    face_offset,
+                    sharpness,
+                    min_error,
+                    _pad: [0; 2],
+                };
+                let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                    label: Some("face likelihood params"),
+                    size: std::mem::size_of::<FaceParams>() as u64,
+                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                ctx.queue
+                    .write_buffer(&buffer, 0, bytemuck::bytes_of(&value));
+                buffer
+            })
+            .collect();
+        Ok(Self {
+            dispatch,
+            faces,
+            max_points,
+            width,
+            height,
+            frame,
+            points,
+            counts,
+            errors: None,
+            params,
+            kernel,
+            groups: Vec::new(),
+            particles: 0,
+        })
+    }
+
+    pub fn dispatch(&self) -> FaceDispatch {
+        self.dispatch
+    }
+
+    /// This frame's gray levels, `[y·width + x]`: the one upload of a frame.
+    pub fn upload_frame(&self, ctx: &GpuContext, gray: &[f32]) -> Result<(), GpuError> {
+        self.frame.upload(ctx, gray)
+    }
+
+    /// Face `face`'s template: `[(P, J), (N, 0)]` per point, at most `max_points` points.
+    pub fn upload_template(
+        &self,
+        ctx: &GpuContext,
+        face: usize,
+        points: &[[f32; 4]],
+    ) -> Result<(), GpuError> {
+        if face >= self.faces || points.len() % 2 != 0 || points.len() / 2 > self.max_points {
+            return Err(GpuError::InvalidConfig(format!(
+                "template for face {face} of {}: {} values (two per point, at most {} points)",
+                self.faces,
+                points.len(),
+                self.max_points
+            )));
+        }
+        self.points
+            .upload_at(ctx, face * self.max_points * 2, points)?;
+        self.counts
+            .upload_at(ctx, face, &[(points.len() / 2) as u32])
+    }
+
+    /// ε of every particle of every face (`[t·M + m]`) as the last step left them.
+    pub fn download_errors(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        match &self.errors {
+            Some(errors) => errors.download(ctx),
+            None => Err(GpuError::InvalidConfig(
+                "the face likelihood has not been prepared for a filter".into(),
+            )),
+        }
+    }
+
+    /// The per-particle ε stream, for a readback in the frame's submission.
+    pub fn error_stream(&self) -> Option<&DeviceStream<f32>> {
+        self.errors.as_ref()
+    }
+
+    pub fn frame_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+}
+
+impl GpuLikelihood for FaceLikelihoodGpu {
+    fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError> {
+        let shape = inputs.shape;
+        if shape.targets != self.faces || shape.dims != 7 {
+            return Err(GpuError::InvalidConfig(format!(
+                "the face likelihood was built for {} faces of 7 values; the filter has {} targets of {}",
+                self.faces, shape.targets, shape.dims
+            )));
+        }
+        let errors = DeviceStream::zeroed(ctx, "face errors", shape.particle_len())?;
+        self.groups = self
+            .params
+            .iter()
+            .map(|p| {
+                self.kernel.bind(
+                    ctx,
+                    &[
+                        (0, inputs.params.as_entire_binding()),
+                        (1, inputs.states.binding()),
+                        (2, inputs.log_likelihood.binding()),
+                        (3, p.as_entire_binding()),
+                        (4, self.frame.binding()),
+                        (5, self.points.binding()),
+                        (6, self.counts.binding()),
+                        (7, errors.binding()),
+                    ],
+                )
+            })
+            .collect::<Result<_, _>>()?;
+        self.errors = Some(errors);
+        self.particles = shape.particles as u32;
+        Ok(())
+    }
+
+    fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
+        let faces_per_dispatch = match self.dispatch {
+            FaceDispatch::PerFace => 1,
+            FaceDispatch::Batched => self.faces as u32,
+        };
+        for group in &self.groups {
+            self.kernel
+                .record(pass, group, [self.particles, faces_per_dispatch, 1]);
+        }
+    }
+}

@@ -1,0 +1,131 @@
+// The sparse-template face likelihood (eq. 10-13 of the face paper) on the GPU, with the paper's
+// layout: one workgroup per particle, one invocation per feature point (looping when a template
+// has more points than the workgroup), the sums reduced in workgroup memory. The grid is
+// (particles, faces): one dispatch weighs every face of a frame (the batched form), or one
+// dispatch per face with `face_offset` (the paper's form). CPU twin:
+// face_tracker::likelihood::residual_error.
+//
+// Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty), I(p) bilinear, kappa =
+// (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1); a point outside the frame has rho = 1.
+// epsilon = mean rho over those points (1 when none), log pi = -sharpness ln max(epsilon, floor).
+//
+// Layouts: states (the filter's, common.wgsl); frame[y * width + x] gray levels 0-255; points of
+// face t at [(t * max_points + i) * 2] = (P, J) and [.. + 1] = (N, 0), point_counts[t];
+// log_likelihood and errors [t * M + m].
+
+struct FaceParams {
+    width: u32,
+    height: u32,
+    max_points: u32,
+    face_offset: u32,
+    sharpness: f32,
+    min_error: f32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<storage, read> states: array<f32>;
+@group(0) @binding(2) var<storage, read_write> log_likelihood: array<f32>;
+@group(0) @binding(3) var<uniform> fp: FaceParams;
+@group(0) @binding(4) var<storage, read> frame: array<f32>;
+@group(0) @binding(5) var<storage, read> points: array<vec4<f32>>;
+@group(0) @binding(6) var<storage, read> point_counts: array<u32>;
+@group(0) @binding(7) var<storage, read_write> errors: array<f32>;
+
+const WG: u32 = 256u;
+var<workgroup> rho_sums: array<f32, 256>;
+var<workgroup> visible_counts: array<f32, 256>;
+
+fn rotation_x(a: f32) -> mat3x3<f32> {
+    let c = cos(a);
+    let s = sin(a);
+    return mat3x3<f32>(vec3<f32>(1.0, 0.0, 0.0), vec3<f32>(0.0, c, s), vec3<f32>(0.0, -s, c));
+}
+
+fn rotation_y(a: f32) -> mat3x3<f32> {
+    let c = cos(a);
+    let s = sin(a);
+    return mat3x3<f32>(vec3<f32>(c, 0.0, -s), vec3<f32>(0.0, 1.0, 0.0), vec3<f32>(s, 0.0, c));
+}
+
+fn rotation_z(a: f32) -> mat3x3<f32> {
+    let c = cos(a);
+    let s = sin(a);
+    return mat3x3<f32>(vec3<f32>(c, s, 0.0), vec3<f32>(-s, c, 0.0), vec3<f32>(0.0, 0.0, 1.0));
+}
+
+fn pixel(x: u32, y: u32) -> f32 {
+    return frame[y * fp.width + x];
+}
+
+// Bilinear sample at (x, y), or -1 outside [0, w-1] x [0, h-1] (as GrayImage::bilinear).
+fn bilinear(x: f32, y: f32) -> f32 {
+    let w1 = f32(fp.width - 1u);
+    let h1 = f32(fp.height - 1u);
+    if (!(x >= 0.0 && y >= 0.0 && x <= w1 && y <= h1)) {
+        return -1.0;
+    }
+    let x0 = min(u32(floor(x)), fp.width - 2u);
+    let y0 = min(u32(floor(y)), fp.height - 2u);
+    let fx = x - f32(x0);
+    let fy = y - f32(y0);
+    let top = pixel(x0, y0) * (1.0 - fx) + pixel(x0 + 1u, y0) * fx;
+    let bottom = pixel(x0, y0 + 1u) * (1.0 - fx) + pixel(x0 + 1u, y0 + 1u) * fx;
+    return top * (1.0 - fy) + bottom * fy;
+}
+
+@compute @workgroup_size(256)
+fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let m = wid.x;
+    let t = fp.face_offset + wid.y;
+    // Workgroup-uniform: the whole workgroup leaves together.
+    if (m >= params.particles || t >= params.targets) {
+        return;
+    }
+    let tx = states[state_index(t, 0u, m)];
+    let ty = states[state_index(t, 1u, m)];
+    let scale = states[state_index(t, 2u, m)];
+    let r = rotation_x(states[state_index(t, 3u, m)]) * rotation_y(states[state_index(t, 4u, m)])
+        * rotation_z(states[state_index(t, 5u, m)]);
+    let alpha = states[state_index(t, 6u, m)];
+    let count = min(point_counts[t], fp.max_points);
+    var rho_sum = 0.0;
+    var visible = 0.0;
+    for (var i = lid; i < count; i = i + WG) {
+        let base = (t * fp.max_points + i) * 2u;
+        let pj = points[base];
+        let n = points[base + 1u].xyz;
+        if ((r * n).z >= 0.0) {
+            visible = visible + 1.0;
+            let q = r * pj.xyz;
+            let intensity = bilinear(scale * q.x + tx, scale * q.y + ty);
+            if (intensity < 0.0) {
+                rho_sum = rho_sum + 1.0;
+            } else {
+                let kappa = (alpha * intensity - pj.w) / pj.w;
+                let k2 = kappa * kappa;
+                rho_sum = rho_sum + k2 / (k2 + 1.0);
+            }
+        }
+    }
+    rho_sums[lid] = rho_sum;
+    visible_counts[lid] = visible;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            rho_sums[lid] = rho_sums[lid] + rho_sums[lid + stride];
+            visible_counts[lid] = visible_counts[lid] + visible_counts[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    if (lid == 0u) {
+        var epsilon = 1.0;
+        if (visible_counts[0] > 0.0) {
+            epsilon = rho_sums[0] / visible_counts[0];
+        }
+        errors[t * params.particles + m] = epsilon;
+        log_likelihood[t * params.particles + m] = -fp.sharpness * log(max(epsilon, fp.min_error));
+    }
+}
