@@ -148,7 +148,10 @@ impl FaceLikelihoodGpu {
         face: usize,
         points: &[[f32; 4]],
     ) -> Result<(), GpuError> {
-        if face >= self.faces || points.len() % 2 != 0 || points.len() / 2 > self.max_points {
+        if face >= self.faces
+            || !points.len().is_multiple_of(2)
+            || points.len() / 2 > self.max_points
+        {
             return Err(GpuError::InvalidConfig(format!(
                 "template for face {face} of {}: {} values (two per point, at most {} points)",
                 self.faces,
