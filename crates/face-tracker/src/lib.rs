@@ -5,18 +5,28 @@
 //!
 //! - [`projection`]: the 7-D state (Tx, Ty, S, Rx, Ry, Rz, α) and the weak-perspective projection
 //!   with self-occlusion by rotated normals;
-//! - [`template`]: feature points (P, N, J);
+//! - [`template`]: feature points (P, N, J); [`extraction`]: the sparse template from the face
+//!   sub-image at t0 (gray-level extrema and LoG boundary dipoles); [`model`]: the face model
+//!   (heightmap + normalmap) that gives each point its depth and normal;
 //! - [`likelihood`]: the robust relative residual ε and π ∝ 1/ε on the CPU (one thread: the
 //!   Fig. 6 baseline; and rayon); the GPU kernels are in `pf_gpu::faces`;
-//! - [`image`]: gray frames with bilinear sampling.
+//! - [`image`]: gray frames with bilinear sampling;
+//! - [`synth`]: synthetic videos of textured heads with ground truth;
+//! - [`tracker`]: several faces at once, each its own filter, on the CPU or the GPU, with
+//!   failure detection.
 
 pub mod error;
+pub mod extraction;
 pub mod image;
 pub mod likelihood;
+pub mod model;
 pub mod projection;
+pub mod synth;
 pub mod template;
+pub mod tracker;
 
 pub use error::FaceError;
 pub use image::GrayImage;
 pub use projection::{DIMS, Pose, rotation};
 pub use template::{FeaturePoint, Template};
+pub use tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};

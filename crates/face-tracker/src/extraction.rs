@@ -1,0 +1,316 @@
+//! Sparse template extraction from the face sub-image at t0 (section 3 of the face paper):
+//!
+//! - gray-level extrema: pixels brighter (or darker) than all 8 neighbours in a lightly smoothed
+//!   image, taken brightest and darkest first;
+//! - boundary dipoles: pairs of points on either side of a zero-crossing of the
+//!   Laplacian-of-Gaussian image, taken in order of the gray-level step |ΔI| across them;
+//!
+//! both with a minimum separation between chosen points, inside the ellipse inscribed in the face
+//! rectangle. Each point gets its model position and normal from the [`FaceModel`] and its gray
+//! level J from the frame.
+
+use crate::error::FaceError;
+use crate::image::GrayImage;
+use crate::model::FaceModel;
+use crate::template::{FeaturePoint, MIN_GRAY, Template};
+
+/// A face rectangle in frame pixels: top-left corner and size.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaceRect {
+    pub x: f32,
+    pub y: f32,
+    pub width: f32,
+    pub height: f32,
+}
+
+impl FaceRect {
+    pub fn centre(&self) -> (f32, f32) {
+        (self.x + self.width / 2.0, self.y + self.height / 2.0)
+    }
+
+    /// Checks that the rectangle has a size and lies inside the frame.
+    pub fn validate(&self, frame: &GrayImage) -> Result<(), FaceError> {
+        let finite = [self.x, self.y, self.width, self.height]
+            .iter()
+            .all(|v| v.is_finite());
+        if !finite || self.width < 8.0 || self.height < 8.0 {
+            return Err(FaceError::InvalidInput(format!(
+                "a face rectangle must be at least 8x8 pixels, got {self:?}"
+            )));
+        }
+        if self.x < 0.0
+            || self.y < 0.0
+            || self.x + self.width > frame.width as f32
+            || self.y + self.height > frame.height as f32
+        {
+            return Err(FaceError::InvalidInput(format!(
+                "the face rectangle {self:?} is not inside the {}x{} frame",
+                frame.width, frame.height
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// How a template is extracted.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExtractionConfig {
+    /// Feature points in all (the paper used about 230).
+    pub max_points: usize,
+    /// The share of them that are gray-level extrema; the rest are dipole ends.
+    pub extrema_share: f32,
+    /// The smallest distance between two chosen points (pixels, at least 1).
+    pub separation: f32,
+    /// σ of the smoothing before the extrema test and of the LoG (pixels).
+    pub sigma: f32,
+    /// Each dipole end lies this far from its zero-crossing (pixels).
+    pub dipole_half_length: f32,
+    /// Dipoles whose gray-level step is below this are ignored.
+    pub min_step: f32,
+}
+
+impl Default for ExtractionConfig {
+    fn default() -> Self {
+        Self {
+            max_points: 230,
+            extrema_share: 0.35,
+            separation: 3.0,
+            sigma: 1.2,
+            dipole_half_length: 2.0,
+            min_step: 6.0,
+        }
+    }
+}
+
+/// A separable Gaussian blur (radius 3σ, borders clamped).
+pub fn gaussian_blur(image: &GrayImage, sigma: f32) -> GrayImage {
+    let radius = (3.0 * sigma).ceil().max(1.0) as i64;
+    let weights: Vec<f32> = (-radius..=radius)
+        .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
+    let total: f32 = weights.iter().sum();
+    let (w, h) = (image.width as i64, image.height as i64);
+    let pass = |src: &[f32], horizontal: bool| -> Vec<f32> {
+        (0..w * h)
+            .map(|k| {
+                let (x, y) = (k % w, k / w);
+                let mut acc = 0.0;
+                for (i, weight) in weights.iter().enumerate() {
+                    let o = i as i64 - radius;
+                    let (sx, sy) = if horizontal {
+                        ((x + o).clamp(0, w - 1), y)
+                    } else {
+                        (x, (y + o).clamp(0, h - 1))
+                    };
+                    acc += weight * src[(sy * w + sx) as usize];
+                }
+                acc / total
+            })
+            .collect()
+    };
+    let data = pass(&pass(&image.data, true), false);
+    GrayImage {
+        width: image.width,
+        height: image.height,
+        data,
+    }
+}
+
+/// The 4-neighbour Laplacian of an image (zero on the border).
+fn laplacian(image: &GrayImage) -> Vec<f32> {
+    let (w, h) = (image.width, image.height);
+    (0..w * h)
+        .map(|k| {
+            let (x, y) = (k % w, k / w);
+            if x == 0 || y == 0 || x == w - 1 || y == h - 1 {
+                return 0.0;
+            }
+            image.at(x - 1, y) + image.at(x + 1, y) + image.at(x, y - 1) + image.at(x, y + 1)
+                - 4.0 * image.at(x, y)
+        })
+        .collect()
+}
+
+/// A candidate: the points it adds and its priority (larger first).
+struct Candidate {
+    points: Vec<(f32, f32)>,
+    priority: f32,
+}
+
+/// Gray-level extrema inside `inside`, brightest and darkest first (priority: distance of the
+/// gray level from the extreme it is, so a bright maximum and a dark minimum rank alike).
+fn extrema(smooth: &GrayImage, inside: &dyn Fn(f32, f32) -> bool) -> Vec<Candidate> {
+    let mut out = Vec::new();
+    for y in 1..smooth.height - 1 {
+        for x in 1..smooth.width - 1 {
+            if !inside(x as f32, y as f32) {
+                continue;
+            }
+            let c = smooth.at(x, y);
+            let mut is_max = true;
+            let mut is_min = true;
+            for (dx, dy) in [
+                (-1i32, -1i32),
+                (0, -1),
+                (1, -1),
+                (-1, 0),
+                (1, 0),
+                (-1, 1),
+                (0, 1),
+                (1, 1),
+            ] {
+                let n = smooth.at((x as i32 + dx) as u32, (y as i32 + dy) as u32);
+                is_max &= c > n;
+                is_min &= c < n;
+            }
+            if is_max || is_min {
+                out.push(Candidate {
+                    points: vec![(x as f32, y as f32)],
+                    priority: if is_max { c } else { 255.0 - c },
+                });
+            }
+        }
+    }
+    out
+}
+
+/// Boundary dipoles across the LoG's zero-crossings between horizontal and vertical neighbours,
+/// by the gray-level step across their ends.
+fn dipoles(
+    smooth: &GrayImage,
+    config: &ExtractionConfig,
+    inside: &dyn Fn(f32, f32) -> bool,
+) -> Vec<Candidate> {
+    let lap = laplacian(smooth);
+    let (w, h) = (smooth.width, smooth.height);
+    let d = config.dipole_half_length;
+    let mut out = Vec::new();
+    for y in 1..h - 1 {
+        for x in 1..w - 1 {
+            let here = lap[(y * w + x) as usize];
+            for (dx, dy) in [(1u32, 0u32), (0, 1)] {
+                let (nx, ny) = (x + dx, y + dy);
+                if nx >= w - 1 || ny >= h - 1 {
+                    continue;
+                }
+                let there = lap[(ny * w + nx) as usize];
+                if here * there >= 0.0 {
+                    continue;
+                }
+                let (cx, cy) = (x as f32 + dx as f32 / 2.0, y as f32 + dy as f32 / 2.0);
+                let (ax, ay) = (cx - dx as f32 * d, cy - dy as f32 * d);
+                let (bx, by) = (cx + dx as f32 * d, cy + dy as f32 * d);
+                if !(inside(ax, ay) && inside(bx, by)) {
+                    continue;
+                }
+                let (Some(ia), Some(ib)) = (smooth.bilinear(ax, ay), smooth.bilinear(bx, by))
+                else {
+                    continue;
+                };
+                let step = (ia - ib).abs();
+                if step >= config.min_step {
+                    out.push(Candidate {
+                        points: vec![(ax, ay), (bx, by)],
+                        priority: step,
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Greedy selection in priority order: a candidate is taken when all its points are at least
+/// `separation` from every point taken so far, until `budget` points are taken.
+fn select(
+    mut candidates: Vec<Candidate>,
+    taken: &mut Vec<(f32, f32)>,
+    budget: usize,
+    separation: f32,
+) {
+    candidates.sort_by(|a, b| b.priority.total_cmp(&a.priority));
+    let limit = taken.len() + budget;
+    let sep2 = separation * separation;
+    for c in candidates {
+        if taken.len() + c.points.len() > limit {
+            continue;
+        }
+        let clear = c.points.iter().all(|&(x, y)| {
+            taken
+                .iter()
+                .all(|&(tx, ty)| (tx - x).powi(2) + (ty - y).powi(2) >= sep2)
+        });
+        if clear {
+            taken.extend(c.points);
+        }
+    }
+}
+
+/// The template of the face in `rect` of `frame`.
+pub fn extract_template(
+    frame: &GrayImage,
+    rect: &FaceRect,
+    model: &FaceModel,
+    config: &ExtractionConfig,
+) -> Result<Template, FaceError> {
+    rect.validate(frame)?;
+    if config.max_points == 0
+        || !(0.0..=1.0).contains(&config.extrema_share)
+        || !(config.separation >= 1.0 && config.sigma > 0.0 && config.dipole_half_length > 0.0)
+    {
+        return Err(FaceError::InvalidInput(format!(
+            "invalid extraction settings: {config:?}"
+        )));
+    }
+    let (cx, cy) = rect.centre();
+    let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
+    let to_model = |x: f32, y: f32| ((x - cx) / hw, (y - cy) / hh);
+    let inside = |x: f32, y: f32| {
+        let (u, v) = to_model(x, y);
+        u * u + v * v <= 0.9
+    };
+    let smooth = gaussian_blur(frame, config.sigma);
+    let extrema_budget = (config.max_points as f32 * config.extrema_share).round() as usize;
+    let mut taken = Vec::with_capacity(config.max_points);
+    select(
+        extrema(&smooth, &inside),
+        &mut taken,
+        extrema_budget,
+        config.separation,
+    );
+    let left = config.max_points - taken.len();
+    select(
+        dipoles(&smooth, config, &inside),
+        &mut taken,
+        left,
+        config.separation,
+    );
+    // Fill with more extrema if the dipoles ran short.
+    let left = config.max_points - taken.len();
+    if left > 0 {
+        select(
+            extrema(&smooth, &inside),
+            &mut taken,
+            left,
+            config.separation,
+        );
+    }
+    let points = taken
+        .into_iter()
+        .filter_map(|(x, y)| {
+            let gray = frame.bilinear(x, y)?;
+            let (u, v) = to_model(x, y);
+            let (height, normal) = model.sample(u, v);
+            Some(FeaturePoint::new(
+                [x - cx, y - cy, height * hw],
+                normal,
+                gray.max(MIN_GRAY),
+            ))
+        })
+        .collect();
+    Template::new(points).map_err(|_| {
+        FaceError::InvalidInput(format!(
+            "no feature points in the face rectangle {rect:?}: the region is flat (no gray-level extrema or edges)"
+        ))
+    })
+}

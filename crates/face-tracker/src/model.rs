@@ -1,0 +1,184 @@
+//! The face model: a heightmap and a normalmap over the face rectangle, so that every template
+//! point gets a depth and a normal.
+//!
+//! Model coordinates (u, v) ∈ [−1, 1]² span the rectangle (u right, v down). Heights are in units
+//! of the rectangle's half-width and grow towards the camera; normals are unit vectors in the
+//! image frame (x right, y down, z towards the camera). The generic model is a smooth parametric
+//! head — an ellipsoid with nose, brow and cheek relief — and users can load their own maps.
+
+use std::path::Path;
+
+use crate::error::{FaceError, file_error};
+
+/// A heightmap and a normalmap sampled on the same `size × size` grid over [−1, 1]².
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceModel {
+    pub size: u32,
+    /// Height at grid node (i, j) = `heights[j·size + i]`, u = −1 + 2i/(size − 1).
+    pub heights: Vec<f32>,
+    pub normals: Vec<[f32; 3]>,
+}
+
+fn gaussian(u: f32, v: f32, cu: f32, cv: f32, su: f32, sv: f32) -> f32 {
+    let (du, dv) = ((u - cu) / su, (v - cv) / sv);
+    (-0.5 * (du * du + dv * dv)).exp()
+}
+
+/// The generic head's height at (u, v).
+pub fn generic_height(u: f32, v: f32) -> f32 {
+    // An ellipsoid a little taller than wide, flattened in depth.
+    let (a, b, c) = (1.0, 1.15, 0.75);
+    let inside = 1.0 - (u / a).powi(2) - (v / b).powi(2);
+    let skull = c * inside.max(0.0).sqrt();
+    let nose = 0.28 * gaussian(u, v, 0.0, 0.12, 0.11, 0.22);
+    let tip = 0.08 * gaussian(u, v, 0.0, 0.3, 0.08, 0.08);
+    let brow = 0.07 * gaussian(u, v, 0.0, -0.32, 0.55, 0.07);
+    let cheeks =
+        0.06 * (gaussian(u, v, -0.42, 0.22, 0.16, 0.14) + gaussian(u, v, 0.42, 0.22, 0.16, 0.14));
+    // The relief fades out where the ellipsoid does.
+    let fade = (inside * 4.0).clamp(0.0, 1.0);
+    skull + fade * (nose + tip + brow + cheeks)
+}
+
+impl FaceModel {
+    /// The generic head on a `size × size` grid, normals from central differences.
+    pub fn generic(size: u32) -> Result<Self, FaceError> {
+        if size < 3 {
+            return Err(FaceError::InvalidInput(format!(
+                "a face model grid needs at least 3x3 nodes, got {size}"
+            )));
+        }
+        let coord = |i: u32| -1.0 + 2.0 * i as f32 / (size - 1) as f32;
+        let heights: Vec<f32> = (0..size * size)
+            .map(|k| generic_height(coord(k % size), coord(k / size)))
+            .collect();
+        let model = Self {
+            size,
+            normals: normals_from_heights(size, &heights),
+            heights,
+        };
+        Ok(model)
+    }
+
+    /// Loads user maps: a gray heightmap PNG (8 or 16 bit; black 0, white `max_height` half-widths)
+    /// and an RGB normalmap PNG (n = 2·rgb/255 − 1, x right, y down, z out), square and of the
+    /// same size.
+    pub fn load(heightmap: &Path, normalmap: &Path, max_height: f32) -> Result<Self, FaceError> {
+        if !(max_height.is_finite() && max_height > 0.0) {
+            return Err(FaceError::InvalidInput(format!(
+                "the heightmap's scale must be > 0, got {max_height}"
+            )));
+        }
+        let decode = |path: &Path| {
+            image::ImageReader::open(path)
+                .map_err(|e| file_error(path, e))?
+                .with_guessed_format()
+                .map_err(|e| file_error(path, e))?
+                .decode()
+                .map_err(|e| file_error(path, format!("cannot decode the image: {e}")))
+        };
+        let h = decode(heightmap)?;
+        let n = decode(normalmap)?;
+        if h.color().has_color() || h.color().has_alpha() {
+            return Err(file_error(
+                heightmap,
+                format!(
+                    "a heightmap must be a gray image; this one is {:?}",
+                    h.color()
+                ),
+            ));
+        }
+        if !n.color().has_color() {
+            return Err(file_error(
+                normalmap,
+                format!(
+                    "a normalmap must be an RGB image; this one is {:?}",
+                    n.color()
+                ),
+            ));
+        }
+        let size = h.width();
+        if h.height() != size || n.width() != size || n.height() != size || size < 3 {
+            return Err(file_error(
+                normalmap,
+                format!(
+                    "the maps must be square, at least 3x3 and of one size: heightmap {}x{}, normalmap {}x{}",
+                    h.width(),
+                    h.height(),
+                    n.width(),
+                    n.height()
+                ),
+            ));
+        }
+        let heights = h
+            .to_luma32f()
+            .into_raw()
+            .into_iter()
+            .map(|v| v * max_height)
+            .collect();
+        let mut normals = Vec::with_capacity((size * size) as usize);
+        for (k, px) in n.to_rgb32f().pixels().enumerate() {
+            let v = [2.0 * px[0] - 1.0, 2.0 * px[1] - 1.0, 2.0 * px[2] - 1.0];
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if len < 1e-3 {
+                return Err(file_error(
+                    normalmap,
+                    format!("pixel {k} encodes a zero normal"),
+                ));
+            }
+            normals.push(v.map(|c| c / len));
+        }
+        Ok(Self {
+            size,
+            heights,
+            normals,
+        })
+    }
+
+    /// Height and unit normal at (u, v), bilinear between grid nodes (clamped to the grid).
+    pub fn sample(&self, u: f32, v: f32) -> (f32, [f32; 3]) {
+        let last = (self.size - 1) as f32;
+        let x = ((u + 1.0) / 2.0 * last).clamp(0.0, last);
+        let y = ((v + 1.0) / 2.0 * last).clamp(0.0, last);
+        let x0 = (x.floor() as u32).min(self.size - 2);
+        let y0 = (y.floor() as u32).min(self.size - 2);
+        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let idx = |i: u32, j: u32| (j * self.size + i) as usize;
+        let corners = [
+            (idx(x0, y0), (1.0 - fx) * (1.0 - fy)),
+            (idx(x0 + 1, y0), fx * (1.0 - fy)),
+            (idx(x0, y0 + 1), (1.0 - fx) * fy),
+            (idx(x0 + 1, y0 + 1), fx * fy),
+        ];
+        let mut h = 0.0;
+        let mut n = [0.0f32; 3];
+        for (k, w) in corners {
+            h += self.heights[k] * w;
+            for c in 0..3 {
+                n[c] += self.normals[k][c] * w;
+            }
+        }
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-12);
+        (h, n.map(|c| c / len))
+    }
+}
+
+/// Unit normals (−∂h/∂u, −∂h/∂v, 1) of a height grid over [−1, 1]², by central differences.
+fn normals_from_heights(size: u32, heights: &[f32]) -> Vec<[f32; 3]> {
+    let step = 2.0 / (size - 1) as f32;
+    let at = |i: i64, j: i64| {
+        let i = i.clamp(0, size as i64 - 1) as u32;
+        let j = j.clamp(0, size as i64 - 1) as u32;
+        heights[(j * size + i) as usize]
+    };
+    (0..size * size)
+        .map(|k| {
+            let (i, j) = ((k % size) as i64, (k / size) as i64);
+            let du = (at(i + 1, j) - at(i - 1, j)) / (2.0 * step);
+            let dv = (at(i, j + 1) - at(i, j - 1)) / (2.0 * step);
+            let n = [-du, -dv, 1.0];
+            let len = (n[0] * n[0] + n[1] * n[1] + 1.0f32).sqrt();
+            n.map(|c| c / len)
+        })
+        .collect()
+}

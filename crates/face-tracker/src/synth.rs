@@ -1,0 +1,262 @@
+//! Synthetic face videos with ground truth: textured heads (the generic face model with a
+//! face-like albedo, Lambert-shaded) moving and turning along known 7-D paths over a textured
+//! background, under a changing light, with an occluder passing over one face.
+//!
+//! Ground truth is in the tracker's terms: a head drawn with half-width `half_width·s` has scale
+//! S = s/s₀ relative to its first frame, where it is frontal; (Tx, Ty) is its centre's image
+//! position; α = 1/g for a light gain g (the tracker's α·I ≈ J undoes it).
+
+use std::f32::consts::PI;
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use crate::error::FaceError;
+use crate::extraction::FaceRect;
+use crate::image::GrayImage;
+use crate::model::FaceModel;
+use crate::projection::{ALPHA, DIMS, Pose, RX, RY, RZ, SCALE, TX, TY};
+
+/// How a synthetic video is made.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FaceSynthConfig {
+    pub width: u32,
+    pub height: u32,
+    pub frames: usize,
+    pub faces: usize,
+    /// The head's half-width in pixels at its first frame's scale.
+    pub half_width: f32,
+    /// Largest yaw (radians).
+    pub max_yaw: f32,
+    /// Draw an occluder over the first face in the middle third of the video.
+    pub occlusion: bool,
+    pub seed: u64,
+}
+
+impl FaceSynthConfig {
+    /// The paper's setting: 1024×768, four faces.
+    pub fn paper(frames: usize) -> Self {
+        Self {
+            width: 1024,
+            height: 768,
+            frames,
+            faces: 4,
+            half_width: 60.0,
+            max_yaw: 60f32.to_radians(),
+            occlusion: true,
+            seed: 11,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), FaceError> {
+        let bad = |m: String| Err(FaceError::InvalidInput(m));
+        if self.width < 64 || self.height < 64 {
+            return bad(format!(
+                "frames must be at least 64x64, got {}x{}",
+                self.width, self.height
+            ));
+        }
+        if self.frames == 0 || self.faces == 0 || self.faces > 16 {
+            return bad(format!(
+                "a video needs 1 or more frames and 1 to 16 faces (got {} frames, {} faces)",
+                self.frames, self.faces
+            ));
+        }
+        if !(self.half_width.is_finite() && self.half_width >= 8.0) {
+            return bad(format!(
+                "the head half-width must be >= 8 px, got {}",
+                self.half_width
+            ));
+        }
+        if !(self.max_yaw.is_finite() && self.max_yaw.abs() <= PI / 2.0) {
+            return bad(format!("the yaw must be within ±90°, got {}", self.max_yaw));
+        }
+        Ok(())
+    }
+
+    /// Where face `k` sits at t = 0: a grid of cells over the frame.
+    fn home(&self, k: usize) -> (f32, f32) {
+        let cols = (self.faces as f32).sqrt().ceil() as usize;
+        let rows = self.faces.div_ceil(cols);
+        let (c, r) = (k % cols, k / cols);
+        (
+            self.width as f32 * (c as f32 + 0.5) / cols as f32,
+            self.height as f32 * (r as f32 + 0.5) / rows as f32,
+        )
+    }
+}
+
+/// The light gain g(t) of frame `frame` (α = 1/g).
+fn light_gain(frame: usize) -> f32 {
+    1.0 + 0.2 * (frame as f32 * 0.05).sin()
+}
+
+/// Face `k`'s ground-truth state at `frame` (frontal, S = 1, α = 1 at frame 0).
+pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIMS] {
+    let t = frame as f32;
+    let phase = k as f32 * 1.7;
+    let (hx, hy) = config.home(k);
+    let wobble = |f: f32, p: f32| (f * t + p).sin();
+    let mut s = [0.0; DIMS];
+    s[TX] = hx + 40.0 * wobble(0.03, phase) - 40.0 * phase.sin();
+    s[TY] = hy + 25.0 * wobble(0.025, 2.0 * phase) - 25.0 * (2.0 * phase).sin();
+    s[SCALE] = 1.0 + 0.1 * (0.02 * t).sin();
+    s[RX] = 0.2 * (0.04 * t).sin();
+    s[RY] = config.max_yaw * (0.035 * t).sin();
+    s[RZ] = 0.15 * (0.03 * t).sin();
+    s[ALPHA] = 1.0 / light_gain(frame);
+    s
+}
+
+/// The face rectangle at frame 0 (what a detector would report), in the tracker's terms.
+pub fn initial_rect(config: &FaceSynthConfig, k: usize) -> FaceRect {
+    let s = face_state(config, k, 0);
+    let (hw, hh) = (
+        config.half_width * s[SCALE],
+        config.half_width * HEIGHT_RATIO * s[SCALE],
+    );
+    FaceRect {
+        x: s[TX] - hw,
+        y: s[TY] - hh,
+        width: 2.0 * hw,
+        height: 2.0 * hh,
+    }
+}
+
+/// A face is this much taller than wide.
+pub const HEIGHT_RATIO: f32 = 1.25;
+
+/// A deterministic hash of a lattice point to [0, 1).
+fn hash(x: i32, y: i32, seed: u64) -> f32 {
+    let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
+        ^ seed;
+    h = pf_core::random::splitmix64(h);
+    (h >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// Smooth value noise at (x, y) with the lattice spacing `cell`.
+fn value_noise(x: f32, y: f32, cell: f32, seed: u64) -> f32 {
+    let (gx, gy) = (x / cell, y / cell);
+    let (x0, y0) = (gx.floor(), gy.floor());
+    let (fx, fy) = (gx - x0, gy - y0);
+    let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
+    let (i, j) = (x0 as i32, y0 as i32);
+    let top = hash(i, j, seed) * (1.0 - sx) + hash(i + 1, j, seed) * sx;
+    let bottom = hash(i, j + 1, seed) * (1.0 - sx) + hash(i + 1, j + 1, seed) * sx;
+    top * (1.0 - sy) + bottom * sy
+}
+
+fn ellipse(u: f32, v: f32, cu: f32, cv: f32, ru: f32, rv: f32) -> bool {
+    ((u - cu) / ru).powi(2) + ((v - cv) / rv).powi(2) <= 1.0
+}
+
+/// The face's albedo at model (u, v): skin with fine texture, hair, brows, eyes, nostrils and a
+/// mouth — the dark features and edges the template is built from.
+pub fn albedo(u: f32, v: f32, seed: u64) -> f32 {
+    let texture = 14.0 * (value_noise(u * 60.0, v * 60.0, 1.0, seed) - 0.5);
+    let mut a = 175.0 + texture + 10.0 * (value_noise(u * 8.0, v * 8.0, 1.0, seed ^ 1) - 0.5);
+    if v < -0.62 + 0.1 * (u * 5.0).sin() {
+        a = 55.0 + 1.5 * texture;
+    }
+    for side in [-1.0f32, 1.0] {
+        if ellipse(u, v, side * 0.34, -0.33, 0.2, 0.045) {
+            a = 70.0;
+        }
+        if ellipse(u, v, side * 0.34, -0.15, 0.13, 0.06) {
+            a = 235.0;
+            if ellipse(u, v, side * 0.34, -0.15, 0.055, 0.055) {
+                a = 35.0;
+            }
+        }
+        if ellipse(u, v, side * 0.09, 0.33, 0.04, 0.025) {
+            a = 60.0;
+        }
+    }
+    if ellipse(u, v, 0.0, 0.58, 0.28, 0.055) {
+        a = 95.0;
+    }
+    a
+}
+
+/// The background at pixel (x, y): smooth blotches and fine grain.
+fn background(x: f32, y: f32, seed: u64) -> f32 {
+    70.0 + 90.0 * value_noise(x, y, 90.0, seed ^ 7)
+        + 25.0 * value_noise(x, y, 13.0, seed ^ 8)
+        + 8.0 * (hash(x as i32, y as i32, seed ^ 9) - 0.5)
+}
+
+/// Renders frame `frame`: background, then every head by forward splatting its surface with a
+/// depth buffer (samples every ≤ 0.5 px), then the occluder; all times the light gain.
+pub fn render_frame(
+    config: &FaceSynthConfig,
+    model: &FaceModel,
+    frame: usize,
+) -> Result<GrayImage, FaceError> {
+    config.validate()?;
+    let (w, h) = (config.width, config.height);
+    let mut data: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .map(|k| background((k % w) as f32, (k / w) as f32, config.seed))
+        .collect();
+    let mut depth = vec![f32::NEG_INFINITY; data.len()];
+    let hw = config.half_width;
+    let hh = hw * HEIGHT_RATIO;
+    for k in 0..config.faces {
+        let state = face_state(config, k, frame);
+        let s0 = 1.0;
+        let pose = Pose::new(&state);
+        let light = Vector3::new(0.3, -0.4, 1.0).normalize();
+        let extent = hh * state[SCALE] * s0;
+        let steps = (4.0 * extent).ceil() as i32;
+        let seed = config.seed.wrapping_add(k as u64 * 1000);
+        for j in -steps..=steps {
+            for i in -steps..=steps {
+                let (u, v) = (i as f32 / steps as f32, j as f32 / steps as f32);
+                if u * u + (v / 1.0).powi(2) > 1.0 {
+                    continue;
+                }
+                let (height, normal) = model.sample(u, v);
+                let n = pose.rotation * Vector3::from(normal);
+                if n.z < 0.0 {
+                    continue;
+                }
+                let p = Vector3::new(u * hw, v * hh, height * hw);
+                let image_point = pose.project(&p);
+                let z = (pose.rotation * p).z;
+                let (px, py) = (image_point.x.round(), image_point.y.round());
+                if px < 0.0 || py < 0.0 || px >= w as f32 || py >= h as f32 {
+                    continue;
+                }
+                let idx = (py as u32 * w + px as u32) as usize;
+                if z > depth[idx] {
+                    depth[idx] = z;
+                    let shade = 0.55 + 0.45 * n.dot(&light).max(0.0);
+                    data[idx] = albedo(u, v, seed) * shade;
+                }
+            }
+        }
+    }
+    if config.occlusion && config.frames >= 3 {
+        let third = config.frames / 3;
+        if (third..2 * third).contains(&frame) {
+            // A bar sweeping across the first face, covering about a third of it.
+            let face = face_state(config, 0, frame);
+            let progress = (frame - third) as f32 / third.max(1) as f32;
+            let x0 = face[TX] - 2.0 * hw + 4.0 * hw * progress;
+            for y in 0..h {
+                for x in 0..w {
+                    let (fx, fy) = (x as f32, y as f32);
+                    if (fx - x0).abs() < 0.35 * hw && (fy - face[TY]).abs() < 1.6 * hh {
+                        data[(y * w + x) as usize] = 120.0 + 40.0 * value_noise(fx, fy, 6.0, 3);
+                    }
+                }
+            }
+        }
+    }
+    let gain = light_gain(frame);
+    for v in &mut data {
+        *v = (*v * gain).clamp(0.0, 255.0);
+    }
+    GrayImage::new(w, h, data)
+}
