@@ -154,8 +154,8 @@ impl FaceModel {
         let mut n = [0.0f32; 3];
         for (k, w) in corners {
             h += self.heights[k] * w;
-            for c in 0..3 {
-                n[c] += self.normals[k][c] * w;
+            for (acc, c) in n.iter_mut().zip(self.normals[k]) {
+                *acc += c * w;
             }
         }
         let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-12);

@@ -83,7 +83,7 @@ pub struct FaceEstimate {
 }
 
 enum Engine {
-    Cpu(BatchFilter<Systematic>),
+    Cpu(Box<BatchFilter<Systematic>>),
     Gpu(Box<GpuEngine>),
 }
 
@@ -173,7 +173,9 @@ impl FaceTracker {
         batch.validate()?;
         let states = gaussian_clouds(&shape, config.seed, &means, &config.diffusion);
         let engine = match backend {
-            FaceBackend::Cpu => Engine::Cpu(BatchFilter::new(&batch, Systematic, states)?),
+            FaceBackend::Cpu => {
+                Engine::Cpu(Box::new(BatchFilter::new(&batch, Systematic, states)?))
+            }
             FaceBackend::Gpu(ctx) => {
                 let filter = GpuFilter::new(&ctx, &batch, GpuResampler::Systematic, &states)?;
                 let max_points = templates.iter().map(Template::len).max().unwrap_or(1);
