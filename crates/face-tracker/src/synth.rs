@@ -30,6 +30,8 @@ pub struct FaceSynthConfig {
     pub max_yaw: f32,
     /// Draw an occluder over the first face in the middle third of the video.
     pub occlusion: bool,
+    /// From this frame on, the first face walks out of the frame to the right (30 px a frame).
+    pub exit_after: Option<usize>,
     pub seed: u64,
 }
 
@@ -44,6 +46,7 @@ impl FaceSynthConfig {
             half_width: 60.0,
             max_yaw: 60f32.to_radians(),
             occlusion: true,
+            exit_after: None,
             seed: 11,
         }
     }
@@ -105,6 +108,12 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
     s[RY] = config.max_yaw * (0.035 * t).sin();
     s[RZ] = 0.15 * (0.03 * t).sin();
     s[ALPHA] = 1.0 / light_gain(frame);
+    if let Some(start) = config.exit_after
+        && k == 0
+        && frame > start
+    {
+        s[TX] += 30.0 * (frame - start) as f32;
+    }
     s
 }
 
