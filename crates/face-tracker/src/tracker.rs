@@ -40,7 +40,8 @@ pub struct FaceTrackerConfig {
     pub best: usize,
     /// γ in π ∝ ε^−γ (the paper: 1).
     pub sharpness: f32,
-    /// A track ends when the estimate's ε exceeds this ...
+    /// A track ends when the estimate's ε exceeds this (tracked faces measured 0.005–0.09 on the
+    /// synthetic videos, a face's template over textured background about 0.19) ...
     pub failure_error: f32,
     /// ... for this many frames in a row.
     pub failure_frames: usize,
@@ -55,7 +56,7 @@ impl Default for FaceTrackerConfig {
             diffusion: [4.0, 4.0, 0.01, 0.03, 0.05, 0.03, 0.01],
             best: 100,
             sharpness: 8.0,
-            failure_error: 0.25,
+            failure_error: 0.12,
             failure_frames: 5,
             extraction: ExtractionConfig::default(),
             seed: 1,
