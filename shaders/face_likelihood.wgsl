@@ -7,7 +7,8 @@
 //
 // Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty), I(p) bilinear, kappa =
 // (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1); a point outside the frame has rho = 1.
-// epsilon = mean rho over those points (1 when none), log pi = -sharpness ln max(epsilon, floor).
+// epsilon = mean rho over those points (1 when fewer than min_visible_share of the points face
+// the camera), log pi = -sharpness ln max(epsilon, floor).
 //
 // Layouts: states (the filter's, common.wgsl); frame[y * width + x] gray levels 0-255; points of
 // face t at [(t * max_points + i) * 2] = (P, J) and [.. + 1] = (N, 0), point_counts[t];
@@ -20,7 +21,8 @@ struct FaceParams {
     face_offset: u32,
     sharpness: f32,
     min_error: f32,
-    _pad0: u32,
+    // A pose showing fewer than this share of the points has epsilon = 1.
+    min_visible_share: f32,
     _pad1: u32,
 }
 
@@ -122,7 +124,8 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
     }
     if (lid == 0u) {
         var epsilon = 1.0;
-        if (visible_counts[0] > 0.0) {
+        let shown = visible_counts[0];
+        if (shown > 0.0 && shown >= fp.min_visible_share * f32(count)) {
             epsilon = rho_sums[0] / visible_counts[0];
         }
         errors[t * params.particles + m] = epsilon;

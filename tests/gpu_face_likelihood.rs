@@ -6,11 +6,12 @@
 //! sizes; bilinear sampling is continuous, so this bounds the change in I), all over the number of
 //! visible points. Two flips are allowed and counted: a point within 1e-3 px of the frame's edge
 //! (inside or outside decides between its ρ and 1), and a point whose rotated normal has
-//! |n_z| < 1e-5 (visible or occluded: it moves ε by at most 1/(N−1)).
+//! |n_z| < 1e-5 (visible or occluded: it moves ε by at most 1/(N−1), or to 1 when it carries the
+//! visible count across the minimum share).
 
 mod common;
 
-use face_tracker::likelihood::{MIN_ERROR, log_weight, residual_error, rho};
+use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error, rho};
 use face_tracker::projection::{DIMS, Pose};
 use face_tracker::{FeaturePoint, GrayImage, Template};
 use nalgebra::Vector3;
@@ -114,6 +115,14 @@ fn tolerance(s: &[f32; DIMS], template: &Template, image: &GrayImage, want: f64)
             - rhos.iter().cloned().fold(f32::INFINITY, f32::min);
         spread += f64::from(range) + 1e-6;
     }
+    // An occlusion flip may also carry the visible count across the minimum share (ε jumps to 1).
+    let threshold = MIN_VISIBLE_SHARE * template.len() as f32;
+    if flips > 0
+        && ((visible.saturating_sub(flips)) as f32) < threshold
+        && ((visible + flips) as f32) >= threshold
+    {
+        return 1.0;
+    }
     let denominator = visible.saturating_sub(flips).max(1) as f64;
     1e-4 * want + 1e-5 + spread / denominator + flips as f64 / denominator
 }
@@ -164,7 +173,15 @@ fn check(dispatch: FaceDispatch, cases: u32) {
             let mut filter = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();
             let max_points = templates.iter().map(Template::len).max().unwrap();
             let mut gpu = FaceLikelihoodGpu::new(
-                &ctx, dispatch, faces, max_points, width, height, SHARPNESS, MIN_ERROR,
+                &ctx,
+                dispatch,
+                faces,
+                max_points,
+                width,
+                height,
+                SHARPNESS,
+                MIN_ERROR,
+                MIN_VISIBLE_SHARE,
             )
             .unwrap();
             gpu.upload_frame(&ctx, &image.data).unwrap();
@@ -228,6 +245,7 @@ fn invalid_face_setups_are_typed_errors() {
             h,
             sharpness,
             MIN_ERROR,
+            MIN_VISIBLE_SHARE,
         )
     };
     assert!(make(0, 10, 64, 48, 1.0).is_err());

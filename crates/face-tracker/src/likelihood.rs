@@ -4,8 +4,10 @@
 //! For a particle x and a template {(P, N, J)}: each point that faces the camera is projected to
 //! p, the frame is sampled bilinearly there, and κ = (α·I(p) − J)/J; ε = (1/N) Σ ρ(κ) with
 //! ρ(κ) = κ²/(κ² + 1) over the N points that face the camera. A point that projects outside the
-//! frame counts with ρ = 1, the largest value ρ takes, so a face leaving the frame loses weight;
-//! a pose that shows no point has ε = 1. The paper's weight is π ∝ 1/ε; the tracker allows
+//! frame counts with ρ = 1, the largest value ρ takes, so a face leaving the frame loses weight.
+//! A pose that shows less than [`MIN_VISIBLE_SHARE`] of the template's points has ε = 1: the
+//! paper skips self-occluded points, and without this floor a face turned edge-on, showing a
+//! handful of points that match by chance, would outweigh the true pose. The paper's weight is π ∝ 1/ε; the tracker allows
 //! π ∝ ε^−γ (γ, the sharpness, is 1 in the paper), so log π = −γ·ln ε, ε floored at
 //! [`MIN_ERROR`].
 
@@ -18,6 +20,9 @@ use crate::template::Template;
 
 /// The floor of ε, so that a perfect match has a finite weight.
 pub const MIN_ERROR: f32 = 1e-6;
+
+/// The smallest share of a template's points a pose must show to be weighed (else ε = 1).
+pub const MIN_VISIBLE_SHARE: f32 = 0.25;
 
 /// ρ(κ) = κ²/(κ² + 1).
 pub fn rho(kappa: f32) -> f32 {
@@ -41,7 +46,11 @@ pub fn residual_error(state: &[f32; DIMS], template: &Template, frame: &GrayImag
             None => 1.0,
         };
     }
-    if count == 0 { 1.0 } else { sum / count as f64 }
+    if count == 0 || (count as f32) < MIN_VISIBLE_SHARE * template.points.len() as f32 {
+        1.0
+    } else {
+        sum / count as f64
+    }
 }
 
 /// log π = −γ·ln max(ε, [`MIN_ERROR`]).

@@ -195,6 +195,51 @@ fn background(x: f32, y: f32, seed: u64) -> f32 {
         + 8.0 * (hash(x as i32, y as i32, seed ^ 9) - 0.5)
 }
 
+/// Every surface sample of head `k` that faces the camera and lands in the frame: (pixel index,
+/// depth towards the camera, shaded albedo). Samples are every ≤ 0.4 px in the image.
+fn splat_head(
+    config: &FaceSynthConfig,
+    model: &FaceModel,
+    k: usize,
+    frame: usize,
+) -> Vec<(usize, f32, f32)> {
+    let state = face_state(config, k, frame);
+    let pose = Pose::new(&state);
+    let light = Vector3::new(0.3, -0.4, 1.0).normalize();
+    let (hw, hh) = (config.half_width, config.half_width * HEIGHT_RATIO);
+    let steps = (2.5 * hh * state[SCALE]).ceil() as i32;
+    let seed = config.seed.wrapping_add(k as u64 * 1000);
+    let (w, h) = (config.width, config.height);
+    (-steps..=steps)
+        .into_par_iter()
+        .flat_map_iter(|j| {
+            (-steps..=steps).filter_map(move |i| {
+                let (u, v) = (i as f32 / steps as f32, j as f32 / steps as f32);
+                if u * u + v * v > 1.0 {
+                    return None;
+                }
+                let (height, normal) = model.sample(u, v);
+                let n = pose.rotation * Vector3::from(normal);
+                if n.z < 0.0 {
+                    return None;
+                }
+                let p = Vector3::new(u * hw, v * hh, height * hw);
+                let image_point = pose.project(&p);
+                let (px, py) = (image_point.x.round(), image_point.y.round());
+                if px < 0.0 || py < 0.0 || px >= w as f32 || py >= h as f32 {
+                    return None;
+                }
+                let shade = 0.55 + 0.45 * n.dot(&light).max(0.0);
+                Some((
+                    (py as u32 * w + px as u32) as usize,
+                    (pose.rotation * p).z,
+                    albedo(u, v, seed) * shade,
+                ))
+            })
+        })
+        .collect()
+}
+
 /// Renders frame `frame`: background, then every head by forward splatting its surface with a
 /// depth buffer (samples every ≤ 0.5 px), then the occluder; all times the light gain.
 pub fn render_frame(
@@ -209,54 +254,28 @@ pub fn render_frame(
         .map(|k| background((k % w) as f32, (k / w) as f32, config.seed))
         .collect();
     let mut depth = vec![f32::NEG_INFINITY; data.len()];
-    let hw = config.half_width;
-    let hh = hw * HEIGHT_RATIO;
     for k in 0..config.faces {
-        let state = face_state(config, k, frame);
-        let s0 = 1.0;
-        let pose = Pose::new(&state);
-        let light = Vector3::new(0.3, -0.4, 1.0).normalize();
-        let extent = hh * state[SCALE] * s0;
-        let steps = (4.0 * extent).ceil() as i32;
-        let seed = config.seed.wrapping_add(k as u64 * 1000);
-        for j in -steps..=steps {
-            for i in -steps..=steps {
-                let (u, v) = (i as f32 / steps as f32, j as f32 / steps as f32);
-                if u * u + (v / 1.0).powi(2) > 1.0 {
-                    continue;
-                }
-                let (height, normal) = model.sample(u, v);
-                let n = pose.rotation * Vector3::from(normal);
-                if n.z < 0.0 {
-                    continue;
-                }
-                let p = Vector3::new(u * hw, v * hh, height * hw);
-                let image_point = pose.project(&p);
-                let z = (pose.rotation * p).z;
-                let (px, py) = (image_point.x.round(), image_point.y.round());
-                if px < 0.0 || py < 0.0 || px >= w as f32 || py >= h as f32 {
-                    continue;
-                }
-                let idx = (py as u32 * w + px as u32) as usize;
-                if z > depth[idx] {
-                    depth[idx] = z;
-                    let shade = 0.55 + 0.45 * n.dot(&light).max(0.0);
-                    data[idx] = albedo(u, v, seed) * shade;
-                }
+        // Splats (pixel, depth, value) of every surface sample, rows in parallel, then a
+        // sequential depth test.
+        for (idx, z, value) in splat_head(config, model, k, frame) {
+            if z > depth[idx] {
+                depth[idx] = z;
+                data[idx] = value;
             }
         }
     }
     if config.occlusion && config.frames >= 3 {
         let third = config.frames / 3;
         if (third..2 * third).contains(&frame) {
-            // A bar sweeping across the first face, covering about a third of it.
+            // A bar a fifth of the face wide sweeping across the first face.
             let face = face_state(config, 0, frame);
+            let (hw, hh) = (config.half_width, config.half_width * HEIGHT_RATIO);
             let progress = (frame - third) as f32 / third.max(1) as f32;
             let x0 = face[TX] - 2.0 * hw + 4.0 * hw * progress;
             for y in 0..h {
                 for x in 0..w {
                     let (fx, fy) = (x as f32, y as f32);
-                    if (fx - x0).abs() < 0.35 * hw && (fy - face[TY]).abs() < 1.6 * hh {
+                    if (fx - x0).abs() < 0.2 * hw && (fy - face[TY]).abs() < 1.6 * hh {
                         data[(y * w + x) as usize] = 120.0 + 40.0 * value_noise(fx, fy, 6.0, 3);
                     }
                 }

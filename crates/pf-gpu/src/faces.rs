@@ -30,7 +30,8 @@ struct FaceParams {
     face_offset: u32,
     sharpness: f32,
     min_error: f32,
-    _pad: [u32; 2],
+    min_visible_share: f32,
+    _pad: u32,
 }
 
 /// The face likelihood for `faces` faces of up to `max_points` points on `width × height` frames.
@@ -52,7 +53,8 @@ pub struct FaceLikelihoodGpu {
 }
 
 impl FaceLikelihoodGpu {
-    /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1); ε is floored at `min_error`.
+    /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1); ε is floored at `min_error`,
+    /// and is 1 for a pose that shows less than `min_visible_share` of its face's points.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         ctx: &GpuContext,
@@ -63,6 +65,7 @@ impl FaceLikelihoodGpu {
         height: u32,
         sharpness: f32,
         min_error: f32,
+        min_visible_share: f32,
     ) -> Result<Self, GpuError> {
         if faces == 0 || max_points == 0 || width < 2 || height < 2 {
             return Err(GpuError::InvalidConfig(format!(
@@ -71,7 +74,7 @@ impl FaceLikelihoodGpu {
         }
         if !(sharpness.is_finite() && sharpness > 0.0 && min_error.is_finite() && min_error > 0.0) {
             return Err(GpuError::InvalidConfig(format!(
-                "sharpness and the error floor must be finite and > 0 (got {sharpness}, {min_error})"
+                "sharpness and the error floor must be finite and > 0, the visible share in [0, 1] (got {sharpness}, {min_error}, {min_visible_share})"
             )));
         }
         let pixels = width as usize * height as usize;
@@ -102,7 +105,8 @@ impl FaceLikelihoodGpu {
                     face_offset,
                     sharpness,
                     min_error,
-                    _pad: [0; 2],
+                    min_visible_share,
+                    _pad: 0,
                 };
                 let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
                     label: Some("face likelihood params"),

@@ -160,7 +160,7 @@ pub fn run(command: &BodyCommand) -> anyhow::Result<()> {
     }
 }
 
-fn progress_bar(frames: usize, quiet: bool) -> indicatif::ProgressBar {
+pub(crate) fn progress_bar(frames: usize, quiet: bool) -> indicatif::ProgressBar {
     if quiet {
         return indicatif::ProgressBar::hidden();
     }

@@ -3,6 +3,7 @@
 mod body;
 mod demo;
 mod devices;
+mod face;
 
 use clap::{Parser, Subcommand};
 
@@ -12,6 +13,7 @@ use clap::{Parser, Subcommand};
     version,
     about = "GPU particle filtering (Condensation) for visual tracking",
     long_about = "GPU particle filtering (Condensation) for visual tracking.\n\n\
+                  `streampf face track --synthetic` tracks four synthetic faces; \
                   `streampf body track --synthetic` tracks a synthetic walking body; \
                   `streampf demo` tracks synthetic 7-D pose targets; \
                   `streampf devices` lists the GPU adapters wgpu can use."
@@ -27,6 +29,11 @@ enum Command {
     Devices,
     /// Track a synthetic target and print the per-step error and a summary.
     Demo(demo::DemoArgs),
+    /// Multi-face tracking: `face track DIR`, `face track --synthetic`, `face synth`.
+    Face {
+        #[command(subcommand)]
+        command: face::FaceCommand,
+    },
     /// Stereo articulated body tracking: `body track DIR`, `body track --synthetic`, `body synth`.
     Body {
         #[command(subcommand)]
@@ -40,5 +47,6 @@ fn main() -> anyhow::Result<()> {
         Command::Devices => devices::run(),
         Command::Demo(args) => demo::run(&args),
         Command::Body { command } => body::run(&command),
+        Command::Face { command } => face::run(&command),
     }
 }
