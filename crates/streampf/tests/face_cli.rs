@@ -1,0 +1,222 @@
+//! `streampf face synth` and `streampf face track` as a user runs them.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn streampf(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_streampf"))
+        .args(args)
+        .env("NODEVICE_SELECT", "1")
+        .output()
+        .expect("the streampf binary runs")
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn failure(out: &Output) -> String {
+    assert!(
+        !out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!err.contains("panicked"), "{err}");
+    err
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("streampf-face-cli-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+fn number_after(text: &str, label: &str) -> f64 {
+    let start = text
+        .find(label)
+        .unwrap_or_else(|| panic!("{label:?} not in {text}"))
+        + label.len();
+    text[start..]
+        .split_whitespace()
+        .next()
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| panic!("no number after {label:?} in {text}"))
+}
+
+const SMALL: [&str; 8] = [
+    "--frames", "8", "--faces", "2", "--width", "480", "--height", "360",
+];
+
+#[test]
+fn synth_then_track_a_directory_with_overlays() {
+    let data = scratch("data");
+    let out = scratch("out");
+    let overlay = scratch("overlay");
+    let d = data.to_str().unwrap();
+    let mut args = vec!["face", "synth", "--out", d];
+    args.extend(SMALL);
+    assert!(ok(&streampf(&args)).contains("wrote 8 frames of 480x360 with 2 faces"));
+    let text = ok(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--out",
+        out.to_str().unwrap(),
+        "--overlay",
+        overlay.to_str().unwrap(),
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]));
+    assert!(
+        number_after(&text, "mean translation error:") < 5.0,
+        "{text}"
+    );
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    assert_eq!(states.lines().count(), 1 + 8 * 2);
+    assert!(states.starts_with("frame,face,status,tx,ty,scale,rx,ry,rz,alpha,error"));
+    let overlays = std::fs::read_dir(&overlay).unwrap().count();
+    assert_eq!(overlays, 8);
+    let frame = image::open(overlay.join("overlay_00003.png"))
+        .unwrap()
+        .to_rgb8();
+    // The posed points are drawn in the faces' colours.
+    assert!(
+        frame.pixels().any(|p| p.0 == [255, 60, 60])
+            && frame.pixels().any(|p| p.0 == [60, 220, 60])
+    );
+    // --face overrides faces.csv: one face only.
+    let rects = std::fs::read_to_string(data.join("faces.csv")).unwrap();
+    let first = rects.lines().nth(1).unwrap();
+    let text = ok(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--out",
+        out.to_str().unwrap(),
+        "--face",
+        first,
+        "--particles",
+        "100",
+        "--backend",
+        "cpu",
+    ]));
+    assert!(
+        text.contains("tracking 1 faces through 8 frames of 480x360"),
+        "{text}"
+    );
+    for dir in [data, out, overlay] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
+
+#[test]
+fn track_synthetic_prints_errors_and_frame_rate() {
+    let out = scratch("synthetic");
+    let mut args = vec![
+        "face",
+        "track",
+        "--synthetic",
+        "--out",
+        out.to_str().unwrap(),
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+    ];
+    args.extend(SMALL);
+    let text = ok(&streampf(&args));
+    assert!(
+        text.contains("tracking 2 faces through 8 frames of 480x360, 200 particles each, on CPU"),
+        "{text}"
+    );
+    assert!(number_after(&text, "mean rotation error:") < 8.0, "{text}");
+    assert!(text.contains("frames/s"));
+    std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn bad_face_inputs_are_clear_errors() {
+    let data = scratch("bad");
+    let d = data.to_str().unwrap();
+    let err = failure(&streampf(&["face", "track", d]));
+    assert!(err.contains(d), "{err}");
+    std::fs::create_dir_all(&data).unwrap();
+    assert!(failure(&streampf(&["face", "track", d])).contains("no *.png frames"));
+    // Frames without rectangles; then a zero-size rectangle; then an unreadable frame.
+    let mut args = vec!["face", "synth", "--out", d];
+    args.extend(SMALL);
+    ok(&streampf(&args));
+    std::fs::remove_file(data.join("faces.csv")).unwrap();
+    assert!(
+        failure(&streampf(&["face", "track", d, "--backend", "cpu"]))
+            .contains("no face rectangles")
+    );
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--face",
+        "10,10,0,40",
+        "--backend",
+        "cpu",
+    ]));
+    assert!(err.contains("at least 8x8"), "{err}");
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--face",
+        "10,10,40",
+        "--backend",
+        "cpu",
+    ]));
+    assert!(err.contains("x,y,width,height"), "{err}");
+    std::fs::write(data.join("frame_00003.png"), "not a png").unwrap();
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--face",
+        "100,80,90,110",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]));
+    assert!(err.contains("frame_00003.png"), "{err}");
+    // An odd-sized frame in the middle of a video.
+    image::GrayImage::new(100, 100)
+        .save(data.join("frame_00003.png"))
+        .unwrap();
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--face",
+        "100,80,90,110",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]));
+    assert!(err.contains("100x100"), "{err}");
+    for bad in [
+        vec!["face", "track", "--synthetic", "--faces", "0"],
+        vec!["face", "track", "--synthetic", "--width", "10"],
+        vec!["face", "track", "--synthetic", "--max-yaw", "120"],
+        vec!["face", "track", "--synthetic", "--particles", "0"],
+        vec!["face", "track"],
+    ] {
+        let err = failure(&streampf(&bad));
+        assert!(err.len() > 10, "{bad:?}: {err}");
+    }
+    std::fs::remove_dir_all(&data).unwrap();
+}
