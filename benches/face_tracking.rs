@@ -1,0 +1,186 @@
+//! The face paper's figures. Fig. 6: weighting time against the number of particles (one face,
+//! 230 feature points, a 1024×768 frame). Fig. 7: the whole step against the number of faces
+//! (1 … 64 faces × 1000 particles, 1024×768): frame upload, weighting, resampling, diffusion and
+//! the best-M′ estimate. Variants: one CPU thread, all CPU cores, and the GPU (for Fig. 6 the
+//! likelihood stage alone, one face, so the paper's per-face dispatch; for Fig. 7 the tracker's
+//! whole step, all faces weighed in one batched dispatch).
+//! GPU times include the submission, the wait and the readback.
+
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use face_tracker::extraction::FaceRect;
+use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, weigh_parallel, weigh_single_thread};
+use face_tracker::model::FaceModel;
+use face_tracker::projection::DIMS;
+use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
+use face_tracker::tracker::template_gpu_layout;
+use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
+use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
+use pf_gpu::{ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
+
+fn full_size() -> bool {
+    std::env::args().any(|a| a == "--bench")
+}
+
+fn context() -> GpuContext {
+    let ctx = GpuContext::new(&ContextOptions::default())
+        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
+        .expect("a GPU adapter (see `streampf devices`)");
+    eprintln!(
+        "GPU adapter: {} ({}, {})",
+        ctx.adapter().name,
+        ctx.adapter().device_type,
+        ctx.adapter().backend
+    );
+    ctx
+}
+
+/// A 16-face synthetic frame (1024×768 at full size), its rectangles repeated to `faces`.
+fn scene(faces: usize) -> (GrayImage, Vec<FaceRect>, FaceModel, FaceSynthConfig) {
+    let config = if full_size() {
+        FaceSynthConfig {
+            faces: 16,
+            half_width: 30.0,
+            occlusion: false,
+            ..FaceSynthConfig::paper(2)
+        }
+    } else {
+        FaceSynthConfig {
+            faces: 4,
+            width: 256,
+            height: 192,
+            half_width: 20.0,
+            occlusion: false,
+            ..FaceSynthConfig::paper(2)
+        }
+    };
+    let model = FaceModel::generic(129).unwrap();
+    let frame = render_frame(&config, &model, 0).unwrap();
+    let rects = (0..faces)
+        .map(|k| initial_rect(&config, k % config.faces))
+        .collect();
+    (frame, rects, model, config)
+}
+
+fn fig6(c: &mut Criterion, ctx: &GpuContext) {
+    let mut group = c.benchmark_group("face_weighting_vs_particles");
+    group.sample_size(10);
+    let (frame, rects, model, config) = scene(1);
+    let tracker_config = FaceTrackerConfig::default();
+    let template = face_tracker::extraction::extract_template(
+        &frame,
+        &rects[0],
+        &model,
+        &tracker_config.extraction,
+    )
+    .unwrap();
+    let sizes: &[usize] = if full_size() {
+        &[100, 500, 1000, 2000, 5000, 10_000]
+    } else {
+        &[10]
+    };
+    for &m in sizes {
+        let shape = BatchShape::new(1, m, DIMS).unwrap();
+        let truth = face_state(&config, 0, 1);
+        let sigma = [4.0, 4.0, 0.02, 0.05, 0.05, 0.05, 0.02];
+        let layout = gaussian_clouds(&shape, 3, &truth, &sigma);
+        let states: Vec<[f32; DIMS]> = (0..m)
+            .map(|p| std::array::from_fn(|d| layout[shape.state_index(0, d, p)]))
+            .collect();
+        group.throughput(Throughput::Elements((m * template.len()) as u64));
+        group.bench_function(BenchmarkId::new("cpu_one_thread", m), |b| {
+            b.iter(|| std::hint::black_box(weigh_single_thread(&states, &template, &frame)))
+        });
+        group.bench_function(BenchmarkId::new("cpu_all_cores", m), |b| {
+            b.iter(|| std::hint::black_box(weigh_parallel(&states, &template, &frame)))
+        });
+        let batch = BatchConfig {
+            shape,
+            seed: 1,
+            sigma: sigma.to_vec(),
+            bounds: None,
+            angular: vec![false, false, false, true, true, true, false],
+            ess_threshold: f64::INFINITY,
+            best: 0,
+        };
+        let mut filter = GpuFilter::new(ctx, &batch, GpuResampler::Systematic, &layout).unwrap();
+        let mut gpu = FaceLikelihoodGpu::new(
+            ctx,
+            FaceDispatch::PerFace,
+            1,
+            template.len(),
+            frame.width,
+            frame.height,
+            1.0,
+            MIN_ERROR,
+            MIN_VISIBLE_SHARE,
+        )
+        .unwrap();
+        gpu.upload_frame(ctx, &frame.data).unwrap();
+        gpu.upload_template(ctx, 0, &template_gpu_layout(&template))
+            .unwrap();
+        gpu.prepare(ctx, &filter.likelihood_inputs()).unwrap();
+        group.bench_function(BenchmarkId::new("gpu", m), |b| {
+            b.iter(|| {
+                std::hint::black_box(
+                    filter
+                        .run_stages(ctx, &[GpuStage::Likelihood], &gpu)
+                        .unwrap(),
+                )
+            })
+        });
+    }
+    group.finish();
+}
+
+fn fig7(c: &mut Criterion) {
+    let mut group = c.benchmark_group("face_step_vs_faces");
+    group.sample_size(10);
+    let counts: &[usize] = if full_size() { &[1, 4, 16, 64] } else { &[2] };
+    let particles = if full_size() { 1000 } else { 50 };
+    for &faces in counts {
+        let (frame, rects, model, _) = scene(faces);
+        let config = FaceTrackerConfig {
+            particles,
+            best: particles / 10,
+            ..FaceTrackerConfig::default()
+        };
+        group.throughput(Throughput::Elements((faces * particles) as u64));
+        let mut gpu = FaceTracker::new(
+            &frame,
+            &rects,
+            &model,
+            config.clone(),
+            FaceBackend::Gpu(Box::new(context())),
+        )
+        .unwrap();
+        group.bench_function(BenchmarkId::new("gpu", faces), |b| {
+            b.iter(|| std::hint::black_box(gpu.step(&frame).unwrap()))
+        });
+        drop(gpu);
+        let mut cpu =
+            FaceTracker::new(&frame, &rects, &model, config.clone(), FaceBackend::Cpu).unwrap();
+        group.bench_function(BenchmarkId::new("cpu_all_cores", faces), |b| {
+            b.iter(|| std::hint::black_box(cpu.step(&frame).unwrap()))
+        });
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let mut single =
+            FaceTracker::new(&frame, &rects, &model, config, FaceBackend::Cpu).unwrap();
+        group.bench_function(BenchmarkId::new("cpu_one_thread", faces), |b| {
+            b.iter(|| one.install(|| std::hint::black_box(single.step(&frame).unwrap())))
+        });
+    }
+    group.finish();
+}
+
+fn bench(c: &mut Criterion) {
+    let ctx = context();
+    fig6(c, &ctx);
+    fig7(c);
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);
