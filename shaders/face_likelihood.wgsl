@@ -1,8 +1,9 @@
-// The sparse-template face likelihood (eq. 10-13 of the face paper) on the GPU, with the paper's
-// layout: one workgroup per particle, one invocation per feature point (looping when a template
-// has more points than the workgroup), the sums reduced in workgroup memory. The grid is
-// (particles, faces): one dispatch weighs every face of a frame (the batched form), or one
-// dispatch per face with `face_offset` (the paper's form). CPU twin:
+// The sparse-template face likelihood (eq. 10-13 of the face paper) on the GPU. Two layouts:
+// weigh_faces is the paper's (one workgroup per particle, one invocation per feature point,
+// looping when a template has more points than the workgroup, the sums reduced in workgroup
+// memory); weigh_faces_packed puts four particles in a workgroup, 64 invocations each. The grid's
+// y is the face: one dispatch weighs every face of a frame (the batched form), or one dispatch
+// per face with `face_offset` (the paper's form). CPU twin:
 // face_tracker::likelihood::residual_error.
 //
 // Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty), I(p) bilinear, kappa =
@@ -77,15 +78,9 @@ fn bilinear(x: f32, y: f32) -> f32 {
     return top * (1.0 - fy) + bottom * fy;
 }
 
-@compute @workgroup_size(256)
-fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
-    let lid = lid3.x;
-    let m = wid.x;
-    let t = fp.face_offset + wid.y;
-    // Workgroup-uniform: the whole workgroup leaves together.
-    if (m >= params.particles || t >= params.targets) {
-        return;
-    }
+// (sum of rho, number of points facing the camera) over points first, first + step, ... of face
+// t's template for particle m.
+fn accumulate(t: u32, m: u32, first: u32, step: u32) -> vec2<f32> {
     let tx = states[state_index(t, 0u, m)];
     let ty = states[state_index(t, 1u, m)];
     let scale = states[state_index(t, 2u, m)];
@@ -95,7 +90,7 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
     let count = min(point_counts[t], fp.max_points);
     var rho_sum = 0.0;
     var visible = 0.0;
-    for (var i = lid; i < count; i = i + WG) {
+    for (var i = first; i < count; i = i + step) {
         let base = (t * fp.max_points + i) * 2u;
         let pj = points[base];
         let n = points[base + 1u].xyz;
@@ -112,8 +107,33 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
             }
         }
     }
-    rho_sums[lid] = rho_sum;
-    visible_counts[lid] = visible;
+    return vec2<f32>(rho_sum, visible);
+}
+
+// Writes epsilon and the log-likelihood of particle m of face t from its sums.
+fn finish(t: u32, m: u32, rho_sum: f32, shown: f32) {
+    let count = min(point_counts[t], fp.max_points);
+    var epsilon = 1.0;
+    if (shown > 0.0 && shown >= fp.min_visible_share * f32(count)) {
+        epsilon = rho_sum / shown;
+    }
+    errors[t * params.particles + m] = epsilon;
+    log_likelihood[t * params.particles + m] = -fp.sharpness * log(max(epsilon, fp.min_error));
+}
+
+// The paper's layout: one workgroup per particle, one invocation per point.
+@compute @workgroup_size(256)
+fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let m = wid.x;
+    let t = fp.face_offset + wid.y;
+    // Workgroup-uniform: the whole workgroup leaves together.
+    if (m >= params.particles || t >= params.targets) {
+        return;
+    }
+    let sums = accumulate(t, m, lid, WG);
+    rho_sums[lid] = sums.x;
+    visible_counts[lid] = sums.y;
     workgroupBarrier();
     for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
         if (lid < stride) {
@@ -123,12 +143,39 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
         workgroupBarrier();
     }
     if (lid == 0u) {
-        var epsilon = 1.0;
-        let shown = visible_counts[0];
-        if (shown > 0.0 && shown >= fp.min_visible_share * f32(count)) {
-            epsilon = rho_sums[0] / visible_counts[0];
+        finish(t, m, rho_sums[0], visible_counts[0]);
+    }
+}
+
+// The packed layout: each workgroup weighs PACKED particles, 256 / PACKED invocations each
+// looping over the points. A quarter of the workgroups and of the per-invocation pose set-up,
+// and a shorter reduction.
+const PACKED: u32 = 4u;
+const LANES: u32 = 64u;
+
+@compute @workgroup_size(256)
+fn weigh_faces_packed(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let slot = lid / LANES;
+    let lane = lid % LANES;
+    let m = wid.x * PACKED + slot;
+    let t = fp.face_offset + wid.y;
+    let live = m < params.particles && t < params.targets;
+    var sums = vec2<f32>(0.0, 0.0);
+    if (live) {
+        sums = accumulate(t, m, lane, LANES);
+    }
+    rho_sums[lid] = sums.x;
+    visible_counts[lid] = sums.y;
+    workgroupBarrier();
+    for (var stride = LANES / 2u; stride > 0u; stride = stride / 2u) {
+        if (lane < stride) {
+            rho_sums[lid] = rho_sums[lid] + rho_sums[lid + stride];
+            visible_counts[lid] = visible_counts[lid] + visible_counts[lid + stride];
         }
-        errors[t * params.particles + m] = epsilon;
-        log_likelihood[t * params.particles + m] = -fp.sharpness * log(max(epsilon, fp.min_error));
+        workgroupBarrier();
+    }
+    if (live && lane == 0u) {
+        finish(t, m, rho_sums[lid], visible_counts[lid]);
     }
 }

@@ -1,4 +1,4 @@
-//! The GPU face likelihood (per-face and batched dispatch) against the CPU reference: random
+//! The GPU face likelihood (per-face, batched and packed dispatch) against the CPU reference: random
 //! frames, templates and particles, with faces partly out of the frame and turned up to ±90°.
 //!
 //! Tolerance (DESIGN.md): ε agrees to 1e-4 relative plus 1e-5, plus what each point's ρ can move
@@ -228,6 +228,11 @@ fn per_face_dispatch_matches_cpu_within_tolerance() {
 #[test]
 fn batched_dispatch_matches_cpu_within_tolerance() {
     check(FaceDispatch::Batched, 10);
+}
+
+#[test]
+fn packed_dispatch_matches_cpu_within_tolerance() {
+    check(FaceDispatch::Packed, 10);
 }
 
 #[test]

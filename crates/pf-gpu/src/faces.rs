@@ -15,11 +15,18 @@ use crate::stream::DeviceStream;
 /// How the faces of a frame are dispatched.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FaceDispatch {
-    /// One dispatch per face, as the paper launches one kernel per face.
+    /// The paper's layout (a workgroup per particle, an invocation per point), one dispatch per
+    /// face, as the paper launches one kernel per face.
     PerFace,
-    /// Every face of the frame in one dispatch (grid: particles × faces).
+    /// The paper's layout, every face of the frame in one dispatch (grid: particles × faces).
     Batched,
+    /// Four particles per workgroup, 64 invocations each looping over the points, every face in
+    /// one dispatch: the tracker's choice.
+    Packed,
 }
+
+/// Particles per workgroup of the packed kernel (`PACKED` in the shader).
+const PACKED: usize = 4;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
@@ -85,15 +92,19 @@ impl FaceLikelihoodGpu {
         let frame = DeviceStream::zeroed(ctx, "face frame", pixels)?;
         let points = DeviceStream::zeroed(ctx, "feature points", point_values)?;
         let counts = DeviceStream::zeroed(ctx, "feature point counts", faces)?;
+        let entry = match dispatch {
+            FaceDispatch::Packed => "weigh_faces_packed",
+            _ => "weigh_faces",
+        };
         let kernel = Kernel::new(
             ctx,
             "face likelihood",
             &stage_source(sources::FACE_LIKELIHOOD),
-            "weigh_faces",
+            entry,
         )?;
         let offsets: Vec<u32> = match dispatch {
             FaceDispatch::PerFace => (0..faces as u32).collect(),
-            FaceDispatch::Batched => vec![0],
+            FaceDispatch::Batched | FaceDispatch::Packed => vec![0],
         };
         let params = offsets
             .iter()
@@ -224,13 +235,16 @@ impl GpuLikelihood for FaceLikelihoodGpu {
     }
 
     fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
-        let faces_per_dispatch = match self.dispatch {
-            FaceDispatch::PerFace => 1,
-            FaceDispatch::Batched => self.faces as u32,
+        let (x, y) = match self.dispatch {
+            FaceDispatch::PerFace => (self.particles, 1),
+            FaceDispatch::Batched => (self.particles, self.faces as u32),
+            FaceDispatch::Packed => (
+                (self.particles as usize).div_ceil(PACKED) as u32,
+                self.faces as u32,
+            ),
         };
         for group in &self.groups {
-            self.kernel
-                .record(pass, group, [self.particles, faces_per_dispatch, 1]);
+            self.kernel.record(pass, group, [x, y, 1]);
         }
     }
 }
