@@ -3,8 +3,8 @@
 //! (1 … 64 faces × 1000 particles, 1024×768): frame upload, weighting, resampling, diffusion and
 //! the best-M′ estimate. Variants: one CPU thread, all CPU cores, and the GPU (for Fig. 6 the
 //! likelihood stage alone, one face, so the paper's per-face dispatch; for Fig. 7 the tracker's
-//! whole step, all faces weighed in one dispatch, with the packed kernel — `gpu` — or the paper's
-//! layout — `gpu_paper_layout`).
+//! whole step, all faces weighed in one dispatch of the packed kernel; set
+//! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout).
 //! GPU times include the submission, the wait and the readback.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
