@@ -114,6 +114,17 @@ pub struct TrackArgs {
     /// Seed of the filters' random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Your own face model: a square gray heightmap PNG (with --normalmap; black 0, white
+    /// --height-scale half-widths of the face rectangle) instead of the generic head.
+    #[arg(long, requires = "normalmap")]
+    pub heightmap: Option<PathBuf>,
+    /// The model's normalmap: an RGB PNG of the heightmap's size, n = 2·rgb/255 − 1 (x right,
+    /// y down, z towards the camera).
+    #[arg(long, requires = "heightmap")]
+    pub normalmap: Option<PathBuf>,
+    /// The height of white in the heightmap, in half-widths of the face rectangle.
+    #[arg(long, default_value_t = 0.8)]
+    pub height_scale: f32,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
@@ -408,7 +419,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         seed: args.seed,
         ..FaceTrackerConfig::default()
     };
-    let mut tracker = FaceTracker::new(&first, &rects, &model()?, config, backend)?;
+    let face_model = match (&args.heightmap, &args.normalmap) {
+        (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
+        _ => model()?,
+    };
+    let mut tracker = FaceTracker::new(&first, &rects, &face_model, config, backend)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     if let Some(dir) = &args.overlay {

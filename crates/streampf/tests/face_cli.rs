@@ -208,7 +208,21 @@ fn bad_face_inputs_are_clear_errors() {
         "--quiet",
     ]));
     assert!(err.contains("100x100"), "{err}");
+    // Face maps of the wrong kinds.
+    let rgb = data.join("rgb.png");
+    image::RgbImage::new(9, 9).save(&rgb).unwrap();
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        "--synthetic",
+        "--heightmap",
+        rgb.to_str().unwrap(),
+        "--normalmap",
+        rgb.to_str().unwrap(),
+    ]));
+    assert!(err.contains("gray"), "{err}");
     for bad in [
+        vec!["face", "track", "--synthetic", "--heightmap", "h.png"],
         vec!["face", "track", "--synthetic", "--faces", "0"],
         vec!["face", "track", "--synthetic", "--width", "10"],
         vec!["face", "track", "--synthetic", "--max-yaw", "120"],
@@ -219,4 +233,52 @@ fn bad_face_inputs_are_clear_errors() {
         assert!(err.len() > 10, "{bad:?}: {err}");
     }
     std::fs::remove_dir_all(&data).unwrap();
+}
+
+#[test]
+fn track_with_user_face_maps() {
+    // The generic head written as maps, then read back as a user's own model.
+    let dir = scratch("maps");
+    std::fs::create_dir_all(&dir).unwrap();
+    let model = face_tracker::model::FaceModel::generic(65).unwrap();
+    let max = model.heights.iter().cloned().fold(0.0f32, f32::max);
+    let height = image::ImageBuffer::<image::Luma<u16>, Vec<u16>>::from_fn(65, 65, |x, y| {
+        image::Luma([(model.heights[(y * 65 + x) as usize] / max * 65535.0).round() as u16])
+    });
+    height.save(dir.join("height.png")).unwrap();
+    let normal = image::RgbImage::from_fn(65, 65, |x, y| {
+        let n = model.normals[(y * 65 + x) as usize];
+        image::Rgb(n.map(|c| ((c + 1.0) / 2.0 * 255.0).round() as u8))
+    });
+    normal.save(dir.join("normal.png")).unwrap();
+    let out = dir.join("out");
+    let max_text = max.to_string();
+    let mut args = vec![
+        "face",
+        "track",
+        "--synthetic",
+        "--out",
+        out.to_str().unwrap(),
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+        "--heightmap",
+        dir.join("height.png").to_str().unwrap(),
+        "--normalmap",
+        dir.join("normal.png").to_str().unwrap(),
+        "--height-scale",
+        &max_text,
+    ]
+    .into_iter()
+    .map(String::from)
+    .collect::<Vec<_>>();
+    args.extend(SMALL.map(String::from));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let text = ok(&streampf(&args));
+    assert!(
+        number_after(&text, "mean translation error:") < 5.0,
+        "{text}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }
