@@ -6,13 +6,15 @@
 //! 43 000 (the paper's largest cloud). GPU times include the host's ray preparation (Morton sort,
 //! tile cones), the submission, the wait and the readback of the estimate.
 
+mod common;
+
 use body_tracker::camera::Intrinsics;
 use body_tracker::human::human_skeleton;
 use body_tracker::synth::{SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, TrackerConfig};
+use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::Vector3;
-use pf_gpu::{ContextOptions, GpuContext};
 
 const K: usize = 48;
 
@@ -20,19 +22,6 @@ const K: usize = 48;
 /// sizes, as a smoke test.
 fn full_size() -> bool {
     std::env::args().any(|a| a == "--bench")
-}
-
-fn context() -> GpuContext {
-    let ctx = GpuContext::new(&ContextOptions::default())
-        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
-        .expect("a GPU adapter (see `streampf devices`)");
-    eprintln!(
-        "GPU adapter: {} ({}, {})",
-        ctx.adapter().name,
-        ctx.adapter().device_type,
-        ctx.adapter().backend
-    );
-    ctx
 }
 
 /// Frame 10 of the default synthetic sequence seen by a `width × height` camera, and the pose

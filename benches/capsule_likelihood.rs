@@ -9,13 +9,16 @@
 //! invocations see neighbouring rays, which is what lets the fast kernel's bounding-sphere test
 //! skip work for whole warps.
 
+mod common;
+
 use body_tracker::capsule::{Capsule, ray_capsule};
 use body_tracker::human::{human_skeleton, standing_pose};
 use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2, parallel_over_samples};
+use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::{Vector3, vector};
+use pf_gpu::GpuContext;
 use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
-use pf_gpu::{ContextOptions, GpuContext};
 
 const K: usize = 48;
 const TAU: f32 = 0.1;
@@ -63,19 +66,6 @@ fn samples(count: usize) -> Vec<Vec<Capsule>> {
             s.capsules(&theta).unwrap()
         })
         .collect()
-}
-
-fn context() -> GpuContext {
-    let ctx = GpuContext::new(&ContextOptions::default())
-        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
-        .expect("a GPU adapter (see `streampf devices`)");
-    eprintln!(
-        "GPU adapter: {} ({}, {})",
-        ctx.adapter().name,
-        ctx.adapter().device_type,
-        ctx.adapter().backend
-    );
-    ctx
 }
 
 fn gpu(

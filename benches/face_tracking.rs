@@ -7,6 +7,9 @@
 //! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout).
 //! GPU times include the submission, the wait and the readback.
 
+mod common;
+
+use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use face_tracker::extraction::FaceRect;
 use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, weigh_parallel, weigh_single_thread};
@@ -17,23 +20,10 @@ use face_tracker::tracker::template_gpu_layout;
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
-use pf_gpu::{ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
+use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 
 fn full_size() -> bool {
     std::env::args().any(|a| a == "--bench")
-}
-
-fn context() -> GpuContext {
-    let ctx = GpuContext::new(&ContextOptions::default())
-        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
-        .expect("a GPU adapter (see `streampf devices`)");
-    eprintln!(
-        "GPU adapter: {} ({}, {})",
-        ctx.adapter().name,
-        ctx.adapter().device_type,
-        ctx.adapter().backend
-    );
-    ctx
 }
 
 /// A 16-face synthetic frame (1024×768 at full size), its rectangles repeated to `faces`.

@@ -1,26 +1,10 @@
 //! The `streampf` binary as a user runs it.
 
+mod common;
+
 use std::process::Command;
 
-fn streampf(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_streampf"))
-        .args(args)
-        .output()
-        .expect("the streampf binary runs")
-}
-
-/// The number after `label` in `text`.
-fn number_after(text: &str, label: &str) -> f64 {
-    let start = text
-        .find(label)
-        .unwrap_or_else(|| panic!("{label:?} not in {text}"))
-        + label.len();
-    text[start..]
-        .split_whitespace()
-        .next()
-        .and_then(|w| w.parse().ok())
-        .unwrap_or_else(|| panic!("no number after {label:?} in {text}"))
-}
+use common::{number_after, streampf};
 
 #[test]
 fn demo_tracks_better_than_the_raw_observations() {

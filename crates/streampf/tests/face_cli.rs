@@ -1,54 +1,8 @@
 //! `streampf face synth` and `streampf face track` as a user runs them.
 
-use std::path::PathBuf;
-use std::process::{Command, Output};
+mod common;
 
-fn streampf(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_streampf"))
-        .args(args)
-        .env("NODEVICE_SELECT", "1")
-        .output()
-        .expect("the streampf binary runs")
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-fn failure(out: &Output) -> String {
-    assert!(
-        !out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stdout)
-    );
-    let err = String::from_utf8_lossy(&out.stderr).into_owned();
-    assert!(!err.contains("panicked"), "{err}");
-    err
-}
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("streampf-face-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    dir
-}
-
-fn number_after(text: &str, label: &str) -> f64 {
-    let start = text
-        .find(label)
-        .unwrap_or_else(|| panic!("{label:?} not in {text}"))
-        + label.len();
-    text[start..]
-        .split_whitespace()
-        .next()
-        .and_then(|w| w.parse().ok())
-        .unwrap_or_else(|| panic!("no number after {label:?} in {text}"))
-}
+use common::{failure, number_after, ok, scratch, streampf};
 
 const SMALL: [&str; 8] = [
     "--frames", "8", "--faces", "2", "--width", "480", "--height", "360",
