@@ -18,7 +18,6 @@ use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_error};
 use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
-use pf_gpu::{ContextOptions, GpuContext};
 
 #[derive(Debug, Subcommand)]
 pub enum BodyCommand {
@@ -221,26 +220,13 @@ impl Source {
 }
 
 fn open_backend(args: &TrackArgs) -> anyhow::Result<Backend> {
-    let options = ContextOptions {
-        allow_software: args.allow_software,
-        ..ContextOptions::default()
-    };
     Ok(match args.backend {
         BackendArg::Cpu => Backend::Cpu,
-        BackendArg::Gpu => Backend::Gpu(Box::new(
-            GpuContext::new(&options).context("opening the GPU (see `streampf devices`)")?,
-        )),
-        BackendArg::AllGpus => Backend::SplitGpus(
-            GpuContext::all(&options).context("opening the GPUs (see `streampf devices`)")?,
-        ),
-        BackendArg::Auto => match GpuContext::new(&options) {
-            Ok(ctx) => Backend::Gpu(Box::new(ctx)),
-            Err(err) => {
-                if !args.quiet {
-                    eprintln!("no hardware GPU ({err}); tracking on the CPU");
-                }
-                Backend::Cpu
-            }
+        BackendArg::Gpu => Backend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
+        BackendArg::AllGpus => Backend::SplitGpus(crate::gpu::all(args.allow_software)?),
+        BackendArg::Auto => match crate::gpu::preferred(args.allow_software, args.quiet) {
+            Some(ctx) => Backend::Gpu(Box::new(ctx)),
+            None => Backend::Cpu,
         },
     })
 }

@@ -20,7 +20,6 @@ use face_tracker::{
     FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage, Template, TrackStatus,
 };
 use nalgebra::Vector3;
-use pf_gpu::{ContextOptions, GpuContext};
 
 #[derive(Debug, Subcommand)]
 pub enum FaceCommand {
@@ -281,23 +280,12 @@ impl Source {
 }
 
 fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
-    let options = ContextOptions {
-        allow_software: args.allow_software,
-        ..ContextOptions::default()
-    };
     Ok(match args.backend {
         BackendArg::Cpu => FaceBackend::Cpu,
-        BackendArg::Gpu => FaceBackend::Gpu(Box::new(
-            GpuContext::new(&options).context("opening the GPU (see `streampf devices`)")?,
-        )),
-        BackendArg::Auto => match GpuContext::new(&options) {
-            Ok(ctx) => FaceBackend::Gpu(Box::new(ctx)),
-            Err(err) => {
-                if !args.quiet {
-                    eprintln!("no hardware GPU ({err}); tracking on the CPU");
-                }
-                FaceBackend::Cpu
-            }
+        BackendArg::Gpu => FaceBackend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
+        BackendArg::Auto => match crate::gpu::preferred(args.allow_software, args.quiet) {
+            Some(ctx) => FaceBackend::Gpu(Box::new(ctx)),
+            None => FaceBackend::Cpu,
         },
     })
 }

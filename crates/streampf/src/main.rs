@@ -4,6 +4,7 @@ mod body;
 mod demo;
 mod devices;
 mod face;
+mod gpu;
 
 use clap::{Parser, Subcommand};
 
