@@ -250,12 +250,19 @@ impl BodyLikelihoodGpu {
     }
 
     /// Uploads poses (`[d·J + j]`, J = samples) and submits kinematics and likelihood; read the
-    /// sums with [`Self::read_sums`]. Two steps so that several GPUs can work at once.
+    /// sums with [`Self::read_sums`]. Two steps so that several GPUs can work at once. Not for a
+    /// likelihood prepared for a filter (whose layout it then follows).
     pub fn submit_poses(
         &self,
         ctx: &GpuContext,
         poses: &[f32],
     ) -> Result<wgpu::SubmissionIndex, GpuError> {
+        if self.filter_groups.is_some() {
+            return Err(GpuError::InvalidConfig(
+                "this body likelihood is bound to a filter's states; build another for host poses"
+                    .into(),
+            ));
+        }
         self.host_poses.upload(ctx, poses)?;
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
         ctx.scoped("evaluating the body likelihood", || {
