@@ -16,7 +16,6 @@ use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, weigh_parallel, wei
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
 use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
-use face_tracker::tracker::template_gpu_layout;
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
@@ -108,8 +107,7 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
         )
         .unwrap();
         gpu.upload_frame(ctx, &frame.data).unwrap();
-        gpu.upload_template(ctx, 0, &template_gpu_layout(&template))
-            .unwrap();
+        gpu.upload_template(ctx, 0, &template.gpu_layout()).unwrap();
         gpu.prepare(ctx, &filter.likelihood_inputs()).unwrap();
         group.bench_function(BenchmarkId::new("gpu", m), |b| {
             b.iter(|| {

@@ -186,16 +186,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
             .unwrap();
             gpu.upload_frame(&ctx, &image.data).unwrap();
             for (f, t) in templates.iter().enumerate() {
-                let flat: Vec<[f32; 4]> = t
-                    .points
-                    .iter()
-                    .flat_map(|q| {
-                        let [px, py, pz] = q.position;
-                        let [nx, ny, nz] = q.normal;
-                        [[px, py, pz, q.gray], [nx, ny, nz, 0.0]]
-                    })
-                    .collect();
-                gpu.upload_template(&ctx, f, &flat).unwrap();
+                gpu.upload_template(&ctx, f, &t.gpu_layout()).unwrap();
             }
             gpu.prepare(&ctx, &filter.likelihood_inputs()).unwrap();
             filter.run_stages(&ctx, &[GpuStage::Likelihood], &gpu).unwrap();

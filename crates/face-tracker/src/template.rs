@@ -67,6 +67,18 @@ impl Template {
         self.points.len()
     }
 
+    /// The layout of pf-gpu's face kernel: (P, J), (N, 0) per point.
+    pub fn gpu_layout(&self) -> Vec<[f32; 4]> {
+        self.points
+            .iter()
+            .flat_map(|q| {
+                let [px, py, pz] = q.position;
+                let [nx, ny, nz] = q.normal;
+                [[px, py, pz, q.gray], [nx, ny, nz, 0.0]]
+            })
+            .collect()
+    }
+
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }

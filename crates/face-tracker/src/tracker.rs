@@ -111,19 +111,6 @@ pub struct FaceTracker {
     engine: Engine,
 }
 
-/// The template in the GPU's layout: (P, J), (N, 0) per point.
-pub fn template_gpu_layout(template: &Template) -> Vec<[f32; 4]> {
-    template
-        .points
-        .iter()
-        .flat_map(|q| {
-            let [px, py, pz] = q.position;
-            let [nx, ny, nz] = q.normal;
-            [[px, py, pz, q.gray], [nx, ny, nz, 0.0]]
-        })
-        .collect()
-}
-
 impl FaceTracker {
     /// Extracts a template per rectangle from the first frame and starts a filter per face.
     pub fn new(
@@ -203,7 +190,7 @@ impl FaceTracker {
                     MIN_VISIBLE_SHARE,
                 )?;
                 for (f, t) in templates.iter().enumerate() {
-                    likelihood.upload_template(&ctx, f, &template_gpu_layout(t))?;
+                    likelihood.upload_template(&ctx, f, &t.gpu_layout())?;
                 }
                 likelihood.prepare(&ctx, &filter.likelihood_inputs())?;
                 Engine::Gpu(Box::new(GpuEngine {
