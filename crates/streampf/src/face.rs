@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
 use face_tracker::extraction::FaceRect;
 use face_tracker::model::FaceModel;
@@ -225,35 +226,26 @@ fn read_rects(path: &Path) -> anyhow::Result<Vec<FaceRect>> {
         .collect()
 }
 
-/// Ground truth rows `frame, face, 7 values` into `[frame][face]`.
-fn read_truth(path: &Path, faces: usize) -> anyhow::Result<Vec<Vec<[f32; DIMS]>>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut out: Vec<Vec<[f32; DIMS]>> = Vec::new();
-    for (n, line) in text.lines().enumerate().skip(1) {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let values: Vec<f32> = line
-            .split(',')
-            .map(|v| v.trim().parse::<f32>())
-            .collect::<Result<_, _>>()
-            .with_context(|| format!("{} line {}", path.display(), n + 1))?;
-        if values.len() != DIMS + 2 || values[0] < 0.0 || values[1] < 0.0 {
+/// Ground truth rows `frame, face, 7 values` into `[frame][face]` (NaN where a row is missing;
+/// rows beyond the tracked frames and faces are left out).
+fn read_truth(path: &Path, frames: usize, faces: usize) -> anyhow::Result<Vec<Vec<[f32; DIMS]>>> {
+    let mut out = vec![vec![[f32::NAN; DIMS]; faces]; frames];
+    for (n, row) in read_numeric_csv(path, DIMS + 2)?.into_iter().enumerate() {
+        let (frame, face) = (row[0], row[1]);
+        let whole = |v: f32| v >= 0.0 && v.fract() == 0.0;
+        if !(whole(frame) && whole(face)) {
             bail!(
-                "{} line {}: expected frame, face and 7 values",
+                "{} row {}: frame {frame} and face {face} must be whole numbers >= 0",
                 path.display(),
                 n + 1
             );
         }
-        let (frame, face) = (values[0] as usize, values[1] as usize);
-        if face >= faces {
+        let (frame, face) = (frame as usize, face as usize);
+        // Rows for frames or faces this run does not track are not needed.
+        if frame >= frames || face >= faces {
             continue;
         }
-        if out.len() <= frame {
-            out.resize(frame + 1, vec![[f32::NAN; DIMS]; faces]);
-        }
-        out[frame][face].copy_from_slice(&values[2..]);
+        out[frame][face].copy_from_slice(&row[2..]);
     }
     Ok(out)
 }
@@ -377,6 +369,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         let truth = if dir.join(TRUTH_FILE).exists() {
             Some(read_truth(
                 &dir.join(TRUTH_FILE),
+                files.len(),
                 rects.len().max(args.faces_at.len()),
             )?)
         } else {

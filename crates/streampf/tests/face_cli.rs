@@ -162,6 +162,27 @@ fn bad_face_inputs_are_clear_errors() {
         "--quiet",
     ]));
     assert!(err.contains("100x100"), "{err}");
+    // Ground truth with a fractional frame index, and with a value that is not a number.
+    let header = "frame,face,tx,ty,scale,rx,ry,rz,alpha";
+    for (row, expect) in [
+        ("0.5,0,1,1,1,0,0,0,1", "whole numbers"),
+        ("0,0,NaN,1,1,0,0,0,1", "NaN"),
+    ] {
+        std::fs::write(data.join("ground_truth.csv"), format!("{header}\n{row}\n")).unwrap();
+        let err = failure(&streampf(&[
+            "face",
+            "track",
+            d,
+            "--face",
+            "100,80,90,110",
+            "--backend",
+            "cpu",
+        ]));
+        assert!(
+            err.contains("ground_truth.csv") && err.contains(expect),
+            "{err}"
+        );
+    }
     // Face maps of the wrong kinds.
     let rgb = data.join("rgb.png");
     image::RgbImage::new(9, 9).save(&rgb).unwrap();
