@@ -220,15 +220,15 @@ fn dipoles(
     out
 }
 
-/// Greedy selection in priority order: a candidate is taken when all its points are at least
-/// `separation` from every point taken so far, until `budget` points are taken.
-fn select(
-    mut candidates: Vec<Candidate>,
-    taken: &mut Vec<(f32, f32)>,
-    budget: usize,
-    separation: f32,
-) {
+/// Candidates sorted by priority, largest first.
+fn by_priority(mut candidates: Vec<Candidate>) -> Vec<Candidate> {
     candidates.sort_by(|a, b| b.priority.total_cmp(&a.priority));
+    candidates
+}
+
+/// Greedy selection in (already sorted) priority order: a candidate is taken when all its points
+/// are at least `separation` from every point taken so far, until `budget` points are taken.
+fn select(candidates: &[Candidate], taken: &mut Vec<(f32, f32)>, budget: usize, separation: f32) {
     let limit = taken.len() + budget;
     let sep2 = separation * separation;
     for c in candidates {
@@ -241,7 +241,7 @@ fn select(
                 .all(|&(tx, ty)| (tx - x).powi(2) + (ty - y).powi(2) >= sep2)
         });
         if clear {
-            taken.extend(c.points);
+            taken.extend(&c.points);
         }
     }
 }
@@ -272,28 +272,20 @@ pub fn extract_template(
     let smooth = gaussian_blur(frame, config.sigma);
     let extrema_budget = (config.max_points as f32 * config.extrema_share).round() as usize;
     let mut taken = Vec::with_capacity(config.max_points);
-    select(
-        extrema(&smooth, &inside),
-        &mut taken,
-        extrema_budget,
-        config.separation,
-    );
+    let extrema = by_priority(extrema(&smooth, &inside));
+    select(&extrema, &mut taken, extrema_budget, config.separation);
     let left = config.max_points - taken.len();
     select(
-        dipoles(&smooth, config, &inside),
+        &by_priority(dipoles(&smooth, config, &inside)),
         &mut taken,
         left,
         config.separation,
     );
-    // Fill with more extrema if the dipoles ran short.
+    // Fill with more extrema if the dipoles ran short (those taken already are within the
+    // separation of themselves, so none is taken twice).
     let left = config.max_points - taken.len();
     if left > 0 {
-        select(
-            extrema(&smooth, &inside),
-            &mut taken,
-            left,
-            config.separation,
-        );
+        select(&extrema, &mut taken, left, config.separation);
     }
     let points = taken
         .into_iter()

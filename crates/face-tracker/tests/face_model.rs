@@ -1,7 +1,7 @@
 //! Projection against hand-computed cases, the likelihood's pieces, the face model, template
 //! extraction on synthetic images with known extrema and edges, and bad inputs.
 
-use face_tracker::extraction::{ExtractionConfig, FaceRect, extract_template, gaussian_blur};
+use face_tracker::extraction::{ExtractionConfig, FaceRect, extract_template};
 use face_tracker::likelihood::{log_weight, residual_error, rho};
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{DIMS, Pose};
@@ -234,7 +234,6 @@ fn extraction_puts_dipoles_across_edges_and_keeps_points_apart() {
             );
         }
     }
-    let _ = gaussian_blur(&frame, 1.0);
 }
 
 #[test]
