@@ -19,6 +19,7 @@ use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_fram
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
+use pf_gpu::stream::DeviceStream;
 use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 
 fn full_size() -> bool {
@@ -106,7 +107,9 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
             MIN_VISIBLE_SHARE,
         )
         .unwrap();
-        gpu.upload_frame(ctx, &frame.data).unwrap();
+        let mut gray8 = Vec::new();
+        frame.write_gray8(&mut gray8);
+        gpu.upload_frame(ctx, &gray8).unwrap();
         gpu.upload_template(ctx, 0, &template.gpu_layout()).unwrap();
         gpu.prepare(ctx, &filter.likelihood_inputs()).unwrap();
         group.bench_function(BenchmarkId::new("gpu", m), |b| {
@@ -165,9 +168,46 @@ fn fig7(c: &mut Criterion) {
     group.finish();
 }
 
+/// The frame's share of a step: converting it to 8 bits, and uploading it (then an empty
+/// submission and the wait), against uploading it as f32 as the kernel once read it.
+fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
+    let mut group = c.benchmark_group("face_frame_upload");
+    group.sample_size(10);
+    let (frame, ..) = scene(1);
+    let pixels = frame.data.len();
+    let mut gray8 = Vec::new();
+    group.bench_function("to_gray8", |b| {
+        b.iter(|| frame.write_gray8(std::hint::black_box(&mut gray8)))
+    });
+    let packed = DeviceStream::<u32>::zeroed(ctx, "packed frame", pixels.div_ceil(4)).unwrap();
+    let floats = DeviceStream::<f32>::zeroed(ctx, "f32 frame", pixels).unwrap();
+    let wait = || {
+        let index = ctx.queue.submit([]);
+        ctx.wait(Some(index), "the upload").unwrap();
+    };
+    group.bench_function("to_gray8_upload_8bit", |b| {
+        b.iter(|| {
+            frame.write_gray8(&mut gray8);
+            packed
+                .upload_bytes_at(ctx, 0, &gray8[..pixels - pixels % 4])
+                .unwrap();
+            wait();
+        })
+    });
+    group.bench_function("upload_f32", |b| {
+        b.iter(|| {
+            floats.upload(ctx, &frame.data).unwrap();
+            wait();
+        })
+    });
+    group.bench_function("empty_submit_wait", |b| b.iter(wait));
+    group.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let ctx = context();
     fig6(c, &ctx);
+    frame_upload(c, &ctx);
     fig7(c);
 }
 

@@ -11,7 +11,8 @@
 // epsilon = mean rho over those points (1 when fewer than min_visible_share of the points face
 // the camera), log pi = -sharpness ln max(epsilon, floor).
 //
-// Layouts: states (the filter's, common.wgsl); frame[y * width + x] gray levels 0-255; points of
+// Layouts: states (the filter's, common.wgsl); frame: 8-bit gray levels, pixel i = y * width + x
+// in byte i % 4 (little-endian) of word i / 4, a quarter of an f32 frame's upload; points of
 // face t at [(t * max_points + i) * 2] = (P, J) and [.. + 1] = (N, 0), point_counts[t];
 // log_likelihood and errors [t * M + m].
 
@@ -31,7 +32,7 @@ struct FaceParams {
 @group(0) @binding(1) var<storage, read> states: array<f32>;
 @group(0) @binding(2) var<storage, read_write> log_likelihood: array<f32>;
 @group(0) @binding(3) var<uniform> fp: FaceParams;
-@group(0) @binding(4) var<storage, read> frame: array<f32>;
+@group(0) @binding(4) var<storage, read> frame: array<u32>;
 @group(0) @binding(5) var<storage, read> points: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> point_counts: array<u32>;
 @group(0) @binding(7) var<storage, read_write> errors: array<f32>;
@@ -59,7 +60,8 @@ fn rotation_z(a: f32) -> mat3x3<f32> {
 }
 
 fn pixel(x: u32, y: u32) -> f32 {
-    return frame[y * fp.width + x];
+    let i = y * fp.width + x;
+    return f32(extractBits(frame[i >> 2u], (i & 3u) * 8u, 8u));
 }
 
 // Bilinear sample at (x, y), or -1 outside [0, w-1] x [0, h-1] (as GrayImage::bilinear).

@@ -33,8 +33,10 @@ fn frame(rng: &mut pf_core::RandomStream, width: u32, height: u32) -> GrayImage 
     let data = (0..width * height)
         .map(|i| {
             let (x, y) = ((i % width) as f32, (i / width) as f32);
+            // Whole levels: the kernel reads frames at 8 bits.
             (128.0 + 80.0 * (fx * x).sin() * (fy * y).cos() + 40.0 * rng.gaussian_f32())
                 .clamp(0.0, 255.0)
+                .round()
         })
         .collect();
     GrayImage::new(width, height, data).unwrap()
@@ -184,7 +186,9 @@ fn check(dispatch: FaceDispatch, cases: u32) {
                 MIN_VISIBLE_SHARE,
             )
             .unwrap();
-            gpu.upload_frame(&ctx, &image.data).unwrap();
+            let mut gray8 = Vec::new();
+            image.write_gray8(&mut gray8);
+            gpu.upload_frame(&ctx, &gray8).unwrap();
             for (f, t) in templates.iter().enumerate() {
                 gpu.upload_template(&ctx, f, &t.gpu_layout()).unwrap();
             }
@@ -249,7 +253,8 @@ fn invalid_face_setups_are_typed_errors() {
     assert!(make(1, 10, 1, 48, 1.0).is_err());
     assert!(make(1, 10, 64, 48, f32::NAN).is_err());
     let gpu = make(2, 3, 64, 48, 1.0).unwrap();
-    assert!(gpu.upload_frame(&ctx, &[0.0; 10]).is_err());
+    assert!(gpu.upload_frame(&ctx, &[0; 10]).is_err());
+    assert!(gpu.upload_frame(&ctx, &[0; 64 * 48 + 1]).is_err());
     assert!(gpu.upload_template(&ctx, 2, &[[0.0; 4]; 2]).is_err());
     assert!(gpu.upload_template(&ctx, 0, &[[0.0; 4]; 8]).is_err());
     assert!(gpu.upload_template(&ctx, 0, &[[0.0; 4]; 3]).is_err());

@@ -3,6 +3,8 @@
 
 use std::path::Path;
 
+use rayon::prelude::*;
+
 use crate::error::{FaceError, file_error};
 
 /// A gray image, `data[y·width + x]`.
@@ -36,6 +38,31 @@ impl GrayImage {
             height,
             data,
         })
+    }
+
+    /// An image from 8-bit gray levels (a decoded video frame, say).
+    pub fn from_gray8(width: u32, height: u32, levels: &[u8]) -> Result<Self, FaceError> {
+        Self::new(
+            width,
+            height,
+            levels.iter().map(|&v| f32::from(v)).collect(),
+        )
+    }
+
+    /// The image at 8 bits, each level rounded and clamped to 0–255 — what an 8-bit camera gives
+    /// and what the GPU kernel reads — written into `out` (resized to the pixel count), rows in
+    /// parallel. Images decoded from files and the synthetic frames are whole levels already,
+    /// so for them this loses nothing.
+    pub fn write_gray8(&self, out: &mut Vec<u8>) {
+        out.resize(self.data.len(), 0);
+        const CHUNK: usize = 1 << 14;
+        out.par_chunks_mut(CHUNK)
+            .zip(self.data.par_chunks(CHUNK))
+            .for_each(|(bytes, levels)| {
+                for (b, &v) in bytes.iter_mut().zip(levels) {
+                    *b = to_level(v);
+                }
+            });
     }
 
     /// A constant image.
@@ -82,14 +109,36 @@ impl GrayImage {
 
     /// Writes the image as an 8-bit gray PNG (values clamped to 0–255).
     pub fn save_png(&self, path: &Path) -> Result<(), FaceError> {
-        let bytes: Vec<u8> = self
-            .data
-            .iter()
-            .map(|v| v.round().clamp(0.0, 255.0) as u8)
-            .collect();
+        let mut bytes = Vec::new();
+        self.write_gray8(&mut bytes);
         image::GrayImage::from_raw(self.width, self.height, bytes)
             .ok_or_else(|| file_error(path, "the pixel buffer does not match the size"))?
             .save_with_format(path, image::ImageFormat::Png)
             .map_err(|e| file_error(path, e))
+    }
+}
+
+/// A gray level rounded to the nearest of 0–255 (clamped first, so the cast's truncation is a
+/// floor; no call to `round`, so the loop vectorises).
+fn to_level(v: f32) -> u8 {
+    (v.clamp(0.0, 255.0) + 0.5) as u8
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn eight_bit_levels_round_trip_and_round_to_nearest() {
+        let levels: Vec<u8> = (0..=255).collect();
+        let image = GrayImage::from_gray8(16, 16, &levels).unwrap();
+        let mut back = vec![7; 3];
+        image.write_gray8(&mut back);
+        assert_eq!(back, levels);
+
+        let image = GrayImage::new(3, 2, vec![-3.0, 2.49, 2.5, 254.6, 300.0, 0.4]).unwrap();
+        image.write_gray8(&mut back);
+        assert_eq!(back, [0, 2, 3, 255, 255, 0]);
+        assert!(GrayImage::from_gray8(3, 3, &levels[..8]).is_err());
     }
 }

@@ -284,7 +284,8 @@ pub fn render_frame(
     }
     let gain = light_gain(frame);
     for v in &mut data {
-        *v = (*v * gain).clamp(0.0, 255.0);
+        // Whole levels, as an 8-bit camera would give.
+        *v = (*v * gain).round().clamp(0.0, 255.0);
     }
     GrayImage::new(w, h, data)
 }

@@ -99,6 +99,8 @@ struct GpuEngine {
     ctx: GpuContext,
     filter: GpuFilter,
     likelihood: FaceLikelihoodGpu,
+    /// The frame at 8 bits, reused: the GPU's upload.
+    gray8: Vec<u8>,
 }
 
 pub struct FaceTracker {
@@ -197,6 +199,7 @@ impl FaceTracker {
                     ctx: *ctx,
                     filter,
                     likelihood,
+                    gray8: Vec::new(),
                 }))
             }
         };
@@ -215,7 +218,9 @@ impl FaceTracker {
         &self.templates
     }
 
-    /// One frame for every face.
+    /// One frame for every face. The GPU reads the frame at 8 bits (`GrayImage::write_gray8`);
+    /// frames from files and the synthetic videos are whole levels, so both backends see the
+    /// same pixels.
     pub fn step(&mut self, frame: &GrayImage) -> Result<Vec<FaceEstimate>, FaceError> {
         if (frame.width, frame.height) != self.frame_size {
             return Err(FaceError::InvalidInput(format!(
@@ -245,7 +250,8 @@ impl FaceTracker {
                 }
             }
             Engine::Gpu(gpu) => {
-                gpu.likelihood.upload_frame(&gpu.ctx, &frame.data)?;
+                frame.write_gray8(&mut gpu.gray8);
+                gpu.likelihood.upload_frame(&gpu.ctx, &gpu.gray8)?;
                 let report = gpu.filter.step(&gpu.ctx, &gpu.likelihood)?;
                 if report.best_estimates.is_empty() {
                     report.estimates

@@ -1,5 +1,6 @@
 //! The launcher of the face paper's sparse-template likelihood (`shaders/face_likelihood.wgsl`)
-//! over plain layouts: the frame as f32 gray levels, and per face up to `max_points` feature
+//! over plain layouts: the frame as 8-bit gray levels (four to a `u32`, a quarter of the bytes an
+//! f32 frame would upload), and per face up to `max_points` feature
 //! points as two `[f32; 4]` each, (P, J) and (N, 0). It is a [`GpuLikelihood`]: inside the GPU
 //! filter it reads the particles where they are and writes log π = −sharpness·ln ε, and it keeps
 //! ε per particle for failure detection. CPU twin: `face_tracker::likelihood::residual_error`.
@@ -48,7 +49,8 @@ pub struct FaceLikelihoodGpu {
     max_points: usize,
     width: u32,
     height: u32,
-    frame: DeviceStream<f32>,
+    /// The frame's 8-bit gray levels, four to a word (byte i of the frame is byte i of the buffer).
+    frame: DeviceStream<u32>,
     points: DeviceStream<[f32; 4]>,
     counts: DeviceStream<u32>,
     errors: Option<DeviceStream<f32>>,
@@ -89,7 +91,7 @@ impl FaceLikelihoodGpu {
             .checked_mul(max_points * 2)
             .filter(|&n| n <= u32::MAX as usize)
             .ok_or_else(|| GpuError::InvalidConfig("too many feature points".into()))?;
-        let frame = DeviceStream::zeroed(ctx, "face frame", pixels)?;
+        let frame = DeviceStream::zeroed(ctx, "face frame", pixels.div_ceil(4))?;
         let points = DeviceStream::zeroed(ctx, "feature points", point_values)?;
         let counts = DeviceStream::zeroed(ctx, "feature point counts", faces)?;
         let entry = match dispatch {
@@ -151,9 +153,25 @@ impl FaceLikelihoodGpu {
         self.dispatch
     }
 
-    /// This frame's gray levels, `[y·width + x]`: the one upload of a frame.
-    pub fn upload_frame(&self, ctx: &GpuContext, gray: &[f32]) -> Result<(), GpuError> {
-        self.frame.upload(ctx, gray)
+    /// This frame's 8-bit gray levels, `[y·width + x]`: the one upload of a frame.
+    pub fn upload_frame(&self, ctx: &GpuContext, gray: &[u8]) -> Result<(), GpuError> {
+        let pixels = self.width as usize * self.height as usize;
+        if gray.len() != pixels {
+            return Err(GpuError::LengthMismatch {
+                what: format!("face frame ({}x{} pixels)", self.width, self.height),
+                expected: pixels,
+                got: gray.len(),
+            });
+        }
+        // Writes are whole words: a frame whose pixel count is not a multiple of four is padded.
+        let whole = pixels - pixels % 4;
+        self.frame.upload_bytes_at(ctx, 0, &gray[..whole])?;
+        if whole < pixels {
+            let mut tail = [0u8; 4];
+            tail[..pixels - whole].copy_from_slice(&gray[whole..]);
+            self.frame.upload_bytes_at(ctx, whole, &tail)?;
+        }
+        Ok(())
     }
 
     /// Face `face`'s template: `[(P, J), (N, 0)]` per point, at most `max_points` points.

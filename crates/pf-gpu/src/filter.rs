@@ -628,15 +628,22 @@ impl GpuFilter {
             }
             ctx.queue.submit([encoder.finish()])
         })?;
-        let estimates = self.estimates_back.read(ctx, Some(submission))?;
-        let stats = self.stats_back.read(ctx, None)?;
-        let best_estimates = match &self.best_back {
-            Some(back) => back.read(ctx, None)?,
-            None => Vec::new(),
+        // Every readback is mapped behind one wait: one poll a frame.
+        let estimates_map = self.estimates_back.request_map();
+        let stats_map = self.stats_back.request_map();
+        let best_map = self.best_back.as_ref().map(|back| back.request_map());
+        let timer_map = self.timer.as_ref().map(|timer| timer.request_map());
+        ctx.wait(Some(submission), "the filter step")?;
+        let wall = started.elapsed();
+        let estimates = self.estimates_back.collect(estimates_map)?;
+        let stats = self.stats_back.collect(stats_map)?;
+        let best_estimates = match (&self.best_back, best_map) {
+            (Some(back), Some(pending)) => back.collect(pending)?,
+            _ => Vec::new(),
         };
-        let time = match &self.timer {
-            Some(timer) => GpuTime::Timestamps(timer.read(ctx)?),
-            None => GpuTime::WallClock(started.elapsed()),
+        let time = match (&self.timer, timer_map) {
+            (Some(timer), Some(pending)) => GpuTime::Timestamps(timer.collect(pending)?),
+            _ => GpuTime::WallClock(wall),
         };
         Ok(GpuStepReport {
             estimates,

@@ -81,6 +81,36 @@ impl<T: Pod> DeviceStream<T> {
         Ok(())
     }
 
+    /// Queues a write of raw bytes at byte `offset`, for values packed smaller than `T` (8-bit
+    /// pixels in a `u32` stream). Offset and length must be multiples of four bytes.
+    pub fn upload_bytes_at(
+        &self,
+        ctx: &GpuContext,
+        offset: usize,
+        bytes: &[u8],
+    ) -> Result<(), GpuError> {
+        let capacity = self.len * std::mem::size_of::<T>();
+        if offset + bytes.len() > capacity {
+            return Err(GpuError::LengthMismatch {
+                what: format!("stream {} (bytes {offset}.. written)", self.label),
+                expected: capacity.saturating_sub(offset),
+                got: bytes.len(),
+            });
+        }
+        let align = wgpu::COPY_BUFFER_ALIGNMENT as usize;
+        if !offset.is_multiple_of(align) || !bytes.len().is_multiple_of(align) {
+            return Err(GpuError::InvalidConfig(format!(
+                "stream {}: a byte write must start and end on a multiple of {align} (got {} bytes at {offset})",
+                self.label,
+                bytes.len()
+            )));
+        }
+        if !bytes.is_empty() {
+            ctx.queue.write_buffer(&self.buffer, offset as u64, bytes);
+        }
+        Ok(())
+    }
+
     fn check_len(&self, got: usize) -> Result<(), GpuError> {
         if got != self.len {
             return Err(GpuError::LengthMismatch {
@@ -170,35 +200,57 @@ impl<T: Pod> Readback<T> {
         ctx: &GpuContext,
         submission: Option<wgpu::SubmissionIndex>,
     ) -> Result<Vec<T>, GpuError> {
+        let pending = self.request_map();
+        ctx.wait(submission, &format!("reading back {}", self.label))?;
+        self.collect(pending)
+    }
+
+    /// Asks for the staging buffer to be mapped once the queue reaches it. Several readbacks
+    /// requested before one [`GpuContext::wait`] share that wait: one poll a frame, not one per
+    /// buffer. Finish with [`Readback::collect`] after the wait.
+    pub fn request_map(&self) -> PendingMap {
+        let (sender, receiver) = std::sync::mpsc::channel();
+        if self.len > 0 {
+            self.staging
+                .map_async(wgpu::MapMode::Read, 0..self.bytes(), move |result| {
+                    let _ = sender.send(result);
+                });
+        }
+        PendingMap { receiver }
+    }
+
+    /// The values of a map requested with [`Readback::request_map`], after the wait.
+    pub fn collect(&self, pending: PendingMap) -> Result<Vec<T>, GpuError> {
         if self.len == 0 {
             return Ok(Vec::new());
         }
-        let bytes = (self.len * std::mem::size_of::<T>()) as u64;
-        let (sender, receiver) = std::sync::mpsc::channel();
-        self.staging
-            .map_async(wgpu::MapMode::Read, 0..bytes, move |result| {
-                let _ = sender.send(result);
-            });
-        ctx.wait(submission, &format!("reading back {}", self.label))?;
-        let mapped = receiver.recv().map_err(|e| GpuError::Readback {
+        let failed = |message: String| GpuError::Readback {
             what: self.label.clone(),
-            message: e.to_string(),
-        })?;
-        mapped.map_err(|e| GpuError::Readback {
-            what: self.label.clone(),
-            message: e.to_string(),
-        })?;
+            message,
+        };
+        pending
+            .receiver
+            .try_recv()
+            .map_err(|_| failed("the buffer was not mapped by the wait".into()))?
+            .map_err(|e| failed(e.to_string()))?;
         let values = {
             let view = self
                 .staging
-                .get_mapped_range(0..bytes)
-                .map_err(|e| GpuError::Readback {
-                    what: self.label.clone(),
-                    message: e.to_string(),
-                })?;
+                .get_mapped_range(0..self.bytes())
+                .map_err(|e| failed(e.to_string()))?;
             bytemuck::cast_slice::<u8, T>(&view).to_vec()
         };
         self.staging.unmap();
         Ok(values)
     }
+
+    fn bytes(&self) -> u64 {
+        (self.len * std::mem::size_of::<T>()) as u64
+    }
+}
+
+/// A readback's map request in flight (see [`Readback::request_map`]).
+#[derive(Debug)]
+pub struct PendingMap {
+    receiver: std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
 }

@@ -79,7 +79,18 @@ impl StepTimer {
 
     /// The elapsed GPU time of the last submitted step (after its completion).
     pub fn read(&self, ctx: &GpuContext) -> Result<Duration, GpuError> {
-        let ticks = self.readback.read(ctx, None)?;
+        let pending = self.request_map();
+        ctx.wait(None, "reading back the timestamps")?;
+        self.collect(pending)
+    }
+
+    /// As [`crate::stream::Readback::request_map`]: the map, to be collected after a shared wait.
+    pub fn request_map(&self) -> crate::stream::PendingMap {
+        self.readback.request_map()
+    }
+
+    pub fn collect(&self, pending: crate::stream::PendingMap) -> Result<Duration, GpuError> {
+        let ticks = self.readback.collect(pending)?;
         let elapsed = ticks[1].saturating_sub(ticks[0]) as f64 * self.period_ns;
         Ok(Duration::from_nanos(elapsed as u64))
     }
