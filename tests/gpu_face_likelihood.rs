@@ -30,16 +30,13 @@ fn frame(rng: &mut pf_core::RandomStream, width: u32, height: u32) -> GrayImage 
         0.05 + 0.3 * rng.uniform() as f32,
         0.05 + 0.3 * rng.uniform() as f32,
     );
-    let data = (0..width * height)
+    let data: Vec<f32> = (0..width * height)
         .map(|i| {
             let (x, y) = ((i % width) as f32, (i / width) as f32);
-            // Whole levels: the kernel reads frames at 8 bits.
-            (128.0 + 80.0 * (fx * x).sin() * (fy * y).cos() + 40.0 * rng.gaussian_f32())
-                .clamp(0.0, 255.0)
-                .round()
+            128.0 + 80.0 * (fx * x).sin() * (fy * y).cos() + 40.0 * rng.gaussian_f32()
         })
         .collect();
-    GrayImage::new(width, height, data).unwrap()
+    GrayImage::from_levels(width, height, &data).unwrap()
 }
 
 fn template(rng: &mut pf_core::RandomStream, n: usize) -> Template {
@@ -186,9 +183,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
                 MIN_VISIBLE_SHARE,
             )
             .unwrap();
-            let mut gray8 = Vec::new();
-            image.write_gray8(&mut gray8);
-            gpu.upload_frame(&ctx, &gray8).unwrap();
+            gpu.upload_frame(&ctx, &image.data).unwrap();
             for (f, t) in templates.iter().enumerate() {
                 gpu.upload_template(&ctx, f, &t.gpu_layout()).unwrap();
             }

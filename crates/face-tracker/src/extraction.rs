@@ -10,7 +10,7 @@
 //! level J from the frame.
 
 use crate::error::FaceError;
-use crate::image::GrayImage;
+use crate::image::{FloatImage, GrayImage, Image, Level};
 use crate::model::FaceModel;
 use crate::template::{FeaturePoint, MIN_GRAY, Template};
 
@@ -83,7 +83,7 @@ impl Default for ExtractionConfig {
 }
 
 /// A separable Gaussian blur (radius 3σ, borders clamped).
-pub fn gaussian_blur(image: &GrayImage, sigma: f32) -> GrayImage {
+pub fn gaussian_blur<T: Level>(image: &Image<T>, sigma: f32) -> FloatImage {
     let radius = (3.0 * sigma).ceil().max(1.0) as i64;
     let weights: Vec<f32> = (-radius..=radius)
         .map(|k| (-(k * k) as f32 / (2.0 * sigma * sigma)).exp())
@@ -108,8 +108,9 @@ pub fn gaussian_blur(image: &GrayImage, sigma: f32) -> GrayImage {
             })
             .collect()
     };
-    let data = pass(&pass(&image.data, true), false);
-    GrayImage {
+    let levels: Vec<f32> = image.data.iter().map(|v| v.level()).collect();
+    let data = pass(&pass(&levels, true), false);
+    FloatImage {
         width: image.width,
         height: image.height,
         data,
@@ -117,7 +118,7 @@ pub fn gaussian_blur(image: &GrayImage, sigma: f32) -> GrayImage {
 }
 
 /// The 4-neighbour Laplacian of an image (zero on the border).
-fn laplacian(image: &GrayImage) -> Vec<f32> {
+fn laplacian(image: &FloatImage) -> Vec<f32> {
     let (w, h) = (image.width, image.height);
     (0..w * h)
         .map(|k| {
@@ -139,7 +140,7 @@ struct Candidate {
 
 /// Gray-level extrema inside `inside`, brightest and darkest first (priority: distance of the
 /// gray level from the extreme it is, so a bright maximum and a dark minimum rank alike).
-fn extrema(smooth: &GrayImage, inside: &dyn Fn(f32, f32) -> bool) -> Vec<Candidate> {
+fn extrema(smooth: &FloatImage, inside: &dyn Fn(f32, f32) -> bool) -> Vec<Candidate> {
     let mut out = Vec::new();
     for y in 1..smooth.height - 1 {
         for x in 1..smooth.width - 1 {
@@ -177,7 +178,7 @@ fn extrema(smooth: &GrayImage, inside: &dyn Fn(f32, f32) -> bool) -> Vec<Candida
 /// Boundary dipoles across the LoG's zero-crossings between horizontal and vertical neighbours,
 /// by the gray-level step across their ends.
 fn dipoles(
-    smooth: &GrayImage,
+    smooth: &FloatImage,
     config: &ExtractionConfig,
     inside: &dyn Fn(f32, f32) -> bool,
 ) -> Vec<Candidate> {

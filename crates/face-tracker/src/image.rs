@@ -1,77 +1,66 @@
-//! Gray images as the tracker sees them: f32 gray levels (0–255), row-major, with bilinear
-//! sampling (continuous, so that a rounding difference between CPU and GPU cannot jump a pixel).
+//! Gray images, row-major, with bilinear sampling (continuous, so that a rounding difference
+//! between CPU and GPU cannot jump a pixel).
+//!
+//! Frames are [`GrayImage`]: 8-bit levels, as cameras, video decoders and image files give them
+//! and as the GPU kernel reads them (four to a word), so a frame reaches the GPU without a
+//! conversion, and both backends see the same pixels. Image processing that needs sub-level
+//! precision (the smoothing and Laplacian of template extraction) works on [`FloatImage`].
 
 use std::path::Path;
 
-use rayon::prelude::*;
-
 use crate::error::{FaceError, file_error};
+
+/// A pixel type: 8-bit levels or f32 levels (0–255).
+pub trait Level: Copy + Send + Sync + 'static {
+    fn level(self) -> f32;
+}
+
+impl Level for u8 {
+    fn level(self) -> f32 {
+        f32::from(self)
+    }
+}
+
+impl Level for f32 {
+    fn level(self) -> f32 {
+        self
+    }
+}
 
 /// A gray image, `data[y·width + x]`.
 #[derive(Debug, Clone, PartialEq)]
-pub struct GrayImage {
+pub struct Image<T: Level> {
     pub width: u32,
     pub height: u32,
-    pub data: Vec<f32>,
+    pub data: Vec<T>,
 }
 
-impl GrayImage {
-    /// An image from its pixels; the size must be at least 2×2 (bilinear sampling needs a cell)
-    /// and match the data.
-    pub fn new(width: u32, height: u32, data: Vec<f32>) -> Result<Self, FaceError> {
-        if width < 2 || height < 2 {
-            return Err(FaceError::InvalidInput(format!(
-                "an image must be at least 2x2 pixels, got {width}x{height}"
-            )));
-        }
-        if data.len() != width as usize * height as usize {
-            return Err(FaceError::InvalidInput(format!(
-                "{} pixels for a {width}x{height} image",
-                data.len()
-            )));
-        }
-        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-            return Err(FaceError::InvalidInput(format!("pixel {i} is {}", data[i])));
-        }
-        Ok(Self {
-            width,
-            height,
-            data,
-        })
-    }
+/// A frame: 8-bit gray levels.
+pub type GrayImage = Image<u8>;
 
-    /// An image from 8-bit gray levels (a decoded video frame, say).
-    pub fn from_gray8(width: u32, height: u32, levels: &[u8]) -> Result<Self, FaceError> {
-        Self::new(
-            width,
-            height,
-            levels.iter().map(|&v| f32::from(v)).collect(),
-        )
-    }
+/// Gray levels at f32 precision (smoothed images).
+pub type FloatImage = Image<f32>;
 
-    /// The image at 8 bits, each level rounded and clamped to 0–255 — what an 8-bit camera gives
-    /// and what the GPU kernel reads — written into `out` (resized to the pixel count), rows in
-    /// parallel. Images decoded from files and the synthetic frames are whole levels already,
-    /// so for them this loses nothing.
-    pub fn write_gray8(&self, out: &mut Vec<u8>) {
-        out.resize(self.data.len(), 0);
-        const CHUNK: usize = 1 << 14;
-        out.par_chunks_mut(CHUNK)
-            .zip(self.data.par_chunks(CHUNK))
-            .for_each(|(bytes, levels)| {
-                for (b, &v) in bytes.iter_mut().zip(levels) {
-                    *b = to_level(v);
-                }
-            });
+/// The size check every image shares: at least 2×2 (bilinear sampling needs a cell), and the
+/// data must match the size.
+fn check_size(width: u32, height: u32, len: usize) -> Result<(), FaceError> {
+    if width < 2 || height < 2 {
+        return Err(FaceError::InvalidInput(format!(
+            "an image must be at least 2x2 pixels, got {width}x{height}"
+        )));
     }
-
-    /// A constant image.
-    pub fn filled(width: u32, height: u32, value: f32) -> Result<Self, FaceError> {
-        Self::new(width, height, vec![value; width as usize * height as usize])
+    if len != width as usize * height as usize {
+        return Err(FaceError::InvalidInput(format!(
+            "{len} pixels for a {width}x{height} image"
+        )));
     }
+    Ok(())
+}
 
+impl<T: Level> Image<T> {
+    /// The level at (x, y).
     pub fn at(&self, x: u32, y: u32) -> f32 {
-        self.data[(y * self.width + x) as usize]
+        self.data[(y * self.width + x) as usize].level()
     }
 
     /// Whether (x, y) lies where bilinear sampling has all four neighbours.
@@ -92,8 +81,38 @@ impl GrayImage {
         let bottom = self.at(x0, y0 + 1) * (1.0 - fx) + self.at(x0 + 1, y0 + 1) * fx;
         Some(top * (1.0 - fy) + bottom * fy)
     }
+}
 
-    /// Reads any image the `image` crate decodes (PNG here) as gray levels.
+impl GrayImage {
+    /// A frame from its 8-bit levels; the size must be at least 2×2 and match the data.
+    pub fn new(width: u32, height: u32, data: Vec<u8>) -> Result<Self, FaceError> {
+        check_size(width, height, data.len())?;
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// A frame from levels on the 0–255 scale, each rounded to the nearest 8-bit level (and
+    /// clamped): rendered or computed images. Non-finite levels are an error.
+    pub fn from_levels(width: u32, height: u32, levels: &[f32]) -> Result<Self, FaceError> {
+        check_size(width, height, levels.len())?;
+        if let Some(i) = levels.iter().position(|v| !v.is_finite()) {
+            return Err(FaceError::InvalidInput(format!(
+                "pixel {i} is {}",
+                levels[i]
+            )));
+        }
+        Self::new(width, height, levels.iter().map(|&v| to_level(v)).collect())
+    }
+
+    /// A constant frame.
+    pub fn filled(width: u32, height: u32, level: u8) -> Result<Self, FaceError> {
+        Self::new(width, height, vec![level; width as usize * height as usize])
+    }
+
+    /// Reads any image the `image` crate decodes (PNG here) as 8-bit gray levels.
     pub fn load(path: &Path) -> Result<Self, FaceError> {
         let decoded = image::ImageReader::open(path)
             .map_err(|e| file_error(path, e))?
@@ -101,25 +120,33 @@ impl GrayImage {
             .map_err(|e| file_error(path, e))?
             .decode()
             .map_err(|e| file_error(path, format!("cannot decode the image: {e}")))?;
-        let gray = decoded.to_luma32f();
+        let gray = decoded.to_luma8();
         let (width, height) = gray.dimensions();
-        let data = gray.into_raw().into_iter().map(|v| v * 255.0).collect();
-        Self::new(width, height, data).map_err(|e| file_error(path, e))
+        Self::new(width, height, gray.into_raw()).map_err(|e| file_error(path, e))
     }
 
-    /// Writes the image as an 8-bit gray PNG (values clamped to 0–255).
+    /// Writes the frame as an 8-bit gray PNG.
     pub fn save_png(&self, path: &Path) -> Result<(), FaceError> {
-        let mut bytes = Vec::new();
-        self.write_gray8(&mut bytes);
-        image::GrayImage::from_raw(self.width, self.height, bytes)
+        image::GrayImage::from_raw(self.width, self.height, self.data.clone())
             .ok_or_else(|| file_error(path, "the pixel buffer does not match the size"))?
             .save_with_format(path, image::ImageFormat::Png)
             .map_err(|e| file_error(path, e))
     }
 }
 
-/// A gray level rounded to the nearest of 0–255 (clamped first, so the cast's truncation is a
-/// floor; no call to `round`, so the loop vectorises).
+impl FloatImage {
+    /// An image of f32 levels; the size must be at least 2×2 and match the data.
+    pub fn new(width: u32, height: u32, data: Vec<f32>) -> Result<Self, FaceError> {
+        check_size(width, height, data.len())?;
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+}
+
+/// A level rounded to the nearest of 0–255 (clamped first, so the cast's truncation is a floor).
 fn to_level(v: f32) -> u8 {
     (v.clamp(0.0, 255.0) + 0.5) as u8
 }
@@ -129,16 +156,28 @@ mod tests {
     use super::*;
 
     #[test]
-    fn eight_bit_levels_round_trip_and_round_to_nearest() {
-        let levels: Vec<u8> = (0..=255).collect();
-        let image = GrayImage::from_gray8(16, 16, &levels).unwrap();
-        let mut back = vec![7; 3];
-        image.write_gray8(&mut back);
-        assert_eq!(back, levels);
+    fn levels_round_to_the_nearest_eight_bit_level() {
+        let image = GrayImage::from_levels(3, 2, &[-3.0, 2.49, 2.5, 254.6, 300.0, 0.4]).unwrap();
+        assert_eq!(image.data, [0, 2, 3, 255, 255, 0]);
+        let whole: Vec<f32> = (0..=255).map(|v| v as f32).collect();
+        let image = GrayImage::from_levels(16, 16, &whole).unwrap();
+        assert!(image.data.iter().enumerate().all(|(i, &v)| v as usize == i));
+        assert!(GrayImage::from_levels(2, 2, &[0.0, f32::NAN, 0.0, 0.0]).is_err());
+        assert!(GrayImage::new(3, 3, vec![0; 8]).is_err());
+        assert!(FloatImage::new(1, 3, vec![0.0; 3]).is_err());
+    }
 
-        let image = GrayImage::new(3, 2, vec![-3.0, 2.49, 2.5, 254.6, 300.0, 0.4]).unwrap();
-        image.write_gray8(&mut back);
-        assert_eq!(back, [0, 2, 3, 255, 255, 0]);
-        assert!(GrayImage::from_gray8(3, 3, &levels[..8]).is_err());
+    #[test]
+    fn bilinear_reads_eight_bit_and_float_images_alike() {
+        let levels = [10.0, 20.0, 30.0, 40.0, 50.0, 60.0];
+        let gray = GrayImage::from_levels(3, 2, &levels).unwrap();
+        let float = FloatImage::new(3, 2, levels.to_vec()).unwrap();
+        for (x, y) in [(0.0, 0.0), (0.5, 0.5), (1.25, 0.75), (2.0, 1.0)] {
+            assert_eq!(gray.bilinear(x, y), float.bilinear(x, y));
+        }
+        // (0.5, 0.5): the mean of 10, 20, 40, 50.
+        assert_eq!(gray.bilinear(0.5, 0.5), Some(30.0));
+        assert_eq!(gray.bilinear(2.01, 0.0), None);
+        assert_eq!(gray.bilinear(-0.01, 0.0), None);
     }
 }

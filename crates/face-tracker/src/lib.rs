@@ -26,7 +26,7 @@ pub mod template;
 pub mod tracker;
 
 pub use error::FaceError;
-pub use image::GrayImage;
+pub use image::{FloatImage, GrayImage};
 pub use projection::{DIMS, Pose, rotation};
 pub use template::{FeaturePoint, Template};
 pub use tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};

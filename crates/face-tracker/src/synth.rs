@@ -284,8 +284,8 @@ pub fn render_frame(
     }
     let gain = light_gain(frame);
     for v in &mut data {
-        // Whole levels, as an 8-bit camera would give.
-        *v = (*v * gain).round().clamp(0.0, 255.0);
+        *v *= gain;
     }
-    GrayImage::new(w, h, data)
+    // Rounded to 8 bits, as a camera gives.
+    GrayImage::from_levels(w, h, &data)
 }

@@ -12,7 +12,7 @@ use pf_core::PfError;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
 use pf_core::resample::Systematic;
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
-use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler};
+use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuTime};
 use rayon::prelude::*;
 
 use crate::error::FaceError;
@@ -99,8 +99,7 @@ struct GpuEngine {
     ctx: GpuContext,
     filter: GpuFilter,
     likelihood: FaceLikelihoodGpu,
-    /// The frame at 8 bits, reused: the GPU's upload.
-    gray8: Vec<u8>,
+    last_time: Option<GpuTime>,
 }
 
 pub struct FaceTracker {
@@ -199,7 +198,7 @@ impl FaceTracker {
                     ctx: *ctx,
                     filter,
                     likelihood,
-                    gray8: Vec::new(),
+                    last_time: None,
                 }))
             }
         };
@@ -218,9 +217,16 @@ impl FaceTracker {
         &self.templates
     }
 
-    /// One frame for every face. The GPU reads the frame at 8 bits (`GrayImage::write_gray8`);
-    /// frames from files and the synthetic videos are whole levels, so both backends see the
-    /// same pixels.
+    /// The GPU's time for the last step's submission (timestamps where the adapter has them),
+    /// on the GPU backend after a step.
+    pub fn last_gpu_time(&self) -> Option<GpuTime> {
+        match &self.engine {
+            Engine::Gpu(gpu) => gpu.last_time,
+            Engine::Cpu(_) => None,
+        }
+    }
+
+    /// One frame for every face.
     pub fn step(&mut self, frame: &GrayImage) -> Result<Vec<FaceEstimate>, FaceError> {
         if (frame.width, frame.height) != self.frame_size {
             return Err(FaceError::InvalidInput(format!(
@@ -250,9 +256,9 @@ impl FaceTracker {
                 }
             }
             Engine::Gpu(gpu) => {
-                frame.write_gray8(&mut gpu.gray8);
-                gpu.likelihood.upload_frame(&gpu.ctx, &gpu.gray8)?;
+                gpu.likelihood.upload_frame(&gpu.ctx, &frame.data)?;
                 let report = gpu.filter.step(&gpu.ctx, &gpu.likelihood)?;
+                gpu.last_time = Some(report.time);
                 if report.best_estimates.is_empty() {
                     report.estimates
                 } else {

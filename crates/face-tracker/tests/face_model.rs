@@ -54,10 +54,10 @@ fn projection_matches_hand_computed_cases() {
 #[test]
 fn bilinear_sampling_is_exact_on_a_ramp_and_none_outside() {
     let (w, h) = (7u32, 5u32);
-    let data = (0..w * h)
+    let data: Vec<f32> = (0..w * h)
         .map(|k| (3 * (k % w) + 10 * (k / w)) as f32)
         .collect();
-    let image = GrayImage::new(w, h, data).unwrap();
+    let image = GrayImage::from_levels(w, h, &data).unwrap();
     for (x, y) in [
         (0.0, 0.0),
         (2.25, 1.5),
@@ -75,8 +75,7 @@ fn bilinear_sampling_is_exact_on_a_ramp_and_none_outside() {
 
 #[test]
 fn the_residual_is_zero_on_the_template_and_grows_with_illumination() {
-    let image =
-        GrayImage::new(32, 32, (0..1024).map(|k| 20.0 + (k % 97) as f32).collect()).unwrap();
+    let image = GrayImage::new(32, 32, (0..1024).map(|k| 20 + (k % 97) as u8).collect()).unwrap();
     let points: Vec<FeaturePoint> = (0..50)
         .map(|i| {
             let (x, y) = (3 + (i * 7) % 25, 4 + (i * 3) % 23);
@@ -125,7 +124,7 @@ fn the_generic_model_is_a_head() {
 
 fn blob_image(blobs: &[(f32, f32, f32)]) -> GrayImage {
     let (w, h) = (120u32, 120u32);
-    let data = (0..w * h)
+    let data: Vec<f32> = (0..w * h)
         .map(|k| {
             let (x, y) = ((k % w) as f32, (k / w) as f32);
             128.0
@@ -135,7 +134,7 @@ fn blob_image(blobs: &[(f32, f32, f32)]) -> GrayImage {
                     .sum::<f32>()
         })
         .collect();
-    GrayImage::new(w, h, data).unwrap()
+    GrayImage::from_levels(w, h, &data).unwrap()
 }
 
 #[test]
@@ -185,13 +184,13 @@ fn extraction_finds_known_extrema_in_order() {
 fn extraction_puts_dipoles_across_edges_and_keeps_points_apart() {
     // A vertical step edge at x = 60 (dark left, bright right) with a gentle vertical shading.
     let (w, h) = (120u32, 120u32);
-    let data = (0..w * h)
+    let data: Vec<f32> = (0..w * h)
         .map(|k| {
             let (x, y) = (k % w, k / w);
             (if x < 60 { 60.0 } else { 200.0 }) + 0.05 * y as f32
         })
         .collect();
-    let image = GrayImage::new(w, h, data).unwrap();
+    let image = GrayImage::from_levels(w, h, &data).unwrap();
     let rect = FaceRect {
         x: 20.0,
         y: 20.0,
@@ -238,7 +237,7 @@ fn extraction_puts_dipoles_across_edges_and_keeps_points_apart() {
 
 #[test]
 fn bad_inputs_are_clear_errors() {
-    let image = GrayImage::filled(64, 48, 100.0).unwrap();
+    let image = GrayImage::filled(64, 48, 100).unwrap();
     let model = FaceModel::generic(33).unwrap();
     let config = ExtractionConfig::default();
     let zero = FaceRect {
@@ -285,9 +284,9 @@ fn bad_inputs_are_clear_errors() {
     );
     assert!(Template::new(vec![FeaturePoint::new([0.0; 3], [0.0; 3], 10.0)]).is_err());
     assert!(Template::new(vec![FeaturePoint::new([0.0; 3], [0.0, 0.0, 1.0], 0.0)]).is_err());
-    assert!(GrayImage::new(1, 10, vec![0.0; 10]).is_err());
-    assert!(GrayImage::new(4, 4, vec![0.0; 15]).is_err());
-    assert!(GrayImage::new(2, 2, vec![0.0, 1.0, f32::NAN, 0.0]).is_err());
+    assert!(GrayImage::new(1, 10, vec![0; 10]).is_err());
+    assert!(GrayImage::new(4, 4, vec![0; 15]).is_err());
+    assert!(GrayImage::from_levels(2, 2, &[0.0, 1.0, f32::NAN, 0.0]).is_err());
     let dir = std::env::temp_dir().join(format!("streampf-face-bad-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let text = dir.join("frame.png");
