@@ -194,25 +194,34 @@ fn fig7(c: &mut Criterion) {
     group.finish();
 }
 
-/// The frame's share of a step: uploading it at 8 bits (then an empty submission and the wait),
-/// against uploading it as f32 levels, and the empty submission alone.
+/// The frame's share of a step: the face likelihood's upload of an 8-bit frame (split over the
+/// cores) then an empty submission and the wait, against one upload of the frame as f32 levels,
+/// and the empty submission alone.
 fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
     let mut group = c.benchmark_group("face_frame_upload");
     group.sample_size(10);
     let (frame, ..) = scene(1);
-    let pixels = frame.data.len();
+    let likelihood = FaceLikelihoodGpu::new(
+        ctx,
+        FaceDispatch::Packed,
+        1,
+        1,
+        frame.width,
+        frame.height,
+        1.0,
+        MIN_ERROR,
+        MIN_VISIBLE_SHARE,
+    )
+    .unwrap();
     let floats: Vec<f32> = frame.data.iter().map(|&v| f32::from(v)).collect();
-    let packed = DeviceStream::<u32>::zeroed(ctx, "packed frame", pixels.div_ceil(4)).unwrap();
-    let float_stream = DeviceStream::<f32>::zeroed(ctx, "f32 frame", pixels).unwrap();
+    let float_stream = DeviceStream::<f32>::zeroed(ctx, "f32 frame", floats.len()).unwrap();
     let wait = || {
         let index = ctx.queue.submit([]);
         ctx.wait(Some(index), "the upload").unwrap();
     };
     group.bench_function("upload_8bit", |b| {
         b.iter(|| {
-            packed
-                .upload_bytes_at(ctx, 0, &frame.data[..pixels - pixels % 4])
-                .unwrap();
+            likelihood.upload_frame(ctx, &frame.data).unwrap();
             wait();
         })
     });

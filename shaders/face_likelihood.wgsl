@@ -14,7 +14,9 @@
 // Layouts: states (the filter's, common.wgsl); frame: 8-bit gray levels, pixel i = y * width + x
 // in byte i % 4 (little-endian) of word i / 4, a quarter of an f32 frame's upload; points of
 // face t at [(t * max_points + i) * 2] = (P, J) and [.. + 1] = (N, 0), point_counts[t];
-// log_likelihood and errors [t * M + m].
+// log_likelihood and errors [t * M + m]. weigh_estimates checks each face's pose estimate
+// (pose_estimates [t * 7 + d], the filter's estimate) and writes its epsilon to
+// estimate_errors[t]: the tracker's failure test, without a readback of the frame to the host.
 
 struct FaceParams {
     width: u32,
@@ -36,6 +38,8 @@ struct FaceParams {
 @group(0) @binding(5) var<storage, read> points: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> point_counts: array<u32>;
 @group(0) @binding(7) var<storage, read_write> errors: array<f32>;
+@group(0) @binding(8) var<storage, read> pose_estimates: array<f32>;
+@group(0) @binding(9) var<storage, read_write> estimate_errors: array<f32>;
 
 const WG: u32 = 256u;
 var<workgroup> rho_sums: array<f32, 256>;
@@ -80,15 +84,37 @@ fn bilinear(x: f32, y: f32) -> f32 {
     return top * (1.0 - fy) + bottom * fy;
 }
 
+struct FacePose {
+    tx: f32,
+    ty: f32,
+    scale: f32,
+    r: mat3x3<f32>,
+    alpha: f32,
+}
+
+fn face_pose(v: array<f32, 7>) -> FacePose {
+    return FacePose(v[0], v[1], v[2], rotation_x(v[3]) * rotation_y(v[4]) * rotation_z(v[5]), v[6]);
+}
+
+fn particle_pose(t: u32, m: u32) -> FacePose {
+    var v: array<f32, 7>;
+    for (var d = 0u; d < 7u; d = d + 1u) {
+        v[d] = states[state_index(t, d, m)];
+    }
+    return face_pose(v);
+}
+
+fn estimate_pose(t: u32) -> FacePose {
+    var v: array<f32, 7>;
+    for (var d = 0u; d < 7u; d = d + 1u) {
+        v[d] = pose_estimates[t * 7u + d];
+    }
+    return face_pose(v);
+}
+
 // (sum of rho, number of points facing the camera) over points first, first + step, ... of face
-// t's template for particle m.
-fn accumulate(t: u32, m: u32, first: u32, step: u32) -> vec2<f32> {
-    let tx = states[state_index(t, 0u, m)];
-    let ty = states[state_index(t, 1u, m)];
-    let scale = states[state_index(t, 2u, m)];
-    let r = rotation_x(states[state_index(t, 3u, m)]) * rotation_y(states[state_index(t, 4u, m)])
-        * rotation_z(states[state_index(t, 5u, m)]);
-    let alpha = states[state_index(t, 6u, m)];
+// t's template in pose x.
+fn accumulate(t: u32, x: FacePose, first: u32, step: u32) -> vec2<f32> {
     let count = min(point_counts[t], fp.max_points);
     var rho_sum = 0.0;
     var visible = 0.0;
@@ -96,14 +122,14 @@ fn accumulate(t: u32, m: u32, first: u32, step: u32) -> vec2<f32> {
         let base = (t * fp.max_points + i) * 2u;
         let pj = points[base];
         let n = points[base + 1u].xyz;
-        if ((r * n).z >= 0.0) {
+        if ((x.r * n).z >= 0.0) {
             visible = visible + 1.0;
-            let q = r * pj.xyz;
-            let intensity = bilinear(scale * q.x + tx, scale * q.y + ty);
+            let q = x.r * pj.xyz;
+            let intensity = bilinear(x.scale * q.x + x.tx, x.scale * q.y + x.ty);
             if (intensity < 0.0) {
                 rho_sum = rho_sum + 1.0;
             } else {
-                let kappa = (alpha * intensity - pj.w) / pj.w;
+                let kappa = (x.alpha * intensity - pj.w) / pj.w;
                 let k2 = kappa * kappa;
                 rho_sum = rho_sum + k2 / (k2 + 1.0);
             }
@@ -112,13 +138,36 @@ fn accumulate(t: u32, m: u32, first: u32, step: u32) -> vec2<f32> {
     return vec2<f32>(rho_sum, visible);
 }
 
-// Writes epsilon and the log-likelihood of particle m of face t from its sums.
-fn finish(t: u32, m: u32, rho_sum: f32, shown: f32) {
-    let count = min(point_counts[t], fp.max_points);
-    var epsilon = 1.0;
-    if (shown > 0.0 && shown >= fp.min_visible_share * f32(count)) {
-        epsilon = rho_sum / shown;
+// Sums each group of `lanes` consecutive invocations' (rho, shown) in workgroup memory (lanes a
+// power of two dividing WG; called by the whole workgroup); the group's first invocation gets
+// the total.
+fn reduce_groups(lid: u32, lanes: u32, sums: vec2<f32>) -> vec2<f32> {
+    rho_sums[lid] = sums.x;
+    visible_counts[lid] = sums.y;
+    workgroupBarrier();
+    let lane = lid % lanes;
+    for (var stride = lanes / 2u; stride > 0u; stride = stride / 2u) {
+        if (lane < stride) {
+            rho_sums[lid] = rho_sums[lid] + rho_sums[lid + stride];
+            visible_counts[lid] = visible_counts[lid] + visible_counts[lid + stride];
+        }
+        workgroupBarrier();
     }
+    return vec2<f32>(rho_sums[lid], visible_counts[lid]);
+}
+
+// epsilon of face t from its sums: the mean rho over the points shown, or 1 when too few show.
+fn epsilon_of(t: u32, rho_sum: f32, shown: f32) -> f32 {
+    let count = min(point_counts[t], fp.max_points);
+    if (shown > 0.0 && shown >= fp.min_visible_share * f32(count)) {
+        return rho_sum / shown;
+    }
+    return 1.0;
+}
+
+// Writes epsilon and the log-likelihood of particle m of face t from its sums.
+fn finish(t: u32, m: u32, sums: vec2<f32>) {
+    let epsilon = epsilon_of(t, sums.x, sums.y);
     errors[t * params.particles + m] = epsilon;
     log_likelihood[t * params.particles + m] = -fp.sharpness * log(max(epsilon, fp.min_error));
 }
@@ -133,19 +182,9 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
     if (m >= params.particles || t >= params.targets) {
         return;
     }
-    let sums = accumulate(t, m, lid, WG);
-    rho_sums[lid] = sums.x;
-    visible_counts[lid] = sums.y;
-    workgroupBarrier();
-    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
-        if (lid < stride) {
-            rho_sums[lid] = rho_sums[lid] + rho_sums[lid + stride];
-            visible_counts[lid] = visible_counts[lid] + visible_counts[lid + stride];
-        }
-        workgroupBarrier();
-    }
+    let sums = reduce_groups(lid, WG, accumulate(t, particle_pose(t, m), lid, WG));
     if (lid == 0u) {
-        finish(t, m, rho_sums[0], visible_counts[0]);
+        finish(t, m, sums);
     }
 }
 
@@ -165,19 +204,26 @@ fn weigh_faces_packed(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(wo
     let live = m < params.particles && t < params.targets;
     var sums = vec2<f32>(0.0, 0.0);
     if (live) {
-        sums = accumulate(t, m, lane, LANES);
+        sums = accumulate(t, particle_pose(t, m), lane, LANES);
     }
-    rho_sums[lid] = sums.x;
-    visible_counts[lid] = sums.y;
-    workgroupBarrier();
-    for (var stride = LANES / 2u; stride > 0u; stride = stride / 2u) {
-        if (lane < stride) {
-            rho_sums[lid] = rho_sums[lid] + rho_sums[lid + stride];
-            visible_counts[lid] = visible_counts[lid] + visible_counts[lid + stride];
-        }
-        workgroupBarrier();
-    }
+    let total = reduce_groups(lid, LANES, sums);
     if (live && lane == 0u) {
-        finish(t, m, rho_sums[lid], visible_counts[lid]);
+        finish(t, m, total);
+    }
+}
+
+// epsilon of each face's pose estimate: one workgroup per face (grid y), 256 invocations over
+// its points.
+@compute @workgroup_size(256)
+fn weigh_estimates(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let t = wid.y;
+    // Workgroup-uniform: the whole workgroup leaves together.
+    if (t >= params.targets) {
+        return;
+    }
+    let sums = reduce_groups(lid, WG, accumulate(t, estimate_pose(t), lid, WG));
+    if (lid == 0u) {
+        estimate_errors[t] = epsilon_of(t, sums.x, sums.y);
     }
 }

@@ -225,6 +225,95 @@ fn packed_dispatch_matches_cpu_within_tolerance() {
     check(FaceDispatch::Packed, 10);
 }
 
+/// The check of each face's estimate after a whole step (the tracker's failure test) against
+/// `residual_error` at the estimate the step read back: the best-M′ mean, or the weighted mean
+/// when the filter computes no best-M′ mean.
+#[test]
+fn estimate_check_matches_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("face estimate check") else {
+        return;
+    };
+    let mut runner = TestRunner::new(Config {
+        cases: 8,
+        failure_persistence: None,
+        ..Config::default()
+    });
+    let strategy = (
+        any::<u64>(),
+        1usize..5,
+        prop_oneof![Just(1usize), 2usize..200],
+        prop_oneof![Just(1usize), Just(257), 2usize..300],
+        (2u32..200, 2u32..150),
+        prop_oneof![Just(0usize), 1usize..20],
+    );
+    runner
+        .run(&strategy, |(seed, faces, particles, points, (width, height), best)| {
+            let best = best.min(particles);
+            let mut rng = pf_core::RandomStreams::new(seed).stream(0, pf_core::Stage::Model(4));
+            let image = frame(&mut rng, width, height);
+            let templates: Vec<Template> = (0..faces).map(|_| template(&mut rng, points)).collect();
+            let shape = BatchShape::new(faces, particles, DIMS).unwrap();
+            let mut layout = vec![0.0f32; shape.state_len()];
+            for t in 0..faces {
+                // A cloud around one random pose per face, so that the estimate is a pose too.
+                let centre = state(&mut rng, width, height);
+                for m in 0..particles {
+                    for d in 0..DIMS {
+                        layout[shape.state_index(t, d, m)] =
+                            centre[d] + 0.02 * rng.gaussian_f32() * (1.0 + centre[d].abs());
+                    }
+                }
+            }
+            let config = BatchConfig {
+                shape,
+                seed,
+                sigma: vec![0.0; DIMS],
+                bounds: None,
+                angular: vec![false, false, false, true, true, true, false],
+                ess_threshold: f64::INFINITY,
+                best,
+            };
+            let mut filter =
+                GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();
+            let mut gpu = FaceLikelihoodGpu::new(
+                &ctx,
+                FaceDispatch::Packed,
+                faces,
+                points,
+                width,
+                height,
+                SHARPNESS,
+                MIN_ERROR,
+                MIN_VISIBLE_SHARE,
+            )
+            .unwrap();
+            prop_assert!(gpu.take_estimate_errors().is_err(), "before prepare");
+            gpu.upload_frame(&ctx, &image.data).unwrap();
+            for (f, t) in templates.iter().enumerate() {
+                gpu.upload_template(&ctx, f, &t.gpu_layout()).unwrap();
+            }
+            gpu.prepare(&ctx, &filter.likelihood_inputs()).unwrap();
+            for step in 0..2 {
+                let report = filter.step(&ctx, &gpu).unwrap();
+                let estimates = if best > 0 { &report.best_estimates } else { &report.estimates };
+                let errors = gpu.take_estimate_errors().unwrap();
+                prop_assert!(gpu.take_estimate_errors().is_err(), "a second take without a step");
+                for t in 0..faces {
+                    let s: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
+                    let want = residual_error(&s, &templates[t], &image);
+                    let tol = tolerance(&s, &templates[t], &image, want);
+                    let got = f64::from(errors[t]);
+                    prop_assert!(
+                        (got - want).abs() <= tol,
+                        "step {step} face {t}: GPU ε {got} vs CPU {want} (tolerance {tol}), estimate {s:?}"
+                    );
+                }
+            }
+            Ok(())
+        })
+        .unwrap();
+}
+
 #[test]
 fn invalid_face_setups_are_typed_errors() {
     let Some(ctx) = common::gpu_context("face setups") else {

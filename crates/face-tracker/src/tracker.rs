@@ -235,7 +235,11 @@ impl FaceTracker {
             )));
         }
         let faces = self.templates.len();
-        let estimates: Vec<f32> = match &mut self.engine {
+        let state_of = |estimates: &[f32], t: usize| -> [f32; DIMS] {
+            std::array::from_fn(|d| estimates[t * DIMS + d])
+        };
+        // Each face's estimate and its ε (the failure test's input).
+        let checked: Vec<([f32; DIMS], f64)> = match &mut self.engine {
             Engine::Cpu(filter) => {
                 let (templates, sharpness) = (&self.templates, self.config.sharpness);
                 let report = filter.step_batched(|shape, states, out| {
@@ -249,33 +253,37 @@ impl FaceTracker {
                     });
                     Ok::<(), PfError>(())
                 })?;
-                if report.best_estimates.is_empty() {
+                let estimates = if report.best_estimates.is_empty() {
                     report.estimates
                 } else {
                     report.best_estimates
-                }
+                };
+                // Faces in parallel (at 64 faces this is 15 000 points).
+                (0..faces)
+                    .into_par_iter()
+                    .map(|t| {
+                        let state = state_of(&estimates, t);
+                        (state, residual_error(&state, &self.templates[t], frame))
+                    })
+                    .collect()
             }
             Engine::Gpu(gpu) => {
                 gpu.likelihood.upload_frame(&gpu.ctx, &frame.data)?;
                 let report = gpu.filter.step(&gpu.ctx, &gpu.likelihood)?;
                 gpu.last_time = Some(report.time);
-                if report.best_estimates.is_empty() {
+                let estimates = if report.best_estimates.is_empty() {
                     report.estimates
                 } else {
                     report.best_estimates
-                }
+                };
+                // The GPU weighed the estimates in the step's submission.
+                let errors = gpu.likelihood.take_estimate_errors()?;
+                (0..faces)
+                    .map(|t| (state_of(&estimates, t), f64::from(errors[t])))
+                    .collect()
             }
         };
         let mut out = Vec::with_capacity(faces);
-        // ε of every face's estimate, faces in parallel (at 64 faces this is 15 000 points).
-        let checked: Vec<([f32; DIMS], f64)> = (0..faces)
-            .into_par_iter()
-            .map(|t| {
-                let mut state = [0.0f32; DIMS];
-                state.copy_from_slice(&estimates[t * DIMS..(t + 1) * DIMS]);
-                (state, residual_error(&state, &self.templates[t], frame))
-            })
-            .collect();
         for (t, (state, error)) in checked.into_iter().enumerate() {
             if self.status[t] == TrackStatus::Tracking {
                 self.bad_frames[t] = if error > f64::from(self.config.failure_error) {

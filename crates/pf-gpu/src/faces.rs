@@ -6,12 +6,15 @@
 //! ε per particle for failure detection. CPU twin: `face_tracker::likelihood::residual_error`.
 
 use bytemuck::{Pod, Zeroable};
+use rayon::prelude::*;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{GpuLikelihood, LikelihoodInputs};
 use crate::kernels::{Kernel, sources, stage_source};
-use crate::stream::DeviceStream;
+use std::sync::Mutex;
+
+use crate::stream::{DeviceStream, PendingMap, Readback};
 
 /// How the faces of a frame are dispatched.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -25,6 +28,10 @@ pub enum FaceDispatch {
     /// one dispatch: the tracker's choice.
     Packed,
 }
+
+/// The smallest share of a frame upload given to one core (bytes): below this, splitting costs
+/// more than it saves.
+const UPLOAD_CHUNK_MIN: usize = 64 * 1024;
 
 /// Particles per workgroup of the packed kernel (`PACKED` in the shader).
 const PACKED: usize = 4;
@@ -42,6 +49,15 @@ struct FaceParams {
     _pad: u32,
 }
 
+/// The check of each face's estimate: ε per face, read back in the step's submission.
+struct EstimateCheck {
+    group: wgpu::BindGroup,
+    errors: DeviceStream<f32>,
+    back: Readback<f32>,
+    /// The map requested before the step's wait, collected by `take_estimate_errors`.
+    pending: Mutex<Option<PendingMap>>,
+}
+
 /// The face likelihood for `faces` faces of up to `max_points` points on `width × height` frames.
 pub struct FaceLikelihoodGpu {
     dispatch: FaceDispatch,
@@ -54,6 +70,9 @@ pub struct FaceLikelihoodGpu {
     points: DeviceStream<[f32; 4]>,
     counts: DeviceStream<u32>,
     errors: Option<DeviceStream<f32>>,
+    /// ε of each face's pose estimate, computed after the filter's Estimate stage.
+    estimate_check: Option<EstimateCheck>,
+    estimate_kernel: Kernel,
     /// One parameter buffer per dispatch (face offsets 0.. for PerFace, one for Batched).
     params: Vec<wgpu::Buffer>,
     kernel: Kernel,
@@ -104,6 +123,12 @@ impl FaceLikelihoodGpu {
             &stage_source(sources::FACE_LIKELIHOOD),
             entry,
         )?;
+        let estimate_kernel = Kernel::new(
+            ctx,
+            "face estimate check",
+            &stage_source(sources::FACE_LIKELIHOOD),
+            "weigh_estimates",
+        )?;
         let offsets: Vec<u32> = match dispatch {
             FaceDispatch::PerFace => (0..faces as u32).collect(),
             FaceDispatch::Batched | FaceDispatch::Packed => vec![0],
@@ -142,6 +167,8 @@ impl FaceLikelihoodGpu {
             points,
             counts,
             errors: None,
+            estimate_check: None,
+            estimate_kernel,
             params,
             kernel,
             groups: Vec::new(),
@@ -165,7 +192,15 @@ impl FaceLikelihoodGpu {
         }
         // Writes are whole words: a frame whose pixel count is not a multiple of four is padded.
         let whole = pixels - pixels % 4;
-        self.frame.upload_bytes_at(ctx, 0, &gray[..whole])?;
+        // A queued write is copied into staging memory at once, and that copy is the cost of an
+        // upload (0.77 MB at 1024x768): split it over the cores, each chunk its own write.
+        let chunk = (whole / rayon::current_num_threads().max(1))
+            .max(UPLOAD_CHUNK_MIN)
+            .next_multiple_of(4);
+        gray[..whole]
+            .par_chunks(chunk)
+            .enumerate()
+            .try_for_each(|(i, bytes)| self.frame.upload_bytes_at(ctx, i * chunk, bytes))?;
         if whole < pixels {
             let mut tail = [0u8; 4];
             tail[..pixels - whole].copy_from_slice(&gray[whole..]);
@@ -206,6 +241,24 @@ impl FaceLikelihoodGpu {
                 "the face likelihood has not been prepared for a filter".into(),
             )),
         }
+    }
+
+    /// ε of each face's pose estimate (`[t]`) from the last step that ran the Estimate stage:
+    /// the same ε as the particles' (the CPU twin is `residual_error` at the estimate), read back
+    /// behind the step's wait. Errors when no step has run since the last call.
+    pub fn take_estimate_errors(&self) -> Result<Vec<f32>, GpuError> {
+        let check = self.estimate_check.as_ref().ok_or_else(|| {
+            GpuError::InvalidConfig("the face likelihood has not been prepared for a filter".into())
+        })?;
+        let pending = check
+            .pending
+            .lock()
+            .map_err(|_| GpuError::InvalidConfig("a readback panicked".into()))?
+            .take()
+            .ok_or_else(|| {
+                GpuError::InvalidConfig("no filter step has run since the last readback".into())
+            })?;
+        check.back.collect(pending)
     }
 
     /// The per-particle ε stream, for a readback in the frame's submission.
@@ -249,6 +302,25 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             .collect::<Result<_, _>>()?;
         self.errors = Some(errors);
         self.particles = shape.particles as u32;
+        let estimate_errors = DeviceStream::zeroed(ctx, "face estimate errors", self.faces)?;
+        let group = self.estimate_kernel.bind(
+            ctx,
+            &[
+                (0, inputs.params.as_entire_binding()),
+                (3, self.params[0].as_entire_binding()),
+                (4, self.frame.binding()),
+                (5, self.points.binding()),
+                (6, self.counts.binding()),
+                (8, inputs.estimates.binding()),
+                (9, estimate_errors.binding()),
+            ],
+        )?;
+        self.estimate_check = Some(EstimateCheck {
+            group,
+            back: Readback::new(ctx, "face estimate errors readback", self.faces)?,
+            errors: estimate_errors,
+            pending: Mutex::new(None),
+        });
         Ok(())
     }
 
@@ -264,5 +336,32 @@ impl GpuLikelihood for FaceLikelihoodGpu {
         for group in &self.groups {
             self.kernel.record(pass, group, [x, y, 1]);
         }
+    }
+
+    fn record_after_estimate(&self, pass: &mut wgpu::ComputePass<'_>) {
+        if let Some(check) = &self.estimate_check {
+            self.estimate_kernel
+                .record(pass, &check.group, [1, self.faces as u32, 1]);
+        }
+    }
+
+    fn record_readbacks(&self, encoder: &mut wgpu::CommandEncoder) {
+        if let Some(check) = &self.estimate_check {
+            check.back.record_copy(encoder, &check.errors);
+        }
+    }
+
+    fn request_maps(&self) {
+        let Some(check) = &self.estimate_check else {
+            return;
+        };
+        let Ok(mut pending) = check.pending.lock() else {
+            return;
+        };
+        // A map nobody collected is released first (a buffer cannot be mapped twice).
+        if let Some(stale) = pending.take() {
+            let _ = check.back.collect(stale);
+        }
+        *pending = Some(check.back.request_map());
     }
 }

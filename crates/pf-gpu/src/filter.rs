@@ -91,6 +91,9 @@ pub struct LikelihoodInputs<'a> {
     pub states: &'a DeviceStream<f32>,
     /// Where the likelihood writes `log p(z | x)`, `[t·M + m]`.
     pub log_likelihood: &'a DeviceStream<f32>,
+    /// The step's estimate per target, `[t·D + d]`: the best-M′ weighted mean where the filter
+    /// computes one, else the weighted mean (written by the Estimate stage).
+    pub estimates: &'a DeviceStream<f32>,
 }
 
 /// An observation model on the GPU. A tracker builds its pipelines and bind groups once in
@@ -98,6 +101,17 @@ pub struct LikelihoodInputs<'a> {
 pub trait GpuLikelihood {
     fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError>;
     fn record(&self, pass: &mut wgpu::ComputePass<'_>);
+
+    /// Work on the step's estimates (a tracker's check of its estimate, say), recorded after
+    /// the Estimate stage in the same pass.
+    fn record_after_estimate(&self, _pass: &mut wgpu::ComputePass<'_>) {}
+
+    /// Copies into the likelihood's own readbacks, recorded at the end of a step that ran the
+    /// Estimate stage; [`GpuLikelihood::request_maps`] follows before the step's one wait.
+    fn record_readbacks(&self, _encoder: &mut wgpu::CommandEncoder) {}
+
+    /// Asks for the likelihood's readbacks to be mapped, so that they share the step's wait.
+    fn request_maps(&self) {}
 }
 
 /// What one GPU step read back.
@@ -506,6 +520,11 @@ impl GpuFilter {
             params: &self.params_buffer,
             states: &self.states,
             log_likelihood: &self.log_likelihood,
+            estimates: if self.best_back.is_some() {
+                &self.best_estimates
+            } else {
+                &self.estimates
+            },
         }
     }
 
@@ -595,7 +614,11 @@ impl GpuFilter {
                 if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
                     k.record(&mut pass, g, per_target);
                 }
+                likelihood.record_after_estimate(&mut pass);
             }
+        }
+        if wants(GpuStage::Estimate) {
+            likelihood.record_readbacks(encoder);
         }
         self.estimates_back.record_copy(encoder, &self.estimates);
         if let Some(back) = &self.best_back {
@@ -633,6 +656,9 @@ impl GpuFilter {
         let stats_map = self.stats_back.request_map();
         let best_map = self.best_back.as_ref().map(|back| back.request_map());
         let timer_map = self.timer.as_ref().map(|timer| timer.request_map());
+        if stages.contains(&GpuStage::Estimate) {
+            likelihood.request_maps();
+        }
         ctx.wait(Some(submission), "the filter step")?;
         let wall = started.elapsed();
         let estimates = self.estimates_back.collect(estimates_map)?;

@@ -228,11 +228,15 @@ impl<T: Pod> Readback<T> {
             what: self.label.clone(),
             message,
         };
-        pending
-            .receiver
-            .try_recv()
-            .map_err(|_| failed("the buffer was not mapped by the wait".into()))?
-            .map_err(|e| failed(e.to_string()))?;
+        let mapped = match pending.receiver.try_recv() {
+            Ok(result) => result.map_err(|e| failed(e.to_string())),
+            Err(_) => Err(failed("the buffer was not mapped by the wait".into())),
+        };
+        if let Err(e) = mapped {
+            // Ends a map still pending, so that the buffer can be mapped again.
+            self.staging.unmap();
+            return Err(e);
+        }
         let values = {
             let view = self
                 .staging
