@@ -92,24 +92,33 @@ struct FacePose {
     alpha: f32,
 }
 
-fn face_pose(v: array<f32, 7>) -> FacePose {
-    return FacePose(v[0], v[1], v[2], rotation_x(v[3]) * rotation_y(v[4]) * rotation_z(v[5]), v[6]);
+fn face_pose(tx: f32, ty: f32, scale: f32, rx: f32, ry: f32, rz: f32, alpha: f32) -> FacePose {
+    return FacePose(tx, ty, scale, rotation_x(rx) * rotation_y(ry) * rotation_z(rz), alpha);
 }
 
 fn particle_pose(t: u32, m: u32) -> FacePose {
-    var v: array<f32, 7>;
-    for (var d = 0u; d < 7u; d = d + 1u) {
-        v[d] = states[state_index(t, d, m)];
-    }
-    return face_pose(v);
+    return face_pose(
+        states[state_index(t, 0u, m)],
+        states[state_index(t, 1u, m)],
+        states[state_index(t, 2u, m)],
+        states[state_index(t, 3u, m)],
+        states[state_index(t, 4u, m)],
+        states[state_index(t, 5u, m)],
+        states[state_index(t, 6u, m)],
+    );
 }
 
 fn estimate_pose(t: u32) -> FacePose {
-    var v: array<f32, 7>;
-    for (var d = 0u; d < 7u; d = d + 1u) {
-        v[d] = pose_estimates[t * 7u + d];
-    }
-    return face_pose(v);
+    let b = t * 7u;
+    return face_pose(
+        pose_estimates[b],
+        pose_estimates[b + 1u],
+        pose_estimates[b + 2u],
+        pose_estimates[b + 3u],
+        pose_estimates[b + 4u],
+        pose_estimates[b + 5u],
+        pose_estimates[b + 6u],
+    );
 }
 
 // (sum of rho, number of points facing the camera) over points first, first + step, ... of face

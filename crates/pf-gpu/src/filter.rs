@@ -12,7 +12,7 @@ use pf_core::{PfError, Stage};
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::kernels::{Kernel, sources, stage_source};
-use crate::stream::{DeviceStream, Readback};
+use crate::stream::{DeviceStream, ReadbackSet};
 use crate::timing::{GpuTime, StepTimer};
 
 /// The per-frame parameters, `Params` in `shaders/common.wgsl`.
@@ -168,9 +168,10 @@ pub struct GpuFilter {
     /// The resample stage: one to five dispatches depending on the resampler and M.
     resample_steps: Vec<Dispatch>,
     _block_sums: DeviceStream<f32>,
-    estimates_back: Readback<f32>,
-    best_back: Option<Readback<f32>>,
-    stats_back: Readback<TargetStats>,
+    /// The step's readbacks in one staging buffer: estimates, statistics, best-M′ estimates
+    /// (empty without them) and the timestamps (empty without a timer).
+    step_back: ReadbackSet,
+    has_best: bool,
     timer: Option<StepTimer>,
     step: u64,
 }
@@ -178,6 +179,12 @@ pub struct GpuFilter {
 fn groups_for(count: usize, size: usize) -> u32 {
     count.div_ceil(size) as u32
 }
+
+/// The sections of a step's readback.
+const STEP_BACK_ESTIMATES: usize = 0;
+const STEP_BACK_STATS: usize = 1;
+const STEP_BACK_BEST: usize = 2;
+const STEP_BACK_TICKS: usize = 3;
 
 /// Above this many particles per target, systematic and stratified resampling scan the weights
 /// device-wide (four dispatches) instead of in one workgroup per target.
@@ -470,22 +477,24 @@ impl GpuFilter {
                 None => None,
             },
         };
+        let estimate_bytes = (shape.targets * shape.dims * 4) as u64;
+        let timer = StepTimer::new(ctx)?;
         Ok(Self {
             shape,
             params,
             params_buffer,
-            estimates_back: Readback::new(ctx, "estimates readback", shape.targets * shape.dims)?,
-            stats_back: Readback::new(ctx, "stats readback", shape.targets)?,
-            best_back: if config.best > 0 {
-                Some(Readback::new(
-                    ctx,
-                    "best-M' readback",
-                    shape.targets * shape.dims,
-                )?)
-            } else {
-                None
-            },
-            timer: StepTimer::new(ctx)?,
+            step_back: ReadbackSet::new(
+                ctx,
+                "step readback",
+                &[
+                    estimate_bytes,
+                    (shape.targets * std::mem::size_of::<TargetStats>()) as u64,
+                    if config.best > 0 { estimate_bytes } else { 0 },
+                    if timer.is_some() { 16 } else { 0 },
+                ],
+            )?,
+            has_best: config.best > 0,
+            timer,
             states,
             selected,
             log_weights,
@@ -520,7 +529,7 @@ impl GpuFilter {
             params: &self.params_buffer,
             states: &self.states,
             log_likelihood: &self.log_likelihood,
-            estimates: if self.best_back.is_some() {
+            estimates: if self.has_best {
                 &self.best_estimates
             } else {
                 &self.estimates
@@ -620,11 +629,12 @@ impl GpuFilter {
         if wants(GpuStage::Estimate) {
             likelihood.record_readbacks(encoder);
         }
-        self.estimates_back.record_copy(encoder, &self.estimates);
-        if let Some(back) = &self.best_back {
-            back.record_copy(encoder, &self.best_estimates);
-        }
-        self.stats_back.record_copy(encoder, &self.stats);
+        self.step_back
+            .record_copy(encoder, STEP_BACK_ESTIMATES, self.estimates.buffer());
+        self.step_back
+            .record_copy(encoder, STEP_BACK_STATS, self.stats.buffer());
+        self.step_back
+            .record_copy(encoder, STEP_BACK_BEST, self.best_estimates.buffer());
     }
 
     /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.
@@ -648,28 +658,27 @@ impl GpuFilter {
             self.record_stages(ctx, &mut encoder, stages, likelihood);
             if let Some(timer) = &self.timer {
                 timer.end(&mut encoder);
+                self.step_back
+                    .record_copy(&mut encoder, STEP_BACK_TICKS, timer.resolved());
             }
             ctx.queue.submit([encoder.finish()])
         })?;
         // Every readback is mapped behind one wait: one poll a frame.
-        let estimates_map = self.estimates_back.request_map();
-        let stats_map = self.stats_back.request_map();
-        let best_map = self.best_back.as_ref().map(|back| back.request_map());
-        let timer_map = self.timer.as_ref().map(|timer| timer.request_map());
+        let step_map = self.step_back.request_map();
         if stages.contains(&GpuStage::Estimate) {
             likelihood.request_maps();
         }
         ctx.wait(Some(submission), "the filter step")?;
         let wall = started.elapsed();
-        let estimates = self.estimates_back.collect(estimates_map)?;
-        let stats = self.stats_back.collect(stats_map)?;
-        let best_estimates = match (&self.best_back, best_map) {
-            (Some(back), Some(pending)) => back.collect(pending)?,
-            _ => Vec::new(),
-        };
-        let time = match (&self.timer, timer_map) {
-            (Some(timer), Some(pending)) => GpuTime::Timestamps(timer.collect(pending)?),
-            _ => GpuTime::WallClock(wall),
+        let sections = self.step_back.collect(step_map)?;
+        let estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_ESTIMATES]);
+        let stats = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_STATS]);
+        let best_estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_BEST]);
+        let time = match &self.timer {
+            Some(timer) => GpuTime::Timestamps(
+                timer.elapsed(&bytemuck::pod_collect_to_vec(&sections[STEP_BACK_TICKS])),
+            ),
+            None => GpuTime::WallClock(wall),
         };
         Ok(GpuStepReport {
             estimates,

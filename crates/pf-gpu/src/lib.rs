@@ -30,5 +30,5 @@ pub use filter::{
     NoLikelihood, TargetStats,
 };
 pub use kernels::Kernel;
-pub use stream::{DeviceStream, Readback};
+pub use stream::{DeviceStream, Readback, ReadbackSet};
 pub use timing::GpuTime;

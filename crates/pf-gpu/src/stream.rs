@@ -224,28 +224,8 @@ impl<T: Pod> Readback<T> {
         if self.len == 0 {
             return Ok(Vec::new());
         }
-        let failed = |message: String| GpuError::Readback {
-            what: self.label.clone(),
-            message,
-        };
-        let mapped = match pending.receiver.try_recv() {
-            Ok(result) => result.map_err(|e| failed(e.to_string())),
-            Err(_) => Err(failed("the buffer was not mapped by the wait".into())),
-        };
-        if let Err(e) = mapped {
-            // Ends a map still pending, so that the buffer can be mapped again.
-            self.staging.unmap();
-            return Err(e);
-        }
-        let values = {
-            let view = self
-                .staging
-                .get_mapped_range(0..self.bytes())
-                .map_err(|e| failed(e.to_string()))?;
-            bytemuck::cast_slice::<u8, T>(&view).to_vec()
-        };
-        self.staging.unmap();
-        Ok(values)
+        let bytes = read_mapped(&self.staging, &self.label, pending, 0..self.bytes())?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 
     fn bytes(&self) -> u64 {
@@ -257,4 +237,107 @@ impl<T: Pod> Readback<T> {
 #[derive(Debug)]
 pub struct PendingMap {
     receiver: std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+}
+
+/// The bytes of `range` of a staging buffer whose map was requested before the wait; unmaps it
+/// (also on failure, which ends a map still pending so that the buffer can be mapped again).
+fn read_mapped(
+    staging: &wgpu::Buffer,
+    label: &str,
+    pending: PendingMap,
+    range: std::ops::Range<u64>,
+) -> Result<Vec<u8>, GpuError> {
+    let failed = |message: String| GpuError::Readback {
+        what: label.to_string(),
+        message,
+    };
+    let mapped = match pending.receiver.try_recv() {
+        Ok(result) => result.map_err(|e| failed(e.to_string())),
+        Err(_) => Err(failed("the buffer was not mapped by the wait".into())),
+    };
+    let bytes = mapped.and_then(|()| {
+        staging
+            .get_mapped_range(range)
+            .map(|view| view.to_vec())
+            .map_err(|e| failed(e.to_string()))
+    });
+    staging.unmap();
+    bytes
+}
+
+/// Several readbacks in one staging buffer: each source is copied into its own section and the
+/// frame maps the buffer once (one map and one unmap a frame, not one per stream).
+#[derive(Debug)]
+pub struct ReadbackSet {
+    staging: wgpu::Buffer,
+    /// (byte offset, byte length) per section; offsets 8-byte aligned.
+    sections: Vec<(u64, u64)>,
+    label: String,
+}
+
+impl ReadbackSet {
+    /// A set with one section of each of `section_bytes` (each a multiple of 4 bytes).
+    pub fn new(ctx: &GpuContext, label: &str, section_bytes: &[u64]) -> Result<Self, GpuError> {
+        let mut sections = Vec::with_capacity(section_bytes.len());
+        let mut end = 0u64;
+        for &bytes in section_bytes {
+            if !bytes.is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT) {
+                return Err(GpuError::InvalidConfig(format!(
+                    "readback {label}: a section of {bytes} bytes is not a whole number of words"
+                )));
+            }
+            let offset = end.next_multiple_of(8);
+            sections.push((offset, bytes));
+            end = offset + bytes;
+        }
+        let size = end.max(8);
+        ctx.check_buffer_size(label, size)?;
+        let staging = ctx.scoped(&format!("creating staging buffer {label}"), || {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size,
+                usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        })?;
+        Ok(Self {
+            staging,
+            sections,
+            label: label.to_string(),
+        })
+    }
+
+    /// Records a copy of the start of `source` into section `section` (its whole length).
+    pub fn record_copy(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        section: usize,
+        source: &wgpu::Buffer,
+    ) {
+        let (offset, bytes) = self.sections[section];
+        if bytes > 0 {
+            encoder.copy_buffer_to_buffer(source, 0, &self.staging, offset, bytes);
+        }
+    }
+
+    /// As [`Readback::request_map`].
+    pub fn request_map(&self) -> PendingMap {
+        let (sender, receiver) = std::sync::mpsc::channel();
+        self.staging
+            .map_async(wgpu::MapMode::Read, .., move |result| {
+                let _ = sender.send(result);
+            });
+        PendingMap { receiver }
+    }
+
+    /// Each section's bytes after the wait, in the order of `new`'s sections (cast them with
+    /// `bytemuck::pod_collect_to_vec`).
+    pub fn collect(&self, pending: PendingMap) -> Result<Vec<Vec<u8>>, GpuError> {
+        let bytes = read_mapped(&self.staging, &self.label, pending, 0..self.staging.size())?;
+        Ok(self
+            .sections
+            .iter()
+            .map(|&(offset, len)| bytes[offset as usize..(offset + len) as usize].to_vec())
+            .collect())
+    }
 }

@@ -34,7 +34,6 @@ impl GpuTime {
 pub struct StepTimer {
     query_set: wgpu::QuerySet,
     resolved: wgpu::Buffer,
-    readback: crate::stream::Readback<u64>,
     period_ns: f64,
 }
 
@@ -61,7 +60,6 @@ impl StepTimer {
         Ok(Some(Self {
             query_set,
             resolved,
-            readback: crate::stream::Readback::new(ctx, "timestamps readback", 2)?,
             period_ns: f64::from(ctx.queue.get_timestamp_period()),
         }))
     }
@@ -70,28 +68,24 @@ impl StepTimer {
         encoder.write_timestamp(&self.query_set, 0);
     }
 
-    /// Writes the end timestamp and records the resolve and the copy to the staging buffer.
+    /// Writes the end timestamp and resolves both into [`StepTimer::resolved`] (two u64 ticks),
+    /// for the caller to copy into its readback.
     pub fn end(&self, encoder: &mut wgpu::CommandEncoder) {
         encoder.write_timestamp(&self.query_set, 1);
         encoder.resolve_query_set(&self.query_set, 0..2, &self.resolved, 0);
-        self.readback.record_raw_copy(encoder, &self.resolved);
     }
 
-    /// The elapsed GPU time of the last submitted step (after its completion).
-    pub fn read(&self, ctx: &GpuContext) -> Result<Duration, GpuError> {
-        let pending = self.request_map();
-        ctx.wait(None, "reading back the timestamps")?;
-        self.collect(pending)
+    /// The resolved ticks (16 bytes).
+    pub fn resolved(&self) -> &wgpu::Buffer {
+        &self.resolved
     }
 
-    /// As [`crate::stream::Readback::request_map`]: the map, to be collected after a shared wait.
-    pub fn request_map(&self) -> crate::stream::PendingMap {
-        self.readback.request_map()
-    }
-
-    pub fn collect(&self, pending: crate::stream::PendingMap) -> Result<Duration, GpuError> {
-        let ticks = self.readback.collect(pending)?;
-        let elapsed = ticks[1].saturating_sub(ticks[0]) as f64 * self.period_ns;
-        Ok(Duration::from_nanos(elapsed as u64))
+    /// The time between the two resolved ticks.
+    pub fn elapsed(&self, ticks: &[u64]) -> Duration {
+        let elapsed = match ticks {
+            [start, end] => end.saturating_sub(*start) as f64 * self.period_ns,
+            _ => 0.0,
+        };
+        Duration::from_nanos(elapsed as u64)
     }
 }
