@@ -15,6 +15,7 @@
 //! - [`tracker`]: several faces at once, each its own filter, on the CPU or the GPU, with
 //!   failure detection.
 
+pub mod detect;
 pub mod error;
 pub mod extraction;
 pub mod image;

@@ -1,0 +1,387 @@
+//! Viola–Jones face detection with OpenCV's Haar cascades, in Rust (no OpenCV at run time).
+//!
+//! As OpenCV's `CascadeClassifier::detectMultiScale`: the frame is shrunk by `scale_factor` per
+//! level (bilinear), the cascade's window slides over each level (step 2, 1 once the frame is
+//! shrunk more than twice; a window rejected by the first stage also skips the next position),
+//! each window is variance-normalised by its integral and squared-integral images (windows of
+//! standard deviation below about 10 gray levels are skipped), and the hits are grouped:
+//! rectangles within `eps = 0.2` of each other form a cluster, clusters of at most
+//! `min_neighbors` hits are dropped, the rest are averaged, and a cluster inside a stronger one
+//! is dropped.
+
+pub mod cascade;
+
+use rayon::prelude::*;
+
+pub use cascade::Cascade;
+
+use crate::error::FaceError;
+use crate::image::GrayImage;
+
+/// A detected face: a rectangle in frame pixels, and how many raw hits it groups.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Detection {
+    pub x: i32,
+    pub y: i32,
+    pub width: i32,
+    pub height: i32,
+    pub neighbors: usize,
+}
+
+impl Detection {
+    /// Intersection over union with another rectangle.
+    pub fn iou(&self, other: &Detection) -> f64 {
+        let ix = (self.x + self.width).min(other.x + other.width) - self.x.max(other.x);
+        let iy = (self.y + self.height).min(other.y + other.height) - self.y.max(other.y);
+        if ix <= 0 || iy <= 0 {
+            return 0.0;
+        }
+        let inter = f64::from(ix) * f64::from(iy);
+        let union = f64::from(self.width) * f64::from(self.height)
+            + f64::from(other.width) * f64::from(other.height)
+            - inter;
+        inter / union
+    }
+}
+
+/// The detector's settings (OpenCV's `detectMultiScale` arguments).
+#[derive(Debug, Clone, PartialEq)]
+pub struct DetectConfig {
+    /// The shrink factor between pyramid levels (> 1).
+    pub scale_factor: f64,
+    /// A cluster needs more than this many raw hits.
+    pub min_neighbors: usize,
+    /// The smallest face searched for (pixels; the cascade's window when smaller).
+    pub min_size: u32,
+    /// The largest face searched for (pixels; the frame when `None`).
+    pub max_size: Option<u32>,
+}
+
+impl Default for DetectConfig {
+    fn default() -> Self {
+        Self {
+            scale_factor: 1.1,
+            min_neighbors: 3,
+            min_size: 30,
+            max_size: None,
+        }
+    }
+}
+
+impl DetectConfig {
+    pub fn validate(&self) -> Result<(), FaceError> {
+        if !(self.scale_factor.is_finite() && self.scale_factor > 1.0) {
+            return Err(FaceError::InvalidInput(format!(
+                "the scale factor must be > 1, got {}",
+                self.scale_factor
+            )));
+        }
+        if let Some(max) = self.max_size
+            && max < self.min_size
+        {
+            return Err(FaceError::InvalidInput(format!(
+                "the largest face ({max} px) is smaller than the smallest ({} px)",
+                self.min_size
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Grouping tolerance (OpenCV's `groupRectangles` eps).
+const GROUP_EPS: f64 = 0.2;
+
+impl Cascade {
+    /// The faces in `frame`.
+    pub fn detect(
+        &self,
+        frame: &GrayImage,
+        config: &DetectConfig,
+    ) -> Result<Vec<Detection>, FaceError> {
+        config.validate()?;
+        let mut hits = Vec::new();
+        let mut factor = 1.0f64;
+        loop {
+            let window = (
+                (f64::from(self.width) * factor).round_ties_even() as u32,
+                (f64::from(self.height) * factor).round_ties_even() as u32,
+            );
+            let scaled = (
+                (f64::from(frame.width) / factor).round_ties_even() as u32,
+                (f64::from(frame.height) / factor).round_ties_even() as u32,
+            );
+            if scaled.0 <= self.width || scaled.1 <= self.height {
+                break;
+            }
+            if config
+                .max_size
+                .is_some_and(|max| window.0 > max || window.1 > max)
+            {
+                break;
+            }
+            if window.0 >= config.min_size && window.1 >= config.min_size {
+                let level = Level::new(&resize(frame, scaled.0, scaled.1));
+                let step = if factor > 2.0 { 1 } else { 2 };
+                hits.extend(self.scan(&level, step, factor, window));
+            }
+            factor *= config.scale_factor;
+        }
+        Ok(group(&hits, config.min_neighbors))
+    }
+
+    /// Every window of one pyramid level that passes the cascade, in frame pixels.
+    fn scan(&self, level: &Level, step: usize, factor: f64, window: (u32, u32)) -> Vec<Detection> {
+        let (w, h) = (self.width as usize, self.height as usize);
+        let rows: Vec<usize> = (0..level.height - h).step_by(step).collect();
+        rows.par_iter()
+            .flat_map_iter(|&y| {
+                let mut found = Vec::new();
+                let mut x = 0;
+                while x < level.width - w {
+                    match self.run_at(level, x, y) {
+                        Verdict::Face => found.push(Detection {
+                            x: (x as f64 * factor).round_ties_even() as i32,
+                            y: (y as f64 * factor).round_ties_even() as i32,
+                            width: window.0 as i32,
+                            height: window.1 as i32,
+                            neighbors: 1,
+                        }),
+                        // Rejected by the first stage: the next window is skipped too.
+                        Verdict::FirstStage => x += step,
+                        Verdict::Later | Verdict::Flat => {}
+                    }
+                    x += step;
+                }
+                found
+            })
+            .collect()
+    }
+
+    fn run_at(&self, level: &Level, x: usize, y: usize) -> Verdict {
+        let (w, h) = (self.width as usize, self.height as usize);
+        // The variance over the window less a one-pixel border.
+        let area = ((w - 2) * (h - 2)) as f64;
+        let sum = level.sum(x + 1, y + 1, w - 2, h - 2) as f64;
+        let squares = level.sum_of_squares(x + 1, y + 1, w - 2, h - 2) as f64;
+        let spread = area * squares - sum * sum;
+        if spread <= 0.0 {
+            return Verdict::Flat;
+        }
+        let norm = 1.0 / spread.sqrt();
+        if area * norm >= 0.1 {
+            return Verdict::Flat;
+        }
+        for (s, stage) in self.stages.iter().enumerate() {
+            let mut total = 0.0f64;
+            for weak in &stage.classifiers {
+                let mut index = 0i32;
+                loop {
+                    let node = &weak.nodes[index as usize];
+                    let value: f64 = self.features[node.feature]
+                        .iter()
+                        .map(|r| {
+                            f64::from(r.weight)
+                                * level.sum(
+                                    x + r.x as usize,
+                                    y + r.y as usize,
+                                    r.width as usize,
+                                    r.height as usize,
+                                ) as f64
+                        })
+                        .sum::<f64>()
+                        * norm;
+                    index = if value < f64::from(node.threshold) {
+                        node.left
+                    } else {
+                        node.right
+                    };
+                    if index <= 0 {
+                        break;
+                    }
+                }
+                total += f64::from(weak.leaves[index.unsigned_abs() as usize]);
+            }
+            if total < f64::from(stage.threshold) {
+                return if s == 0 {
+                    Verdict::FirstStage
+                } else {
+                    Verdict::Later
+                };
+            }
+        }
+        Verdict::Face
+    }
+}
+
+enum Verdict {
+    Face,
+    FirstStage,
+    Later,
+    /// Too little contrast to evaluate.
+    Flat,
+}
+
+/// A pyramid level's integral and squared-integral images, `(width + 1) × (height + 1)`.
+struct Level {
+    width: usize,
+    height: usize,
+    integral: Vec<i64>,
+    squares: Vec<i64>,
+}
+
+impl Level {
+    fn new(image: &GrayImage) -> Self {
+        let (w, h) = (image.width as usize, image.height as usize);
+        let stride = w + 1;
+        let mut integral = vec![0i64; stride * (h + 1)];
+        let mut squares = vec![0i64; stride * (h + 1)];
+        for y in 0..h {
+            let (mut row, mut row_sq) = (0i64, 0i64);
+            for x in 0..w {
+                let v = i64::from(image.data[y * w + x]);
+                row += v;
+                row_sq += v * v;
+                integral[(y + 1) * stride + x + 1] = integral[y * stride + x + 1] + row;
+                squares[(y + 1) * stride + x + 1] = squares[y * stride + x + 1] + row_sq;
+            }
+        }
+        Self {
+            width: w,
+            height: h,
+            integral,
+            squares,
+        }
+    }
+
+    fn rect(table: &[i64], stride: usize, x: usize, y: usize, w: usize, h: usize) -> i64 {
+        table[(y + h) * stride + x + w] - table[y * stride + x + w] - table[(y + h) * stride + x]
+            + table[y * stride + x]
+    }
+
+    fn sum(&self, x: usize, y: usize, w: usize, h: usize) -> i64 {
+        Self::rect(&self.integral, self.width + 1, x, y, w, h)
+    }
+
+    fn sum_of_squares(&self, x: usize, y: usize, w: usize, h: usize) -> i64 {
+        Self::rect(&self.squares, self.width + 1, x, y, w, h)
+    }
+}
+
+/// Bilinear resize with pixel centres aligned (OpenCV's `INTER_LINEAR` convention), rounded to
+/// 8 bits.
+fn resize(image: &GrayImage, width: u32, height: u32) -> GrayImage {
+    if (width, height) == (image.width, image.height) {
+        return image.clone();
+    }
+    let (sx, sy) = (
+        f64::from(image.width) / f64::from(width),
+        f64::from(image.height) / f64::from(height),
+    );
+    let source = |c: u32, scale: f64, size: u32| -> (usize, usize, f32) {
+        let s = ((f64::from(c) + 0.5) * scale - 0.5).max(0.0);
+        let i0 = (s.floor() as u32).min(size - 1);
+        let i1 = (i0 + 1).min(size - 1);
+        (
+            i0 as usize,
+            i1 as usize,
+            (s - f64::from(i0)).min(1.0) as f32,
+        )
+    };
+    let columns: Vec<_> = (0..width).map(|x| source(x, sx, image.width)).collect();
+    let stride = image.width as usize;
+    let data: Vec<u8> = (0..height)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let (y0, y1, fy) = source(y, sy, image.height);
+            let columns = &columns;
+            columns.iter().map(move |&(x0, x1, fx)| {
+                let at = |yy: usize, xx: usize| f32::from(image.data[yy * stride + xx]);
+                let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
+                let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
+                (top * (1.0 - fy) + bottom * fy + 0.5) as u8
+            })
+        })
+        .collect();
+    GrayImage {
+        width,
+        height,
+        data,
+    }
+}
+
+/// OpenCV's `groupRectangles` (rounding halves to even, as its cvRound): clusters of similar rectangles (union of pairs within eps) with
+/// more than `min_neighbors` members, averaged; a cluster inside a stronger one is dropped.
+pub fn group(hits: &[Detection], min_neighbors: usize) -> Vec<Detection> {
+    let n = hits.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let similar = |a: &Detection, b: &Detection| {
+        let delta = GROUP_EPS * f64::from(a.width.min(b.width) + a.height.min(b.height)) * 0.5;
+        let close = |p: i32, q: i32| f64::from((p - q).abs()) <= delta;
+        close(a.x, b.x)
+            && close(a.y, b.y)
+            && close(a.x + a.width, b.x + b.width)
+            && close(a.y + a.height, b.y + b.height)
+    };
+    for i in 0..n {
+        for j in i + 1..n {
+            if similar(&hits[i], &hits[j]) {
+                let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+                parent[a.max(b)] = a.min(b);
+            }
+        }
+    }
+    // Sums per cluster, in order of first member.
+    let mut clusters: Vec<(usize, [i64; 4], usize)> = Vec::new();
+    for (i, h) in hits.iter().enumerate() {
+        let r = root(&mut parent, i);
+        let add = [h.x, h.y, h.width, h.height].map(i64::from);
+        match clusters.iter_mut().find(|c| c.0 == r) {
+            Some(c) => {
+                for (sum, v) in c.1.iter_mut().zip(add) {
+                    *sum += v;
+                }
+                c.2 += 1;
+            }
+            None => clusters.push((r, add, 1)),
+        }
+    }
+    let averaged: Vec<Detection> = clusters
+        .iter()
+        .map(|&(_, s, count)| {
+            let mean = |v: i64| (v as f64 / count as f64).round_ties_even() as i32;
+            Detection {
+                x: mean(s[0]),
+                y: mean(s[1]),
+                width: mean(s[2]),
+                height: mean(s[3]),
+                neighbors: count,
+            }
+        })
+        .collect();
+    averaged
+        .iter()
+        .filter(|r1| r1.neighbors > min_neighbors)
+        .filter(|r1| {
+            !averaged.iter().any(|r2| {
+                if std::ptr::eq(*r1, r2) || r2.neighbors <= min_neighbors {
+                    return false;
+                }
+                let dx = (f64::from(r2.width) * GROUP_EPS).round_ties_even() as i32;
+                let dy = (f64::from(r2.height) * GROUP_EPS).round_ties_even() as i32;
+                r1.x >= r2.x - dx
+                    && r1.y >= r2.y - dy
+                    && r1.x + r1.width <= r2.x + r2.width + dx
+                    && r1.y + r1.height <= r2.y + r2.height + dy
+                    && (r2.neighbors > r1.neighbors.max(3) || r1.neighbors < 3)
+            })
+        })
+        .copied()
+        .collect()
+}
