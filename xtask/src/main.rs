@@ -3,6 +3,10 @@
 //! - `test`: makes sure the GPU tests have an adapter (installs Mesa's software Vulkan driver,
 //!   lavapipe, through apt-get when running as root on Debian/Ubuntu; otherwise prints the exact
 //!   command and stops), then runs every test of the workspace.
+//! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel)
+//!   into `target/media/images`, and makes sure the detection tests' references are there:
+//!   Debian's opencv-data (the Haar cascades) and OpenCV's Python package (the test-only
+//!   reference detector). `test` runs it first.
 
 use std::path::Path;
 use std::process::{Command, ExitCode};
@@ -12,10 +16,33 @@ use anyhow::{Context, bail};
 const USAGE: &str = "usage: cargo xtask <command>
 
 commands:
-  test [--no-gpu] [-- <cargo test args>]
-      install what the tests need (Mesa's lavapipe Vulkan driver) when it is missing, then run
-      every test of the workspace. --no-gpu skips the install and lets the GPU tests skip
-      explicitly (STREAMPF_ALLOW_NO_GPU=1) on a machine with no adapter.";
+  test [--no-gpu] [--no-media] [-- <cargo test args>]
+      install what the tests need (Mesa's lavapipe Vulkan driver, the media of fetch-media) when
+      it is missing, then run every test of the workspace. --no-gpu skips the driver and lets the
+      GPU tests skip explicitly (STREAMPF_ALLOW_NO_GPU=1) on a machine with no adapter;
+      --no-media skips the media and lets the tests on real images skip (STREAMPF_NO_MEDIA=1).
+  fetch-media
+      fetch the real test images into target/media/images (scikit-image's photographs from its
+      PyPI wheel) and install the detection references (Debian's opencv-data, OpenCV's Python
+      package) when missing.";
+
+/// The scikit-image wheel whose photographs the detection tests use (pinned: the tests compare
+/// against OpenCV on exactly these images).
+const SKIMAGE: &str = "scikit-image==0.26.0";
+
+/// The photographs taken from it: faces (astronaut), and scenes without a frontal face.
+const IMAGES: [&str; 7] = [
+    "astronaut.png",
+    "camera.png",
+    "coffee.png",
+    "chelsea.png",
+    "coins.png",
+    "brick.png",
+    "motorcycle_left.png",
+];
+
+/// OpenCV's Python package for the reference detector (5.x moved the cascade classifier out).
+const OPENCV_PYTHON: &str = "opencv-python-headless>=4.8,<5";
 
 /// The Debian packages that give wgpu a software Vulkan adapter.
 const GPU_PACKAGES: [&str; 2] = ["mesa-vulkan-drivers", "libvulkan1"];
@@ -24,6 +51,7 @@ fn main() -> ExitCode {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let result = match args.first().map(String::as_str) {
         Some("test") => test(&args[1..]),
+        Some("fetch-media") => fetch_media(),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
             Ok(())
@@ -46,14 +74,23 @@ fn test(args: &[String]) -> anyhow::Result<()> {
         None => (args, &[][..]),
     };
     let mut no_gpu = false;
+    let mut no_media = false;
     for a in ours {
         match a.as_str() {
             "--no-gpu" => no_gpu = true,
+            "--no-media" => no_media = true,
             other => bail!("unknown option {other:?} for `test`\n\n{USAGE}"),
         }
     }
     if !no_gpu {
-        ensure_software_vulkan()?;
+        ensure_packages(
+            &GPU_PACKAGES,
+            "the GPU tests",
+            "Mesa's software Vulkan driver",
+        )?;
+    }
+    if !no_media {
+        fetch_media()?;
     }
     let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     cargo
@@ -62,6 +99,9 @@ fn test(args: &[String]) -> anyhow::Result<()> {
         .args(passthrough);
     if no_gpu {
         cargo.env("STREAMPF_ALLOW_NO_GPU", "1");
+    }
+    if no_media {
+        cargo.env("STREAMPF_NO_MEDIA", "1");
     }
     // Mesa's device-select Vulkan layer looks for a Wayland display and prints an error on
     // headless machines; the tests need no display, so switch the layer off.
@@ -89,18 +129,88 @@ fn run(cmd: &mut Command, what: &str) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Installs lavapipe when this is a Debian-like system that lacks it. Elsewhere (a machine with a
-/// real GPU driver, another distribution) it leaves the system alone: the GPU tests themselves
-/// fail with instructions if no adapter turns up.
-fn ensure_software_vulkan() -> anyhow::Result<()> {
+fn fetch_media() -> anyhow::Result<()> {
+    ensure_packages(
+        &["opencv-data"],
+        "the detection tests",
+        "OpenCV's Haar cascades",
+    )?;
+    let python = python()?;
+    let has_cv2 = Command::new(&python)
+        .args(["-c", "import cv2; cv2.CascadeClassifier"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !has_cv2 {
+        eprintln!("xtask: installing {OPENCV_PYTHON} (the detection tests' reference)");
+        run(
+            Command::new(&python).args(["-m", "pip", "install", "--quiet", OPENCV_PYTHON]),
+            "pip install opencv-python-headless",
+        )?;
+    }
+    let media = workspace_root().join("target/media");
+    let images = media.join("images");
+    if IMAGES.iter().all(|i| images.join(i).is_file()) {
+        return Ok(());
+    }
+    let wheels = media.join("wheels");
+    eprintln!(
+        "xtask: fetching {SKIMAGE}'s photographs into {}",
+        images.display()
+    );
+    run(
+        Command::new(&python)
+            .args([
+                "-m",
+                "pip",
+                "download",
+                "--quiet",
+                "--no-deps",
+                SKIMAGE,
+                "-d",
+            ])
+            .arg(&wheels),
+        "pip download scikit-image",
+    )?;
+    // Extracts the images from the wheel (a zip) with Python's zipfile: no unzip needed.
+    let extract = format!(
+        "import glob, os, sys, zipfile\n\
+         wheel = sorted(glob.glob(os.path.join(sys.argv[1], 'scikit_image-*.whl')))[-1]\n\
+         os.makedirs(sys.argv[2], exist_ok=True)\n\
+         with zipfile.ZipFile(wheel) as z:\n\
+         \x20   for name in {images:?}:\n\
+         \x20       open(os.path.join(sys.argv[2], name), 'wb').write(z.read('skimage/data/' + name))\n",
+        images = IMAGES
+    );
+    run(
+        Command::new(&python)
+            .args(["-c", &extract])
+            .arg(&wheels)
+            .arg(&images),
+        "extracting the images",
+    )
+}
+
+fn python() -> anyhow::Result<String> {
+    ["python3", "python"]
+        .into_iter()
+        .find(|p| which(p))
+        .map(String::from)
+        .context("the detection tests need Python 3 (for OpenCV's reference detector)")
+}
+
+/// Installs `packages` through apt-get when this is a Debian-like system that lacks them and we
+/// are root; as another user it prints the command and stops. Elsewhere it leaves the system
+/// alone: the tests themselves fail with instructions when something is missing.
+fn ensure_packages(packages: &[&str], needed_by: &str, what: &str) -> anyhow::Result<()> {
     if !is_debian_like() {
         eprintln!(
-            "xtask: not a Debian/Ubuntu system; make sure a Vulkan driver is installed (Mesa's lavapipe works)"
+            "xtask: not a Debian/Ubuntu system; make sure {what} is installed for {needed_by}"
         );
         return Ok(());
     }
-    let missing: Vec<&str> = GPU_PACKAGES
-        .into_iter()
+    let missing: Vec<&str> = packages
+        .iter()
+        .copied()
         .filter(|p| !package_installed(p))
         .collect();
     if missing.is_empty() {
@@ -112,7 +222,7 @@ fn ensure_software_vulkan() -> anyhow::Result<()> {
     );
     if !is_root() {
         bail!(
-            "the GPU tests need {} (Mesa's software Vulkan driver). Install it with:\n\n    sudo apt-get update && sudo {install}\n\nthen run `cargo xtask test` again (or `cargo xtask test --no-gpu` to skip the GPU tests explicitly)",
+            "{needed_by} need {} ({what}). Install it with:\n\n    sudo apt-get update && sudo {install}\n\nthen run `cargo xtask test` again (`--no-gpu` / `--no-media` skip those tests explicitly)",
             missing.join(" ")
         );
     }
