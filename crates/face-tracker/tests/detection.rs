@@ -62,6 +62,8 @@ fn bad_and_truncated_cascades_are_clear_errors() {
         (good.replace("0 -1 0 0.2", "0 -1 7 0.2"), "feature 7 of 1"),
         (good.replace("0 -1 0 0.2", "0 -5 0 0.2"), "points to -5"),
         (good.replace("0 -1 0 0.2", "0 -1 0"), "four per node"),
+        (good.replace("0 -1 0 0.2", "0 -1 -1 0.2"), "whole numbers"),
+        (good.replace("0 -1 0 0.2", "0 -1.5 0 0.2"), "whole numbers"),
         (
             good.replace("0 3 6 3 -1.", "0 4 6 3 -1."),
             "outside the 6x6 window",

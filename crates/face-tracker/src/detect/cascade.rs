@@ -211,13 +211,25 @@ fn read_weak(node: Node, features: usize) -> Result<WeakClassifier, String> {
     }
     let nodes = values
         .chunks_exact(4)
-        .map(|c| TreeNode {
-            left: c[0] as i32,
-            right: c[1] as i32,
-            feature: c[2] as usize,
-            threshold: c[3] as f32,
+        .enumerate()
+        .map(|(i, c)| {
+            // Children and the feature are indices: whole numbers (a cast would truncate a
+            // fraction and clamp a negative feature to 0 without a word).
+            let index = |v: f64| (v.fract() == 0.0 && v.abs() <= f64::from(i32::MAX)).then_some(v);
+            match (index(c[0]), index(c[1]), index(c[2])) {
+                (Some(left), Some(right), Some(feature)) if feature >= 0.0 => Ok(TreeNode {
+                    left: left as i32,
+                    right: right as i32,
+                    feature: feature as usize,
+                    threshold: c[3] as f32,
+                }),
+                _ => Err(format!(
+                    "node {i}: children and feature must be whole numbers (feature >= 0), got {:?}",
+                    &c[..3]
+                )),
+            }
         })
-        .collect::<Vec<_>>();
+        .collect::<Result<Vec<_>, _>>()?;
     for (i, n) in nodes.iter().enumerate() {
         if n.feature >= features {
             return Err(format!("node {i} uses feature {} of {features}", n.feature));
