@@ -7,11 +7,15 @@
 //! target/media/images, opencv-data's cascades and OpenCV's Python package. Without them the test
 //! fails with instructions, unless STREAMPF_NO_MEDIA=1 opts out explicitly.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use face_tracker::GrayImage;
 use face_tracker::detect::{Cascade, DetectConfig, Detection};
+
+use common::media::{self, HELP, cascade_path};
 
 const CASCADES: [&str; 4] = [
     "haarcascade_frontalface_alt2.xml",
@@ -20,21 +24,12 @@ const CASCADES: [&str; 4] = [
     "haarcascade_frontalface_alt_tree.xml",
 ];
 
-const HELP: &str = "run `cargo xtask fetch-media` (it installs Debian's opencv-data and OpenCV's Python package, and fetches the photographs into target/media/images), or set STREAMPF_NO_MEDIA=1 to skip the tests on real images explicitly";
-
-fn cascade_dir() -> PathBuf {
-    std::env::var_os("STREAMPF_CASCADES")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("/usr/share/opencv4/haarcascades"))
-}
-
 /// The inputs, or `None` when the run opted out; a panic with instructions when they are missing.
 fn media() -> Option<Vec<PathBuf>> {
-    if std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1") {
-        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1): the detector against OpenCV");
+    if media::opted_out("the detector against OpenCV") {
         return None;
     }
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("target/media/images");
+    let dir = media::media_dir().join("images");
     let mut images: Vec<PathBuf> = std::fs::read_dir(&dir)
         .unwrap_or_else(|e| panic!("{}: {e}; {HELP}", dir.display()))
         .filter_map(|e| e.ok().map(|e| e.path()))
@@ -48,11 +43,7 @@ fn media() -> Option<Vec<PathBuf>> {
         dir.display()
     );
     for c in CASCADES {
-        assert!(
-            cascade_dir().join(c).is_file(),
-            "{c} not in {}; {HELP}",
-            cascade_dir().display()
-        );
+        media::cascade_path(c);
     }
     Some(images)
 }
@@ -111,7 +102,7 @@ fn finds_the_faces_opencv_finds_on_real_photographs() {
     let config = DetectConfig::default();
     let mut faces_in_astronaut = 0;
     for name in CASCADES {
-        let path = cascade_dir().join(name);
+        let path = cascade_path(name);
         let cascade = Cascade::load(&path).unwrap();
         let reference = opencv_faces(&path, &paths, config.min_size);
         assert_eq!(reference.len(), frames.len());
@@ -152,7 +143,7 @@ fn all_four_frontal_cascades_parse() {
         return;
     }
     for name in CASCADES {
-        let cascade = Cascade::load(&cascade_dir().join(name)).unwrap();
+        let cascade = Cascade::load(&cascade_path(name)).unwrap();
         assert!(
             cascade.stages.len() >= 20,
             "{name}: {} stages",

@@ -11,7 +11,9 @@
 mod common;
 
 use face_tracker::model::FaceModel;
-use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
+use face_tracker::extraction::FaceRect;
+use face_tracker::projection::{SCALE, TX, TY};
+use face_tracker::synth::{FaceSynthConfig, HEIGHT_RATIO, face_state, initial_rect, render_frame};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, TrackStatus};
 
@@ -37,26 +39,28 @@ fn config() -> FaceTrackerConfig {
     }
 }
 
-/// Mean translation (px) and rotation (°) errors over the video, and the last statuses.
+/// Mean translation (px) and rotation (°) errors over the video, and each track's last status
+/// (a lost track is reported once, at the frame it is lost).
 fn run(video: &FaceSynthConfig, backend: FaceBackend) -> (f32, f32, Vec<TrackStatus>) {
     let model = FaceModel::generic(129).unwrap();
     let first = render_frame(video, &model, 0).unwrap();
     let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(video, k)).collect();
     let mut tracker = FaceTracker::new(&first, &rects, &model, config(), backend).unwrap();
     let (mut translation, mut rotation, mut count) = (0.0, 0.0, 0);
-    let mut statuses = Vec::new();
+    let mut statuses = vec![TrackStatus::Tracking; video.faces];
     for frame in 0..video.frames {
         let image = render_frame(video, &model, frame).unwrap();
         let estimates = tracker.step(&image).unwrap();
-        for (k, e) in estimates.iter().enumerate() {
+        for e in &estimates {
+            // Tracks are numbered in the rectangles' order.
+            statuses[e.track] = e.status;
             if e.status == TrackStatus::Tracking {
-                let (t, r) = pose_errors(&e.state, &face_state(video, k, frame));
+                let (t, r) = pose_errors(&e.state, &face_state(video, e.track, frame));
                 translation += t;
                 rotation += r;
                 count += 1;
             }
         }
-        statuses = estimates.iter().map(|e| e.status).collect();
     }
     (
         translation / count as f32,
@@ -103,4 +107,60 @@ fn a_face_leaving_the_frame_ends_its_track() {
         other => panic!("face 0 is still {other:?}"),
     }
     assert_eq!(statuses[1], TrackStatus::Tracking);
+}
+
+#[test]
+fn a_lost_track_frees_its_slot_for_a_new_face() {
+    let video = FaceSynthConfig {
+        exit_after: Some(4),
+        occlusion: false,
+        ..video(30)
+    };
+    let model = FaceModel::generic(129).unwrap();
+    let first = render_frame(&video, &model, 0).unwrap();
+    let mut tracker = FaceTracker::with_capacity(
+        (video.width, video.height),
+        1,
+        &model,
+        config(),
+        FaceBackend::Cpu,
+    )
+    .unwrap();
+    assert_eq!(tracker.add_face(&first, &initial_rect(&video, 0)).unwrap(), 0);
+    // The one slot is taken: a second face is refused with a clear error.
+    let refused = tracker.add_face(&first, &initial_rect(&video, 1)).unwrap_err();
+    assert!(refused.to_string().contains("slots are taken"), "{refused}");
+    let mut lost_at = None;
+    for frame in 0..video.frames {
+        let image = render_frame(&video, &model, frame).unwrap();
+        let estimates = tracker.step(&image).unwrap();
+        if lost_at.is_none() {
+            assert_eq!(estimates.len(), 1);
+            if let TrackStatus::Lost { frame } = estimates[0].status {
+                lost_at = Some(frame);
+                assert_eq!(tracker.free_slots(), 1);
+                assert!(tracker.template(0).is_none());
+                // The freed slot takes the other face, where it is now, as track 1, tracked from
+                // the next frame.
+                let s = face_state(&video, 1, frame);
+                let (hw, hh) = (50.0 * s[SCALE], 50.0 * HEIGHT_RATIO * s[SCALE]);
+                let rect = FaceRect {
+                    x: s[TX] - hw,
+                    y: s[TY] - hh,
+                    width: 2.0 * hw,
+                    height: 2.0 * hh,
+                };
+                assert_eq!(tracker.add_face(&image, &rect).unwrap(), 1);
+            }
+        } else {
+            assert_eq!(estimates.len(), 1, "only the new track is reported");
+            let e = &estimates[0];
+            assert_eq!((e.track, e.slot, e.status), (1, 0, TrackStatus::Tracking));
+            let (t, _) = pose_errors(&e.state, &face_state(&video, 1, frame));
+            // The new track started mid-video: its state is relative to that frame's pose, so
+            // only the position is compared.
+            assert!(t <= MAX_TRANSLATION_PX, "new track {t} px off at frame {frame}");
+        }
+    }
+    assert!(lost_at.is_some_and(|f| f < 25), "{lost_at:?}");
 }

@@ -7,6 +7,7 @@
 #![allow(dead_code)]
 
 pub mod capsule_cases;
+pub mod media;
 
 /// The environment variable that lets a run without any adapter skip the GPU tests.
 pub const OPT_OUT: &str = "STREAMPF_ALLOW_NO_GPU";

@@ -13,8 +13,11 @@
 //! - [`image`]: gray frames with bilinear sampling;
 //! - [`synth`]: synthetic videos of textured heads with ground truth;
 //! - [`tracker`]: several faces at once, each its own filter, on the CPU or the GPU, with
-//!   failure detection.
+//!   failure detection; slots free when a track is lost and take new faces;
+//! - [`detect`]: Viola–Jones face detection with OpenCV's Haar cascades;
+//! - [`auto`]: fully automatic tracking: the detector in its own thread starts tracks.
 
+pub mod auto;
 pub mod detect;
 pub mod error;
 pub mod extraction;
@@ -30,4 +33,5 @@ pub use error::FaceError;
 pub use image::{FloatImage, GrayImage};
 pub use projection::{DIMS, Pose, rotation};
 pub use template::{FeaturePoint, Template};
+pub use auto::{AutoConfig, AutoFrame, AutoTracker};
 pub use tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};

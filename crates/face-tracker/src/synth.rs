@@ -32,6 +32,8 @@ pub struct FaceSynthConfig {
     pub occlusion: bool,
     /// From this frame on, the first face walks out of the frame to the right (30 px a frame).
     pub exit_after: Option<usize>,
+    /// Face k is in the video from frame k·`enter_every` on (0: every face from the start).
+    pub enter_every: usize,
     pub seed: u64,
 }
 
@@ -47,6 +49,7 @@ impl FaceSynthConfig {
             max_yaw: 60f32.to_radians(),
             occlusion: true,
             exit_after: None,
+            enter_every: 0,
             seed: 11,
         }
     }
@@ -89,14 +92,28 @@ impl FaceSynthConfig {
     }
 }
 
+impl FaceSynthConfig {
+    /// The first frame face `k` is in.
+    pub fn entry_frame(&self, k: usize) -> usize {
+        k * self.enter_every
+    }
+
+    /// Whether face `k` is in frame `frame`.
+    pub fn present(&self, k: usize, frame: usize) -> bool {
+        frame >= self.entry_frame(k)
+    }
+}
+
 /// The light gain g(t) of frame `frame` (α = 1/g).
 fn light_gain(frame: usize) -> f32 {
     1.0 + 0.2 * (frame as f32 * 0.05).sin()
 }
 
-/// Face `k`'s ground-truth state at `frame` (frontal, S = 1, α = 1 at frame 0).
+/// Face `k`'s ground-truth state at `frame` (frontal, S = 1, α = 1 at its entry frame; its
+/// motion runs on its own clock from there).
 pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIMS] {
-    let t = frame as f32;
+    let entry = config.entry_frame(k);
+    let t = frame.saturating_sub(entry) as f32;
     let phase = k as f32 * 1.7;
     let (hx, hy) = config.home(k);
     let wobble = |f: f32, p: f32| (f * t + p).sin();
@@ -107,7 +124,7 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
     s[RX] = 0.2 * (0.04 * t).sin();
     s[RY] = config.max_yaw * (0.035 * t).sin();
     s[RZ] = 0.15 * (0.03 * t).sin();
-    s[ALPHA] = 1.0 / light_gain(frame);
+    s[ALPHA] = light_gain(entry) / light_gain(frame);
     if let Some(start) = config.exit_after
         && k == 0
         && frame > start
@@ -117,9 +134,10 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
     s
 }
 
-/// The face rectangle at frame 0 (what a detector would report), in the tracker's terms.
+/// The face rectangle at its entry frame (frame 0 unless faces enter in turn), in the tracker's
+/// terms.
 pub fn initial_rect(config: &FaceSynthConfig, k: usize) -> FaceRect {
-    let s = face_state(config, k, 0);
+    let s = face_state(config, k, config.entry_frame(k));
     let (hw, hh) = (
         config.half_width * s[SCALE],
         config.half_width * HEIGHT_RATIO * s[SCALE],
@@ -254,7 +272,7 @@ pub fn render_frame(
         .map(|k| background((k % w) as f32, (k / w) as f32, config.seed))
         .collect();
     let mut depth = vec![f32::NEG_INFINITY; data.len()];
-    for k in 0..config.faces {
+    for k in (0..config.faces).filter(|&k| config.present(k, frame)) {
         // Splats (pixel, depth, value) of every surface sample, rows in parallel, then a
         // sequential depth test.
         for (idx, z, value) in splat_head(config, model, k, frame) {

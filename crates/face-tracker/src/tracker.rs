@@ -3,10 +3,11 @@
 //! cores) or on the GPU (`pf_gpu::GpuFilter` with the packed, batched face likelihood: one submission per
 //! frame, the frame the one upload).
 //!
-//! Each face starts from a rectangle at t0 (its template is extracted there, state
-//! (centre, S = 1, R = 0, α = 1)). Its estimate is the weighted mean of its best M′ particles
-//! (eq. 14). A track ends — and stays ended — when the estimate's ε stays above a threshold for
-//! n frames in a row, or when the face's centre leaves the frame.
+//! The batch has a fixed number of slots. A face starts in a free slot from a rectangle (its
+//! template is extracted there, state (centre, S = 1, R = 0, α = 1)), at the start or later (from
+//! a detector, see [`crate::auto`]). Its estimate is the weighted mean of its best M′ particles
+//! (eq. 14). A track ends when the estimate's ε stays above a threshold for n frames in a row, or
+//! when the face's centre leaves the frame; its slot is then free for a new face.
 
 use pf_core::PfError;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
@@ -75,19 +76,27 @@ impl Default for FaceTrackerConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TrackStatus {
     Tracking,
-    /// Ended at this frame (the estimate's ε stayed too high, or the face left the frame).
+    /// Ended at this frame (the estimate's ε stayed too high, or the face left the frame). The
+    /// track is reported once with this status; its slot is then free for a new face.
     Lost {
         frame: usize,
     },
 }
 
-/// One face's result for a frame.
+/// One track's result for a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FaceEstimate {
+    /// The track's number: 0, 1, … in the order faces were added, never reused.
+    pub track: usize,
+    /// The filter slot the track runs in (slots are reused after a track is lost).
+    pub slot: usize,
     pub state: [f32; DIMS],
     /// ε of the estimate.
     pub error: f64,
     pub status: TrackStatus,
+    /// The face's rectangle at this estimate: the starting rectangle scaled by S about the
+    /// estimated centre (rotation ignored), for overlap tests and drawing.
+    pub rect: FaceRect,
 }
 
 enum Engine {
@@ -102,18 +111,47 @@ struct GpuEngine {
     last_time: Option<GpuTime>,
 }
 
+/// A face being tracked in a slot.
+struct Track {
+    id: usize,
+    template: Template,
+    /// The rectangle the track started from.
+    start: FaceRect,
+    bad_frames: usize,
+}
+
+/// Several faces, each its own particle filter in a slot of one batch. Faces can be added while
+/// tracking (`add_face`, from a detector); a lost track frees its slot.
 pub struct FaceTracker {
     config: FaceTrackerConfig,
-    templates: Vec<Template>,
-    status: Vec<TrackStatus>,
-    bad_frames: Vec<usize>,
+    model: FaceModel,
+    slots: Vec<Option<Track>>,
+    next_track: usize,
     frame_size: (u32, u32),
     frame_index: usize,
     engine: Engine,
 }
 
+/// The state bounds: S and α in sensible ranges, pitch and yaw within ±`MAX_TURN`.
+fn state_bounds() -> (Vec<f32>, Vec<f32>) {
+    let mut lower = vec![f32::NEG_INFINITY; DIMS];
+    let mut upper = vec![f32::INFINITY; DIMS];
+    (lower[SCALE], upper[SCALE]) = (0.2, 5.0);
+    (lower[ALPHA], upper[ALPHA]) = (0.25, 4.0);
+    // Towards ±90° of pitch or yaw a frontal template is ambiguous: on the synthetic videos a
+    // pose 15° beyond a face turned 60° fitted as well as the true one (ε 0.054), and with a
+    // ±75° bound one run in four (on the CPU; two faces of four on an H200) ran away to the
+    // bound when the yaw turned back, and stayed. With ±70°, six of six runs kept all faces.
+    // The roll wraps.
+    for d in [RX, RY] {
+        (lower[d], upper[d]) = (-MAX_TURN, MAX_TURN);
+    }
+    (lower, upper)
+}
+
 impl FaceTracker {
-    /// Extracts a template per rectangle from the first frame and starts a filter per face.
+    /// Extracts a template per rectangle from the first frame and starts a filter per face
+    /// (tracks 0, 1, … in the rectangles' order), with no room for more faces.
     pub fn new(
         first_frame: &GrayImage,
         rects: &[FaceRect],
@@ -126,73 +164,70 @@ impl FaceTracker {
                 "give at least one face rectangle".into(),
             ));
         }
+        let mut tracker = Self::with_capacity(
+            (first_frame.width, first_frame.height),
+            rects.len(),
+            model,
+            config,
+            backend,
+        )?;
+        for (i, r) in rects.iter().enumerate() {
+            tracker
+                .add_face(first_frame, r)
+                .map_err(|e| FaceError::InvalidInput(format!("face {i}: {e}")))?;
+        }
+        Ok(tracker)
+    }
+
+    /// A tracker for frames of `frame_size` with room for `capacity` faces at once, none yet.
+    pub fn with_capacity(
+        frame_size: (u32, u32),
+        capacity: usize,
+        model: &FaceModel,
+        config: FaceTrackerConfig,
+        backend: FaceBackend,
+    ) -> Result<Self, FaceError> {
+        if capacity == 0 {
+            return Err(FaceError::InvalidInput(
+                "a tracker needs room for at least one face".into(),
+            ));
+        }
         if !(config.sharpness.is_finite() && config.sharpness > 0.0) {
             return Err(FaceError::InvalidInput(format!(
                 "sharpness must be > 0, got {}",
                 config.sharpness
             )));
         }
-        let templates = rects
-            .iter()
-            .enumerate()
-            .map(|(i, r)| {
-                extract_template(first_frame, r, model, &config.extraction)
-                    .map_err(|e| FaceError::InvalidInput(format!("face {i}: {e}")))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        let faces = rects.len();
-        let shape = BatchShape::new(faces, config.particles, DIMS)?;
-        let means: Vec<f32> = rects
-            .iter()
-            .flat_map(|r| {
-                let (cx, cy) = r.centre();
-                [cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0]
-            })
-            .collect();
-        let mut lower = vec![f32::NEG_INFINITY; DIMS];
-        let mut upper = vec![f32::INFINITY; DIMS];
-        (lower[SCALE], upper[SCALE]) = (0.2, 5.0);
-        (lower[ALPHA], upper[ALPHA]) = (0.25, 4.0);
-        // Towards ±90° of pitch or yaw a frontal template is ambiguous: on the synthetic videos a
-        // pose 15° beyond a face turned 60° fitted as well as the true one (ε 0.054), and with a
-        // ±75° bound one run in four (on the CPU; two faces of four on an H200) ran away to the
-        // bound when the yaw turned back, and stayed. With ±70°, six of six runs kept all faces.
-        // The roll wraps.
-        for d in [RX, RY] {
-            (lower[d], upper[d]) = (-MAX_TURN, MAX_TURN);
-        }
+        let shape = BatchShape::new(capacity, config.particles, DIMS)?;
         let batch = BatchConfig {
             shape,
             seed: config.seed,
             sigma: config.diffusion.to_vec(),
-            bounds: Some((lower, upper)),
+            bounds: Some(state_bounds()),
             angular: vec![false, false, false, false, false, true, false],
             ess_threshold: f64::INFINITY,
             best: config.best.min(config.particles),
         };
         batch.validate()?;
-        let states = gaussian_clouds(&shape, config.seed, &means, &config.diffusion);
+        // Free slots hold a cloud at the origin until a face arrives; they are never reported.
+        let states = vec![0.0; shape.state_len()];
         let engine = match backend {
             FaceBackend::Cpu => {
                 Engine::Cpu(Box::new(BatchFilter::new(&batch, Systematic, states)?))
             }
             FaceBackend::Gpu(ctx) => {
                 let filter = GpuFilter::new(&ctx, &batch, GpuResampler::Systematic, &states)?;
-                let max_points = templates.iter().map(Template::len).max().unwrap_or(1);
                 let mut likelihood = FaceLikelihoodGpu::new(
                     &ctx,
                     config.gpu_dispatch,
-                    faces,
-                    max_points,
-                    first_frame.width,
-                    first_frame.height,
+                    capacity,
+                    config.extraction.max_points.max(1),
+                    frame_size.0,
+                    frame_size.1,
                     config.sharpness,
                     MIN_ERROR,
                     MIN_VISIBLE_SHARE,
                 )?;
-                for (f, t) in templates.iter().enumerate() {
-                    likelihood.upload_template(&ctx, f, &t.gpu_layout())?;
-                }
                 likelihood.prepare(&ctx, &filter.likelihood_inputs())?;
                 Engine::Gpu(Box::new(GpuEngine {
                     ctx: *ctx,
@@ -203,18 +238,126 @@ impl FaceTracker {
             }
         };
         Ok(Self {
-            config,
-            status: vec![TrackStatus::Tracking; faces],
-            bad_frames: vec![0; faces],
-            templates,
-            frame_size: (first_frame.width, first_frame.height),
+            model: model.clone(),
+            slots: (0..capacity).map(|_| None).collect(),
+            next_track: 0,
+            frame_size,
             frame_index: 0,
             engine,
+            config,
         })
     }
 
-    pub fn templates(&self) -> &[Template] {
-        &self.templates
+    /// The face model templates are extracted on.
+    pub fn model(&self) -> &FaceModel {
+        &self.model
+    }
+
+    /// Slots with no face in them.
+    pub fn free_slots(&self) -> usize {
+        self.slots.iter().filter(|s| s.is_none()).count()
+    }
+
+    pub fn capacity(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Starts a new track on `rect` in `frame` (its template is extracted there; its particles
+    /// start around (centre, S = 1, R = 0, α = 1)) in a free slot, and returns the track's number.
+    /// The next `step` is the track's first.
+    pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
+        self.check_size(frame)?;
+        let slot = self.slots.iter().position(Option::is_none).ok_or_else(|| {
+            FaceError::InvalidInput(format!(
+                "all {} face slots are taken; free one or make the tracker larger",
+                self.slots.len()
+            ))
+        })?;
+        let id = self.next_track;
+        let template = self.start_in_slot(slot, id, frame, rect)?;
+        self.next_track += 1;
+        self.slots[slot] = Some(Track {
+            id,
+            template,
+            start: *rect,
+            bad_frames: 0,
+        });
+        Ok(id)
+    }
+
+    /// Starts running track `track` afresh from `rect` in `frame` (a new template and particles,
+    /// the same number): for a detector that finds a face its track has drifted from.
+    pub fn restart_face(
+        &mut self,
+        track: usize,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Result<(), FaceError> {
+        self.check_size(frame)?;
+        let slot = self
+            .slots
+            .iter()
+            .position(|s| s.as_ref().is_some_and(|t| t.id == track))
+            .ok_or_else(|| FaceError::InvalidInput(format!("track {track} is not running")))?;
+        let template = self.start_in_slot(slot, track, frame, rect)?;
+        self.slots[slot] = Some(Track {
+            id: track,
+            template,
+            start: *rect,
+            bad_frames: 0,
+        });
+        Ok(())
+    }
+
+    /// Extracts `rect`'s template and puts a fresh particle cloud and the template in `slot`.
+    fn start_in_slot(
+        &mut self,
+        slot: usize,
+        track: usize,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Result<Template, FaceError> {
+        let template = extract_template(frame, rect, &self.model, &self.config.extraction)?;
+        let (cx, cy) = rect.centre();
+        let shape = BatchShape::new(1, self.config.particles, DIMS)?;
+        // Each start gets its own initial cloud (the track's number and the frame key it).
+        let key = (track as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.frame_index as u64;
+        let cloud = gaussian_clouds(
+            &shape,
+            self.config.seed ^ key,
+            &[cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0],
+            &self.config.diffusion,
+        );
+        match &mut self.engine {
+            Engine::Cpu(filter) => filter.reset_target(slot, &cloud)?,
+            Engine::Gpu(gpu) => {
+                gpu.filter.reset_target(&gpu.ctx, slot, &cloud)?;
+                gpu.likelihood
+                    .upload_template(&gpu.ctx, slot, &template.gpu_layout())?;
+            }
+        }
+        Ok(template)
+    }
+
+    /// The template of a track that is still running.
+    pub fn template(&self, track: usize) -> Option<&Template> {
+        self.slots
+            .iter()
+            .flatten()
+            .find(|t| t.id == track)
+            .map(|t| &t.template)
+    }
+
+    /// The templates of the running tracks, by track number.
+    pub fn templates(&self) -> Vec<(usize, &Template)> {
+        let mut out: Vec<_> = self
+            .slots
+            .iter()
+            .flatten()
+            .map(|t| (t.id, &t.template))
+            .collect();
+        out.sort_by_key(|(id, _)| *id);
+        out
     }
 
     /// The GPU's time for the last step's submission (timestamps where the adapter has them),
@@ -226,30 +369,41 @@ impl FaceTracker {
         }
     }
 
-    /// One frame for every face.
-    pub fn step(&mut self, frame: &GrayImage) -> Result<Vec<FaceEstimate>, FaceError> {
+    fn check_size(&self, frame: &GrayImage) -> Result<(), FaceError> {
         if (frame.width, frame.height) != self.frame_size {
             return Err(FaceError::InvalidInput(format!(
                 "frame {} is {}x{}; the video started at {}x{}",
                 self.frame_index, frame.width, frame.height, self.frame_size.0, self.frame_size.1
             )));
         }
-        let faces = self.templates.len();
+        Ok(())
+    }
+
+    /// One frame for every running track, in slot order. A track that fails here is reported
+    /// as `Lost` and its slot freed.
+    pub fn step(&mut self, frame: &GrayImage) -> Result<Vec<FaceEstimate>, FaceError> {
+        self.check_size(frame)?;
+        let slots = self.slots.len();
         let state_of = |estimates: &[f32], t: usize| -> [f32; DIMS] {
             std::array::from_fn(|d| estimates[t * DIMS + d])
         };
-        // Each face's estimate and its ε (the failure test's input).
+        // Each slot's estimate and its ε (the failure test's input); free slots are not weighed
+        // on the CPU, and weigh the GPU's empty template there (ε = 1, a flat likelihood).
         let checked: Vec<([f32; DIMS], f64)> = match &mut self.engine {
             Engine::Cpu(filter) => {
-                let (templates, sharpness) = (&self.templates, self.config.sharpness);
+                let (tracks, sharpness) = (&self.slots, self.config.sharpness);
                 let report = filter.step_batched(|shape, states, out| {
                     out.par_iter_mut().enumerate().for_each(|(k, out)| {
                         let (t, m) = (k / shape.particles, k % shape.particles);
+                        let Some(track) = &tracks[t] else {
+                            *out = 0.0;
+                            return;
+                        };
                         let mut s = [0.0f32; DIMS];
                         for (d, x) in s.iter_mut().enumerate() {
                             *x = states[shape.state_index(t, d, m)];
                         }
-                        *out = log_weight(residual_error(&s, &templates[t], frame), sharpness);
+                        *out = log_weight(residual_error(&s, &track.template, frame), sharpness);
                     });
                     Ok::<(), PfError>(())
                 })?;
@@ -259,11 +413,14 @@ impl FaceTracker {
                     report.best_estimates
                 };
                 // Faces in parallel (at 64 faces this is 15 000 points).
-                (0..faces)
+                (0..slots)
                     .into_par_iter()
                     .map(|t| {
                         let state = state_of(&estimates, t);
-                        (state, residual_error(&state, &self.templates[t], frame))
+                        let error = self.slots[t]
+                            .as_ref()
+                            .map_or(1.0, |track| residual_error(&state, &track.template, frame));
+                        (state, error)
                     })
                     .collect()
             }
@@ -278,32 +435,50 @@ impl FaceTracker {
                 };
                 // The GPU weighed the estimates in the step's submission.
                 let errors = gpu.likelihood.take_estimate_errors()?;
-                (0..faces)
+                (0..slots)
                     .map(|t| (state_of(&estimates, t), f64::from(errors[t])))
                     .collect()
             }
         };
-        let mut out = Vec::with_capacity(faces);
-        for (t, (state, error)) in checked.into_iter().enumerate() {
-            if self.status[t] == TrackStatus::Tracking {
-                self.bad_frames[t] = if error > f64::from(self.config.failure_error) {
-                    self.bad_frames[t] + 1
-                } else {
-                    0
-                };
-                let outside = !(0.0..frame.width as f32).contains(&state[TX])
-                    || !(0.0..frame.height as f32).contains(&state[TY]);
-                if outside || self.bad_frames[t] >= self.config.failure_frames {
-                    self.status[t] = TrackStatus::Lost {
-                        frame: self.frame_index,
-                    };
+        let mut out = Vec::new();
+        for (slot, (state, error)) in checked.into_iter().enumerate() {
+            let Some(track) = &mut self.slots[slot] else {
+                continue;
+            };
+            track.bad_frames = if error > f64::from(self.config.failure_error) {
+                track.bad_frames + 1
+            } else {
+                0
+            };
+            let outside = !(0.0..frame.width as f32).contains(&state[TX])
+                || !(0.0..frame.height as f32).contains(&state[TY]);
+            let status = if outside || track.bad_frames >= self.config.failure_frames {
+                TrackStatus::Lost {
+                    frame: self.frame_index,
                 }
-            }
+            } else {
+                TrackStatus::Tracking
+            };
+            let (w, h) = (
+                track.start.width * state[SCALE],
+                track.start.height * state[SCALE],
+            );
             out.push(FaceEstimate {
+                track: track.id,
+                slot,
                 state,
                 error,
-                status: self.status[t],
+                status,
+                rect: FaceRect {
+                    x: state[TX] - w / 2.0,
+                    y: state[TY] - h / 2.0,
+                    width: w,
+                    height: h,
+                },
             });
+            if status != TrackStatus::Tracking {
+                self.slots[slot] = None;
+            }
         }
         self.frame_index += 1;
         Ok(out)

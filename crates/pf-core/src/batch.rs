@@ -329,6 +329,33 @@ impl<R: Resampler> BatchFilter<R> {
         &self.shape
     }
 
+    /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights:
+    /// a new track in a slot that another target left. The other targets are untouched.
+    pub fn reset_target(&mut self, t: usize, states: &[f32]) -> Result<(), PfError> {
+        let shape = self.shape;
+        if t >= shape.targets {
+            return Err(PfError::InvalidConfig(format!(
+                "target {t} of a batch of {}",
+                shape.targets
+            )));
+        }
+        let block = shape.dims * shape.particles;
+        if states.len() != block {
+            return Err(PfError::LengthMismatch {
+                what: "a target's states",
+                expected: block,
+                got: states.len(),
+            });
+        }
+        self.states[t * block..(t + 1) * block].copy_from_slice(states);
+        let m = shape.particles;
+        let range = t * m..(t + 1) * m;
+        self.log_weights[range.clone()].fill(-(m as f32).ln());
+        self.weights[range].fill(1.0 / m as f64);
+        self.ess[t] = m as f64;
+        Ok(())
+    }
+
     /// One step: resample the targets whose ESS is below the threshold, gather, diffuse, measure
     /// with `log_likelihood(t, m, state)`, normalise, estimate.
     pub fn step(

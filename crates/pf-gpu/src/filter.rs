@@ -47,6 +47,15 @@ pub struct TargetStats {
 }
 
 impl TargetStats {
+    /// A target's statistics before its first step: every weight equal.
+    pub fn initial(particles: usize) -> Self {
+        Self {
+            ess: particles as f32,
+            bad_particle: u32::MAX,
+            ..Self::zeroed()
+        }
+    }
+
     /// The status as pf-core's typed error.
     pub fn result(&self, particles: usize) -> Result<(), PfError> {
         match self.status {
@@ -348,13 +357,11 @@ impl GpuFilter {
             DeviceStream::from_slice(ctx, "weights", &vec![1.0 / shape.particles as f32; n])?;
         let cdf = DeviceStream::zeroed(ctx, "cdf", n)?;
         let ancestors = DeviceStream::zeroed(ctx, "ancestors", n)?;
-        let initial_stats = TargetStats {
-            ess: shape.particles as f32,
-            bad_particle: u32::MAX,
-            ..TargetStats::zeroed()
-        };
-        let stats =
-            DeviceStream::from_slice(ctx, "target stats", &vec![initial_stats; shape.targets])?;
+        let stats = DeviceStream::from_slice(
+            ctx,
+            "target stats",
+            &vec![TargetStats::initial(shape.particles); shape.targets],
+        )?;
         let estimates = DeviceStream::zeroed(ctx, "estimates", shape.targets * shape.dims)?;
         let best_estimates =
             DeviceStream::zeroed(ctx, "best-M' estimates", shape.targets * shape.dims)?;
@@ -686,6 +693,33 @@ impl GpuFilter {
             best_estimates,
             time,
         })
+    }
+
+    /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights and
+    /// fresh statistics: a new track in a slot another target left. The writes are queued before
+    /// the next step's submission; the other targets are untouched.
+    pub fn reset_target(&self, ctx: &GpuContext, t: usize, states: &[f32]) -> Result<(), GpuError> {
+        let shape = self.shape;
+        if t >= shape.targets {
+            return Err(GpuError::InvalidConfig(format!(
+                "target {t} of a batch of {}",
+                shape.targets
+            )));
+        }
+        let block = shape.dims * shape.particles;
+        if states.len() != block {
+            return Err(GpuError::LengthMismatch {
+                what: "a target's states".into(),
+                expected: block,
+                got: states.len(),
+            });
+        }
+        let m = shape.particles;
+        self.states.upload_at(ctx, t * block, states)?;
+        self.log_weights
+            .upload_at(ctx, t * m, &vec![-(m as f32).ln(); m])?;
+        self.weights.upload_at(ctx, t * m, &vec![1.0 / m as f32; m])?;
+        self.stats.upload_at(ctx, t, &[TargetStats::initial(m)])
     }
 
     /// Sets the index of the next step (it keys the step's random numbers).

@@ -2,9 +2,12 @@
 //!
 //! - `face synth --out DIR`: renders a synthetic video (PNG frames, `faces.csv` with each face's
 //!   rectangle at frame 0, `ground_truth.csv`);
-//! - `face track DIR` or `face track --synthetic`: tracks every face from its rectangle, writes
-//!   `states.csv` (frame, face, status, 7 values, ε), optional overlay frames, and, when the
-//!   ground truth is known, the translation and rotation errors.
+//! - `face track VIDEO|DIR`: finds faces with the Viola–Jones detector in its own thread and
+//!   tracks them (or starts from given rectangles: `--face`, or faces.csv beside the frames);
+//! - `face track --synthetic`: the same on a video generated in memory, with its ground truth;
+//!
+//! both write `states.csv` (frame, track, status, 7 values, ε), optionally an annotated video or
+//! PNG frames, and, when the ground truth is known, the translation and rotation errors.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -12,15 +15,18 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
+use face_tracker::detect::{Cascade, DetectConfig};
 use face_tracker::extraction::FaceRect;
 use face_tracker::model::FaceModel;
-use face_tracker::projection::{DIMS, Pose, STATE_NAMES};
+use face_tracker::projection::{DIMS, STATE_NAMES};
 use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{
-    FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage, Template, TrackStatus,
+    AutoConfig, AutoTracker, FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage,
+    TrackStatus,
 };
-use nalgebra::Vector3;
+
+use crate::face_io::{Annotated, Source, overlay};
 
 #[derive(Debug, Subcommand)]
 pub enum FaceCommand {
@@ -61,6 +67,7 @@ impl VideoArgs {
             max_yaw: self.max_yaw.to_radians(),
             occlusion: true,
             exit_after: None,
+            enter_every: 0,
             seed: self.video_seed,
         };
         config.validate()?;
@@ -86,23 +93,52 @@ pub enum BackendArg {
 
 #[derive(Debug, Clone, Args)]
 pub struct TrackArgs {
-    /// A directory of frames (*.png, name order) with faces.csv (x,y,width,height per face at
-    /// the first frame) and optionally ground_truth.csv.
-    #[arg(required_unless_present = "synthetic", conflicts_with = "synthetic")]
-    pub dir: Option<PathBuf>,
+    /// A video file (mp4, avi, webm, …; decoded by FFmpeg) or a directory of image frames (name
+    /// order; optionally with faces.csv — x,y,width,height per face at the first frame — and
+    /// ground_truth.csv).
+    #[arg(required_unless_present_any = ["synthetic", "webcam"], conflicts_with = "synthetic")]
+    pub input: Option<PathBuf>,
     /// Track a synthetic video generated in memory (see the video options).
     #[arg(long)]
     pub synthetic: bool,
+    /// A V4L2 camera, for example /dev/video0 (built with `--features webcam`).
+    #[arg(long, conflicts_with_all = ["synthetic", "input"])]
+    pub webcam: Option<PathBuf>,
+    /// The camera's frame size, WIDTHxHEIGHT.
+    #[arg(long, default_value = "640x480", requires = "webcam")]
+    pub webcam_size: String,
     /// A face rectangle at the first frame, `x,y,width,height` (repeat for several faces);
-    /// overrides faces.csv.
+    /// overrides faces.csv. With rectangles the detector is off unless --detect.
     #[arg(long = "face", value_name = "X,Y,W,H")]
     pub faces_at: Vec<String>,
+    /// Run the detector even when faces start from rectangles (or on --synthetic).
+    #[arg(long)]
+    pub detect: bool,
+    /// The Haar cascade of the face detector (OpenCV's XML).
+    #[arg(long, default_value = DEFAULT_CASCADE)]
+    pub cascade: PathBuf,
+    /// Hand the detector every n-th frame (it skips frames while busy).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub detect_every: u32,
+    /// The smallest face the detector looks for, in pixels.
+    #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(8..=8192))]
+    pub min_face: u32,
+    /// Faces tracked at once.
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub max_faces: u32,
     /// Where to write states.csv (and errors.csv with ground truth).
     #[arg(long, default_value = "streampf-face-out")]
     pub out: PathBuf,
-    /// Also write every frame with the posed template points and axes drawn, into this directory.
+    /// Also draw every frame with each face's posed template points and axes: a directory (PNG
+    /// frames) or a video file (.mp4, .mkv, .avi, .webm; encoded by FFmpeg).
     #[arg(long)]
     pub overlay: Option<PathBuf>,
+    /// A track ends when its estimate's ε (the template's robust relative residual) stays above
+    /// this for --failure-frames frames in a row.
+    #[arg(long, default_value_t = FaceTrackerConfig::default().failure_error)]
+    pub failure_error: f32,
+    #[arg(long, default_value_t = FaceTrackerConfig::default().failure_frames as u32, value_parser = clap::value_parser!(u32).range(1..=100_000))]
+    pub failure_frames: u32,
     /// Particles per face.
     #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub particles: u32,
@@ -140,6 +176,8 @@ pub fn run(command: &FaceCommand) -> anyhow::Result<()> {
 }
 
 const RECTS_FILE: &str = "faces.csv";
+/// Debian's opencv-data puts OpenCV's cascades here.
+const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
 const TRUTH_FILE: &str = "ground_truth.csv";
 
 fn model() -> anyhow::Result<FaceModel> {
@@ -250,27 +288,6 @@ fn read_truth(path: &Path, frames: usize, faces: usize) -> anyhow::Result<Vec<Ve
     Ok(out)
 }
 
-enum Source {
-    Directory(Vec<PathBuf>),
-    Synthetic(FaceSynthConfig, FaceModel),
-}
-
-impl Source {
-    fn frames(&self) -> usize {
-        match self {
-            Source::Directory(files) => files.len(),
-            Source::Synthetic(config, _) => config.frames,
-        }
-    }
-
-    fn frame(&self, i: usize) -> anyhow::Result<GrayImage> {
-        Ok(match self {
-            Source::Directory(files) => GrayImage::load(&files[i])?,
-            Source::Synthetic(config, model) => render_frame(config, model, i)?,
-        })
-    }
-}
-
 fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
     Ok(match args.backend {
         BackendArg::Cpu => FaceBackend::Cpu,
@@ -282,62 +299,62 @@ fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
     })
 }
 
-/// Colours of the faces in overlays.
-const COLOURS: [[u8; 3]; 4] = [[255, 60, 60], [60, 220, 60], [70, 130, 255], [255, 200, 0]];
 
-fn put(img: &mut image::RgbImage, x: f32, y: f32, colour: [u8; 3]) {
-    if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
-        img.put_pixel(x as u32, y as u32, image::Rgb(colour));
+/// How tracks start: from rectangles given at the first frame, or from the detector thread.
+enum Runner {
+    Fixed(FaceTracker),
+    Auto(AutoTracker),
+}
+
+impl Runner {
+    fn step(&mut self, frame: &GrayImage) -> anyhow::Result<Vec<FaceEstimate>> {
+        Ok(match self {
+            Runner::Fixed(tracker) => tracker.step(frame)?,
+            Runner::Auto(tracker) => tracker.step(frame)?.estimates,
+        })
+    }
+
+    fn tracker(&self) -> &FaceTracker {
+        match self {
+            Runner::Fixed(tracker) => tracker,
+            Runner::Auto(auto) => auto.tracker(),
+        }
     }
 }
 
-fn line(img: &mut image::RgbImage, a: (f32, f32), b: (f32, f32), colour: [u8; 3]) {
-    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
-    for i in 0..=steps {
-        let t = i as f32 / steps as f32;
-        put(img, a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t, colour);
+fn load_cascade(path: &Path) -> anyhow::Result<Cascade> {
+    if !path.exists() && path == Path::new(DEFAULT_CASCADE) {
+        bail!(
+            "the face detector's cascade {DEFAULT_CASCADE} is missing: install Debian's opencv-data (apt-get install opencv-data), give --cascade PATH to an OpenCV Haar cascade XML, or start from rectangles with --face x,y,width,height"
+        );
     }
+    Ok(Cascade::load(path)?)
 }
 
-/// The frame with each tracked face's visible template points and its axes drawn.
-fn overlay(
-    frame: &GrayImage,
-    templates: &[Template],
-    estimates: &[FaceEstimate],
-) -> image::RgbImage {
-    let mut img = image::RgbImage::from_fn(frame.width, frame.height, |x, y| {
-        let v = frame.at(x, y).round().clamp(0.0, 255.0) as u8;
-        image::Rgb([v, v, v])
-    });
-    for (k, (template, e)) in templates.iter().zip(estimates).enumerate() {
-        if e.status != TrackStatus::Tracking {
-            continue;
-        }
-        let colour = COLOURS[k % COLOURS.len()];
-        let pose = Pose::new(&e.state);
-        for q in &template.points {
-            if pose.faces_camera(&Vector3::from(q.normal)) {
-                let p = pose.project(&Vector3::from(q.position));
-                for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
-                    put(&mut img, p.x + dx, p.y + dy, colour);
-                }
-            }
-        }
-        let origin = pose.project(&Vector3::zeros());
-        for (axis, c) in [
-            (Vector3::x(), [255, 0, 0]),
-            (Vector3::y(), [0, 255, 0]),
-            (Vector3::z(), [0, 0, 255]),
-        ] {
-            let end = pose.project(&(axis * 50.0));
-            line(&mut img, (origin.x, origin.y), (end.x, end.y), c);
-        }
-    }
-    img
+#[cfg(feature = "webcam")]
+fn webcam_source(device: &Path, size: &str) -> anyhow::Result<Source> {
+    let (w, h) = size
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+        .filter(|&(w, h)| (16..=8192).contains(&w) && (16..=8192).contains(&h))
+        .with_context(|| format!("--webcam-size {size:?} is not WIDTHxHEIGHT (16 to 8192)"))?;
+    Ok(Source::Video(Box::new(
+        crate::video::VideoReader::webcam(device, w, h)?,
+    )))
 }
 
-fn track(args: &TrackArgs) -> anyhow::Result<()> {
-    let (source, mut rects, truth) = if args.synthetic {
+#[cfg(not(feature = "webcam"))]
+fn webcam_source(_device: &Path, _size: &str) -> anyhow::Result<Source> {
+    bail!(
+        "this streampf was built without webcam support: build it with `cargo build --release -p streampf --features webcam`"
+    )
+}
+
+/// Frames, the starting rectangles (faces.csv or none) and the ground truth when known.
+type Input = (Source, Vec<FaceRect>, Option<Vec<Vec<[f32; DIMS]>>>);
+
+fn open_input(args: &TrackArgs) -> anyhow::Result<Input> {
+    if args.synthetic {
         let config = args.video.config()?;
         let rects = (0..config.faces)
             .map(|k| initial_rect(&config, k))
@@ -349,34 +366,43 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                     .collect()
             })
             .collect();
-        (Source::Synthetic(config, model()?), rects, Some(truth))
+        let source = Source::Synthetic {
+            config,
+            model: model()?,
+            next: 0,
+        };
+        return Ok((source, rects, Some(truth)));
+    }
+    if let Some(device) = &args.webcam {
+        return Ok((webcam_source(device, &args.webcam_size)?, Vec::new(), None));
+    }
+    let input = args
+        .input
+        .as_deref()
+        .context("give a video file or a directory of frames (or --synthetic)")?;
+    let source = Source::open(input)?;
+    if !input.is_dir() {
+        return Ok((source, Vec::new(), None));
+    }
+    let rects = if input.join(RECTS_FILE).exists() {
+        read_rects(&input.join(RECTS_FILE))?
     } else {
-        let dir = args.dir.as_deref().unwrap_or(Path::new("."));
-        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-            .with_context(|| format!("reading {}", dir.display()))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
-            .collect();
-        files.sort();
-        if files.is_empty() {
-            bail!("{}: no *.png frames", dir.display());
-        }
-        let rects = if dir.join(RECTS_FILE).exists() {
-            read_rects(&dir.join(RECTS_FILE))?
-        } else {
-            Vec::new()
-        };
-        let truth = if dir.join(TRUTH_FILE).exists() {
-            Some(read_truth(
-                &dir.join(TRUTH_FILE),
-                files.len(),
-                rects.len().max(args.faces_at.len()),
-            )?)
-        } else {
-            None
-        };
-        (Source::Directory(files), rects, truth)
+        Vec::new()
     };
+    let truth = if input.join(TRUTH_FILE).exists() {
+        Some(read_truth(
+            &input.join(TRUTH_FILE),
+            source.len().unwrap_or(0),
+            rects.len().max(args.faces_at.len()),
+        )?)
+    } else {
+        None
+    };
+    Ok((source, rects, truth))
+}
+
+fn track(args: &TrackArgs) -> anyhow::Result<()> {
+    let (mut source, mut rects, truth) = open_input(args)?;
     if !args.faces_at.is_empty() {
         rects = args
             .faces_at
@@ -384,43 +410,92 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             .map(|r| parse_rect(r, "--face"))
             .collect::<anyhow::Result<_>>()?;
     }
-    if rects.is_empty() {
-        bail!("no face rectangles: give --face x,y,width,height or a faces.csv beside the frames");
-    }
-    let frames = source.frames();
-    let first = source.frame(0).context("frame 0")?;
-    let backend = open_backend(args)?;
-    let backend_name = match &backend {
-        FaceBackend::Cpu => format!("CPU ({} threads)", rayon::current_num_threads()),
-        FaceBackend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
+    let detect = rects.is_empty() || args.detect;
+    // Errors against the ground truth need track k to be face k: tracks from rectangles only.
+    let truth = truth.filter(|_| !detect);
+    let first = source
+        .next_frame()
+        .context("frame 0")?
+        .context("the input has no frames")?;
+    let face_model = match (&args.heightmap, &args.normalmap) {
+        (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
+        _ => model()?,
     };
     let config = FaceTrackerConfig {
         particles: args.particles as usize,
         best: (args.particles as usize / 10).max(1),
         seed: args.seed,
+        failure_error: args.failure_error,
+        failure_frames: args.failure_frames as usize,
         ..FaceTrackerConfig::default()
     };
-    let face_model = match (&args.heightmap, &args.normalmap) {
-        (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
-        _ => model()?,
+    let cascade = if detect {
+        Some(load_cascade(&args.cascade)?)
+    } else {
+        None
     };
-    let mut tracker = FaceTracker::new(&first, &rects, &face_model, config, backend)?;
+    let backend = open_backend(args)?;
+    let backend_name = match &backend {
+        FaceBackend::Cpu => format!("CPU ({} threads)", rayon::current_num_threads()),
+        FaceBackend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
+    };
+    let size = (first.width, first.height);
+    let mut runner = match cascade {
+        Some(cascade) => {
+            let auto = AutoConfig {
+                detect_every: args.detect_every as usize,
+                detect: DetectConfig {
+                    min_size: args.min_face,
+                    ..DetectConfig::default()
+                },
+                max_faces: (args.max_faces as usize).max(rects.len()),
+                // A file plays as if live: the detector's answer is used before the next one is
+                // due (a camera never waits for it).
+                max_detection_lag: args.webcam.is_none().then_some(1),
+                tracker: config,
+                ..AutoConfig::default()
+            };
+            let mut tracker = AutoTracker::new(size, cascade, &face_model, auto, backend)?;
+            for (i, r) in rects.iter().enumerate() {
+                tracker
+                    .add_face(&first, r)
+                    .with_context(|| format!("face {i}"))?;
+            }
+            Runner::Auto(tracker)
+        }
+        None => Runner::Fixed(FaceTracker::new(
+            &first,
+            &rects,
+            &face_model,
+            config,
+            backend,
+        )?),
+    };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    if let Some(dir) = &args.overlay {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
+    let mut annotated = match &args.overlay {
+        Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
+        None => None,
+    };
+    let frames_known = source.len();
     if !args.quiet {
+        let starts = if detect {
+            format!(
+                "faces found by the detector ({} every {} frames)",
+                args.cascade.display(),
+                args.detect_every
+            )
+        } else {
+            format!("{} faces from their rectangles", rects.len())
+        };
+        let length = frames_known.map_or("frames".to_string(), |n| format!("{n} frames"));
         println!(
-            "tracking {} faces through {frames} frames of {}x{}, {} particles each, on {backend_name}",
-            rects.len(),
-            first.width,
-            first.height,
-            args.particles
+            "tracking {starts} through {length} of {}x{}, {} particles each, on {backend_name}",
+            size.0, size.1, args.particles
         );
     }
-    let bar = crate::body::progress_bar(frames, args.quiet);
-    let mut states = String::from("frame,face,status");
+    let bar = crate::body::progress_bar(frames_known.unwrap_or(0), args.quiet);
+    let mut states = String::from("frame,track,status");
     for n in STATE_NAMES {
         states.push(',');
         states.push_str(n);
@@ -428,27 +503,23 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     states.push_str(",error\n");
     let mut errors = String::from("frame,face,translation_px,rotation_deg\n");
     let (mut translation, mut rotation, mut measured) = (0.0f64, 0.0f64, 0usize);
-    let mut tracking_time = 0.0f64;
+    let (mut tracking_time, mut tracks_seen) = (0.0f64, std::collections::BTreeSet::new());
     let started = Instant::now();
-    for frame in 0..frames {
-        let image = if frame == 0 {
-            first.clone()
-        } else {
-            source
-                .frame(frame)
-                .with_context(|| format!("frame {frame}"))?
-        };
+    let mut next = Some(first);
+    let mut frame = 0usize;
+    while let Some(image) = next.take() {
         let step_started = Instant::now();
-        let estimates = tracker
+        let estimates = runner
             .step(&image)
             .with_context(|| format!("frame {frame}"))?;
         tracking_time += step_started.elapsed().as_secs_f64();
-        for (k, e) in estimates.iter().enumerate() {
+        for e in &estimates {
+            tracks_seen.insert(e.track);
             let status = match e.status {
                 TrackStatus::Tracking => "tracking".to_string(),
                 TrackStatus::Lost { frame } => format!("lost@{frame}"),
             };
-            states.push_str(&format!("{frame},{k},{status}"));
+            states.push_str(&format!("{frame},{},{status}", e.track));
             for v in e.state {
                 states.push_str(&format!(",{v}"));
             }
@@ -456,32 +527,40 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             let known = truth
                 .as_ref()
                 .and_then(|t| t.get(frame))
-                .and_then(|f| f.get(k));
+                .and_then(|f| f.get(e.track));
             if let (Some(t), TrackStatus::Tracking) = (known, e.status)
                 && t.iter().all(|v| v.is_finite())
             {
                 let (te, re) = pose_errors(&e.state, t);
-                errors.push_str(&format!("{frame},{k},{te},{re}\n"));
+                errors.push_str(&format!("{frame},{},{te},{re}\n", e.track));
                 translation += f64::from(te);
                 rotation += f64::from(re);
                 measured += 1;
             }
         }
-        if let Some(dir) = &args.overlay {
-            let path = dir.join(format!("overlay_{frame:05}.png"));
-            overlay(&image, tracker.templates(), &estimates)
-                .save(&path)
-                .with_context(|| format!("writing {}", path.display()))?;
+        if let Some(out) = annotated.as_mut() {
+            let drawn = overlay(&image, &runner.tracker().templates(), &estimates);
+            out.write(frame, &drawn)
+                .with_context(|| format!("frame {frame}"))?;
         }
         bar.inc(1);
+        frame += 1;
+        next = source
+            .next_frame()
+            .with_context(|| format!("frame {frame}"))?;
     }
     bar.finish_and_clear();
+    if let Some(out) = annotated {
+        out.finish()?;
+    }
     write_text(&args.out.join("states.csv"), &states)?;
+    let elapsed = started.elapsed().as_secs_f64();
     println!(
-        "tracked {} faces through {frames} frames in {:.2} s: {:.1} frames/s in the tracker",
-        rects.len(),
-        started.elapsed().as_secs_f64(),
-        frames as f64 / tracking_time.max(1e-9)
+        "tracked {} faces through {frame} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}",
+        tracks_seen.len(),
+        frame as f64 / tracking_time.max(1e-9),
+        frame as f64 / elapsed.max(1e-9),
+        if annotated_path(args).is_some() { " and drawing" } else { "" }
     );
     if measured > 0 {
         write_text(&args.out.join("errors.csv"), &errors)?;
@@ -492,9 +571,17 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         );
     }
     println!(
-        "wrote states.csv{} to {}",
+        "wrote states.csv{} to {}{}",
         if measured > 0 { ", errors.csv" } else { "" },
-        args.out.display()
+        args.out.display(),
+        annotated_path(args).map_or(String::new(), |p| format!(
+            ", the annotated frames to {}",
+            p.display()
+        ))
     );
     Ok(())
+}
+
+fn annotated_path(args: &TrackArgs) -> Option<&Path> {
+    args.overlay.as_deref()
 }

@@ -4,7 +4,9 @@ mod body;
 mod demo;
 mod devices;
 mod face;
+mod face_io;
 mod gpu;
+mod video;
 
 use clap::{Parser, Subcommand};
 
@@ -14,7 +16,7 @@ use clap::{Parser, Subcommand};
     version,
     about = "GPU particle filtering (Condensation) for visual tracking",
     long_about = "GPU particle filtering (Condensation) for visual tracking.\n\n\
-                  `streampf face track --synthetic` tracks four synthetic faces; \
+                  `streampf face track VIDEO` finds and tracks the faces in a video; `streampf face track --synthetic` tracks four synthetic faces; \
                   `streampf body track --synthetic` tracks a synthetic walking body; \
                   `streampf demo` tracks synthetic 7-D pose targets; \
                   `streampf devices` lists the GPU adapters wgpu can use."
@@ -30,7 +32,7 @@ enum Command {
     Devices,
     /// Track a synthetic target and print the per-step error and a summary.
     Demo(demo::DemoArgs),
-    /// Multi-face tracking: `face track DIR`, `face track --synthetic`, `face synth`.
+    /// Multi-face tracking: `face track VIDEO|DIR`, `face track --synthetic`, `face synth`.
     Face {
         #[command(subcommand)]
         command: face::FaceCommand,

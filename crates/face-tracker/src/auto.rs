@@ -1,0 +1,364 @@
+//! Fully automatic tracking, as the paper's system: a Viola–Jones detector runs in its own thread
+//! (the initialisation thread) on every n-th frame while the caller's thread tracks. A detection
+//! that overlaps no running track starts a new one (its template extracted from the frame the
+//! detector saw); a detection on a running track whose ε is above the failure level restarts
+//! that track there (same number: the detector pulls a drifting track back onto the face); a lost
+//! track frees its slot, so the face can be found again. Detections whose template shows too
+//! little contrast to be a face (dark or flat regions) are ignored.
+//!
+//! The detector never holds up tracking unless `max_detection_lag` says so: its results are
+//! taken when they are ready, and a new frame is handed to it only when it is idle.
+
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::thread::JoinHandle;
+
+use crate::detect::{Cascade, DetectConfig, Detection};
+use crate::error::FaceError;
+use crate::extraction::{FaceRect, extract_template};
+use crate::image::GrayImage;
+use crate::model::FaceModel;
+use crate::synth::HEIGHT_RATIO;
+use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
+
+/// How detection feeds the tracker.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AutoConfig {
+    /// Hand the detector every n-th frame (when it is idle; 1 = whenever it is idle).
+    pub detect_every: usize,
+    pub detect: DetectConfig,
+    /// Faces tracked at once (the filter batch's slots).
+    pub max_faces: usize,
+    /// At most this many frames between handing the detector a frame and using its result; the
+    /// tracking thread waits when the detector is slower. `None`: never wait (live video).
+    pub max_detection_lag: Option<usize>,
+    /// The face rectangle's width as a share of the detector's square (a frontal Haar square
+    /// spans brow to chin and a little beyond the cheeks).
+    pub rect_width_share: f32,
+    /// A detection starts a track only when its template's gray levels span at least this much
+    /// (a face has dark eyes and brows on lighter skin; false detections in dark, flat parts of a
+    /// frame give templates that match anything dark forever).
+    pub min_template_contrast: f32,
+    /// A new face needs detections at the same place in this many detector runs in a row (1:
+    /// the first detection starts a track). Faces stay put between runs; false detections on
+    /// clutter rarely repeat.
+    pub confirmations: usize,
+    pub tracker: FaceTrackerConfig,
+}
+
+impl Default for AutoConfig {
+    fn default() -> Self {
+        Self {
+            detect_every: 5,
+            detect: DetectConfig::default(),
+            max_faces: 8,
+            max_detection_lag: None,
+            rect_width_share: 0.8,
+            min_template_contrast: 40.0,
+            confirmations: 2,
+            tracker: FaceTrackerConfig::default(),
+        }
+    }
+}
+
+impl AutoConfig {
+    pub fn validate(&self) -> Result<(), FaceError> {
+        if self.detect_every == 0 || self.max_faces == 0 || self.confirmations == 0 {
+            return Err(FaceError::InvalidInput(format!(
+                "detection needs a period of at least one frame, room for a face and at least one confirmation (got every {} frames, {} faces, {} confirmations)",
+                self.detect_every, self.max_faces, self.confirmations
+            )));
+        }
+        if !(self.min_template_contrast.is_finite() && self.min_template_contrast >= 0.0) {
+            return Err(FaceError::InvalidInput(format!(
+                "the smallest template contrast must be >= 0, got {}",
+                self.min_template_contrast
+            )));
+        }
+        if !(self.rect_width_share.is_finite()
+            && self.rect_width_share > 0.0
+            && self.rect_width_share <= 1.0)
+        {
+            return Err(FaceError::InvalidInput(format!(
+                "the face rectangle's share of a detection must be in (0, 1], got {}",
+                self.rect_width_share
+            )));
+        }
+        self.detect.validate()
+    }
+
+    /// The tracker's face rectangle for a detection: `rect_width_share` of the square's width,
+    /// the face's height ratio, on the same centre, clipped to the frame.
+    pub fn face_rect(&self, d: &Detection, frame: &GrayImage) -> FaceRect {
+        let (cx, cy) = (
+            d.x as f32 + d.width as f32 / 2.0,
+            d.y as f32 + d.height as f32 / 2.0,
+        );
+        let width = d.width as f32 * self.rect_width_share;
+        let height = (width * HEIGHT_RATIO).min(frame.height as f32);
+        let x = (cx - width / 2.0).clamp(0.0, frame.width as f32 - width);
+        let y = (cy - height / 2.0).clamp(0.0, frame.height as f32 - height);
+        FaceRect {
+            x,
+            y,
+            width,
+            height,
+        }
+    }
+}
+
+/// Whether two face rectangles are the same face: the centre of either lies inside the other.
+pub fn same_face(a: &FaceRect, b: &FaceRect) -> bool {
+    let inside = |r: &FaceRect, (x, y): (f32, f32)| {
+        x >= r.x && x <= r.x + r.width && y >= r.y && y <= r.y + r.height
+    };
+    inside(a, b.centre()) || inside(b, a.centre())
+}
+
+/// A frame handed to the detector, and what it found there.
+struct DetectionResult {
+    frame_index: usize,
+    frame: Arc<GrayImage>,
+    faces: Result<Vec<Detection>, FaceError>,
+}
+
+/// The initialisation thread: takes frames, sends back detections.
+struct DetectorThread {
+    jobs: Option<Sender<(usize, Arc<GrayImage>)>>,
+    results: Receiver<DetectionResult>,
+    /// The frame index the detector is working on.
+    busy_with: Option<usize>,
+    handle: Option<JoinHandle<()>>,
+}
+
+impl DetectorThread {
+    fn spawn(cascade: Cascade, config: DetectConfig) -> Result<Self, FaceError> {
+        let (jobs, job_queue) = channel::<(usize, Arc<GrayImage>)>();
+        let (result_sender, results) = channel();
+        let handle = std::thread::Builder::new()
+            .name("face-detector".into())
+            .spawn(move || {
+                for (frame_index, frame) in job_queue {
+                    let faces = cascade.detect(&frame, &config);
+                    let result = DetectionResult {
+                        frame_index,
+                        frame,
+                        faces,
+                    };
+                    if result_sender.send(result).is_err() {
+                        break;
+                    }
+                }
+            })
+            .map_err(|e| FaceError::InvalidInput(format!("cannot start the detector: {e}")))?;
+        Ok(Self {
+            jobs: Some(jobs),
+            results,
+            busy_with: None,
+            handle: Some(handle),
+        })
+    }
+
+    fn send(&mut self, frame_index: usize, frame: Arc<GrayImage>) -> Result<(), FaceError> {
+        self.jobs
+            .as_ref()
+            .and_then(|jobs| jobs.send((frame_index, frame)).ok())
+            .ok_or_else(|| FaceError::InvalidInput("the detector thread has stopped".into()))?;
+        self.busy_with = Some(frame_index);
+        Ok(())
+    }
+
+    /// The finished detection, if any; waits for it when `wait`.
+    fn take(&mut self, wait: bool) -> Result<Option<DetectionResult>, FaceError> {
+        if self.busy_with.is_none() {
+            return Ok(None);
+        }
+        let result = if wait {
+            self.results.recv().ok()
+        } else {
+            match self.results.try_recv() {
+                Ok(r) => Some(r),
+                Err(TryRecvError::Empty) => return Ok(None),
+                Err(TryRecvError::Disconnected) => None,
+            }
+        };
+        let result = result
+            .ok_or_else(|| FaceError::InvalidInput("the detector thread stopped".into()))?;
+        self.busy_with = None;
+        Ok(Some(result))
+    }
+}
+
+impl Drop for DetectorThread {
+    fn drop(&mut self) {
+        // Closing the job channel ends the thread's loop.
+        self.jobs = None;
+        if let Some(handle) = self.handle.take() {
+            let _ = handle.join();
+        }
+    }
+}
+
+/// What happened at a frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AutoFrame {
+    /// Every running track's estimate (and tracks lost at this frame, once).
+    pub estimates: Vec<FaceEstimate>,
+    /// Tracks started before this frame's step: (track, the rectangle it started from, the
+    /// frame the detector saw).
+    pub started: Vec<(usize, FaceRect, usize)>,
+    /// Tracks restarted on a detection before this frame's step: (track, rectangle, the frame
+    /// the detector saw).
+    pub restarted: Vec<(usize, FaceRect, usize)>,
+    /// Detections used this frame that were already tracked well, had no free slot, or were
+    /// not a trackable face.
+    pub ignored: usize,
+}
+
+/// A tracker fed by a detector thread.
+pub struct AutoTracker {
+    config: AutoConfig,
+    tracker: FaceTracker,
+    detector: DetectorThread,
+    frame_index: usize,
+    /// The running tracks after the last step: number, rectangle, ε.
+    tracked: Vec<(usize, FaceRect, f64)>,
+    /// Untracked faces of the last detector run, and in how many runs in a row they were seen.
+    candidates: Vec<(FaceRect, usize)>,
+}
+
+impl AutoTracker {
+    pub fn new(
+        frame_size: (u32, u32),
+        cascade: Cascade,
+        model: &FaceModel,
+        config: AutoConfig,
+        backend: FaceBackend,
+    ) -> Result<Self, FaceError> {
+        config.validate()?;
+        let tracker = FaceTracker::with_capacity(
+            frame_size,
+            config.max_faces,
+            model,
+            config.tracker.clone(),
+            backend,
+        )?;
+        let detector = DetectorThread::spawn(cascade, config.detect.clone())?;
+        Ok(Self {
+            config,
+            tracker,
+            detector,
+            frame_index: 0,
+            tracked: Vec::new(),
+            candidates: Vec::new(),
+        })
+    }
+
+    pub fn tracker(&self) -> &FaceTracker {
+        &self.tracker
+    }
+
+    /// Starts a track on a rectangle given by the caller (not by the detector) in `frame`, the
+    /// frame the next `step` follows; returns the track's number.
+    pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
+        let track = self.tracker.add_face(frame, rect)?;
+        self.tracked.push((track, *rect, 0.0));
+        Ok(track)
+    }
+
+    /// Starts tracks for a finished detection's new faces, and restarts failing tracks it finds.
+    fn use_detection(
+        &mut self,
+        result: DetectionResult,
+        out: &mut AutoFrame,
+    ) -> Result<(), FaceError> {
+        let faces = result.faces?;
+        let failing = f64::from(self.config.tracker.failure_error);
+        let mut candidates = Vec::new();
+        for d in &faces {
+            let rect = self.config.face_rect(d, &result.frame);
+            if !self.looks_trackable(&result.frame, &rect) {
+                out.ignored += 1;
+                continue;
+            }
+            let on_track = self.tracked.iter_mut().find(|t| same_face(&t.1, &rect));
+            match on_track {
+                Some(track) if track.2 > failing => {
+                    self.tracker
+                        .restart_face(track.0, &result.frame, &rect)?;
+                    (track.1, track.2) = (rect, 0.0);
+                    out.restarted.push((track.0, rect, result.frame_index));
+                }
+                Some(_) => out.ignored += 1,
+                None => {
+                    let seen = 1 + self
+                        .candidates
+                        .iter()
+                        .find(|c| same_face(&c.0, &rect))
+                        .map_or(0, |c| c.1);
+                    if seen < self.config.confirmations {
+                        candidates.push((rect, seen));
+                    } else if self.tracker.free_slots() == 0 {
+                        out.ignored += 1;
+                    } else {
+                        let track = self.tracker.add_face(&result.frame, &rect)?;
+                        self.tracked.push((track, rect, 0.0));
+                        out.started.push((track, rect, result.frame_index));
+                    }
+                }
+            }
+        }
+        self.candidates = candidates;
+        Ok(())
+    }
+
+    /// Whether a detection's rectangle yields a template with the contrast of a face.
+    fn looks_trackable(&self, frame: &GrayImage, rect: &FaceRect) -> bool {
+        let Ok(template) = extract_template(
+            frame,
+            rect,
+            self.tracker.model(),
+            &self.config.tracker.extraction,
+        ) else {
+            return false;
+        };
+        let (low, high) = template
+            .points
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), q| {
+                (lo.min(q.gray), hi.max(q.gray))
+            });
+        high - low >= self.config.min_template_contrast
+    }
+
+    /// One frame: take a finished detection (new faces start tracks), hand the detector a copy
+    /// of this frame when it is idle and the period says so, then track.
+    pub fn step(&mut self, frame: &GrayImage) -> Result<AutoFrame, FaceError> {
+        let mut out = AutoFrame {
+            estimates: Vec::new(),
+            started: Vec::new(),
+            restarted: Vec::new(),
+            ignored: 0,
+        };
+        let overdue = match (self.detector.busy_with, self.config.max_detection_lag) {
+            (Some(sent), Some(lag)) => self.frame_index >= sent + lag,
+            _ => false,
+        };
+        if let Some(result) = self.detector.take(overdue)? {
+            self.use_detection(result, &mut out)?;
+        }
+        if self.detector.busy_with.is_none() && self.frame_index % self.config.detect_every == 0 {
+            self.detector
+                .send(self.frame_index, Arc::new(frame.clone()))?;
+        }
+        out.estimates = self.tracker.step(frame)?;
+        self.tracked = out
+            .estimates
+            .iter()
+            .filter(|e| e.status == TrackStatus::Tracking)
+            .map(|e| (e.track, e.rect, e.error))
+            .collect();
+        self.frame_index += 1;
+        Ok(out)
+    }
+}

@@ -1,0 +1,227 @@
+//! Where `streampf face track` gets its frames (a video file, a directory of images, a generated
+//! video, a webcam) and where it draws its results (PNG frames or a video).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, bail};
+use face_tracker::model::FaceModel;
+use face_tracker::synth::{FaceSynthConfig, render_frame};
+use face_tracker::{FaceEstimate, GrayImage, Pose, Template, TrackStatus};
+use nalgebra::Vector3;
+
+use crate::video::{VideoReader, VideoWriter, is_video_path};
+
+/// Image files read from a directory of frames.
+pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "bmp", "pgm", "ppm", "pnm"];
+
+/// Frames, one after another.
+pub enum Source {
+    Images { files: Vec<PathBuf>, next: usize },
+    Synthetic {
+        config: FaceSynthConfig,
+        model: FaceModel,
+        next: usize,
+    },
+    Video(Box<VideoReader>),
+}
+
+impl Source {
+    /// A video file or a directory of image files (name order).
+    pub fn open(path: &Path) -> anyhow::Result<Self> {
+        if path.is_dir() {
+            let mut files: Vec<PathBuf> = std::fs::read_dir(path)
+                .with_context(|| format!("reading {}", path.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    p.extension()
+                        .and_then(|e| e.to_str())
+                        .is_some_and(|e| IMAGE_EXTENSIONS.iter().any(|x| x.eq_ignore_ascii_case(e)))
+                })
+                .collect();
+            files.sort();
+            if files.is_empty() {
+                bail!(
+                    "{}: no image frames ({}) in the directory",
+                    path.display(),
+                    IMAGE_EXTENSIONS.join(", ")
+                );
+            }
+            return Ok(Source::Images { files, next: 0 });
+        }
+        if !path.exists() {
+            bail!("{}: no such file or directory", path.display());
+        }
+        if !is_video_path(path) {
+            // FFmpeg reads more than the usual extensions; let it try and say what is wrong.
+            eprintln!(
+                "note: {} has no usual video extension; trying FFmpeg on it",
+                path.display()
+            );
+        }
+        Ok(Source::Video(Box::new(VideoReader::open(path)?)))
+    }
+
+    /// Frames in the source, when known in advance.
+    pub fn len(&self) -> Option<usize> {
+        match self {
+            Source::Images { files, .. } => Some(files.len()),
+            Source::Synthetic { config, .. } => Some(config.frames),
+            Source::Video(reader) => reader.info.frames,
+        }
+    }
+
+    /// Frames per second for an annotated video (the source's, else 25).
+    pub fn fps(&self) -> f64 {
+        match self {
+            Source::Video(reader) => reader.info.fps.unwrap_or(25.0),
+            _ => 25.0,
+        }
+    }
+
+    /// The next frame, `None` after the last.
+    pub fn next_frame(&mut self) -> anyhow::Result<Option<GrayImage>> {
+        match self {
+            Source::Images { files, next } => {
+                let Some(path) = files.get(*next) else {
+                    return Ok(None);
+                };
+                *next += 1;
+                Ok(Some(GrayImage::load(path)?))
+            }
+            Source::Synthetic {
+                config,
+                model,
+                next,
+            } => {
+                if *next >= config.frames {
+                    return Ok(None);
+                }
+                *next += 1;
+                Ok(Some(render_frame(config, model, *next - 1)?))
+            }
+            Source::Video(reader) => reader.next_frame(),
+        }
+    }
+}
+
+/// Colours of the tracks in overlays (by track number).
+const COLOURS: [[u8; 3]; 6] = [
+    [255, 60, 60],
+    [60, 220, 60],
+    [70, 130, 255],
+    [255, 200, 0],
+    [230, 80, 230],
+    [0, 220, 220],
+];
+
+fn put(img: &mut image::RgbImage, x: f32, y: f32, colour: [u8; 3]) {
+    if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
+        img.put_pixel(x as u32, y as u32, image::Rgb(colour));
+    }
+}
+
+fn line(img: &mut image::RgbImage, a: (f32, f32), b: (f32, f32), colour: [u8; 3]) {
+    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+    for i in 0..=steps {
+        let t = i as f32 / steps as f32;
+        put(img, a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t, colour);
+    }
+}
+
+/// The frame with each running track drawn as in the paper's Fig. 1: its visible template points
+/// posed by the estimate (the 3D model's sparse points) in the track's colour, and the head's
+/// axes (x red, y green, z blue towards the camera).
+pub fn overlay(
+    frame: &GrayImage,
+    templates: &[(usize, &Template)],
+    estimates: &[FaceEstimate],
+) -> image::RgbImage {
+    let mut img = image::RgbImage::from_fn(frame.width, frame.height, |x, y| {
+        let v = frame.data[(y * frame.width + x) as usize];
+        image::Rgb([v, v, v])
+    });
+    for e in estimates {
+        if e.status != TrackStatus::Tracking {
+            continue;
+        }
+        let Some((_, template)) = templates.iter().find(|(id, _)| *id == e.track) else {
+            continue;
+        };
+        let colour = COLOURS[e.track % COLOURS.len()];
+        let pose = Pose::new(&e.state);
+        for q in &template.points {
+            if pose.faces_camera(&Vector3::from(q.normal)) {
+                let p = pose.project(&Vector3::from(q.position));
+                for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
+                    put(&mut img, p.x + dx, p.y + dy, colour);
+                }
+            }
+        }
+        // Axes half the face's width long (at S = 1).
+        let length = 0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
+        let origin = pose.project(&Vector3::zeros());
+        for (axis, c) in [
+            (Vector3::x(), [255, 0, 0]),
+            (Vector3::y(), [0, 255, 0]),
+            (Vector3::z(), [0, 0, 255]),
+        ] {
+            let end = pose.project(&(axis * length));
+            for offset in [-0.5f32, 0.0, 0.5] {
+                line(
+                    &mut img,
+                    (origin.x + offset, origin.y + offset),
+                    (end.x + offset, end.y + offset),
+                    c,
+                );
+            }
+        }
+    }
+    img
+}
+
+/// Where annotated frames go: PNGs in a directory, or a video file (by its extension).
+pub enum Annotated {
+    Frames(PathBuf),
+    Video(VideoWriter),
+}
+
+impl Annotated {
+    pub fn create(path: &Path, width: u32, height: u32, fps: f64) -> anyhow::Result<Self> {
+        if is_video_path(path) {
+            if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+                std::fs::create_dir_all(parent)
+                    .with_context(|| format!("creating {}", parent.display()))?;
+            }
+            return Ok(Annotated::Video(VideoWriter::create(
+                path, width, height, fps,
+            )?));
+        }
+        if path.extension().is_some() && !path.is_dir() {
+            bail!(
+                "{}: give a directory for PNG frames or a .mp4, .mkv, .avi or .webm file",
+                path.display()
+            );
+        }
+        std::fs::create_dir_all(path).with_context(|| format!("creating {}", path.display()))?;
+        Ok(Annotated::Frames(path.to_path_buf()))
+    }
+
+    pub fn write(&mut self, index: usize, frame: &image::RgbImage) -> anyhow::Result<()> {
+        match self {
+            Annotated::Frames(dir) => {
+                let path = dir.join(format!("overlay_{index:05}.png"));
+                frame
+                    .save(&path)
+                    .with_context(|| format!("writing {}", path.display()))
+            }
+            Annotated::Video(writer) => writer.write(frame),
+        }
+    }
+
+    pub fn finish(self) -> anyhow::Result<()> {
+        match self {
+            Annotated::Frames(_) => Ok(()),
+            Annotated::Video(writer) => writer.finish(),
+        }
+    }
+}

@@ -1,0 +1,392 @@
+//! Video in and out through FFmpeg's command-line tools (Debian's `ffmpeg` package), as
+//! subprocess pipes of raw frames.
+//!
+//! Why pipes rather than linking libav* (the ffmpeg-next crate): nothing to build against (no
+//! FFmpeg headers, no bindgen), any FFmpeg version on the PATH works, and a decoder that crashes
+//! on a bad file takes down its own process, not the tracker, which reports ffmpeg's message.
+//!
+//! Frames come out as FFmpeg's `gray`: the decoder's luma plane (BT.601 weights for the usual SD
+//! and webcam material), which is what a Viola–Jones detector and the tracker want; no colour
+//! conversion happens on our side.
+
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+
+use anyhow::{Context, bail};
+use face_tracker::GrayImage;
+
+const INSTALL: &str = "install FFmpeg (Debian/Ubuntu: apt-get install ffmpeg)";
+
+/// File extensions read as video (anything else in a directory is not).
+pub const VIDEO_EXTENSIONS: [&str; 8] = ["mp4", "avi", "webm", "mkv", "mov", "m4v", "mpg", "ogv"];
+
+pub fn is_video_path(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| VIDEO_EXTENSIONS.iter().any(|v| v.eq_ignore_ascii_case(e)))
+}
+
+/// What ffprobe says of a video's first video stream.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VideoInfo {
+    pub width: u32,
+    pub height: u32,
+    /// Frames per second (None when the container does not say).
+    pub fps: Option<f64>,
+    /// Frames in the stream, when the container says.
+    pub frames: Option<usize>,
+}
+
+/// Parses ffprobe's `key=value` lines (`-of default=noprint_wrappers=1`).
+pub fn parse_probe(text: &str) -> anyhow::Result<VideoInfo> {
+    let value = |key: &str| {
+        text.lines()
+            .find_map(|l| l.trim().strip_prefix(key)?.strip_prefix('='))
+            .map(str::trim)
+    };
+    let size = |key: &str| -> anyhow::Result<u32> {
+        value(key)
+            .and_then(|v| v.parse::<u32>().ok())
+            .filter(|&v| v > 0)
+            .with_context(|| format!("no {key} in ffprobe's answer {text:?}"))
+    };
+    let fps = value("r_frame_rate").and_then(|v| {
+        let (n, d) = v.split_once('/').unwrap_or((v, "1"));
+        let (n, d) = (n.parse::<f64>().ok()?, d.parse::<f64>().ok()?);
+        (n > 0.0 && d > 0.0).then(|| n / d)
+    });
+    let frames = value("nb_frames")
+        .and_then(|v| v.parse::<usize>().ok())
+        .filter(|&n| n > 0);
+    Ok(VideoInfo {
+        width: size("width")?,
+        height: size("height")?,
+        fps,
+        frames,
+    })
+}
+
+fn spawn(command: &mut Command, what: &str) -> anyhow::Result<Child> {
+    command.spawn().map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            anyhow::anyhow!("{what}: FFmpeg is not installed ({e}); {INSTALL}")
+        } else {
+            anyhow::anyhow!("{what}: cannot start FFmpeg: {e}")
+        }
+    })
+}
+
+/// Asks ffprobe for the size, rate and length of `path`'s first video stream.
+pub fn probe(path: &Path) -> anyhow::Result<VideoInfo> {
+    if !path.is_file() {
+        bail!("{}: no such video file", path.display());
+    }
+    let what = format!("reading {}", path.display());
+    let output = spawn(
+        Command::new("ffprobe")
+            .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
+            .arg("stream=width,height,r_frame_rate,nb_frames")
+            .args(["-of", "default=noprint_wrappers=1"])
+            .arg(path)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped()),
+        &what,
+    )?
+    .wait_with_output()
+    .with_context(|| what.clone())?;
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    if !output.status.success() {
+        bail!(
+            "{}: FFmpeg cannot decode this file: {}",
+            path.display(),
+            stderr.trim()
+        );
+    }
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    if stdout.trim().is_empty() {
+        bail!("{}: the file has no video stream", path.display());
+    }
+    parse_probe(&stdout).with_context(|| format!("{}: not a video FFmpeg can read", path.display()))
+}
+
+/// Gray frames from an FFmpeg decoder process.
+pub struct VideoReader {
+    name: String,
+    pub info: VideoInfo,
+    child: Child,
+    stdout: ChildStdout,
+    stderr: Option<std::thread::JoinHandle<String>>,
+    decoded: usize,
+}
+
+impl VideoReader {
+    /// Opens a video file.
+    pub fn open(path: &Path) -> anyhow::Result<Self> {
+        let info = probe(path)?;
+        let mut command = Command::new("ffmpeg");
+        command
+            .args(["-nostdin", "-v", "error", "-i"])
+            .arg(path)
+            .args(["-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "gray", "-"]);
+        Self::start(path.display().to_string(), info, command)
+    }
+
+    /// Opens a V4L2 camera (Linux) at the given size.
+    #[cfg(feature = "webcam")]
+    pub fn webcam(device: &Path, width: u32, height: u32) -> anyhow::Result<Self> {
+        let info = VideoInfo {
+            width,
+            height,
+            fps: None,
+            frames: None,
+        };
+        Self::start(
+            device.display().to_string(),
+            info,
+            webcam_command(device, width, height),
+        )
+    }
+
+    fn start(name: String, info: VideoInfo, mut command: Command) -> anyhow::Result<Self> {
+        let mut child = spawn(
+            command
+                .stdin(Stdio::null())
+                .stdout(Stdio::piped())
+                .stderr(Stdio::piped()),
+            &format!("decoding {name}"),
+        )?;
+        let stdout = child.stdout.take().context("ffmpeg's output pipe")?;
+        // ffmpeg's messages are drained beside the frames (a full pipe would stall it).
+        let mut err = child.stderr.take().context("ffmpeg's error pipe")?;
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = err.read_to_string(&mut text);
+            text
+        });
+        Ok(Self {
+            name,
+            info,
+            child,
+            stdout,
+            stderr: Some(stderr),
+            decoded: 0,
+        })
+    }
+
+    /// The next frame; `None` at the end of the stream. A stream that ends inside a frame, or an
+    /// ffmpeg that exits with an error, is an error with ffmpeg's message.
+    pub fn next_frame(&mut self) -> anyhow::Result<Option<GrayImage>> {
+        let (w, h) = (self.info.width, self.info.height);
+        let mut data = vec![0u8; w as usize * h as usize];
+        let mut filled = 0;
+        while filled < data.len() {
+            match self.stdout.read(&mut data[filled..]) {
+                Ok(0) => break,
+                Ok(n) => filled += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e).with_context(|| format!("reading {}", self.name)),
+            }
+        }
+        if filled == data.len() {
+            self.decoded += 1;
+            return Ok(Some(GrayImage::new(w, h, data)?));
+        }
+        let status = self.child.wait().with_context(|| self.name.clone())?;
+        let message = self
+            .stderr
+            .take()
+            .and_then(|t| t.join().ok())
+            .unwrap_or_default();
+        if !status.success() {
+            bail!(
+                "{}: FFmpeg stopped after {} frames: {}",
+                self.name,
+                self.decoded,
+                message.trim()
+            );
+        }
+        if filled > 0 {
+            bail!(
+                "{}: the stream ended inside frame {} ({filled} of {} bytes)",
+                self.name,
+                self.decoded,
+                data.len()
+            );
+        }
+        if self.decoded == 0 {
+            bail!("{}: FFmpeg decoded no frames", self.name);
+        }
+        Ok(None)
+    }
+}
+
+impl Drop for VideoReader {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+#[cfg(feature = "webcam")]
+fn webcam_command(device: &Path, width: u32, height: u32) -> Command {
+    let mut command = Command::new("ffmpeg");
+    command
+        .args(["-nostdin", "-v", "error", "-f", "v4l2", "-video_size"])
+        .arg(format!("{width}x{height}"))
+        .arg("-i")
+        .arg(device)
+        .args(["-f", "rawvideo", "-pix_fmt", "gray", "-"]);
+    command
+}
+
+/// The encoder for an output file's container.
+fn encoder_args(path: &Path) -> anyhow::Result<&'static [&'static str]> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    Ok(match ext.as_deref() {
+        Some("mp4" | "mkv" | "mov" | "m4v") => &["-c:v", "libx264", "-crf", "20", "-preset", "fast"],
+        Some("avi") => &["-c:v", "mpeg4", "-q:v", "3"],
+        Some("webm") => &["-c:v", "libvpx-vp9", "-crf", "32", "-b:v", "0"],
+        _ => bail!(
+            "{}: write annotated video as .mp4, .mkv, .mov, .avi or .webm, or give a directory for PNG frames",
+            path.display()
+        ),
+    })
+}
+
+/// RGB frames into an FFmpeg encoder process.
+pub struct VideoWriter {
+    path: PathBuf,
+    size: (u32, u32),
+    child: Child,
+    stdin: Option<ChildStdin>,
+    stderr: Option<std::thread::JoinHandle<String>>,
+}
+
+impl VideoWriter {
+    pub fn create(path: &Path, width: u32, height: u32, fps: f64) -> anyhow::Result<Self> {
+        let codec = encoder_args(path)?;
+        // Most encoders need even sizes for 4:2:0: the last row or column is cropped if odd.
+        let (even_w, even_h) = (width & !1, height & !1);
+        let mut command = Command::new("ffmpeg");
+        command
+            .args(["-nostdin", "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"])
+            .args(["-s", &format!("{width}x{height}"), "-r", &format!("{fps}")])
+            .args(["-i", "-", "-vf", &format!("crop={even_w}:{even_h}:0:0")])
+            .args(codec)
+            .args(["-pix_fmt", "yuv420p"])
+            .arg(path);
+        let mut child = spawn(
+            command
+                .stdin(Stdio::piped())
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped()),
+            &format!("writing {}", path.display()),
+        )?;
+        let stdin = child.stdin.take();
+        let mut err = child.stderr.take().context("ffmpeg's error pipe")?;
+        let stderr = std::thread::spawn(move || {
+            let mut text = String::new();
+            let _ = err.read_to_string(&mut text);
+            text
+        });
+        Ok(Self {
+            path: path.to_path_buf(),
+            size: (width, height),
+            child,
+            stdin,
+            stderr: Some(stderr),
+        })
+    }
+
+    fn failure(&mut self) -> anyhow::Error {
+        self.stdin = None;
+        let _ = self.child.wait();
+        let message = self
+            .stderr
+            .take()
+            .and_then(|t| t.join().ok())
+            .unwrap_or_default();
+        anyhow::anyhow!(
+            "{}: FFmpeg could not encode the video: {}",
+            self.path.display(),
+            message.trim()
+        )
+    }
+
+    pub fn write(&mut self, frame: &image::RgbImage) -> anyhow::Result<()> {
+        if frame.dimensions() != self.size {
+            bail!(
+                "{}: a {}x{} frame in a {}x{} video",
+                self.path.display(),
+                frame.width(),
+                frame.height(),
+                self.size.0,
+                self.size.1
+            );
+        }
+        let written = match self.stdin.as_mut() {
+            Some(stdin) => stdin.write_all(frame.as_raw()).is_ok(),
+            None => false,
+        };
+        if written {
+            Ok(())
+        } else {
+            Err(self.failure())
+        }
+    }
+
+    /// Closes the stream and waits for the encoder.
+    pub fn finish(mut self) -> anyhow::Result<()> {
+        self.stdin = None;
+        let status = self
+            .child
+            .wait()
+            .with_context(|| self.path.display().to_string())?;
+        if status.success() {
+            Ok(())
+        } else {
+            Err(self.failure())
+        }
+    }
+}
+
+impl Drop for VideoWriter {
+    fn drop(&mut self) {
+        self.stdin = None;
+        let _ = self.child.wait();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn probe_answers_parse_in_any_order() {
+        let info = parse_probe("nb_frames=270\nwidth=720\nr_frame_rate=2997/125\nheight=528\n")
+            .unwrap();
+        assert_eq!((info.width, info.height, info.frames), (720, 528, Some(270)));
+        assert!((info.fps.unwrap() - 23.976).abs() < 1e-3);
+        let webm = parse_probe("width=64\nheight=48\nr_frame_rate=0/0\nnb_frames=N/A\n").unwrap();
+        assert_eq!((webm.fps, webm.frames), (None, None));
+        for bad in ["", "width=0\nheight=10", "width=abc\nheight=10", "height=10"] {
+            assert!(parse_probe(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn output_containers_choose_an_encoder_or_say_what_works() {
+        assert!(encoder_args(Path::new("a.mp4")).unwrap().contains(&"libx264"));
+        assert!(encoder_args(Path::new("a.AVI")).unwrap().contains(&"mpeg4"));
+        assert!(encoder_args(Path::new("a.webm")).unwrap().contains(&"libvpx-vp9"));
+        let err = encoder_args(Path::new("a.gif")).unwrap_err().to_string();
+        assert!(err.contains(".mp4") && err.contains("directory"), "{err}");
+        assert!(is_video_path(Path::new("x/Megamind.AVI")));
+        assert!(!is_video_path(Path::new("x/frame.png")));
+    }
+}

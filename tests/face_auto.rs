@@ -1,0 +1,160 @@
+//! The initialisation thread and the tracker together: four synthetic faces enter a video one
+//! after another; the Viola–Jones detector (opencv-data's frontal alt2 cascade) runs in its own
+//! thread on every other frame and starts tracks. Every face must be found and tracked to the
+//! end, and no face tracked twice.
+//!
+//! Thresholds. A face counts as found when a track starts within 10 frames of its entry (the
+//! detector sees every other frame and its result is used at most 2 frames later; the rest is
+//! room for frames where the cascade misses the face). A track belongs to the face whose true
+//! centre is nearest its estimate, and must stay within half a face width (25 px) of it: the
+//! tracker's mean error on these videos is 2–5 px.
+
+mod common;
+
+use std::collections::BTreeMap;
+
+use common::media;
+use face_tracker::detect::Cascade;
+use face_tracker::model::FaceModel;
+use face_tracker::projection::{TX, TY};
+use face_tracker::synth::{FaceSynthConfig, face_state, render_frame};
+use face_tracker::{AutoConfig, AutoTracker, FaceBackend, FaceTrackerConfig, TrackStatus};
+
+const ENTER_EVERY: usize = 8;
+const FRAMES: usize = 40;
+const FOUND_WITHIN: usize = 10;
+const MAX_DRIFT_PX: f32 = 25.0;
+
+fn video() -> FaceSynthConfig {
+    FaceSynthConfig {
+        width: 640,
+        height: 480,
+        faces: 4,
+        half_width: 50.0,
+        max_yaw: 30f32.to_radians(),
+        occlusion: false,
+        enter_every: ENTER_EVERY,
+        ..FaceSynthConfig::paper(FRAMES)
+    }
+}
+
+fn auto_config() -> AutoConfig {
+    let mut config = AutoConfig {
+        detect_every: 2,
+        max_faces: 6,
+        max_detection_lag: Some(2),
+        tracker: FaceTrackerConfig {
+            particles: 256,
+            best: 32,
+            ..FaceTrackerConfig::default()
+        },
+        ..AutoConfig::default()
+    };
+    // The faces are 100 px wide: smaller windows would only cost time.
+    config.detect.min_size = 80;
+    config
+}
+
+fn nearest_face(video: &FaceSynthConfig, frame: usize, x: f32, y: f32) -> (usize, f32) {
+    (0..video.faces)
+        .filter(|&k| video.present(k, frame))
+        .map(|k| {
+            let s = face_state(video, k, frame);
+            (k, ((s[TX] - x).powi(2) + (s[TY] - y).powi(2)).sqrt())
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .expect("a face in the frame")
+}
+
+fn run(backend: FaceBackend) {
+    let video = video();
+    let model = FaceModel::generic(129).unwrap();
+    let cascade =
+        Cascade::load(&media::cascade_path("haarcascade_frontalface_alt2.xml")).unwrap();
+    let mut tracker = AutoTracker::new(
+        (video.width, video.height),
+        cascade,
+        &model,
+        auto_config(),
+        backend,
+    )
+    .unwrap();
+    // Track → (face, frame it started).
+    let mut owner: BTreeMap<usize, (usize, usize)> = BTreeMap::new();
+    let mut last_frame_tracks = Vec::new();
+    for frame in 0..FRAMES {
+        let out = tracker.step(&render_frame(&video, &model, frame).unwrap()).unwrap();
+        for (track, rect, seen) in &out.started {
+            let (cx, cy) = rect.centre();
+            let (face, distance) = nearest_face(&video, *seen, cx, cy);
+            assert!(
+                distance < MAX_DRIFT_PX,
+                "track {track} started {distance} px from face {face} (a detection on no face)"
+            );
+            owner.insert(*track, (face, frame));
+        }
+        let mut faces_now = Vec::new();
+        for e in &out.estimates {
+            let (face, distance) = nearest_face(&video, frame, e.state[TX], e.state[TY]);
+            assert_eq!(
+                e.status,
+                TrackStatus::Tracking,
+                "track {} (face {face}) lost at frame {frame}",
+                e.track
+            );
+            assert_eq!(
+                owner[&e.track].0, face,
+                "track {} moved from face {} to face {face} at frame {frame}",
+                e.track, owner[&e.track].0
+            );
+            assert!(
+                distance < MAX_DRIFT_PX,
+                "track {} is {distance} px from face {face} at frame {frame}",
+                e.track
+            );
+            assert!(
+                !faces_now.contains(&face),
+                "face {face} is tracked twice at frame {frame}: {:?}",
+                out.estimates
+            );
+            faces_now.push(face);
+        }
+        last_frame_tracks = faces_now;
+    }
+    eprintln!("tracks (face, first frame): {owner:?}");
+    for k in 0..video.faces {
+        let starts: Vec<usize> = owner
+            .values()
+            .filter(|(face, _)| *face == k)
+            .map(|(_, frame)| *frame)
+            .collect();
+        assert_eq!(starts.len(), 1, "face {k} got {} tracks", starts.len());
+        let entry = video.entry_frame(k);
+        assert!(
+            (entry..=entry + FOUND_WITHIN).contains(&starts[0]),
+            "face {k} entered at frame {entry}, its track started at frame {}",
+            starts[0]
+        );
+    }
+    last_frame_tracks.sort();
+    assert_eq!(last_frame_tracks, vec![0, 1, 2, 3]);
+}
+
+#[test]
+fn four_entering_faces_are_each_found_once_on_cpu() {
+    if media::opted_out("automatic tracking with opencv-data's cascade") {
+        return;
+    }
+    run(FaceBackend::Cpu);
+}
+
+#[test]
+fn four_entering_faces_are_each_found_once_on_gpu() {
+    if media::opted_out("automatic tracking with opencv-data's cascade") {
+        return;
+    }
+    let Some(ctx) = common::gpu_context("automatic face tracking on the GPU") else {
+        return;
+    };
+    run(FaceBackend::Gpu(Box::new(ctx)));
+}
