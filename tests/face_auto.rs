@@ -69,8 +69,7 @@ fn nearest_face(video: &FaceSynthConfig, frame: usize, x: f32, y: f32) -> (usize
 fn run(backend: FaceBackend) {
     let video = video();
     let model = FaceModel::generic(129).unwrap();
-    let cascade =
-        Cascade::load(&media::cascade_path("haarcascade_frontalface_alt2.xml")).unwrap();
+    let cascade = Cascade::load(&media::cascade_path("haarcascade_frontalface_alt2.xml")).unwrap();
     let mut tracker = AutoTracker::new(
         (video.width, video.height),
         cascade,
@@ -83,7 +82,9 @@ fn run(backend: FaceBackend) {
     let mut owner: BTreeMap<usize, (usize, usize)> = BTreeMap::new();
     let mut last_frame_tracks = Vec::new();
     for frame in 0..FRAMES {
-        let out = tracker.step(&render_frame(&video, &model, frame).unwrap()).unwrap();
+        let out = tracker
+            .step(&render_frame(&video, &model, frame).unwrap())
+            .unwrap();
         for (track, rect, seen) in &out.started {
             let (cx, cy) = rect.centre();
             let (face, distance) = nearest_face(&video, *seen, cx, cy);

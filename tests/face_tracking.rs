@@ -10,8 +10,8 @@
 
 mod common;
 
-use face_tracker::model::FaceModel;
 use face_tracker::extraction::FaceRect;
+use face_tracker::model::FaceModel;
 use face_tracker::projection::{SCALE, TX, TY};
 use face_tracker::synth::{FaceSynthConfig, HEIGHT_RATIO, face_state, initial_rect, render_frame};
 use face_tracker::tracker::pose_errors;
@@ -126,9 +126,14 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         FaceBackend::Cpu,
     )
     .unwrap();
-    assert_eq!(tracker.add_face(&first, &initial_rect(&video, 0)).unwrap(), 0);
+    assert_eq!(
+        tracker.add_face(&first, &initial_rect(&video, 0)).unwrap(),
+        0
+    );
     // The one slot is taken: a second face is refused with a clear error.
-    let refused = tracker.add_face(&first, &initial_rect(&video, 1)).unwrap_err();
+    let refused = tracker
+        .add_face(&first, &initial_rect(&video, 1))
+        .unwrap_err();
     assert!(refused.to_string().contains("slots are taken"), "{refused}");
     let mut lost_at = None;
     for frame in 0..video.frames {
@@ -159,7 +164,10 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
             let (t, _) = pose_errors(&e.state, &face_state(&video, 1, frame));
             // The new track started mid-video: its state is relative to that frame's pose, so
             // only the position is compared.
-            assert!(t <= MAX_TRANSLATION_PX, "new track {t} px off at frame {frame}");
+            assert!(
+                t <= MAX_TRANSLATION_PX,
+                "new track {t} px off at frame {frame}"
+            );
         }
     }
     assert!(lost_at.is_some_and(|f| f < 25), "{lost_at:?}");

@@ -4,9 +4,10 @@
 //!   lavapipe, through apt-get when running as root on Debian/Ubuntu; otherwise prints the exact
 //!   command and stops), then runs every test of the workspace.
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel)
-//!   into `target/media/images`, and makes sure the detection tests' references are there:
-//!   Debian's opencv-data (the Haar cascades) and OpenCV's Python package (the test-only
-//!   reference detector). `test` runs it first.
+//!   into `target/media/images`, and makes sure the detection and video tests' media are there:
+//!   Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi), ffmpeg
+//!   (video in and out) and OpenCV's Python package (the test-only reference detector). `test`
+//!   runs it first.
 
 use std::path::Path;
 use std::process::{Command, ExitCode};
@@ -23,8 +24,8 @@ commands:
       --no-media skips the media and lets the tests on real images skip (STREAMPF_NO_MEDIA=1).
   fetch-media
       fetch the real test images into target/media/images (scikit-image's photographs from its
-      PyPI wheel) and install the detection references (Debian's opencv-data, OpenCV's Python
-      package) when missing.";
+      PyPI wheel) and install the detection and video media (Debian's opencv-data, opencv-doc
+      and ffmpeg, OpenCV's Python package) when missing.";
 
 /// The scikit-image wheel whose photographs the detection tests use (pinned: the tests compare
 /// against OpenCV on exactly these images).
@@ -131,9 +132,9 @@ fn run(cmd: &mut Command, what: &str) -> anyhow::Result<()> {
 
 fn fetch_media() -> anyhow::Result<()> {
     ensure_packages(
-        &["opencv-data"],
-        "the detection tests",
-        "OpenCV's Haar cascades",
+        &["opencv-data", "opencv-doc", "ffmpeg"],
+        "the detection and video tests",
+        "OpenCV's Haar cascades, OpenCV's sample videos (Megamind.avi), FFmpeg",
     )?;
     let python = python()?;
     let has_cv2 = Command::new(&python)

@@ -182,8 +182,8 @@ impl DetectorThread {
                 Err(TryRecvError::Disconnected) => None,
             }
         };
-        let result = result
-            .ok_or_else(|| FaceError::InvalidInput("the detector thread stopped".into()))?;
+        let result =
+            result.ok_or_else(|| FaceError::InvalidInput("the detector thread stopped".into()))?;
         self.busy_with = None;
         Ok(Some(result))
     }
@@ -284,8 +284,7 @@ impl AutoTracker {
             let on_track = self.tracked.iter_mut().find(|t| same_face(&t.1, &rect));
             match on_track {
                 Some(track) if track.2 > failing => {
-                    self.tracker
-                        .restart_face(track.0, &result.frame, &rect)?;
+                    self.tracker.restart_face(track.0, &result.frame, &rect)?;
                     (track.1, track.2) = (rect, 0.0);
                     out.restarted.push((track.0, rect, result.frame_index));
                 }
@@ -347,7 +346,9 @@ impl AutoTracker {
         if let Some(result) = self.detector.take(overdue)? {
             self.use_detection(result, &mut out)?;
         }
-        if self.detector.busy_with.is_none() && self.frame_index % self.config.detect_every == 0 {
+        if self.detector.busy_with.is_none()
+            && self.frame_index.is_multiple_of(self.config.detect_every)
+        {
             self.detector
                 .send(self.frame_index, Arc::new(frame.clone()))?;
         }

@@ -29,9 +29,9 @@ pub mod synth;
 pub mod template;
 pub mod tracker;
 
+pub use auto::{AutoConfig, AutoFrame, AutoTracker};
 pub use error::FaceError;
 pub use image::{FloatImage, GrayImage};
 pub use projection::{DIMS, Pose, rotation};
 pub use template::{FeaturePoint, Template};
-pub use auto::{AutoConfig, AutoFrame, AutoTracker};
 pub use tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};

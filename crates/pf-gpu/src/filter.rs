@@ -718,7 +718,8 @@ impl GpuFilter {
         self.states.upload_at(ctx, t * block, states)?;
         self.log_weights
             .upload_at(ctx, t * m, &vec![-(m as f32).ln(); m])?;
-        self.weights.upload_at(ctx, t * m, &vec![1.0 / m as f32; m])?;
+        self.weights
+            .upload_at(ctx, t * m, &vec![1.0 / m as f32; m])?;
         self.stats.upload_at(ctx, t, &[TargetStats::initial(m)])
     }
 

@@ -33,7 +33,7 @@ pub enum FaceCommand {
     /// Render a synthetic video (PNG frames, face rectangles, ground truth) into a directory.
     Synth(SynthArgs),
     /// Track faces through a directory of frames, or through a generated video.
-    Track(TrackArgs),
+    Track(Box<TrackArgs>),
 }
 
 #[derive(Debug, Clone, Args)]
@@ -126,6 +126,9 @@ pub struct TrackArgs {
     /// Faces tracked at once.
     #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
     pub max_faces: u32,
+    /// Stop after this many frames.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub max_frames: Option<u64>,
     /// Where to write states.csv (and errors.csv with ground truth).
     #[arg(long, default_value = "streampf-face-out")]
     pub out: PathBuf,
@@ -299,11 +302,10 @@ fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
     })
 }
 
-
 /// How tracks start: from rectangles given at the first frame, or from the detector thread.
 enum Runner {
-    Fixed(FaceTracker),
-    Auto(AutoTracker),
+    Fixed(Box<FaceTracker>),
+    Auto(Box<AutoTracker>),
 }
 
 impl Runner {
@@ -338,9 +340,9 @@ fn webcam_source(device: &Path, size: &str) -> anyhow::Result<Source> {
         .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
         .filter(|&(w, h)| (16..=8192).contains(&w) && (16..=8192).contains(&h))
         .with_context(|| format!("--webcam-size {size:?} is not WIDTHxHEIGHT (16 to 8192)"))?;
-    Ok(Source::Video(Box::new(
-        crate::video::VideoReader::webcam(device, w, h)?,
-    )))
+    Ok(Source::Video(Box::new(crate::video::VideoReader::webcam(
+        device, w, h,
+    )?)))
 }
 
 #[cfg(not(feature = "webcam"))]
@@ -461,15 +463,15 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                     .add_face(&first, r)
                     .with_context(|| format!("face {i}"))?;
             }
-            Runner::Auto(tracker)
+            Runner::Auto(Box::new(tracker))
         }
-        None => Runner::Fixed(FaceTracker::new(
+        None => Runner::Fixed(Box::new(FaceTracker::new(
             &first,
             &rects,
             &face_model,
             config,
             backend,
-        )?),
+        )?)),
     };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -477,7 +479,8 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
         None => None,
     };
-    let frames_known = source.len();
+    let limit = args.max_frames.map_or(usize::MAX, |n| n as usize);
+    let frames_known = source.len().map(|n| n.min(limit));
     if !args.quiet {
         let starts = if detect {
             format!(
@@ -545,9 +548,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         }
         bar.inc(1);
         frame += 1;
-        next = source
-            .next_frame()
-            .with_context(|| format!("frame {frame}"))?;
+        if frame < limit {
+            next = source
+                .next_frame()
+                .with_context(|| format!("frame {frame}"))?;
+        }
     }
     bar.finish_and_clear();
     if let Some(out) = annotated {
@@ -560,7 +565,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         tracks_seen.len(),
         frame as f64 / tracking_time.max(1e-9),
         frame as f64 / elapsed.max(1e-9),
-        if annotated_path(args).is_some() { " and drawing" } else { "" }
+        if annotated_path(args).is_some() {
+            " and drawing"
+        } else {
+            ""
+        }
     );
     if measured > 0 {
         write_text(&args.out.join("errors.csv"), &errors)?;

@@ -16,7 +16,10 @@ pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "bmp", "pgm", "pp
 
 /// Frames, one after another.
 pub enum Source {
-    Images { files: Vec<PathBuf>, next: usize },
+    Images {
+        files: Vec<PathBuf>,
+        next: usize,
+    },
     Synthetic {
         config: FaceSynthConfig,
         model: FaceModel,

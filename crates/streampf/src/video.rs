@@ -248,7 +248,9 @@ fn encoder_args(path: &Path) -> anyhow::Result<&'static [&'static str]> {
         .and_then(|e| e.to_str())
         .map(str::to_ascii_lowercase);
     Ok(match ext.as_deref() {
-        Some("mp4" | "mkv" | "mov" | "m4v") => &["-c:v", "libx264", "-crf", "20", "-preset", "fast"],
+        Some("mp4" | "mkv" | "mov" | "m4v") => {
+            &["-c:v", "libx264", "-crf", "20", "-preset", "fast"]
+        }
         Some("avi") => &["-c:v", "mpeg4", "-q:v", "3"],
         Some("webm") => &["-c:v", "libvpx-vp9", "-crf", "32", "-b:v", "0"],
         _ => bail!(
@@ -274,7 +276,9 @@ impl VideoWriter {
         let (even_w, even_h) = (width & !1, height & !1);
         let mut command = Command::new("ffmpeg");
         command
-            .args(["-nostdin", "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"])
+            .args([
+                "-nostdin", "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24",
+            ])
             .args(["-s", &format!("{width}x{height}"), "-r", &format!("{fps}")])
             .args(["-i", "-", "-vf", &format!("crop={even_w}:{even_h}:0:0")])
             .args(codec)
@@ -333,11 +337,7 @@ impl VideoWriter {
             Some(stdin) => stdin.write_all(frame.as_raw()).is_ok(),
             None => false,
         };
-        if written {
-            Ok(())
-        } else {
-            Err(self.failure())
-        }
+        if written { Ok(()) } else { Err(self.failure()) }
     }
 
     /// Closes the stream and waits for the encoder.
@@ -368,22 +368,38 @@ mod tests {
 
     #[test]
     fn probe_answers_parse_in_any_order() {
-        let info = parse_probe("nb_frames=270\nwidth=720\nr_frame_rate=2997/125\nheight=528\n")
-            .unwrap();
-        assert_eq!((info.width, info.height, info.frames), (720, 528, Some(270)));
+        let info =
+            parse_probe("nb_frames=270\nwidth=720\nr_frame_rate=2997/125\nheight=528\n").unwrap();
+        assert_eq!(
+            (info.width, info.height, info.frames),
+            (720, 528, Some(270))
+        );
         assert!((info.fps.unwrap() - 23.976).abs() < 1e-3);
         let webm = parse_probe("width=64\nheight=48\nr_frame_rate=0/0\nnb_frames=N/A\n").unwrap();
         assert_eq!((webm.fps, webm.frames), (None, None));
-        for bad in ["", "width=0\nheight=10", "width=abc\nheight=10", "height=10"] {
+        for bad in [
+            "",
+            "width=0\nheight=10",
+            "width=abc\nheight=10",
+            "height=10",
+        ] {
             assert!(parse_probe(bad).is_err(), "{bad:?}");
         }
     }
 
     #[test]
     fn output_containers_choose_an_encoder_or_say_what_works() {
-        assert!(encoder_args(Path::new("a.mp4")).unwrap().contains(&"libx264"));
+        assert!(
+            encoder_args(Path::new("a.mp4"))
+                .unwrap()
+                .contains(&"libx264")
+        );
         assert!(encoder_args(Path::new("a.AVI")).unwrap().contains(&"mpeg4"));
-        assert!(encoder_args(Path::new("a.webm")).unwrap().contains(&"libvpx-vp9"));
+        assert!(
+            encoder_args(Path::new("a.webm"))
+                .unwrap()
+                .contains(&"libvpx-vp9")
+        );
         let err = encoder_args(Path::new("a.gif")).unwrap_err().to_string();
         assert!(err.contains(".mp4") && err.contains("directory"), "{err}");
         assert!(is_video_path(Path::new("x/Megamind.AVI")));

@@ -37,7 +37,7 @@ fn synth_then_track_a_directory_with_overlays() {
     );
     let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
     assert_eq!(states.lines().count(), 1 + 8 * 2);
-    assert!(states.starts_with("frame,face,status,tx,ty,scale,rx,ry,rz,alpha,error"));
+    assert!(states.starts_with("frame,track,status,tx,ty,scale,rx,ry,rz,alpha,error"));
     let overlays = std::fs::read_dir(&overlay).unwrap().count();
     assert_eq!(overlays, 8);
     let frame = image::open(overlay.join("overlay_00003.png"))
@@ -65,7 +65,7 @@ fn synth_then_track_a_directory_with_overlays() {
         "cpu",
     ]));
     assert!(
-        text.contains("tracking 1 faces through 8 frames of 480x360"),
+        text.contains("tracking 1 faces from their rectangles through 8 frames of 480x360"),
         "{text}"
     );
     for dir in [data, out, overlay] {
@@ -90,7 +90,9 @@ fn track_synthetic_prints_errors_and_frame_rate() {
     args.extend(SMALL);
     let text = ok(&streampf(&args));
     assert!(
-        text.contains("tracking 2 faces through 8 frames of 480x360, 200 particles each, on CPU"),
+        text.contains(
+            "tracking 2 faces from their rectangles through 8 frames of 480x360, 200 particles each, on CPU"
+        ),
         "{text}"
     );
     assert!(number_after(&text, "mean rotation error:") < 8.0, "{text}");
@@ -105,16 +107,36 @@ fn bad_face_inputs_are_clear_errors() {
     let err = failure(&streampf(&["face", "track", d]));
     assert!(err.contains(d), "{err}");
     std::fs::create_dir_all(&data).unwrap();
-    assert!(failure(&streampf(&["face", "track", d])).contains("no *.png frames"));
+    assert!(failure(&streampf(&["face", "track", d])).contains("no image frames"));
     // Frames without rectangles; then a zero-size rectangle; then an unreadable frame.
     let mut args = vec!["face", "synth", "--out", d];
     args.extend(SMALL);
     ok(&streampf(&args));
+    // Without faces.csv the detector starts the tracks: a cascade that is not there, or not a
+    // cascade, is a clear error.
     std::fs::remove_file(data.join("faces.csv")).unwrap();
-    assert!(
-        failure(&streampf(&["face", "track", d, "--backend", "cpu"]))
-            .contains("no face rectangles")
-    );
+    let missing = data.join("missing.xml");
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--cascade",
+        missing.to_str().unwrap(),
+        "--backend",
+        "cpu",
+    ]));
+    assert!(err.contains("missing.xml"), "{err}");
+    std::fs::write(&missing, "<opencv_storage><cascade>").unwrap();
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--cascade",
+        missing.to_str().unwrap(),
+        "--backend",
+        "cpu",
+    ]));
+    assert!(err.contains("missing.xml"), "{err}");
     let err = failure(&streampf(&[
         "face",
         "track",

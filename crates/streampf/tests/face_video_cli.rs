@@ -1,0 +1,214 @@
+//! `streampf face track VIDEO` as a user runs it: FFmpeg decodes the video, the detector finds
+//! the faces, the tracker follows them, FFmpeg encodes the annotated video. Needs FFmpeg and
+//! opencv-data's cascade (`cargo xtask fetch-media` installs both); without them the tests fail
+//! with instructions unless STREAMPF_NO_MEDIA=1 opts out explicitly.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use common::{failure, number_after, ok, scratch, streampf};
+
+const HELP: &str = "run `cargo xtask fetch-media` (it installs FFmpeg, opencv-data and opencv-doc), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
+
+fn opted_out(test: &str) -> bool {
+    let out = std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1");
+    if out {
+        eprintln!("{test}: skipped by request (STREAMPF_NO_MEDIA=1)");
+    }
+    out
+}
+
+fn ffmpeg(args: &[&str]) {
+    let out = Command::new("ffmpeg")
+        .args(["-nostdin", "-v", "error", "-y"])
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("ffmpeg: {e}; {HELP}"));
+    assert!(
+        out.status.success(),
+        "ffmpeg {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Frames in a video, counted by decoding it.
+fn frames_in(video: &Path) -> usize {
+    let out = Command::new("ffprobe")
+        .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+        .args(["-show_entries", "stream=nb_read_frames", "-of", "csv=p=0"])
+        .arg(video)
+        .output()
+        .unwrap_or_else(|e| panic!("ffprobe: {e}; {HELP}"));
+    String::from_utf8_lossy(&out.stdout).trim().parse().unwrap()
+}
+
+#[test]
+fn tracks_the_faces_of_encoded_videos_and_writes_an_annotated_one() {
+    if opted_out("face track on encoded videos") {
+        return;
+    }
+    let data = scratch("video-data");
+    let d = data.to_str().unwrap();
+    ok(&streampf(&[
+        "face",
+        "synth",
+        "--out",
+        d,
+        "--frames",
+        "12",
+        "--faces",
+        "2",
+        "--width",
+        "640",
+        "--height",
+        "480",
+        "--max-yaw",
+        "20",
+    ]));
+    for (container, codec) in [("mp4", "libx264"), ("avi", "mpeg4"), ("webm", "libvpx-vp9")] {
+        let video = data.join(format!("faces.{container}"));
+        let pattern = data.join("frame_%05d.png");
+        ffmpeg(&[
+            "-framerate",
+            "25",
+            "-i",
+            pattern.to_str().unwrap(),
+            "-c:v",
+            codec,
+            "-pix_fmt",
+            "yuv420p",
+            video.to_str().unwrap(),
+        ]);
+        let out = data.join(format!("out-{container}"));
+        let annotated = data.join(format!("annotated-{container}.mp4"));
+        let text = ok(&streampf(&[
+            "face",
+            "track",
+            video.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--overlay",
+            annotated.to_str().unwrap(),
+            "--particles",
+            "200",
+            "--detect-every",
+            "2",
+            "--backend",
+            "cpu",
+        ]));
+        assert!(text.contains("of 640x480"), "{text}");
+        // Both faces are found (by the detector: nothing told the tracker where they are).
+        assert_eq!(number_after(&text, "tracked"), 2.0, "{container}: {text}");
+        let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+        let last: Vec<&str> = states.lines().filter(|l| l.starts_with("11,")).collect();
+        assert_eq!(
+            last.len(),
+            2,
+            "{container}: both faces tracked at the last frame\n{states}"
+        );
+        assert!(last.iter().all(|l| l.contains(",tracking,")), "{states}");
+        assert_eq!(frames_in(&annotated), 12, "{container}");
+    }
+    std::fs::remove_dir_all(&data).unwrap();
+}
+
+#[test]
+fn videos_that_cannot_be_read_are_clear_errors() {
+    if opted_out("bad video files") {
+        return;
+    }
+    let data = scratch("bad-video");
+    std::fs::create_dir_all(&data).unwrap();
+    let missing = data.join("missing.mp4");
+    let err = failure(&streampf(&["face", "track", missing.to_str().unwrap()]));
+    assert!(
+        err.contains("missing.mp4") && err.contains("no such file"),
+        "{err}"
+    );
+    let garbage = data.join("garbage.mp4");
+    std::fs::write(&garbage, "this is not a video").unwrap();
+    let err = failure(&streampf(&["face", "track", garbage.to_str().unwrap()]));
+    assert!(
+        err.contains("garbage.mp4") && err.contains("FFmpeg cannot decode"),
+        "{err}"
+    );
+    // An annotated output FFmpeg has no encoder for.
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        "--synthetic",
+        "--frames",
+        "2",
+        "--overlay",
+        "out.gif",
+    ]));
+    assert!(err.contains("out.gif") && err.contains(".mp4"), "{err}");
+    // No FFmpeg on the PATH: the error says how to install it.
+    let out = Command::new(env!("CARGO_BIN_EXE_streampf"))
+        .args(["face", "track", garbage.to_str().unwrap()])
+        .env("PATH", "")
+        .output()
+        .unwrap();
+    let err = failure(&out);
+    assert!(err.contains("apt-get install ffmpeg"), "{err}");
+    std::fs::remove_dir_all(&data).unwrap();
+}
+
+/// The clip of OpenCV's samples (Debian's opencv-doc).
+const MEGAMIND: &str = "/usr/share/doc/opencv-doc/examples/data/Megamind.avi";
+
+#[test]
+fn finds_and_keeps_both_faces_of_the_first_shot_of_megamind() {
+    if opted_out("face track on Megamind.avi") {
+        return;
+    }
+    assert!(
+        Path::new(MEGAMIND).is_file(),
+        "{MEGAMIND} is missing; {HELP}"
+    );
+    let out = scratch("megamind");
+    let text = ok(&streampf(&[
+        "face",
+        "track",
+        MEGAMIND,
+        "--max-frames",
+        "60",
+        "--particles",
+        "300",
+        "--out",
+        out.to_str().unwrap(),
+        "--backend",
+        "cpu",
+    ]));
+    assert!(text.contains("of 720x528"), "{text}");
+    // The first shot (frames 0-97) has the woman in front and a man behind her; the first frame
+    // is black. Both are found within the first 20 frames and are still tracked at frame 59,
+    // each by one track.
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    let rows: Vec<Vec<&str>> = states
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    let first_frame = |track: &str| {
+        rows.iter()
+            .find(|r| r[1] == track)
+            .map(|r| r[0].parse::<usize>().unwrap())
+    };
+    let last: Vec<&Vec<&str>> = rows.iter().filter(|r| r[0] == "59").collect();
+    assert_eq!(last.len(), 2, "{states}");
+    for row in &last {
+        assert_eq!(row[2], "tracking", "{row:?}");
+        assert!(first_frame(row[1]).unwrap() <= 20, "{row:?}");
+    }
+    // The woman's face is left of centre, the man's to the right of her (x ≈ 470-500).
+    let mut xs: Vec<f32> = last.iter().map(|r| r[3].parse().unwrap()).collect();
+    xs.sort_by(f32::total_cmp);
+    assert!(
+        (250.0..420.0).contains(&xs[0]) && (440.0..540.0).contains(&xs[1]),
+        "{xs:?}"
+    );
+    std::fs::remove_dir_all(&out).unwrap();
+}
