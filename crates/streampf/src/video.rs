@@ -77,6 +77,17 @@ fn spawn(command: &mut Command, what: &str) -> anyhow::Result<Child> {
     })
 }
 
+/// Reads an FFmpeg process's messages in a thread beside the frames (a full pipe would stall
+/// it); the thread returns them when the process ends.
+fn drain_messages(child: &mut Child) -> anyhow::Result<std::thread::JoinHandle<String>> {
+    let mut err = child.stderr.take().context("ffmpeg's error pipe")?;
+    Ok(std::thread::spawn(move || {
+        let mut text = String::new();
+        let _ = err.read_to_string(&mut text);
+        text
+    }))
+}
+
 /// Asks ffprobe for the size, rate and length of `path`'s first video stream.
 pub fn probe(path: &Path) -> anyhow::Result<VideoInfo> {
     if !path.is_file() {
@@ -158,13 +169,7 @@ impl VideoReader {
             &format!("decoding {name}"),
         )?;
         let stdout = child.stdout.take().context("ffmpeg's output pipe")?;
-        // ffmpeg's messages are drained beside the frames (a full pipe would stall it).
-        let mut err = child.stderr.take().context("ffmpeg's error pipe")?;
-        let stderr = std::thread::spawn(move || {
-            let mut text = String::new();
-            let _ = err.read_to_string(&mut text);
-            text
-        });
+        let stderr = drain_messages(&mut child)?;
         Ok(Self {
             name,
             info,
@@ -292,12 +297,7 @@ impl VideoWriter {
             &format!("writing {}", path.display()),
         )?;
         let stdin = child.stdin.take();
-        let mut err = child.stderr.take().context("ffmpeg's error pipe")?;
-        let stderr = std::thread::spawn(move || {
-            let mut text = String::new();
-            let _ = err.read_to_string(&mut text);
-            text
-        });
+        let stderr = drain_messages(&mut child)?;
         Ok(Self {
             path: path.to_path_buf(),
             size: (width, height),

@@ -115,28 +115,23 @@ fn bad_face_inputs_are_clear_errors() {
     // Without faces.csv the detector starts the tracks: a cascade that is not there, or not a
     // cascade, is a clear error.
     std::fs::remove_file(data.join("faces.csv")).unwrap();
-    let missing = data.join("missing.xml");
-    let err = failure(&streampf(&[
-        "face",
-        "track",
-        d,
-        "--cascade",
-        missing.to_str().unwrap(),
-        "--backend",
-        "cpu",
-    ]));
-    assert!(err.contains("missing.xml"), "{err}");
-    std::fs::write(&missing, "<opencv_storage><cascade>").unwrap();
-    let err = failure(&streampf(&[
-        "face",
-        "track",
-        d,
-        "--cascade",
-        missing.to_str().unwrap(),
-        "--backend",
-        "cpu",
-    ]));
-    assert!(err.contains("missing.xml"), "{err}");
+    let cascade = data.join("cascade.xml");
+    for contents in [None, Some("<opencv_storage><cascade>")] {
+        if let Some(text) = contents {
+            std::fs::write(&cascade, text).unwrap();
+        }
+        let path = cascade.to_str().unwrap();
+        let err = failure(&streampf(&[
+            "face",
+            "track",
+            d,
+            "--cascade",
+            path,
+            "--backend",
+            "cpu",
+        ]));
+        assert!(err.contains("cascade.xml"), "{contents:?}: {err}");
+    }
     let err = failure(&streampf(&[
         "face",
         "track",
