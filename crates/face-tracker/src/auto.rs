@@ -15,10 +15,11 @@ use std::thread::JoinHandle;
 
 use crate::detect::{Cascade, DetectConfig, Detection};
 use crate::error::FaceError;
-use crate::extraction::{FaceRect, extract_template};
+use crate::extraction::FaceRect;
 use crate::image::GrayImage;
 use crate::model::FaceModel;
 use crate::synth::HEIGHT_RATIO;
+use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 
 /// How detection feeds the tracker.
@@ -94,7 +95,7 @@ impl AutoConfig {
             d.x as f32 + d.width as f32 / 2.0,
             d.y as f32 + d.height as f32 / 2.0,
         );
-        let width = d.width as f32 * self.rect_width_share;
+        let width = (d.width as f32 * self.rect_width_share).min(frame.width as f32);
         let height = (width * HEIGHT_RATIO).min(frame.height as f32);
         let x = (cx - width / 2.0).clamp(0.0, frame.width as f32 - width);
         let y = (cy - height / 2.0).clamp(0.0, frame.height as f32 - height);
@@ -277,57 +278,51 @@ impl AutoTracker {
         let mut candidates = Vec::new();
         for d in &faces {
             let rect = self.config.face_rect(d, &result.frame);
-            if !self.looks_trackable(&result.frame, &rect) {
+            let on_track = self.tracked.iter().position(|t| same_face(&t.1, &rect));
+            if on_track.is_some_and(|i| self.tracked[i].2 <= failing) {
                 out.ignored += 1;
                 continue;
             }
-            let on_track = self.tracked.iter_mut().find(|t| same_face(&t.1, &rect));
-            match on_track {
-                Some(track) if track.2 > failing => {
-                    self.tracker.restart_face(track.0, &result.frame, &rect)?;
-                    (track.1, track.2) = (rect, 0.0);
-                    out.restarted.push((track.0, rect, result.frame_index));
-                }
-                Some(_) => out.ignored += 1,
-                None => {
-                    let seen = 1 + self
-                        .candidates
-                        .iter()
-                        .find(|c| same_face(&c.0, &rect))
-                        .map_or(0, |c| c.1);
-                    if seen < self.config.confirmations {
-                        candidates.push((rect, seen));
-                    } else if self.tracker.free_slots() == 0 {
-                        out.ignored += 1;
-                    } else {
-                        let track = self.tracker.add_face(&result.frame, &rect)?;
-                        self.tracked.push((track, rect, 0.0));
-                        out.started.push((track, rect, result.frame_index));
-                    }
-                }
+            let Some(template) = self.trackable_template(&result.frame, &rect) else {
+                out.ignored += 1;
+                continue;
+            };
+            if let Some(i) = on_track {
+                let track = self.tracked[i].0;
+                self.tracker.restart_template(track, &rect, template)?;
+                self.tracked[i] = (track, rect, 0.0);
+                out.restarted.push((track, rect, result.frame_index));
+                continue;
+            }
+            let seen = 1 + self
+                .candidates
+                .iter()
+                .find(|c| same_face(&c.0, &rect))
+                .map_or(0, |c| c.1);
+            if seen < self.config.confirmations {
+                candidates.push((rect, seen));
+            } else if self.tracker.free_slots() == 0 {
+                out.ignored += 1;
+            } else {
+                let track = self.tracker.add_template(&rect, template)?;
+                self.tracked.push((track, rect, 0.0));
+                out.started.push((track, rect, result.frame_index));
             }
         }
         self.candidates = candidates;
         Ok(())
     }
 
-    /// Whether a detection's rectangle yields a template with the contrast of a face.
-    fn looks_trackable(&self, frame: &GrayImage, rect: &FaceRect) -> bool {
-        let Ok(template) = extract_template(
-            frame,
-            rect,
-            self.tracker.model(),
-            &self.config.tracker.extraction,
-        ) else {
-            return false;
-        };
+    /// The template of a detection's rectangle, if it has the contrast of a face.
+    fn trackable_template(&self, frame: &GrayImage, rect: &FaceRect) -> Option<Template> {
+        let template = self.tracker.extract(frame, rect).ok()?;
         let (low, high) = template
             .points
             .iter()
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), q| {
                 (lo.min(q.gray), hi.max(q.gray))
             });
-        high - low >= self.config.min_template_contrast
+        (high - low >= self.config.min_template_contrast).then_some(template)
     }
 
     /// One frame: take a finished detection (new faces start tracks), hand the detector a copy

@@ -248,11 +248,6 @@ impl FaceTracker {
         })
     }
 
-    /// The face model templates are extracted on.
-    pub fn model(&self) -> &FaceModel {
-        &self.model
-    }
-
     /// Slots with no face in them.
     pub fn free_slots(&self) -> usize {
         self.slots.iter().filter(|s| s.is_none()).count()
@@ -266,7 +261,16 @@ impl FaceTracker {
     /// start around (centre, S = 1, R = 0, α = 1)) in a free slot, and returns the track's number.
     /// The next `step` is the track's first.
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
-        self.check_size(frame)?;
+        let template = self.extract(frame, rect)?;
+        self.add_template(rect, template)
+    }
+
+    /// `add_face` with the template already extracted from `rect` (by [`Self::extract`]).
+    pub fn add_template(
+        &mut self,
+        rect: &FaceRect,
+        template: Template,
+    ) -> Result<usize, FaceError> {
         let slot = self.slots.iter().position(Option::is_none).ok_or_else(|| {
             FaceError::InvalidInput(format!(
                 "all {} face slots are taken; free one or make the tracker larger",
@@ -274,50 +278,42 @@ impl FaceTracker {
             ))
         })?;
         let id = self.next_track;
-        let template = self.start_in_slot(slot, id, frame, rect)?;
+        self.start_in_slot(slot, id, rect, template)?;
         self.next_track += 1;
-        self.slots[slot] = Some(Track {
-            id,
-            template,
-            start: *rect,
-            bad_frames: 0,
-        });
         Ok(id)
     }
 
-    /// Starts running track `track` afresh from `rect` in `frame` (a new template and particles,
-    /// the same number): for a detector that finds a face its track has drifted from.
-    pub fn restart_face(
+    /// Starts running track `track` afresh from `rect` and its template `template` (extracted
+    /// by [`Self::extract`]): new particles, the same number. For a detector that finds a face
+    /// its track has drifted from.
+    pub fn restart_template(
         &mut self,
         track: usize,
-        frame: &GrayImage,
         rect: &FaceRect,
+        template: Template,
     ) -> Result<(), FaceError> {
-        self.check_size(frame)?;
         let slot = self
             .slots
             .iter()
             .position(|s| s.as_ref().is_some_and(|t| t.id == track))
             .ok_or_else(|| FaceError::InvalidInput(format!("track {track} is not running")))?;
-        let template = self.start_in_slot(slot, track, frame, rect)?;
-        self.slots[slot] = Some(Track {
-            id: track,
-            template,
-            start: *rect,
-            bad_frames: 0,
-        });
-        Ok(())
+        self.start_in_slot(slot, track, rect, template)
     }
 
-    /// Extracts `rect`'s template and puts a fresh particle cloud and the template in `slot`.
+    /// The template this tracker would build for a face at `rect` in `frame`.
+    pub fn extract(&self, frame: &GrayImage, rect: &FaceRect) -> Result<Template, FaceError> {
+        self.check_size(frame)?;
+        extract_template(frame, rect, &self.model, &self.config.extraction)
+    }
+
+    /// Puts a fresh particle cloud around `rect` and `template` in `slot`, as track `track`.
     fn start_in_slot(
         &mut self,
         slot: usize,
         track: usize,
-        frame: &GrayImage,
         rect: &FaceRect,
-    ) -> Result<Template, FaceError> {
-        let template = extract_template(frame, rect, &self.model, &self.config.extraction)?;
+        template: Template,
+    ) -> Result<(), FaceError> {
         let (cx, cy) = rect.centre();
         let shape = BatchShape::new(1, self.config.particles, DIMS)?;
         // Each start gets its own initial cloud (the track's number and the frame key it).
@@ -336,7 +332,13 @@ impl FaceTracker {
                     .upload_template(&gpu.ctx, slot, &template.gpu_layout())?;
             }
         }
-        Ok(template)
+        self.slots[slot] = Some(Track {
+            id: track,
+            template,
+            start: *rect,
+            bad_frames: 0,
+        });
+        Ok(())
     }
 
     /// The template of a track that is still running.

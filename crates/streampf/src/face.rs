@@ -565,7 +565,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         tracks_seen.len(),
         frame as f64 / tracking_time.max(1e-9),
         frame as f64 / elapsed.max(1e-9),
-        if annotated_path(args).is_some() {
+        if args.overlay.as_deref().is_some() {
             " and drawing"
         } else {
             ""
@@ -583,14 +583,10 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         "wrote states.csv{} to {}{}",
         if measured > 0 { ", errors.csv" } else { "" },
         args.out.display(),
-        annotated_path(args).map_or(String::new(), |p| format!(
+        args.overlay.as_deref().map_or(String::new(), |p| format!(
             ", the annotated frames to {}",
             p.display()
         ))
     );
     Ok(())
-}
-
-fn annotated_path(args: &TrackArgs) -> Option<&Path> {
-    args.overlay.as_deref()
 }
