@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-pub const HELP: &str = "run `cargo xtask fetch-media` (it installs Debian's opencv-data, opencv-doc and OpenCV's Python package, and fetches the photographs into target/media/images), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
+pub const HELP: &str = "run `cargo xtask fetch-media` (it installs Debian's opencv-data, opencv-doc and libdlib-data and OpenCV's and dlib's Python packages, and fetches the photographs into target/media), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
 
 /// `true` (and a note on stderr) when the run opted out of real media.
 pub fn opted_out(test: &str) -> bool {

