@@ -25,6 +25,7 @@ pub mod image;
 pub mod landmarks;
 pub mod likelihood;
 pub mod model;
+pub mod personal;
 pub mod projection;
 pub mod synth;
 pub mod template;

@@ -24,6 +24,11 @@ fn gaussian(u: f32, v: f32, cu: f32, cv: f32, su: f32, sv: f32) -> f32 {
     (-0.5 * (du * du + dv * dv)).exp()
 }
 
+/// Where the generic head's nose tip and brow ridge are (model v; both at u = 0): the two
+/// features that place landmarks on it (see [`crate::personal`]).
+pub const NOSE_TIP_V: f32 = 0.3;
+pub const BROW_RIDGE_V: f32 = -0.32;
+
 /// The generic head's height at (u, v).
 pub fn generic_height(u: f32, v: f32) -> f32 {
     // An ellipsoid a little taller than wide, flattened in depth.
@@ -31,8 +36,8 @@ pub fn generic_height(u: f32, v: f32) -> f32 {
     let inside = 1.0 - (u / a).powi(2) - (v / b).powi(2);
     let skull = c * inside.max(0.0).sqrt();
     let nose = 0.28 * gaussian(u, v, 0.0, 0.12, 0.11, 0.22);
-    let tip = 0.08 * gaussian(u, v, 0.0, 0.3, 0.08, 0.08);
-    let brow = 0.07 * gaussian(u, v, 0.0, -0.32, 0.55, 0.07);
+    let tip = 0.08 * gaussian(u, v, 0.0, NOSE_TIP_V, 0.08, 0.08);
+    let brow = 0.07 * gaussian(u, v, 0.0, BROW_RIDGE_V, 0.55, 0.07);
     let cheeks =
         0.06 * (gaussian(u, v, -0.42, 0.22, 0.16, 0.14) + gaussian(u, v, 0.42, 0.22, 0.16, 0.14));
     // The relief fades out where the ellipsoid does.

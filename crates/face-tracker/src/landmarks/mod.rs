@@ -195,6 +195,14 @@ impl ShapePredictor {
         Ok(Self { mean_shape, levels })
     }
 
+    /// A predictor with no cascade: it places `mean_shape` (box coordinates) in the box as it is.
+    pub fn from_mean_shape(mean_shape: Landmarks) -> Self {
+        Self {
+            mean_shape: mean_shape.into_iter().flatten().collect(),
+            levels: Vec::new(),
+        }
+    }
+
     /// The number of landmarks the model places.
     pub fn landmark_count(&self) -> usize {
         self.mean_shape.len() / 2
@@ -362,7 +370,7 @@ fn read_tree(r: &mut Reader<'_>, dims: usize) -> Result<RegressionTree, FormatEr
 /// The 2×2 part (scale and rotation) of the least-squares similarity that takes shape `from` to
 /// shape `to` (both flattened x, y pairs), as dlib's `find_tform_between_shapes`: in 2-D the
 /// Umeyama solution is the complex ratio Σ conj(a)·b / Σ |a|² of the centred points.
-fn similarity(from: &[f32], to: &[f32]) -> [[f32; 2]; 2] {
+pub(crate) fn similarity(from: &[f32], to: &[f32]) -> [[f32; 2]; 2] {
     let n = (from.len() / 2) as f64;
     if n < 2.0 {
         return [[1.0, 0.0], [0.0, 1.0]];
