@@ -259,6 +259,14 @@ impl AutoTracker {
         &self.tracker
     }
 
+    /// See [`FaceTracker::set_personaliser`].
+    pub fn set_personaliser(
+        &mut self,
+        personaliser: Option<std::sync::Arc<crate::personal::Personaliser>>,
+    ) {
+        self.tracker.set_personaliser(personaliser);
+    }
+
     /// Starts a track on a rectangle given by the caller (not by the detector) in `frame`, the
     /// frame the next `step` follows; returns the track's number.
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {

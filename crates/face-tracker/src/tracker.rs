@@ -19,10 +19,14 @@ use rayon::prelude::*;
 use crate::error::FaceError;
 use crate::extraction::{ExtractionConfig, FaceRect, extract_template};
 use crate::image::GrayImage;
+use crate::landmarks::Landmarks;
 use crate::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error};
 use crate::model::FaceModel;
+use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
 use crate::template::Template;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The largest pitch and yaw a track may take (70°).
 pub const MAX_TURN: f32 = 1.222;
@@ -125,6 +129,11 @@ struct Track {
 pub struct FaceTracker {
     config: FaceTrackerConfig,
     model: FaceModel,
+    /// When set, each new face's template is built on the model warped to its landmarks.
+    personaliser: Option<Arc<Personaliser>>,
+    /// Templates built on a personalised model, and on the generic one after a failed fit.
+    personalised: AtomicUsize,
+    fit_failures: AtomicUsize,
     slots: Vec<Option<Track>>,
     next_track: usize,
     frame_size: (u32, u32),
@@ -239,6 +248,9 @@ impl FaceTracker {
         };
         Ok(Self {
             model: model.clone(),
+            personaliser: None,
+            personalised: AtomicUsize::new(0),
+            fit_failures: AtomicUsize::new(0),
             slots: (0..capacity).map(|_| None).collect(),
             next_track: 0,
             frame_size,
@@ -302,8 +314,47 @@ impl FaceTracker {
 
     /// The template this tracker would build for a face at `rect` in `frame`.
     pub fn extract(&self, frame: &GrayImage, rect: &FaceRect) -> Result<Template, FaceError> {
+        Ok(self.extract_with_landmarks(frame, rect)?.0)
+    }
+
+    /// [`Self::extract`], with the landmarks the model was personalised to (`None` without a
+    /// personaliser, or when the fit missed the face and the generic model was used).
+    pub fn extract_with_landmarks(
+        &self,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Result<(Template, Option<Landmarks>), FaceError> {
         self.check_size(frame)?;
-        extract_template(frame, rect, &self.model, &self.config.extraction)
+        rect.validate(frame)?;
+        let personal = self.personaliser.as_ref().and_then(|p| {
+            let fitted = p.personalise(frame, rect, &self.model).ok();
+            let counter = if fitted.is_some() {
+                &self.personalised
+            } else {
+                &self.fit_failures
+            };
+            counter.fetch_add(1, Ordering::Relaxed);
+            fitted
+        });
+        let model = personal.as_ref().map_or(&self.model, |p| &p.model);
+        let template = extract_template(frame, rect, model, &self.config.extraction)?;
+        Ok((template, personal.map(|p| p.landmarks)))
+    }
+
+    /// Builds each new face's template on the face model warped to that face's landmarks (the
+    /// paper's personalised model), or on the generic model (`None`, the default). A face whose
+    /// landmark fit fails (folds the model, leaves the face) gets the generic model.
+    pub fn set_personaliser(&mut self, personaliser: Option<Arc<Personaliser>>) {
+        self.personaliser = personaliser;
+    }
+
+    /// Templates built so far on a personalised model, and on the generic model because the
+    /// landmark fit failed.
+    pub fn personalisation_counts(&self) -> (usize, usize) {
+        (
+            self.personalised.load(Ordering::Relaxed),
+            self.fit_failures.load(Ordering::Relaxed),
+        )
     }
 
     /// Puts a fresh particle cloud around `rect` and `template` in `slot`, as track `track`.

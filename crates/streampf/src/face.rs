@@ -17,7 +17,9 @@ use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
 use face_tracker::detect::{Cascade, DetectConfig};
 use face_tracker::extraction::FaceRect;
+use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::model::FaceModel;
+use face_tracker::personal::Personaliser;
 use face_tracker::projection::{DIMS, STATE_NAMES};
 use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
 use face_tracker::tracker::pose_errors;
@@ -25,6 +27,7 @@ use face_tracker::{
     AutoConfig, AutoTracker, FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage,
     TrackStatus,
 };
+use std::sync::Arc;
 
 use crate::face_io::{Annotated, Source, overlay};
 
@@ -164,6 +167,14 @@ pub struct TrackArgs {
     /// The height of white in the heightmap, in half-widths of the face rectangle.
     #[arg(long, default_value_t = 0.8)]
     pub height_scale: f32,
+    /// dlib's 68-landmark model: each new face's template is built on the face model warped to
+    /// its landmarks. Defaults to libdlib-data's file when it is installed (not for
+    /// --synthetic, whose heads are the generic model).
+    #[arg(long, conflicts_with = "generic_model")]
+    pub landmarks: Option<PathBuf>,
+    /// Build every template on the generic face model (no landmark fit).
+    #[arg(long)]
+    pub generic_model: bool,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
@@ -324,6 +335,29 @@ impl Runner {
     }
 }
 
+/// The landmark fit for personalised face models: --landmarks, else libdlib-data's model when it
+/// is installed (a note when it is not), none for --generic-model and --synthetic.
+fn load_personaliser(args: &TrackArgs) -> anyhow::Result<Option<Arc<Personaliser>>> {
+    let path = match &args.landmarks {
+        Some(path) => path.clone(),
+        None if args.generic_model || args.synthetic => return Ok(None),
+        None => {
+            let default = PathBuf::from(DEFAULT_PREDICTOR);
+            if !default.is_file() {
+                if !args.quiet {
+                    println!(
+                        "note: no landmark model at {DEFAULT_PREDICTOR} (Debian's libdlib-data); templates use the generic face model. Install it or give --landmarks PATH to personalise them"
+                    );
+                }
+                return Ok(None);
+            }
+            default
+        }
+    };
+    let predictor = ShapePredictor::load(&path)?;
+    Ok(Some(Arc::new(Personaliser::new(Arc::new(predictor))?)))
+}
+
 fn load_cascade(path: &Path) -> anyhow::Result<Cascade> {
     if !path.exists() && path == Path::new(DEFAULT_CASCADE) {
         bail!(
@@ -441,6 +475,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         FaceBackend::Cpu => format!("CPU ({} threads)", rayon::current_num_threads()),
         FaceBackend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
     };
+    let personaliser = load_personaliser(args)?;
     let size = (first.width, first.height);
     let mut runner = match cascade {
         Some(cascade) => {
@@ -458,6 +493,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 ..AutoConfig::default()
             };
             let mut tracker = AutoTracker::new(size, cascade, &face_model, auto, backend)?;
+            tracker.set_personaliser(personaliser);
             for (i, r) in rects.iter().enumerate() {
                 tracker
                     .add_face(&first, r)
@@ -465,13 +501,17 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             }
             Runner::Auto(Box::new(tracker))
         }
-        None => Runner::Fixed(Box::new(FaceTracker::new(
-            &first,
-            &rects,
-            &face_model,
-            config,
-            backend,
-        )?)),
+        None => {
+            let mut tracker =
+                FaceTracker::with_capacity(size, rects.len(), &face_model, config, backend)?;
+            tracker.set_personaliser(personaliser);
+            for (i, r) in rects.iter().enumerate() {
+                tracker
+                    .add_face(&first, r)
+                    .with_context(|| format!("face {i}"))?;
+            }
+            Runner::Fixed(Box::new(tracker))
+        }
     };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
@@ -571,6 +611,18 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             ""
         }
     );
+    let (personalised, missed) = runner.tracker().personalisation_counts();
+    if personalised + missed > 0 {
+        println!(
+            "face model personalised to the landmarks of {personalised} of {} templates{}",
+            personalised + missed,
+            if missed > 0 {
+                format!(" (the landmark fit missed {missed}: generic model)")
+            } else {
+                String::new()
+            }
+        );
+    }
     if measured > 0 {
         write_text(&args.out.join("errors.csv"), &errors)?;
         println!(
