@@ -15,6 +15,8 @@
 //! - [`tracker`]: several faces at once, each its own filter, on the CPU or the GPU, with
 //!   failure detection; slots free when a track is lost and take new faces;
 //! - [`detect`]: Viola–Jones face detection with OpenCV's Haar cascades;
+//! - [`landmarks`]: dlib's 68-point shape predictor, read and run in Rust; [`personal`]: the
+//!   face model warped to a face's landmarks (the personalised model);
 //! - [`auto`]: fully automatic tracking: the detector in its own thread starts tracks.
 
 pub mod auto;
