@@ -333,6 +333,20 @@ impl Runner {
             Runner::Auto(auto) => auto.tracker(),
         }
     }
+
+    fn set_personaliser(&mut self, personaliser: Option<Arc<Personaliser>>) {
+        match self {
+            Runner::Fixed(tracker) => tracker.set_personaliser(personaliser),
+            Runner::Auto(auto) => auto.set_personaliser(personaliser),
+        }
+    }
+
+    fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> anyhow::Result<usize> {
+        Ok(match self {
+            Runner::Fixed(tracker) => tracker.add_face(frame, rect)?,
+            Runner::Auto(auto) => auto.add_face(frame, rect)?,
+        })
+    }
 }
 
 /// The landmark fit for personalised face models: --landmarks, else libdlib-data's model when it
@@ -492,27 +506,28 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 tracker: config,
                 ..AutoConfig::default()
             };
-            let mut tracker = AutoTracker::new(size, cascade, &face_model, auto, backend)?;
-            tracker.set_personaliser(personaliser);
-            for (i, r) in rects.iter().enumerate() {
-                tracker
-                    .add_face(&first, r)
-                    .with_context(|| format!("face {i}"))?;
-            }
-            Runner::Auto(Box::new(tracker))
+            Runner::Auto(Box::new(AutoTracker::new(
+                size,
+                cascade,
+                &face_model,
+                auto,
+                backend,
+            )?))
         }
-        None => {
-            let mut tracker =
-                FaceTracker::with_capacity(size, rects.len(), &face_model, config, backend)?;
-            tracker.set_personaliser(personaliser);
-            for (i, r) in rects.iter().enumerate() {
-                tracker
-                    .add_face(&first, r)
-                    .with_context(|| format!("face {i}"))?;
-            }
-            Runner::Fixed(Box::new(tracker))
-        }
+        None => Runner::Fixed(Box::new(FaceTracker::with_capacity(
+            size,
+            rects.len(),
+            &face_model,
+            config,
+            backend,
+        )?)),
     };
+    runner.set_personaliser(personaliser);
+    for (i, r) in rects.iter().enumerate() {
+        runner
+            .add_face(&first, r)
+            .with_context(|| format!("face {i}"))?;
+    }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     let mut annotated = match &args.overlay {
