@@ -72,7 +72,7 @@ impl Personaliser {
                 predictor.landmark_count()
             )));
         }
-        let generic_landmarks = generic_landmarks(&predictor.mean_shape());
+        let generic_landmarks = generic_landmarks(&predictor.mean_shape())?;
         let generic: Vec<[f32; 2]> = WARP_LANDMARKS
             .iter()
             .map(|&k| generic_landmarks[k])
@@ -268,19 +268,27 @@ impl Personaliser {
 /// dlib's mean shape (box coordinates) placed on the generic head: the nose tip (landmark 30) on
 /// the model's nose tip, the brows' mean height on its brow ridge, and the horizontal scale the
 /// vertical one times the face rectangle's height/width ratio (equal scales in pixels).
-fn generic_landmarks(mean: &[[f32; 2]]) -> Vec<[f32; 2]> {
+/// A model file whose mean shape has the nose tip level with or above the brows is not a face's.
+fn generic_landmarks(mean: &[[f32; 2]]) -> Result<Vec<[f32; 2]>, FaceError> {
     let tip = mean[ibug68::NOSE_TIP];
     let brow = ibug68::BROWS.map(|k| mean[k][1]).sum::<f32>() / ibug68::BROWS.len() as f32;
     let down = (NOSE_TIP_V - BROW_RIDGE_V) / (tip[1] - brow);
+    if !(down.is_finite() && down > 0.0) {
+        return Err(FaceError::InvalidInput(format!(
+            "the landmark model's mean shape has its nose tip (y = {}) not below its brows (y = {brow}): not a 68-point face model",
+            tip[1]
+        )));
+    }
     let across = down * HEIGHT_RATIO;
-    mean.iter()
+    Ok(mean
+        .iter()
         .map(|p| {
             [
                 (p[0] - tip[0]) * across,
                 NOSE_TIP_V + (p[1] - tip[1]) * down,
             ]
         })
-        .collect()
+        .collect())
 }
 
 /// The fixed points: corners and edge midpoints of the square ±[`BORDER`].
@@ -430,6 +438,22 @@ mod tests {
             }
             proptest::prop_assert!(checked > 20, "only {checked} nodes inside");
         }
+    }
+
+    #[test]
+    fn a_model_whose_mean_shape_is_not_a_face_is_refused() {
+        let upside_down = vec![[0.5f32, 0.5]; 68];
+        let e = Personaliser::new(Arc::new(ShapePredictor::from_mean_shape(upside_down)))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not a 68-point face model"), "{e}");
+        let e = Personaliser::new(Arc::new(ShapePredictor::from_mean_shape(vec![
+            [0.5, 0.5];
+            5
+        ])))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("places 5"), "{e}");
     }
 
     #[test]
