@@ -11,61 +11,23 @@
 
 mod common;
 
-use body_tracker::capsule::{Capsule, ray_capsule};
-use body_tracker::human::{human_skeleton, standing_pose};
+use body_tracker::benchmark_scene::{perturbed_samples, raster_cloud};
+use body_tracker::capsule::Capsule;
 use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2, parallel_over_samples};
 use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use nalgebra::{Vector3, vector};
 use pf_gpu::GpuContext;
 use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
 
 const K: usize = 48;
 const TAU: f32 = 0.1;
 
-/// `count` points ray-cast from the camera onto the rest pose, with depth noise, in raster order
-/// (row by row, as a stereo or depth camera delivers them): a grid of pixel directions over the
-/// body, the hits kept, then an evenly strided subset of `count`.
 fn cloud(count: usize) -> Rays {
-    let s = human_skeleton(K).unwrap();
-    let caps = s.capsules(&standing_pose(&s, 3.0)).unwrap();
-    let mut rng = pf_core::RandomStreams::new(7).stream(0, pf_core::Stage::Model(0));
-    let mut side = 128;
-    loop {
-        let mut hits = Vec::new();
-        for row in 0..side {
-            for col in 0..side {
-                let x = -0.35 + 0.7 * (col as f32 + 0.5) / side as f32;
-                let y = 0.45 - 0.9 * (row as f32 + 0.5) / side as f32;
-                let dir = vector![x, y, 1.0].normalize();
-                let hit = caps
-                    .iter()
-                    .filter_map(|c| ray_capsule(&Vector3::zeros(), &dir, c))
-                    .fold(f32::INFINITY, f32::min);
-                if hit.is_finite() {
-                    hits.push(dir * (hit + 0.01 * rng.gaussian_f32()));
-                }
-            }
-        }
-        if hits.len() >= count {
-            let points: Vec<_> = (0..count).map(|n| hits[n * hits.len() / count]).collect();
-            return Rays::through(Vector3::zeros(), &points).unwrap();
-        }
-        side *= 2;
-    }
+    raster_cloud(K, count).unwrap()
 }
 
-/// `count` samples: the rest pose with every angle perturbed.
 fn samples(count: usize) -> Vec<Vec<Capsule>> {
-    let s = human_skeleton(K).unwrap();
-    let base = standing_pose(&s, 3.0);
-    let mut rng = pf_core::RandomStreams::new(8).stream(0, pf_core::Stage::Model(0));
-    (0..count)
-        .map(|_| {
-            let theta: Vec<f32> = base.iter().map(|x| x + 0.05 * rng.gaussian_f32()).collect();
-            s.capsules(&theta).unwrap()
-        })
-        .collect()
+    perturbed_samples(K, count).unwrap()
 }
 
 fn gpu(

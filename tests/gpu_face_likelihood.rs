@@ -336,6 +336,9 @@ fn invalid_face_setups_are_typed_errors() {
     assert!(make(1, 0, 64, 48, 1.0).is_err());
     assert!(make(1, 10, 1, 48, 1.0).is_err());
     assert!(make(1, 10, 64, 48, f32::NAN).is_err());
+    assert!(make(1, 10, 64, 48, -1.0).is_err());
+    // γ = 0 is the flat likelihood of the diffusion-only baseline.
+    assert!(make(1, 10, 64, 48, 0.0).is_ok());
     let gpu = make(2, 3, 64, 48, 1.0).unwrap();
     assert!(gpu.upload_frame(&ctx, &[0; 10]).is_err());
     assert!(gpu.upload_frame(&ctx, &[0; 64 * 48 + 1]).is_err());

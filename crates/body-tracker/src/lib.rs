@@ -12,10 +12,12 @@
 //!   `pf_gpu::capsules` and `pf_gpu::body`, fed by [`Skeleton::gpu_bones`]);
 //! - [`camera`], [`ply`], [`sequence`]: depth cameras and 16-bit depth PNGs, PLY point clouds,
 //!   sequence directories with ground truth, CSV output;
+//! - [`benchmark_scene`]: the points and pose samples of the paper's speed figures;
 //! - [`synth`]: synthetic sequences (walking, arm waving) with noise, dropout, outliers and
 //!   self-occlusion;
 //! - [`tracker`]: the particle filter over θ on the CPU, one GPU, or several GPUs.
 
+pub mod benchmark_scene;
 pub mod camera;
 pub mod capsule;
 pub mod error;

@@ -46,7 +46,8 @@ pub struct FaceTrackerConfig {
     pub diffusion: [f32; DIMS],
     /// M′ of the best-M′ weighted mean (eq. 14).
     pub best: usize,
-    /// γ in π ∝ ε^−γ (the paper: 1).
+    /// γ in π ∝ ε^−γ (the paper: 1). 0 weighs every particle the same: the filter only diffuses,
+    /// the baseline a likelihood must beat (`reproduce-figures` draws it beside the tracker).
     pub sharpness: f32,
     /// A track ends when the estimate's ε exceeds this (tracked faces measured 0.005–0.09 on the
     /// synthetic videos, a face's template over textured background about 0.19) ...
@@ -201,9 +202,9 @@ impl FaceTracker {
                 "a tracker needs room for at least one face".into(),
             ));
         }
-        if !(config.sharpness.is_finite() && config.sharpness > 0.0) {
+        if !(config.sharpness.is_finite() && config.sharpness >= 0.0) {
             return Err(FaceError::InvalidInput(format!(
-                "sharpness must be > 0, got {}",
+                "sharpness must be finite and >= 0, got {}",
                 config.sharpness
             )));
         }

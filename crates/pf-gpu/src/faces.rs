@@ -76,8 +76,8 @@ pub struct FaceLikelihoodGpu {
 }
 
 impl FaceLikelihoodGpu {
-    /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1); ε is floored at `min_error`,
-    /// and is 1 for a pose that shows less than `min_visible_share` of its face's points.
+    /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1; γ = 0 weighs every particle the
+    /// same, the diffusion-only baseline); ε is floored at `min_error`, and is 1 for a pose that shows less than `min_visible_share` of its face's points.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         ctx: &GpuContext,
@@ -95,9 +95,10 @@ impl FaceLikelihoodGpu {
                 "the face likelihood needs faces, points and a frame of at least 2x2 (got {faces} faces, {max_points} points, {width}x{height})"
             )));
         }
-        if !(sharpness.is_finite() && sharpness > 0.0 && min_error.is_finite() && min_error > 0.0) {
+        if !(sharpness.is_finite() && sharpness >= 0.0 && min_error.is_finite() && min_error > 0.0)
+        {
             return Err(GpuError::InvalidConfig(format!(
-                "sharpness and the error floor must be finite and > 0, the visible share in [0, 1] (got {sharpness}, {min_error}, {min_visible_share})"
+                "sharpness must be finite and >= 0 and the error floor finite and > 0, the visible share in [0, 1] (got {sharpness}, {min_error}, {min_visible_share})"
             )));
         }
         let pixels = width as usize * height as usize;
