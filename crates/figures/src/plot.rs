@@ -16,6 +16,20 @@ use plotters::prelude::*;
 use crate::machine::Machine;
 use crate::record::{Figure, Panel};
 
+/// Colours that read on white and apart from each other (matplotlib's tab10).
+const PALETTE: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(255, 127, 14),
+    RGBColor(44, 160, 44),
+    RGBColor(214, 39, 40),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
 const WIDTH: u32 = 1100;
 const PANEL_HEIGHT: u32 = 460;
 const TITLE_HEIGHT: u32 = 44;
@@ -173,7 +187,7 @@ fn colours(panel: &Panel) -> Vec<RGBAColor> {
                 groups.push(group);
                 groups.len() - 1
             });
-            let colour = Palette99::pick(index).to_rgba();
+            let colour = PALETTE[index % PALETTE.len()].to_rgba();
             if s.kind == "flat" {
                 colour.mix(0.45)
             } else {

@@ -245,10 +245,52 @@ fn write_panel(out: &mut String, panel: &Panel) {
         out.push('\n');
         return;
     }
+    write_table(out, panel, &xs);
+    if panel.timing && panel.log_x && panel.log_y {
+        write_exponents(out, panel);
+    }
+}
+
+/// The slope of log y against log x by least squares: 1 is linear growth, 0 a constant cost.
+pub fn growth_exponent(points: &[Point]) -> Option<f64> {
+    let logs: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| p.x > 0.0 && p.y > 0.0)
+        .map(|p| (p.x.ln(), p.y.ln()))
+        .collect();
+    if logs.len() < 2 {
+        return None;
+    }
+    let n = logs.len() as f64;
+    let (mx, my) = logs
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x / n, b + y / n));
+    let sxx: f64 = logs.iter().map(|(x, _)| (x - mx).powi(2)).sum();
+    let sxy: f64 = logs.iter().map(|(x, y)| (x - mx) * (y - my)).sum();
+    (sxx > 0.0).then(|| sxy / sxx)
+}
+
+fn write_exponents(out: &mut String, panel: &Panel) {
+    let parts: Vec<String> = panel
+        .series
+        .iter()
+        .filter_map(|s| Some(format!("{} {:.2}", s.name, growth_exponent(&s.points)?)))
+        .collect();
+    if !parts.is_empty() {
+        let _ = writeln!(
+            out,
+            "Growth exponent (least-squares slope of log time against log {}; 1 is linear): {}.\n",
+            panel.x_unit,
+            parts.join("; ")
+        );
+    }
+}
+
+fn write_table(out: &mut String, panel: &Panel, xs: &[f64]) {
     let names: Vec<&str> = panel.series.iter().map(|s| s.name.as_str()).collect();
     let _ = writeln!(out, "| {} | {} |", panel.x_label, names.join(" | "));
     let _ = writeln!(out, "|---|{}", "---|".repeat(names.len()));
-    for x in xs {
+    for &x in xs {
         let cells: Vec<String> = panel
             .series
             .iter()
@@ -266,7 +308,21 @@ fn write_panel(out: &mut String, panel: &Panel) {
 
 #[cfg(test)]
 mod tests {
-    use super::num;
+    use super::{growth_exponent, num};
+    use crate::record::Point;
+
+    #[test]
+    fn growth_exponent_of_power_laws() {
+        let points = |k: f64| -> Vec<Point> {
+            [10.0, 100.0, 1000.0]
+                .map(|x: f64| Point::exact(x, 3.0 * x.powf(k)))
+                .to_vec()
+        };
+        for k in [0.0, 1.0, 2.0] {
+            assert!((growth_exponent(&points(k)).unwrap() - k).abs() < 1e-9);
+        }
+        assert_eq!(growth_exponent(&points(1.0)[..1]), None);
+    }
 
     #[test]
     fn numbers_are_rounded_for_reading() {
