@@ -1,7 +1,8 @@
 //! The whole filter step per frame — resample, diffuse, measure (toy 7-D Gaussian likelihood),
 //! normalise, estimate — for T ∈ {1, 16, 64} targets × M = 1000 particles: the CPU on all cores
 //! (one pf-core filter per target, targets in parallel with rayon) against the GPU driver (one
-//! submission per frame, estimates and statistics read back). Then resampling alone on the GPU
+//! submission per frame, estimates and statistics read back), with the likelihood written by hand
+//! (`gpu`) and through the model plug-in (`gpu_plugin`, `pf_gpu::toy::TOY_MODEL`). Then resampling alone on the GPU
 //! for one target of N = 10^3 … 10^6 particles, against pf-core's CPU resamplers.
 //!
 //! Every GPU timing includes the submission, the device wait and the readback. The adapter is
@@ -15,7 +16,8 @@ use pf_core::{
     FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStreams, Resampler,
     Stage, StateSpace,
 };
-use pf_gpu::toy::ToyGaussianLikelihood;
+use pf_gpu::model::ModelFilter;
+use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyGaussianLikelihood, ToyObservation};
 use pf_gpu::{
     ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
 };
@@ -80,6 +82,30 @@ fn bench_whole_step(c: &mut Criterion) {
                 toy.upload_observations(&ctx, &obs).unwrap();
                 frame += 1;
                 std::hint::black_box(gpu.step(&ctx, &toy).unwrap());
+            })
+        });
+
+        // The same model through the plug-in API (pf_gpu::model), same filter settings.
+        let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
+        let mut plugin = ModelFilter::new(
+            &ctx,
+            &config,
+            GpuResampler::Systematic,
+            &initial,
+            TOY_MODEL,
+            &constants,
+        )
+        .unwrap();
+        let mut frame = 0;
+        group.bench_function(BenchmarkId::new("gpu_plugin", targets), |b| {
+            b.iter(|| {
+                let obs: Vec<ToyObservation> = (0..targets)
+                    .map(|t| ToyObservation {
+                        z: observed(t, frame),
+                    })
+                    .collect();
+                frame += 1;
+                std::hint::black_box(plugin.step(&ctx, &obs).unwrap());
             })
         });
 

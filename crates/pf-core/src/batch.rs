@@ -7,10 +7,16 @@
 //!
 //! Layout: states `[(t·D + d)·M + m]`, per-particle values `[t·M + m]`.
 
+use rayon::prelude::*;
+
 use crate::error::PfError;
+use crate::plugin::CpuModel;
 use crate::random::{CounterUniforms, RandomStreams, Stage, counter_gaussian, key_words};
 use crate::resample::Resampler;
 use crate::weights;
+
+/// A model's dynamics on one particle: `(previous state, standard Gaussian draws, next state)`.
+type Propagate<'a> = dyn Fn(&[f32], &[f32], &mut [f32]) + Sync + 'a;
 
 /// The shape of a batch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -385,6 +391,82 @@ impl<R: Resampler> BatchFilter<R> {
         &mut self,
         measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
     ) -> Result<BatchReport, PfError> {
+        self.step_with(None, measure)
+    }
+
+    /// One step of a model plug-in's CPU twin: its own dynamics when `M::PROPAGATES` (fed the
+    /// Gaussian draws the GPU's `propagate` gets), else the Gaussian random walk; then its
+    /// likelihood against `observations` (one per target), on all cores.
+    pub fn step_model<O: Sync, C: Sync, M: CpuModel<O, C>>(
+        &mut self,
+        model: &M,
+        observations: &[O],
+        constants: &C,
+    ) -> Result<BatchReport, PfError> {
+        if observations.len() != self.shape.targets {
+            return Err(PfError::InvalidConfig(format!(
+                "one observation per target: {} targets, {} observations",
+                self.shape.targets,
+                observations.len()
+            )));
+        }
+        let propagate =
+            |x: &[f32], noise: &[f32], next: &mut [f32]| model.propagate(x, noise, constants, next);
+        let dynamics: Option<&Propagate<'_>> = if M::PROPAGATES {
+            Some(&propagate)
+        } else {
+            None
+        };
+        self.step_with(dynamics, |shape, states, out| {
+            out.par_chunks_mut(shape.particles)
+                .enumerate()
+                .for_each(|(t, row)| {
+                    let mut x = vec![0.0f32; shape.dims];
+                    for (m, value) in row.iter_mut().enumerate() {
+                        for (d, v) in x.iter_mut().enumerate() {
+                            *v = states[shape.state_index(t, d, m)];
+                        }
+                        *value = model.log_likelihood(&x, &observations[t], constants);
+                    }
+                });
+            Ok(())
+        })
+    }
+
+    /// Moves every particle with `propagate(x, noise, next)`, noise from the diffusion stream
+    /// (the draws of the GPU's `model_propagate`), angles wrapped.
+    fn propagate_all(&mut self, propagate: &Propagate<'_>, step: u64) {
+        let shape = self.shape;
+        let (mut x, mut noise, mut next) = (
+            vec![0.0f32; shape.dims],
+            vec![0.0f32; shape.dims],
+            vec![0.0f32; shape.dims],
+        );
+        for t in 0..shape.targets {
+            for m in 0..shape.particles {
+                for d in 0..shape.dims {
+                    x[d] = self.states[shape.state_index(t, d, m)];
+                    noise[d] =
+                        counter_gaussian(self.diffusion_keys[t], m as u32, d as u32, step) as f32;
+                }
+                propagate(&x, &noise, &mut next);
+                for d in 0..shape.dims {
+                    let v = if self.angular[d] {
+                        wrap_angle_floor(next[d])
+                    } else {
+                        next[d]
+                    };
+                    self.states[shape.state_index(t, d, m)] = v;
+                }
+            }
+        }
+    }
+
+    fn step_with(
+        &mut self,
+        propagate: Option<&Propagate<'_>>,
+        measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
+    ) -> Result<BatchReport, PfError> {
         let shape = self.shape;
         let (m_count, dims) = (shape.particles, shape.dims);
         let step = self.step;
@@ -417,19 +499,23 @@ impl<R: Resampler> BatchFilter<R> {
         }
         std::mem::swap(&mut self.states, &mut self.scratch);
 
-        let bounds = self
-            .bounds
-            .as_ref()
-            .map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
-        diffuse(
-            &shape,
-            &mut self.states,
-            &self.sigma,
-            bounds,
-            &self.angular,
-            &self.diffusion_keys,
-            step,
-        );
+        if let Some(propagate) = propagate {
+            self.propagate_all(propagate, step);
+        } else {
+            let bounds = self
+                .bounds
+                .as_ref()
+                .map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
+            diffuse(
+                &shape,
+                &mut self.states,
+                &self.sigma,
+                bounds,
+                &self.angular,
+                &self.diffusion_keys,
+                step,
+            );
+        }
 
         measure(&shape, &self.states, &mut self.log_likelihood)?;
         let mut status = Vec::with_capacity(shape.targets);

@@ -38,6 +38,7 @@ pub mod estimate;
 pub mod filter;
 pub mod model;
 pub mod particles;
+pub mod plugin;
 pub mod random;
 pub mod resample;
 pub mod weights;

@@ -343,6 +343,10 @@ impl GpuLikelihood for BodyLikelihoodGpu {
         Ok(())
     }
 
+    fn is_prepared(&self) -> bool {
+        self.filter_groups.is_some()
+    }
+
     fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
         if let Some((kinematics, to_log_likelihood)) = &self.filter_groups {
             let groups = self.kinematics_groups();

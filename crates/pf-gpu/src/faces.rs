@@ -314,6 +314,10 @@ impl GpuLikelihood for FaceLikelihoodGpu {
         Ok(())
     }
 
+    fn is_prepared(&self) -> bool {
+        self.errors.is_some()
+    }
+
     fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
         let (x, y) = match self.dispatch {
             FaceDispatch::PerFace => (self.particles, 1),

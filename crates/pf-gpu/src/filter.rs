@@ -103,6 +103,9 @@ pub struct LikelihoodInputs<'a> {
     /// The step's estimate per target, `[t·D + d]`: the best-M′ weighted mean where the filter
     /// computes one, else the weighted mean (written by the Estimate stage).
     pub estimates: &'a DeviceStream<f32>,
+    /// The per-target Philox keys of the diffusion stream (`counter_gaussian(key_t, m, d,
+    /// step)`), for a likelihood that brings its own dynamics ([`GpuLikelihood::propagates`]).
+    pub diffusion_keys: &'a DeviceStream<[u32; 2]>,
 }
 
 /// An observation model on the GPU. A tracker builds its pipelines and bind groups once in
@@ -110,6 +113,21 @@ pub struct LikelihoodInputs<'a> {
 pub trait GpuLikelihood {
     fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError>;
     fn record(&self, pass: &mut wgpu::ComputePass<'_>);
+
+    /// Whether `prepare` has bound it; a step with an unprepared likelihood is an error rather
+    /// than a step that weighs stale values.
+    fn is_prepared(&self) -> bool {
+        true
+    }
+
+    /// Whether it brings its own dynamics, recorded by [`GpuLikelihood::record_propagate`] in
+    /// place of the filter's Gaussian random walk.
+    fn propagates(&self) -> bool {
+        false
+    }
+
+    /// The dynamics' dispatches (the Diffuse stage) when [`GpuLikelihood::propagates`].
+    fn record_propagate(&self, _pass: &mut wgpu::ComputePass<'_>) {}
 
     /// Work on the step's estimates (a tracker's check of its estimate, say), recorded after
     /// the Estimate stage in the same pass.
@@ -541,6 +559,7 @@ impl GpuFilter {
             } else {
                 &self.estimates
             },
+            diffusion_keys: &self._diffusion_keys,
         }
     }
 
@@ -611,9 +630,13 @@ impl GpuFilter {
                 timestamp_writes: None,
             });
             if wants(GpuStage::Diffuse) {
-                self.stages
-                    .diffuse
-                    .record(&mut pass, &self.groups.diffuse, per_particle);
+                if likelihood.propagates() {
+                    likelihood.record_propagate(&mut pass);
+                } else {
+                    self.stages
+                        .diffuse
+                        .record(&mut pass, &self.groups.diffuse, per_particle);
+                }
             }
             if wants(GpuStage::Likelihood) {
                 likelihood.record(&mut pass);
@@ -652,6 +675,16 @@ impl GpuFilter {
         stages: &[GpuStage],
         likelihood: &dyn GpuLikelihood,
     ) -> Result<GpuStepReport, GpuError> {
+        let uses_likelihood = stages.contains(&GpuStage::Likelihood)
+            || (stages.contains(&GpuStage::Diffuse) && likelihood.propagates());
+        if uses_likelihood && !likelihood.is_prepared() {
+            return Err(GpuError::InvalidConfig(
+                "the likelihood was never prepared: call its prepare(ctx, \
+                 &filter.likelihood_inputs()) once before stepping (pf_gpu::model::ModelFilter \
+                 does it for a WGSL model)"
+                    .into(),
+            ));
+        }
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -749,6 +782,11 @@ impl GpuFilter {
 
     pub fn download_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
         self.weights.download(ctx)
+    }
+
+    /// The last Likelihood stage's `log p(z | x)`, `[t·M + m]` (tests and model checks).
+    pub fn download_log_likelihood(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.log_likelihood.download(ctx)
     }
 
     pub fn download_ancestors(&self, ctx: &GpuContext) -> Result<Vec<u32>, GpuError> {

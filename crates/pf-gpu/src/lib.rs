@@ -19,6 +19,7 @@ pub mod context;
 pub mod faces;
 pub mod filter;
 pub mod kernels;
+pub mod model;
 pub mod random;
 pub mod stream;
 pub mod timing;
@@ -32,3 +33,5 @@ pub use filter::{
 pub use kernels::Kernel;
 pub use stream::{DeviceStream, Readback, ReadbackSet};
 pub use timing::GpuTime;
+/// The wgpu this crate is built on, for likelihoods that record their own dispatches.
+pub use wgpu;

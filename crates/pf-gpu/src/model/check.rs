@@ -1,0 +1,207 @@
+//! The test a model's author runs: the GPU model against its CPU twin on given particles, with
+//! the tolerance of the project's own property tests (relative 1e-4, or absolute 1e-5 near zero).
+
+use std::fmt;
+
+use bytemuck::Pod;
+use pf_core::Stage;
+use pf_core::batch::{BatchConfig, BatchShape, stage_keys, wrap_angle_floor};
+use pf_core::plugin::CpuModel;
+use pf_core::random::counter_gaussian;
+
+use super::{ModelFilter, ModelSource};
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::filter::{GpuResampler, GpuStage};
+
+/// Relative tolerance of a GPU value against its CPU twin.
+pub const RELATIVE_TOLERANCE: f64 = 1e-4;
+/// Absolute tolerance near zero.
+pub const ABSOLUTE_TOLERANCE: f64 = 1e-5;
+
+/// Whether `gpu` agrees with `cpu` within the tolerance (NaN agrees only with NaN).
+pub fn agrees(gpu: f64, cpu: f64) -> bool {
+    if gpu.is_nan() || cpu.is_nan() {
+        return gpu.is_nan() && cpu.is_nan();
+    }
+    if gpu.is_infinite() || cpu.is_infinite() {
+        return gpu == cpu;
+    }
+    let diff = (gpu - cpu).abs();
+    diff <= ABSOLUTE_TOLERANCE || diff <= RELATIVE_TOLERANCE * cpu.abs()
+}
+
+/// One value that disagrees.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mismatch {
+    /// "log_likelihood" or "propagate, dimension d".
+    pub what: String,
+    pub target: usize,
+    pub particle: usize,
+    pub gpu: f64,
+    pub cpu: f64,
+}
+
+/// What [`check_against_cpu`] compared.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelCheck {
+    /// Particles compared (all targets).
+    pub particles: usize,
+    /// Whether the dynamics were compared too (both sides define them).
+    pub checked_propagate: bool,
+    /// Every value out of tolerance.
+    pub mismatches: Vec<Mismatch>,
+}
+
+impl ModelCheck {
+    pub fn passed(&self) -> bool {
+        self.mismatches.is_empty()
+    }
+}
+
+impl fmt::Display for ModelCheck {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{} particles{}: {} mismatches",
+            self.particles,
+            if self.checked_propagate {
+                ", log-likelihood and dynamics"
+            } else {
+                ", log-likelihood"
+            },
+            self.mismatches.len()
+        )?;
+        for m in self.mismatches.iter().take(5) {
+            write!(
+                f,
+                "\n  {} of target {} particle {}: GPU {} vs CPU {}",
+                m.what, m.target, m.particle, m.gpu, m.cpu
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// The particles, observations and constants of one check.
+pub struct CheckInputs<'a, O, C> {
+    pub shape: BatchShape,
+    /// `[(t·D + d)·M + m]`.
+    pub states: &'a [f32],
+    pub observations: &'a [O],
+    pub constants: &'a C,
+    /// Which dimensions are angles (wrapped after `propagate`).
+    pub angular: &'a [bool],
+    pub seed: u64,
+}
+
+/// Runs the model's measure kernel (and its `propagate`, when both sides define one) on the
+/// given particles and compares every value with the CPU twin's, drawing the same noise.
+pub fn check_against_cpu<O: Pod, C: Pod, M: CpuModel<O, C>>(
+    ctx: &GpuContext,
+    source: ModelSource<'_>,
+    cpu: &M,
+    inputs: &CheckInputs<'_, O, C>,
+) -> Result<ModelCheck, GpuError> {
+    let shape = inputs.shape;
+    let config = BatchConfig {
+        shape,
+        seed: inputs.seed,
+        sigma: vec![0.0; shape.dims],
+        bounds: None,
+        angular: inputs.angular.to_vec(),
+        ess_threshold: f64::INFINITY,
+        best: 0,
+    };
+    let mut filter = ModelFilter::new(
+        ctx,
+        &config,
+        GpuResampler::Systematic,
+        inputs.states,
+        source,
+        inputs.constants,
+    )?;
+    if filter.model().propagates() != M::PROPAGATES {
+        return Err(GpuError::InvalidConfig(format!(
+            "model {}: the WGSL {} propagate but the CPU twin's PROPAGATES is {}",
+            source.name,
+            if filter.model().propagates() {
+                "defines"
+            } else {
+                "does not define"
+            },
+            M::PROPAGATES
+        )));
+    }
+    filter.model().set_observations(ctx, inputs.observations)?;
+    let mut mismatches = Vec::new();
+    let state = |t: usize, m: usize, states: &[f32]| -> Vec<f32> {
+        (0..shape.dims)
+            .map(|d| states[shape.state_index(t, d, m)])
+            .collect()
+    };
+    {
+        let (gpu_filter, model) = filter.parts();
+        gpu_filter.run_stages(ctx, &[GpuStage::Likelihood], model)?;
+    }
+    let gpu = filter.filter().download_log_likelihood(ctx)?;
+    for t in 0..shape.targets {
+        for m in 0..shape.particles {
+            let x = state(t, m, inputs.states);
+            let cpu_value =
+                f64::from(cpu.log_likelihood(&x, &inputs.observations[t], inputs.constants));
+            let gpu_value = f64::from(gpu[t * shape.particles + m]);
+            if !agrees(gpu_value, cpu_value) {
+                mismatches.push(Mismatch {
+                    what: "log_likelihood".into(),
+                    target: t,
+                    particle: m,
+                    gpu: gpu_value,
+                    cpu: cpu_value,
+                });
+            }
+        }
+    }
+    if M::PROPAGATES {
+        let step = 7;
+        {
+            let (gpu_filter, model) = filter.parts();
+            gpu_filter.set_step(step);
+            gpu_filter.run_stages(ctx, &[GpuStage::Diffuse], model)?;
+        }
+        let moved = filter.filter().download_states(ctx)?;
+        let keys = stage_keys(inputs.seed, shape.targets, Stage::Diffusion);
+        let mut next = vec![0.0f32; shape.dims];
+        for t in 0..shape.targets {
+            for m in 0..shape.particles {
+                let x = state(t, m, inputs.states);
+                let noise: Vec<f32> = (0..shape.dims)
+                    .map(|d| counter_gaussian(keys[t], m as u32, d as u32, step) as f32)
+                    .collect();
+                cpu.propagate(&x, &noise, inputs.constants, &mut next);
+                for d in 0..shape.dims {
+                    let cpu_value = if inputs.angular.get(d) == Some(&true) {
+                        wrap_angle_floor(next[d])
+                    } else {
+                        next[d]
+                    };
+                    let gpu_value = moved[shape.state_index(t, d, m)];
+                    if !agrees(f64::from(gpu_value), f64::from(cpu_value)) {
+                        mismatches.push(Mismatch {
+                            what: format!("propagate, dimension {d}"),
+                            target: t,
+                            particle: m,
+                            gpu: f64::from(gpu_value),
+                            cpu: f64::from(cpu_value),
+                        });
+                    }
+                }
+            }
+        }
+    }
+    Ok(ModelCheck {
+        particles: shape.targets * shape.particles,
+        checked_propagate: M::PROPAGATES,
+        mismatches,
+    })
+}

@@ -1,0 +1,181 @@
+//! Range-only 2-D tracking: eight targets, each heard by three beacons that measure only their
+//! distance, tracked with a constant-velocity model written in WGSL (`MODEL`, the whole GPU side:
+//! data, likelihood and dynamics) and its CPU twin (`RangeOnly`), side by side on the same
+//! random numbers. `cargo run --release --example range_only` (add `--allow-software` to use
+//! Mesa's lavapipe when there is no GPU).
+
+use bytemuck::{Pod, Zeroable};
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
+use pf_core::plugin::CpuModel;
+use pf_core::resample::Systematic;
+use pf_gpu::model::{ModelFilter, ModelSource};
+use pf_gpu::{GpuContext, GpuResampler};
+
+/// The model on the GPU.
+pub const MODEL: ModelSource = ModelSource {
+    name: "range-only constant velocity",
+    wgsl: "
+struct Observation { r: array<f32, 3> }
+struct Constants { beacons: array<f32, 6>, dt: f32, accel: f32, range_sigma: f32 }
+
+fn log_likelihood(x: State, z: Observation, c: Constants) -> f32 {
+    var b = c.beacons;
+    var r = z.r;
+    var sum = 0.0;
+    for (var k = 0u; k < 3u; k = k + 1u) {
+        let e = (length(vec2(x[0] - b[2u * k], x[1] - b[2u * k + 1u])) - r[k]) / c.range_sigma;
+        sum = sum + e * e;
+    }
+    return -0.5 * sum;
+}
+
+fn propagate(x: State, n: State, c: Constants) -> State {
+    let vx = x[2] + c.accel * c.dt * n[2];
+    let vy = x[3] + c.accel * c.dt * n[3];
+    return State(x[0] + vx * c.dt, x[1] + vy * c.dt, vx, vy);
+}",
+};
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct Ranges {
+    pub r: [f32; 3],
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct Constants {
+    pub beacons: [f32; 6],
+    pub dt: f32,
+    pub accel: f32,
+    pub range_sigma: f32,
+}
+
+/// The CPU twin of `MODEL`.
+pub struct RangeOnly;
+
+impl CpuModel<Ranges, Constants> for RangeOnly {
+    const PROPAGATES: bool = true;
+
+    fn log_likelihood(&self, x: &[f32], z: &Ranges, c: &Constants) -> f32 {
+        let sum: f32 = (0..3)
+            .map(|k| {
+                let d = (x[0] - c.beacons[2 * k]).hypot(x[1] - c.beacons[2 * k + 1]);
+                ((d - z.r[k]) / c.range_sigma).powi(2)
+            })
+            .sum();
+        -0.5 * sum
+    }
+
+    fn propagate(&self, x: &[f32], n: &[f32], c: &Constants, next: &mut [f32]) {
+        let vx = x[2] + c.accel * c.dt * n[2];
+        let vy = x[3] + c.accel * c.dt * n[3];
+        next.copy_from_slice(&[x[0] + vx * c.dt, x[1] + vy * c.dt, vx, vy]);
+    }
+}
+
+pub const CONSTANTS: Constants = Constants {
+    beacons: [0.0, 0.0, 20.0, 0.0, 0.0, 20.0],
+    dt: 0.1,
+    accel: 0.5,
+    range_sigma: 0.2,
+};
+
+/// Tracks `targets` targets for `frames` frames; the mean position error (m) over the last half
+/// of the frames, on the GPU (when `ctx` is given) and on the CPU.
+pub fn run(
+    ctx: Option<&GpuContext>,
+    targets: usize,
+    frames: usize,
+) -> anyhow::Result<(Option<f32>, f32)> {
+    let shape = BatchShape::new(targets, 1000, 4)?;
+    let truth0: Vec<f32> = (0..targets)
+        .flat_map(|t| {
+            let a = t as f32 * 0.7;
+            [6.0 + t as f32, 8.0 + (t % 3) as f32, a.cos(), a.sin()]
+        })
+        .collect();
+    let config = BatchConfig {
+        shape,
+        seed: 3,
+        sigma: vec![0.0; 4],
+        bounds: None,
+        angular: vec![false; 4],
+        ess_threshold: f64::INFINITY,
+        best: 0,
+    };
+    let start = gaussian_clouds(&shape, 4, &truth0, &[1.0, 1.0, 0.5, 0.5]);
+    let mut gpu = match ctx {
+        Some(ctx) => Some(ModelFilter::new(
+            ctx,
+            &config,
+            GpuResampler::Systematic,
+            &start,
+            MODEL,
+            &CONSTANTS,
+        )?),
+        None => None,
+    };
+    let mut cpu = BatchFilter::new(&config, Systematic, start.clone())?;
+    let mut noise = pf_core::RandomStreams::new(9).stream(0, pf_core::Stage::Model(0));
+    let (mut gpu_error, mut cpu_error) = (0.0f32, 0.0f32);
+    for frame in 1..=frames {
+        let time = frame as f32 * CONSTANTS.dt;
+        let truth: Vec<[f32; 2]> = (0..targets)
+            .map(|t| {
+                [
+                    truth0[4 * t] + truth0[4 * t + 2] * time,
+                    truth0[4 * t + 1] + truth0[4 * t + 3] * time,
+                ]
+            })
+            .collect();
+        let observed: Vec<Ranges> = truth
+            .iter()
+            .map(|p| Ranges {
+                r: std::array::from_fn(|k| {
+                    let d = (p[0] - CONSTANTS.beacons[2 * k])
+                        .hypot(p[1] - CONSTANTS.beacons[2 * k + 1]);
+                    d + CONSTANTS.range_sigma * noise.gaussian_f32()
+                }),
+            })
+            .collect();
+        let late = frame > frames / 2;
+        let error = |estimates: &[f32]| -> f32 {
+            truth
+                .iter()
+                .enumerate()
+                .map(|(t, p)| (estimates[4 * t] - p[0]).hypot(estimates[4 * t + 1] - p[1]))
+                .sum::<f32>()
+                / targets as f32
+        };
+        if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
+            let report = filter.step(ctx, &observed)?;
+            gpu_error += if late { error(&report.estimates) } else { 0.0 };
+        }
+        let report = cpu.step_model(&RangeOnly, &observed, &CONSTANTS)?;
+        cpu_error += if late { error(&report.estimates) } else { 0.0 };
+    }
+    let late_frames = (frames - frames / 2) as f32;
+    Ok((
+        gpu.map(|_| gpu_error / late_frames),
+        cpu_error / late_frames,
+    ))
+}
+
+#[allow(dead_code)]
+fn main() -> anyhow::Result<()> {
+    let allow_software = std::env::args().any(|a| a == "--allow-software");
+    let options = pf_gpu::ContextOptions {
+        allow_software,
+        ..Default::default()
+    };
+    let ctx = GpuContext::new(&options)
+        .map_err(|e| eprintln!("no GPU ({e}); CPU only"))
+        .ok();
+    let (gpu, cpu) = run(ctx.as_ref(), 8, 60)?;
+    if let (Some(g), Some(ctx)) = (gpu, &ctx) {
+        println!("GPU ({}): mean position error {g:.3} m", ctx.adapter().name);
+    }
+    println!("CPU: mean position error {cpu:.3} m");
+    Ok(())
+}
