@@ -43,7 +43,7 @@ pub struct Ranges {
 }
 
 #[repr(C)]
-#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+#[derive(Clone, Copy, Pod, Zeroable)]
 pub struct Constants {
     pub beacons: [f32; 6],
     pub dt: f32,
@@ -81,6 +81,17 @@ pub const CONSTANTS: Constants = Constants {
     range_sigma: 0.2,
 };
 
+/// Target t's true position at `time` (s): a straight line from a start that depends on t.
+fn truth(t: usize, time: f32) -> [f32; 4] {
+    let (vx, vy) = ((t as f32 * 0.7).cos(), (t as f32 * 0.7).sin());
+    [
+        6.0 + t as f32 + vx * time,
+        8.0 + (t % 3) as f32 + vy * time,
+        vx,
+        vy,
+    ]
+}
+
 /// Tracks `targets` targets for `frames` frames; the mean position error (m) over the last half
 /// of the frames, on the GPU (when `ctx` is given) and on the CPU.
 pub fn run(
@@ -89,12 +100,6 @@ pub fn run(
     frames: usize,
 ) -> anyhow::Result<(Option<f32>, f32)> {
     let shape = BatchShape::new(targets, 1000, 4)?;
-    let truth0: Vec<f32> = (0..targets)
-        .flat_map(|t| {
-            let a = t as f32 * 0.7;
-            [6.0 + t as f32, 8.0 + (t % 3) as f32, a.cos(), a.sin()]
-        })
-        .collect();
     let config = BatchConfig {
         shape,
         seed: 3,
@@ -104,62 +109,54 @@ pub fn run(
         ess_threshold: f64::INFINITY,
         best: 0,
     };
-    let start = gaussian_clouds(&shape, 4, &truth0, &[1.0, 1.0, 0.5, 0.5]);
-    let mut gpu = match ctx {
-        Some(ctx) => Some(ModelFilter::new(
-            ctx,
-            &config,
-            GpuResampler::Systematic,
-            &start,
-            MODEL,
-            &CONSTANTS,
-        )?),
-        None => None,
-    };
-    let mut cpu = BatchFilter::new(&config, Systematic, start.clone())?;
+    let means: Vec<f32> = (0..targets).flat_map(|t| truth(t, 0.0)).collect();
+    let start = gaussian_clouds(&shape, 4, &means, &[1.0, 1.0, 0.5, 0.5]);
+    let mut gpu = ctx
+        .map(|ctx| {
+            ModelFilter::new(
+                ctx,
+                &config,
+                GpuResampler::Systematic,
+                &start,
+                MODEL,
+                &CONSTANTS,
+            )
+        })
+        .transpose()?;
+    let mut cpu = BatchFilter::new(&config, Systematic, start)?;
     let mut noise = pf_core::RandomStreams::new(9).stream(0, pf_core::Stage::Model(0));
-    let (mut gpu_error, mut cpu_error) = (0.0f32, 0.0f32);
+    let (mut gpu_error, mut cpu_error) = (0.0, 0.0);
     for frame in 1..=frames {
-        let time = frame as f32 * CONSTANTS.dt;
-        let truth: Vec<[f32; 2]> = (0..targets)
-            .map(|t| {
-                [
-                    truth0[4 * t] + truth0[4 * t + 2] * time,
-                    truth0[4 * t + 1] + truth0[4 * t + 3] * time,
-                ]
-            })
+        let truths: Vec<[f32; 4]> = (0..targets)
+            .map(|t| truth(t, frame as f32 * CONSTANTS.dt))
             .collect();
-        let observed: Vec<Ranges> = truth
-            .iter()
+        let c = &CONSTANTS;
+        let observed: Vec<Ranges> = (truths.iter())
             .map(|p| Ranges {
                 r: std::array::from_fn(|k| {
-                    let d = (p[0] - CONSTANTS.beacons[2 * k])
-                        .hypot(p[1] - CONSTANTS.beacons[2 * k + 1]);
-                    d + CONSTANTS.range_sigma * noise.gaussian_f32()
+                    (p[0] - c.beacons[2 * k]).hypot(p[1] - c.beacons[2 * k + 1])
+                        + c.range_sigma * noise.gaussian_f32()
                 }),
             })
             .collect();
-        let late = frame > frames / 2;
-        let error = |estimates: &[f32]| -> f32 {
-            truth
-                .iter()
-                .enumerate()
-                .map(|(t, p)| (estimates[4 * t] - p[0]).hypot(estimates[4 * t + 1] - p[1]))
+        // Mean position error over the targets, counted over the last half of the frames.
+        let weight = if frame > frames / 2 {
+            1.0 / (targets * (frames - frames / 2)) as f32
+        } else {
+            0.0
+        };
+        let error = |e: &[f32]| -> f32 {
+            (truths.iter().enumerate())
+                .map(|(t, p)| (e[4 * t] - p[0]).hypot(e[4 * t + 1] - p[1]))
                 .sum::<f32>()
-                / targets as f32
+                * weight
         };
         if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
-            let report = filter.step(ctx, &observed)?;
-            gpu_error += if late { error(&report.estimates) } else { 0.0 };
+            gpu_error += error(&filter.step(ctx, &observed)?.estimates);
         }
-        let report = cpu.step_model(&RangeOnly, &observed, &CONSTANTS)?;
-        cpu_error += if late { error(&report.estimates) } else { 0.0 };
+        cpu_error += error(&cpu.step_model(&RangeOnly, &observed, c)?.estimates);
     }
-    let late_frames = (frames - frames / 2) as f32;
-    Ok((
-        gpu.map(|_| gpu_error / late_frames),
-        cpu_error / late_frames,
-    ))
+    Ok((gpu.map(|_| gpu_error), cpu_error))
 }
 
 #[allow(dead_code)]
