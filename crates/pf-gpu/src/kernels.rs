@@ -187,6 +187,49 @@ mod tests {
         assert_eq!(on_disk, known);
     }
 
+    /// Every shader file with the libraries it is compiled with.
+    fn every_module() -> Vec<(&'static str, String)> {
+        let mut modules: Vec<(&str, String)> = sources::STAGES
+            .iter()
+            .map(|(file, stage)| (*file, stage_source(stage)))
+            .collect();
+        modules.push(("random.wgsl", [sources::PHILOX, sources::RANDOM].join("\n")));
+        modules.push((
+            "capsule_likelihood.wgsl",
+            sources::CAPSULE_LIKELIHOOD.into(),
+        ));
+        modules.push(("body_kinematics.wgsl", sources::BODY_KINEMATICS.into()));
+        modules
+    }
+
+    #[test]
+    fn architecture_kernel_table_names_every_entry_point() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../ARCHITECTURE.md");
+        let doc = std::fs::read_to_string(&path).unwrap();
+        let table = doc
+            .split("## Kernels")
+            .nth(1)
+            .and_then(|s| s.split("\n## ").next())
+            .expect("ARCHITECTURE.md has a Kernels section");
+        let mut missing = Vec::new();
+        for (file, source) in every_module() {
+            let module = wgpu::naga::front::wgsl::parse_str(&source).unwrap();
+            for entry in &module.entry_points {
+                let named = table.lines().any(|l| {
+                    l.starts_with(&format!("| `{file}`"))
+                        && l.contains(&format!("`{}`", entry.name))
+                });
+                if !named {
+                    missing.push(format!("{file}: {}", entry.name));
+                }
+            }
+        }
+        assert!(
+            missing.is_empty(),
+            "ARCHITECTURE.md's kernel table lacks {missing:?}"
+        );
+    }
+
     #[test]
     fn invalid_wgsl_is_reported_with_its_location() {
         let err = validate_wgsl("fn broken( { }").unwrap_err();
