@@ -462,3 +462,30 @@ impl SplitBodyLikelihood {
         Ok(sums)
     }
 }
+
+#[cfg(test)]
+mod layout_tests {
+    use std::mem::{offset_of, size_of};
+
+    use super::{GpuBone, KinematicsParams};
+    use crate::kernels::{assert_mirrors_wgsl, sources};
+
+    #[test]
+    fn kinematics_params_and_bones_mirror_their_wgsl_layouts() {
+        macro_rules! fields {
+            ($t:ty: $($f:ident),*) => { [$((stringify!($f), offset_of!($t, $f))),*] };
+        }
+        assert_mirrors_wgsl(
+            sources::BODY_KINEMATICS,
+            "KinematicsParams",
+            size_of::<KinematicsParams>(),
+            &fields!(KinematicsParams: samples, particles, dims, bones, log_scale),
+        );
+        assert_mirrors_wgsl(
+            sources::BODY_KINEMATICS,
+            "Bone",
+            size_of::<GpuBone>(),
+            &fields!(GpuBone: offset, radius, extent, parent, joint),
+        );
+    }
+}

@@ -369,6 +369,26 @@ fn tile_cones(rays: &[[f32; 4]], tile: usize) -> Vec<[f32; 4]> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn capsule_params_mirror_their_wgsl_layout() {
+        use std::mem::{offset_of, size_of};
+        let fields = [
+            ("samples", offset_of!(CapsuleParams, samples)),
+            ("points", offset_of!(CapsuleParams, points)),
+            ("capsules", offset_of!(CapsuleParams, capsules)),
+            ("tiles", offset_of!(CapsuleParams, tiles)),
+            ("sample_offset", offset_of!(CapsuleParams, sample_offset)),
+            ("origin", offset_of!(CapsuleParams, origin)),
+            ("tau", offset_of!(CapsuleParams, tau)),
+        ];
+        crate::kernels::assert_mirrors_wgsl(
+            crate::kernels::sources::CAPSULE_LIKELIHOOD,
+            "CapsuleParams",
+            size_of::<CapsuleParams>(),
+            &fields,
+        );
+    }
+
     use super::*;
 
     #[test]

@@ -359,3 +359,25 @@ impl GpuLikelihood for FaceLikelihoodGpu {
         *pending = Some(check.back.request_map());
     }
 }
+
+#[cfg(test)]
+mod layout_tests {
+    use std::mem::{offset_of, size_of};
+
+    use super::FaceParams;
+    use crate::kernels::{assert_mirrors_wgsl, sources, stage_source};
+
+    #[test]
+    fn face_params_mirror_their_wgsl_layout() {
+        macro_rules! fields {
+            ($t:ty: $($f:ident),*) => { [$((stringify!($f), offset_of!($t, $f))),*] };
+        }
+        assert_mirrors_wgsl(
+            &stage_source(sources::FACE_LIKELIHOOD),
+            "FaceParams",
+            size_of::<FaceParams>(),
+            &fields!(FaceParams: width, height, max_points, face_offset, sharpness, min_error,
+                min_visible_share),
+        );
+    }
+}

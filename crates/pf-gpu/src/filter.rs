@@ -827,3 +827,34 @@ pub struct FilterStreams<'a> {
     pub ancestors: &'a DeviceStream<u32>,
     pub stats: &'a DeviceStream<TargetStats>,
 }
+
+#[cfg(test)]
+mod layout_tests {
+    use std::mem::{offset_of, size_of};
+
+    use super::{FrameParams, TargetStats};
+    use crate::kernels::{assert_mirrors_wgsl, sources, stage_source};
+
+    #[test]
+    fn frame_params_and_target_stats_mirror_their_wgsl_layouts() {
+        macro_rules! fields {
+            ($t:ty: $($f:ident),*) => { [$((stringify!($f), offset_of!($t, $f))),*] };
+        }
+        // common.wgsl reads `params`, which each stage declares: lay it out inside one.
+        let common = stage_source(sources::DIFFUSE);
+        assert_mirrors_wgsl(
+            &common,
+            "Params",
+            size_of::<FrameParams>(),
+            &fields!(FrameParams: targets, particles, dims, angular_mask, step_lo, step_hi,
+                has_bounds, metropolis_steps, ess_threshold, best),
+        );
+        assert_mirrors_wgsl(
+            &common,
+            "TargetStats",
+            size_of::<TargetStats>(),
+            &fields!(TargetStats: max_log_weight, log_sum_shifted, ess, status, bad_particle,
+                resampled),
+        );
+    }
+}

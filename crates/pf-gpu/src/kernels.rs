@@ -49,6 +49,57 @@ pub fn validate_wgsl(source: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// The size and each member's (name, offset) of the WGSL struct `name` in `source`, laid out by
+/// naga as the GPU lays it out.
+pub fn wgsl_struct_layout(source: &str, name: &str) -> Result<(u32, Vec<(String, u32)>), String> {
+    use wgpu::naga;
+    let module = naga::front::wgsl::parse_str(source).map_err(|e| e.emit_to_string(source))?;
+    let mut layouter = naga::proc::Layouter::default();
+    layouter
+        .update(module.to_ctx())
+        .map_err(|e| e.to_string())?;
+    let (handle, ty) = module
+        .types
+        .iter()
+        .find(|(_, t)| t.name.as_deref() == Some(name))
+        .ok_or_else(|| format!("no struct {name}"))?;
+    let naga::TypeInner::Struct { members, .. } = &ty.inner else {
+        return Err(format!("{name} is not a struct"));
+    };
+    let fields = members
+        .iter()
+        .map(|m| (m.name.clone().unwrap_or_default(), m.offset))
+        .collect();
+    Ok((layouter[handle].size, fields))
+}
+
+/// Test helper: the Rust mirror of a WGSL struct has its size, and each WGSL member (padding
+/// aside) sits at the offset of the Rust field of the same name (`fields`: name, `offset_of!`).
+#[cfg(test)]
+pub(crate) fn assert_mirrors_wgsl(
+    source: &str,
+    name: &str,
+    rust_size: usize,
+    fields: &[(&str, usize)],
+) {
+    let (size, members) = wgsl_struct_layout(source, name).unwrap();
+    assert_eq!(
+        size as usize, rust_size,
+        "struct {name}: WGSL size {size}, Rust {rust_size}"
+    );
+    for (member, offset) in members.iter().filter(|(m, _)| !m.starts_with("_pad")) {
+        let rust = fields
+            .iter()
+            .find(|(f, _)| f == member)
+            .unwrap_or_else(|| panic!("{name}.{member} has no Rust field of that name"));
+        assert_eq!(
+            *offset as usize, rust.1,
+            "{name}.{member}: WGSL offset {offset}, Rust {}",
+            rust.1
+        );
+    }
+}
+
 /// One compute entry point built into a pipeline, with the layout of its bind group 0.
 #[derive(Debug)]
 pub struct Kernel {
