@@ -55,6 +55,9 @@ const IMAGES: [&str; 7] = [
 /// OpenCV's Python package for the reference detector (5.x moved the cascade classifier out).
 const OPENCV_PYTHON: &str = "opencv-python-headless>=4.8,<5";
 
+/// numpy, for the .npy round trips of pf-numpy's tests (OpenCV's package brings it too).
+const NUMPY: &str = "numpy>=1.24";
+
 /// dlib's Python package (a prebuilt wheel) for the reference landmark predictor.
 const DLIB_PYTHON: &str = "dlib-bin>=19.24,<21";
 
@@ -203,6 +206,12 @@ fn fetch_media() -> anyhow::Result<()> {
         "import dlib; dlib.shape_predictor",
         DLIB_PYTHON,
         "the landmark tests' reference",
+    )?;
+    ensure_python_package(
+        &python,
+        "import numpy",
+        NUMPY,
+        "the .npy round-trip tests' reference",
     )?;
     let media = workspace_root().join("target/media");
     fetch_skimage_images(&python, &media)?;

@@ -216,6 +216,24 @@ impl BodyTracker {
         &self.skeleton
     }
 
+    /// The particles after the last step: the batch shape (1 × J × θ's length), the poses in the
+    /// batch layout `[d·J + j]` and the normalised log-weights. On the GPU this reads them back
+    /// (a wait), so call it only when needed.
+    pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), BodyError> {
+        Ok(match &self.engine {
+            Engine::Cpu(filter) | Engine::Split { filter, .. } => (
+                *filter.shape(),
+                filter.states.clone(),
+                filter.log_weights.clone(),
+            ),
+            Engine::Gpu(gpu) => (
+                *gpu.filter.shape(),
+                gpu.filter.download_states(&gpu.ctx)?,
+                gpu.filter.download_log_weights(&gpu.ctx)?,
+            ),
+        })
+    }
+
     /// Thins `points` to at most `max_points` by taking every k-th one.
     fn thinned<'a>(&self, points: &'a [Vector3<f32>]) -> std::borrow::Cow<'a, [Vector3<f32>]> {
         if points.len() <= self.config.max_points {

@@ -416,6 +416,24 @@ impl FaceTracker {
 
     /// The GPU's time for the last step's submission (timestamps where the adapter has them),
     /// on the GPU backend after a step.
+    /// Every slot's particles after the last step: the batch shape (slots × particles × 7), the
+    /// states in the batch layout `[(slot·7 + d)·M + m]` and the normalised log-weights
+    /// `[slot·M + m]`. On the GPU this reads them back (a wait), so call it only when needed.
+    pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
+        Ok(match &self.engine {
+            Engine::Cpu(filter) => (
+                *filter.shape(),
+                filter.states.clone(),
+                filter.log_weights.clone(),
+            ),
+            Engine::Gpu(gpu) => (
+                *gpu.filter.shape(),
+                gpu.filter.download_states(&gpu.ctx)?,
+                gpu.filter.download_log_weights(&gpu.ctx)?,
+            ),
+        })
+    }
+
     pub fn last_gpu_time(&self) -> Option<GpuTime> {
         match &self.engine {
             Engine::Gpu(gpu) => gpu.last_time,

@@ -784,6 +784,11 @@ impl GpuFilter {
         self.weights.download(ctx)
     }
 
+    /// The normalised log-weights, `[t·M + m]`.
+    pub fn download_log_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.log_weights.download(ctx)
+    }
+
     /// The last Likelihood stage's `log p(z | x)`, `[t·M + m]` (tests and model checks).
     pub fn download_log_likelihood(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
         self.log_likelihood.download(ctx)

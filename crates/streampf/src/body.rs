@@ -145,6 +145,11 @@ pub struct TrackArgs {
     /// Seed of the filter's random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Write every frame's pose samples and log-weights here as numpy files:
+    /// particles_FRAME.npy (1, J, pose values; float32, named as in poses.csv) and
+    /// log_weights_FRAME.npy (1, J). On a GPU this reads the cloud back every frame.
+    #[arg(long)]
+    pub save_particles: Option<PathBuf>,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
@@ -298,6 +303,10 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    if let Some(dir) = &args.save_particles {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
+    }
     if !args.quiet {
         println!(
             "tracking {frames} frames, {} capsules, {} particles on {backend_name}",
@@ -324,6 +333,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             .step(&points)
             .with_context(|| format!("frame {frame}"))?;
         tracking_time += step_started.elapsed().as_secs_f64();
+        if let Some(dir) = &args.save_particles {
+            let (shape, states, log_weights) = tracker.particles()?;
+            pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)
+                .with_context(|| format!("frame {frame}: --save-particles"))?;
+        }
         points_seen += result.points;
         joints.push(joint_row(&skeleton.tracked_joint_positions(&result.pose)?));
         if let Some(truth) = &truth {

@@ -139,6 +139,12 @@ pub struct TrackArgs {
     /// frames) or a video file (.mp4, .mkv, .avi, .webm; encoded by FFmpeg).
     #[arg(long)]
     pub overlay: Option<PathBuf>,
+    /// Write every frame's particles and log-weights here as numpy files:
+    /// particles_FRAME.npy (slots, particles, 7; float32, the state columns of states.csv),
+    /// log_weights_FRAME.npy (slots, particles) and tracks_FRAME.npy (the track in each slot,
+    /// -1 when free). On a GPU this reads the clouds back every frame.
+    #[arg(long)]
+    pub save_particles: Option<PathBuf>,
     /// A track ends when its estimate's ε (the template's robust relative residual) stays above
     /// this for --failure-frames frames in a row.
     #[arg(long, default_value_t = FaceTrackerConfig::default().failure_error)]
@@ -530,6 +536,10 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    if let Some(dir) = &args.save_particles {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
+    }
     let mut annotated = match &args.overlay {
         Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
         None => None,
@@ -571,6 +581,10 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             .step(&image)
             .with_context(|| format!("frame {frame}"))?;
         tracking_time += step_started.elapsed().as_secs_f64();
+        if let Some(dir) = &args.save_particles {
+            save_particles(dir, frame, runner.tracker(), &estimates)
+                .with_context(|| format!("frame {frame}: --save-particles"))?;
+        }
         for e in &estimates {
             tracks_seen.insert(e.track);
             let status = match e.status {
@@ -655,5 +669,31 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             p.display()
         ))
     );
+    Ok(())
+}
+
+/// One frame's clouds as numpy files, with the track that runs in each slot (-1: free).
+fn save_particles(
+    dir: &Path,
+    frame: usize,
+    tracker: &FaceTracker,
+    estimates: &[face_tracker::FaceEstimate],
+) -> anyhow::Result<()> {
+    let (shape, states, log_weights) = tracker.particles()?;
+    pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)?;
+    let mut tracks = vec![-1.0f32; shape.targets];
+    for e in estimates
+        .iter()
+        .filter(|e| e.status == TrackStatus::Tracking)
+    {
+        if let Some(slot) = tracks.get_mut(e.slot) {
+            *slot = e.track as f32;
+        }
+    }
+    pf_numpy::write_f32(
+        &dir.join(format!("tracks_{frame:06}.npy")),
+        &[shape.targets],
+        &tracks,
+    )?;
     Ok(())
 }

@@ -1,0 +1,319 @@
+//! # pf-numpy: numpy interop for streampf
+//!
+//! Particles, log-weights, estimates and observations in and out as `.npy` files, read and written
+//! with the `npyz` crate, so that numpy (`numpy.load`, `numpy.save`) sees exactly what the filter
+//! holds.
+//!
+//! - [`read_f32`] reads float32 or float64 arrays in C or Fortran order into a C-order
+//!   [`Array`]; any other dtype, a truncated file or a pickled array is a clear [`NpyError`].
+//!   [`read_finite_f32`] also refuses NaN and ±∞.
+//! - [`write_f32`] writes a C-order float32 array.
+//! - [`particles_array`] / [`batch_from_particles`] convert between the filter's batch layout
+//!   (`[(t·D + d)·M + m]`) and numpy's natural `(T, M, D)`; [`write_particles`] writes one
+//!   frame's cloud and log-weights.
+
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use npyz::WriterBuilder;
+use pf_core::batch::BatchShape;
+
+/// What can go wrong with a `.npy` file; every variant names the file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum NpyError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: not a readable .npy file: {message}")]
+    Format { path: PathBuf, message: String },
+    #[error(
+        "{path}: dtype {found} is not supported: save float32 or float64 (numpy: a.astype(numpy.float32))"
+    )]
+    Dtype { path: PathBuf, found: String },
+    #[error("{path}: shape {found:?}, expected {expected}")]
+    Shape {
+        path: PathBuf,
+        expected: String,
+        found: Vec<usize>,
+    },
+    #[error("{path}: value {value} at flat index {index} (C order) is not finite")]
+    NotFinite {
+        path: PathBuf,
+        index: usize,
+        value: f64,
+    },
+    #[error("{path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+}
+
+/// An n-dimensional array in C order (the last index varies fastest).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Array<T> {
+    pub shape: Vec<usize>,
+    pub data: Vec<T>,
+}
+
+impl<T> Array<T> {
+    /// Errors unless the shape is `expected` (`None` matches any extent).
+    pub fn expect_shape(&self, path: &Path, expected: &[Option<usize>]) -> Result<(), NpyError> {
+        let matches = self.shape.len() == expected.len()
+            && self
+                .shape
+                .iter()
+                .zip(expected)
+                .all(|(s, e)| e.is_none_or(|e| e == *s));
+        if matches {
+            return Ok(());
+        }
+        let described: Vec<String> = expected
+            .iter()
+            .map(|e| e.map_or("any".to_string(), |n| n.to_string()))
+            .collect();
+        Err(NpyError::Shape {
+            path: path.to_path_buf(),
+            expected: format!("({})", described.join(", ")),
+            found: self.shape.clone(),
+        })
+    }
+}
+
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> NpyError + '_ {
+    move |source| NpyError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn format_error(path: &Path, e: impl std::fmt::Display) -> NpyError {
+    NpyError::Format {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
+}
+
+/// Reads a float32 or float64 array (C or Fortran order) as f32 in C order. float64 values
+/// beyond f32's range are an error, not infinities.
+pub fn read_f32(path: &Path) -> Result<Array<f32>, NpyError> {
+    let file = File::open(path).map_err(io_error(path))?;
+    let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| format_error(path, e))?;
+    if npy.uses_pickled_array() {
+        return Err(NpyError::Dtype {
+            path: path.to_path_buf(),
+            found: "object (pickled)".into(),
+        });
+    }
+    let shape: Vec<usize> = npy.shape().iter().map(|&s| s as usize).collect();
+    let fortran = npy.order() == npyz::Order::Fortran;
+    let npyz::DType::Plain(type_str) = npy.dtype() else {
+        return Err(NpyError::Dtype {
+            path: path.to_path_buf(),
+            found: format!("{:?}", npy.dtype()),
+        });
+    };
+    let kind = (type_str.type_char(), type_str.size_field());
+    let stored: Vec<f32> = match kind {
+        (npyz::TypeChar::Float, 4) => npy.into_vec::<f32>().map_err(|e| truncated(path, e))?,
+        (npyz::TypeChar::Float, 8) => {
+            let wide = npy.into_vec::<f64>().map_err(|e| truncated(path, e))?;
+            narrow(path, &wide, fortran, &shape)?
+        }
+        _ => {
+            return Err(NpyError::Dtype {
+                path: path.to_path_buf(),
+                found: type_str.to_string(),
+            });
+        }
+    };
+    let expected: usize = shape.iter().product();
+    if stored.len() != expected {
+        return Err(format_error(
+            path,
+            format!("{} values for shape {shape:?}", stored.len()),
+        ));
+    }
+    let data = if fortran {
+        fortran_to_c(&shape, &stored)
+    } else {
+        stored
+    };
+    Ok(Array { shape, data })
+}
+
+fn truncated(path: &Path, e: std::io::Error) -> NpyError {
+    format_error(path, format!("{e} (is the file truncated?)"))
+}
+
+/// f64 → f32, refusing finite values f32 cannot hold. Indices in errors are C order.
+fn narrow(path: &Path, wide: &[f64], fortran: bool, shape: &[usize]) -> Result<Vec<f32>, NpyError> {
+    let mut out = Vec::with_capacity(wide.len());
+    for (i, &v) in wide.iter().enumerate() {
+        let x = v as f32;
+        if v.is_finite() && !x.is_finite() {
+            let index = if fortran {
+                fortran_index_to_c(shape, i)
+            } else {
+                i
+            };
+            return Err(NpyError::Invalid {
+                path: path.to_path_buf(),
+                message: format!("float64 value {v} at flat index {index} does not fit in float32"),
+            });
+        }
+        out.push(x);
+    }
+    Ok(out)
+}
+
+/// The C-order flat index of the element stored at Fortran-order position `i`.
+fn fortran_index_to_c(shape: &[usize], mut i: usize) -> usize {
+    let mut index = vec![0; shape.len()];
+    for (k, &n) in shape.iter().enumerate() {
+        index[k] = i % n.max(1);
+        i /= n.max(1);
+    }
+    index
+        .iter()
+        .zip(shape)
+        .fold(0, |acc, (&ix, &n)| acc * n + ix)
+}
+
+/// Reorders Fortran-order values to C order.
+fn fortran_to_c<T: Copy + Default>(shape: &[usize], stored: &[T]) -> Vec<T> {
+    let mut out = vec![T::default(); stored.len()];
+    for (i, &v) in stored.iter().enumerate() {
+        out[fortran_index_to_c(shape, i)] = v;
+    }
+    out
+}
+
+/// [`read_f32`], refusing NaN and ±∞ (observations, initial clouds).
+pub fn read_finite_f32(path: &Path) -> Result<Array<f32>, NpyError> {
+    let array = read_f32(path)?;
+    if let Some((index, &value)) = array.data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+        return Err(NpyError::NotFinite {
+            path: path.to_path_buf(),
+            index,
+            value: f64::from(value),
+        });
+    }
+    Ok(array)
+}
+
+/// Writes `data` (C order) as a float32 array of `shape`.
+pub fn write_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), NpyError> {
+    let expected: usize = shape.iter().product();
+    if expected != data.len() {
+        return Err(NpyError::Invalid {
+            path: path.to_path_buf(),
+            message: format!("{} values for shape {shape:?}", data.len()),
+        });
+    }
+    let file = File::create(path).map_err(io_error(path))?;
+    let mut out = BufWriter::new(file);
+    let dims: Vec<u64> = shape.iter().map(|&s| s as u64).collect();
+    let mut writer = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&dims)
+        .writer(&mut out)
+        .begin_nd()
+        .map_err(io_error(path))?;
+    writer
+        .extend(data.iter().copied())
+        .map_err(io_error(path))?;
+    writer.finish().map_err(io_error(path))?;
+    out.flush().map_err(io_error(path))
+}
+
+/// The batch layout `[(t·D + d)·M + m]` as a `(T, M, D)` C-order array.
+pub fn particles_array(shape: &BatchShape, states: &[f32]) -> Array<f32> {
+    let (t_count, m_count, d_count) = (shape.targets, shape.particles, shape.dims);
+    let mut data = Vec::with_capacity(t_count * m_count * d_count);
+    for t in 0..t_count {
+        for m in 0..m_count {
+            for d in 0..d_count {
+                data.push(states[shape.state_index(t, d, m)]);
+            }
+        }
+    }
+    Array {
+        shape: vec![t_count, m_count, d_count],
+        data,
+    }
+}
+
+/// A `(T, M, D)` array back into the batch layout for `shape`.
+pub fn batch_from_particles(
+    path: &Path,
+    shape: &BatchShape,
+    array: &Array<f32>,
+) -> Result<Vec<f32>, NpyError> {
+    array.expect_shape(
+        path,
+        &[Some(shape.targets), Some(shape.particles), Some(shape.dims)],
+    )?;
+    let mut states = vec![0.0; shape.state_len()];
+    let (m_count, d_count) = (shape.particles, shape.dims);
+    for (i, &v) in array.data.iter().enumerate() {
+        let (t, m, d) = (
+            i / (m_count * d_count),
+            (i / d_count) % m_count,
+            i % d_count,
+        );
+        states[shape.state_index(t, d, m)] = v;
+    }
+    Ok(states)
+}
+
+/// Writes one frame's particles to `dir`: `particles_FRAME.npy`, `(T, M, D)` float32, and
+/// `log_weights_FRAME.npy`, `(T, M)` (the frame number zero-padded to six digits).
+pub fn write_particles(
+    dir: &Path,
+    frame: usize,
+    shape: &BatchShape,
+    states: &[f32],
+    log_weights: &[f32],
+) -> Result<(), NpyError> {
+    let particles = particles_array(shape, states);
+    write_f32(
+        &dir.join(format!("particles_{frame:06}.npy")),
+        &particles.shape,
+        &particles.data,
+    )?;
+    write_f32(
+        &dir.join(format!("log_weights_{frame:06}.npy")),
+        &[shape.targets, shape.particles],
+        log_weights,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fortran_order_maps_to_c_order() {
+        // shape (2, 3): Fortran stores a00 a10 a01 a11 a02 a12.
+        let stored = [0, 3, 1, 4, 2, 5];
+        assert_eq!(fortran_to_c(&[2, 3], &stored), vec![0, 1, 2, 3, 4, 5]);
+        assert_eq!(fortran_to_c(&[4], &[1, 2, 3, 4]), vec![1, 2, 3, 4]);
+    }
+
+    #[test]
+    fn particles_round_trip_through_the_tmd_layout() {
+        let shape = BatchShape::new(2, 3, 4).unwrap();
+        let states: Vec<f32> = (0..shape.state_len()).map(|i| i as f32).collect();
+        let array = particles_array(&shape, &states);
+        assert_eq!(array.shape, vec![2, 3, 4]);
+        // Target 1, particle 2, dimension 3.
+        assert_eq!(
+            array.data[(3 + 2) * 4 + 3],
+            states[shape.state_index(1, 3, 2)]
+        );
+        let back = batch_from_particles(Path::new("x.npy"), &shape, &array).unwrap();
+        assert_eq!(back, states);
+    }
+}
