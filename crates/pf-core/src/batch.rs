@@ -21,12 +21,16 @@ type Propagate<'a> = dyn Fn(&[f32], &[f32], &mut [f32]) + Sync + 'a;
 /// The shape of a batch.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BatchShape {
+    /// Targets T, each an independent filter.
     pub targets: usize,
+    /// Particles per target M.
     pub particles: usize,
+    /// State dimensions D.
     pub dims: usize,
 }
 
 impl BatchShape {
+    /// A shape of `targets` × `particles` × `dims` (each at least 1, the total within `u32`).
     pub fn new(targets: usize, particles: usize, dims: usize) -> Result<Self, PfError> {
         if targets == 0 || particles == 0 || dims == 0 {
             return Err(PfError::InvalidConfig(format!(
@@ -49,14 +53,17 @@ impl BatchShape {
         })
     }
 
+    /// Where component `d` of particle `m` of target `t` lives: `(t·D + d)·M + m`.
     pub fn state_index(&self, t: usize, d: usize, m: usize) -> usize {
         (t * self.dims + d) * self.particles + m
     }
 
+    /// Values in the state buffer, T·D·M.
     pub fn state_len(&self) -> usize {
         self.targets * self.dims * self.particles
     }
 
+    /// Values in a per-particle buffer (log-weights, log-likelihoods), T·M.
     pub fn particle_len(&self) -> usize {
         self.targets * self.particles
     }
@@ -199,7 +206,9 @@ pub struct BatchReport {
     pub estimates: Vec<f32>,
     /// The best-M′ weighted means, `[t·D + d]` (empty when `best` is 0).
     pub best_estimates: Vec<f32>,
+    /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,
+    /// Whether each target resampled at the start of the step.
     pub resampled: Vec<bool>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
     pub status: Vec<Result<(), PfError>>,
@@ -218,8 +227,11 @@ pub struct BatchFilter<R> {
     best: usize,
     diffusion_keys: Vec<[u32; 2]>,
     resampling_keys: Vec<[u32; 2]>,
+    /// The states, `[(t·D + d)·M + m]`.
     pub states: Vec<f32>,
+    /// The normalised log-weights, `[t·M + m]`.
     pub log_weights: Vec<f32>,
+    /// The normalised weights, `[t·M + m]`.
     pub weights: Vec<f64>,
     ess: Vec<f64>,
     ancestors: Vec<u32>,
@@ -231,18 +243,24 @@ pub struct BatchFilter<R> {
 /// The filter's settings shared by the CPU twin and the GPU driver.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BatchConfig {
+    /// Targets × particles × dimensions.
     pub shape: BatchShape,
+    /// The seed every random stream derives from (with the target index).
     pub seed: u64,
     /// Diffusion σ per dimension.
     pub sigma: Vec<f32>,
+    /// Clamp diffused states to `(lower, upper)` per dimension.
     pub bounds: Option<(Vec<f32>, Vec<f32>)>,
+    /// Which dimensions are angles (wrapped, averaged on the circle); only the first 32 may be.
     pub angular: Vec<bool>,
+    /// Resample a target when its ESS is below this × M (`f64::INFINITY`: every step).
     pub ess_threshold: f64,
     /// M′ of the best-M′ weighted mean (eq. 14 of the face paper); 0: not computed.
     pub best: usize,
 }
 
 impl BatchConfig {
+    /// Checks lengths, finiteness and ranges; the error says which value is wrong.
     pub fn validate(&self) -> Result<(), PfError> {
         let d = self.shape.dims;
         let check = |what: &str, len: usize| {
@@ -331,6 +349,7 @@ impl<R: Resampler> BatchFilter<R> {
         })
     }
 
+    /// The batch's shape.
     pub fn shape(&self) -> &BatchShape {
         &self.shape
     }

@@ -17,27 +17,42 @@ pub enum PfError {
     #[error(
         "all {particles} log-weights are -inf (every weight is zero): the likelihood rejected every particle"
     )]
-    AllWeightsZero { particles: usize },
+    AllWeightsZero {
+        /// The particles weighed.
+        particles: usize,
+    },
 
     /// A log-weight is NaN, usually a likelihood that divided 0 by 0 or a state that went NaN.
     #[error("log-weight of particle {particle} is NaN: the likelihood or the state produced a NaN")]
-    NanLogWeight { particle: usize },
+    NanLogWeight {
+        /// The first particle with a NaN log-weight.
+        particle: usize,
+    },
 
     /// A log-weight is +∞: the likelihood claimed infinite density, so no weight can be normalised.
     #[error(
         "log-weight of particle {particle} is +inf: the likelihood returned an infinite density"
     )]
-    InfiniteLogWeight { particle: usize },
+    InfiniteLogWeight {
+        /// The first particle with a +∞ log-weight.
+        particle: usize,
+    },
 
     /// A normalised weight handed to a resampler is negative, NaN, or the weights do not sum to 1.
     #[error("invalid normalised weights: {reason}")]
-    InvalidWeights { reason: String },
+    InvalidWeights {
+        /// What is wrong with them.
+        reason: String,
+    },
 
     /// Two buffers that must have the same length do not.
     #[error("length mismatch: {what} has length {got}, expected {expected}")]
     LengthMismatch {
+        /// The buffer.
         what: &'static str,
+        /// The length it must have.
         expected: usize,
+        /// The length it has.
         got: usize,
     },
 
@@ -49,5 +64,10 @@ pub enum PfError {
     #[error(
         "rejection resampling gave up after {tries} tries for particle {particle}: the weights are too degenerate (raise max_tries or use another resampler)"
     )]
-    RejectionGaveUp { particle: usize, tries: u32 },
+    RejectionGaveUp {
+        /// The offspring that found no ancestor.
+        particle: usize,
+        /// The tries it was allowed.
+        tries: u32,
+    },
 }

@@ -12,6 +12,7 @@ use crate::particles::ParticleSet;
 /// Which state dimensions are angles in radians (wrapped to (−π, π]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StateSpace<const D: usize> {
+    /// Whether each dimension is an angle.
     pub angular: [bool; D],
 }
 

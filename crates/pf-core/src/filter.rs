@@ -22,16 +22,20 @@ pub enum ResamplePolicy {
 /// Everything but the models that a filter needs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FilterConfig<const D: usize> {
+    /// Particles N.
     pub particles: usize,
+    /// When to resample.
     pub policy: ResamplePolicy,
     /// The run's seed: every random number of this filter derives from it and `target`.
     pub seed: u64,
     /// Which target this filter tracks; selects its own random streams.
     pub target: u32,
+    /// Which state dimensions are angles.
     pub space: StateSpace<D>,
 }
 
 impl<const D: usize> FilterConfig<D> {
+    /// `particles` particles, seed `seed`, resampling when the ESS falls under N/2, no angles.
     pub fn new(particles: usize, seed: u64) -> Self {
         Self {
             particles,
@@ -231,6 +235,7 @@ impl<const D: usize, M: Dynamics<D>, R: Resampler> ParticleFilter<D, M, R> {
         Ok(())
     }
 
+    /// The current particles and log-weights.
     pub fn particles(&self) -> &ParticleSet<D> {
         &self.particles
     }
@@ -240,6 +245,7 @@ impl<const D: usize, M: Dynamics<D>, R: Resampler> ParticleFilter<D, M, R> {
         &self.weights
     }
 
+    /// The configuration the filter was built with.
     pub fn config(&self) -> &FilterConfig<D> {
         &self.config
     }

@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! # pf-core: the Condensation engine
 //!
 //! A generic particle filter (Isard & Blake's Condensation: select, diffuse, measure) over a

@@ -12,12 +12,14 @@ use crate::random::RandomStream;
 /// The filter calls it for the particles in index order with the target's diffusion stream, so
 /// a run is reproducible from its seed.
 pub trait Dynamics<const D: usize>: Send + Sync {
+    /// Moves one particle's state one step, drawing from `noise`.
     fn propagate(&self, state: &mut SVector<f32, D>, noise: &mut RandomStream);
 }
 
 /// The observation model, in the log domain: `log p(z_t | x)` up to a constant shared by all
 /// particles of the step. A tracker builds one per frame (it borrows the frame).
 pub trait Likelihood<const D: usize>: Sync {
+    /// log p(z | x) of the current observation for one state, up to a constant.
     fn log_likelihood(&self, state: &SVector<f32, D>) -> f32;
 
     /// The log-likelihood of every particle into `out`; by default in parallel with rayon. A
@@ -71,10 +73,12 @@ impl<const D: usize> GaussianDiffusion<D> {
         Ok(self)
     }
 
+    /// The diffusion σ per dimension.
     pub fn sigma(&self) -> &SVector<f32, D> {
         &self.sigma
     }
 
+    /// The clamping bounds, when set.
     pub fn bounds(&self) -> Option<&(SVector<f32, D>, SVector<f32, D>)> {
         self.bounds.as_ref()
     }
@@ -97,7 +101,9 @@ impl<const D: usize> Dynamics<D> for GaussianDiffusion<D> {
 /// Kalman-filter check.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LinearGaussian<const D: usize> {
+    /// The transition matrix A of x' = A·x + σ ⊙ n.
     pub transition: SMatrix<f32, D, D>,
+    /// The noise σ per dimension.
     pub sigma: SVector<f32, D>,
 }
 
@@ -115,8 +121,11 @@ impl<const D: usize> Dynamics<D> for LinearGaussian<D> {
 /// (angle dimensions compared the short way round): the toy model of the demo and the tests.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GaussianObservation<const D: usize> {
+    /// The observed state z.
     pub observed: SVector<f32, D>,
+    /// The observation σ per dimension.
     pub sigma: SVector<f32, D>,
+    /// Which dimensions are angles (their differences are taken the short way round).
     pub space: crate::estimate::StateSpace<D>,
 }
 

@@ -51,6 +51,7 @@ impl<const D: usize> ParticleSet<D> {
         Ok(set)
     }
 
+    /// Particles N.
     pub fn len(&self) -> usize {
         self.len
     }
@@ -65,6 +66,7 @@ impl<const D: usize> ParticleSet<D> {
         SVector::from_fn(|d, _| self.states[d * self.len + i])
     }
 
+    /// Overwrites particle `i`'s state.
     pub fn set_state(&mut self, i: usize, x: &SVector<f32, D>) {
         for d in 0..D {
             self.states[d * self.len + i] = x[d];
@@ -76,6 +78,7 @@ impl<const D: usize> ParticleSet<D> {
         &self.states[d * self.len..(d + 1) * self.len]
     }
 
+    /// Component `d` of every particle, mutable (dimension-major storage).
     pub fn dim_mut(&mut self, d: usize) -> &mut [f32] {
         &mut self.states[d * self.len..(d + 1) * self.len]
     }
@@ -85,14 +88,17 @@ impl<const D: usize> ParticleSet<D> {
         &self.states
     }
 
+    /// The whole state buffer, `[d·N + i]`, mutable.
     pub fn states_raw_mut(&mut self) -> &mut [f32] {
         &mut self.states
     }
 
+    /// The log-weights.
     pub fn log_weights(&self) -> &[f32] {
         &self.log_weights
     }
 
+    /// The log-weights, mutable.
     pub fn log_weights_mut(&mut self) -> &mut [f32] {
         &mut self.log_weights
     }

@@ -58,10 +58,12 @@ pub struct RandomStreams {
 }
 
 impl RandomStreams {
+    /// Streams derived from `seed`.
     pub fn new(seed: u64) -> Self {
         Self { seed }
     }
 
+    /// The seed.
     pub fn seed(&self) -> u64 {
         self.seed
     }
@@ -91,12 +93,14 @@ pub struct RandomStream {
 }
 
 impl RandomStream {
+    /// A stream from a 64-bit key (seeded through SplitMix64).
     pub fn from_key(key: u64) -> Self {
         Self {
             rng: Xoshiro256PlusPlus::seed_from_u64(key),
         }
     }
 
+    /// The next 64 random bits.
     pub fn next_u64(&mut self) -> u64 {
         self.rng.next_u64()
     }
@@ -114,6 +118,7 @@ impl RandomStream {
         box_muller(u1, u2)
     }
 
+    /// A standard Gaussian draw as f32.
     pub fn gaussian_f32(&mut self) -> f32 {
         self.gaussian() as f32
     }
@@ -210,14 +215,17 @@ pub struct CounterUniforms {
 }
 
 impl CounterUniforms {
+    /// Uniforms for `key` at filter step `step`.
     pub fn new(key: [u32; 2], step: u64) -> Self {
         Self { key, step }
     }
 
+    /// The Philox key.
     pub fn key(&self) -> [u32; 2] {
         self.key
     }
 
+    /// The filter step the uniforms belong to.
     pub fn step(&self) -> u64 {
         self.step
     }

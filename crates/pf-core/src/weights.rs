@@ -12,6 +12,7 @@ use crate::error::PfError;
 /// `max + ln(n)` is rounded back to `max`, so normalising must subtract the two in turn.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LogSumExp {
+    /// The largest value.
     pub max: f64,
     /// `log Σ exp(lw − max)`, in [0, ln N].
     pub log_sum_shifted: f64,

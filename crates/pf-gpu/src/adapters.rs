@@ -5,11 +5,15 @@ use crate::error::GpuError;
 /// What `streampf devices` prints about one adapter.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct AdapterSummary {
+    /// The adapter's name as the driver reports it.
     pub name: String,
     /// "discrete GPU", "integrated GPU", "virtual GPU", "CPU (software)" or "other".
     pub device_type: &'static str,
+    /// The graphics API (Vulkan, Metal, DX12, GL).
     pub backend: String,
+    /// The driver's name.
     pub driver: String,
+    /// The driver's version string.
     pub driver_info: String,
 }
 

@@ -27,6 +27,7 @@ pub const NO_PARENT: u32 = u32::MAX;
 pub struct GpuBone {
     /// Where the bone starts in its parent's frame.
     pub offset: [f32; 3],
+    /// The capsule's radius (m).
     pub radius: f32,
     /// direction · length in the bone's own frame.
     pub extent: [f32; 3],
@@ -51,14 +52,17 @@ struct KinematicsParams {
 /// The likelihood's settings that do not change between frames.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BodyLikelihoodConfig {
+    /// The skeleton's bones in order, parents first (`Skeleton::gpu_bones`).
     pub bones: Vec<GpuBone>,
     /// Pose values per sample (the skeleton's degrees of freedom).
     pub dims: usize,
     /// Points per frame at most; a frame may have fewer.
     pub points: usize,
+    /// The camera centre the rays start from.
     pub origin: [f32; 3],
     /// τ of eq. 6 and σ of eq. 3 (σ can change per frame: [`BodyLikelihoodGpu::set_sigma`]).
     pub tau: f32,
+    /// σ of eq. 3 (m).
     pub sigma: f32,
 }
 
@@ -121,6 +125,7 @@ pub struct BodyLikelihoodGpu {
 }
 
 impl BodyLikelihoodGpu {
+    /// Builds the kinematics and likelihood kernels and every buffer for `config`.
     pub fn new(
         ctx: &GpuContext,
         config: BodyLikelihoodConfig,
@@ -205,6 +210,7 @@ impl BodyLikelihoodGpu {
         })
     }
 
+    /// Samples evaluated per frame (targets × particles).
     pub fn samples(&self) -> usize {
         self.samples
     }

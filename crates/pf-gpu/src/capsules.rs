@@ -66,6 +66,7 @@ pub struct CapsuleLikelihoodGpu {
 }
 
 impl CapsuleLikelihoodGpu {
+    /// A likelihood for `samples` × `points` × `capsules` with the given kernel, camera centre and τ.
     pub fn new(
         ctx: &GpuContext,
         kind: CapsuleKernel,
@@ -210,6 +211,7 @@ impl CapsuleLikelihoodGpu {
         })
     }
 
+    /// The kernel it runs.
     pub fn kind(&self) -> CapsuleKernel {
         self.kind
     }
@@ -282,6 +284,7 @@ impl CapsuleLikelihoodGpu {
         &self.sums
     }
 
+    /// (samples, points, capsules).
     pub fn shape(&self) -> (usize, usize, usize) {
         (self.samples, self.points, self.capsules_per_sample)
     }

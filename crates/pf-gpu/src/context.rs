@@ -49,7 +49,9 @@ impl ContextOptions {
 
 /// An open device on one adapter.
 pub struct GpuContext {
+    /// The wgpu device.
     pub device: wgpu::Device,
+    /// The device's queue.
     pub queue: wgpu::Queue,
     summary: AdapterSummary,
     limits: wgpu::Limits,
@@ -173,10 +175,12 @@ impl GpuContext {
         })
     }
 
+    /// The adapter the device runs on.
     pub fn adapter(&self) -> &AdapterSummary {
         &self.summary
     }
 
+    /// The limits the device was opened with (the adapter's own).
     pub fn limits(&self) -> &wgpu::Limits {
         &self.limits
     }

@@ -172,6 +172,7 @@ impl FaceLikelihoodGpu {
         })
     }
 
+    /// The dispatch layout it runs.
     pub fn dispatch(&self) -> FaceDispatch {
         self.dispatch
     }
@@ -256,6 +257,7 @@ impl FaceLikelihoodGpu {
         self.errors.as_ref()
     }
 
+    /// The frame size it was built for (width, height).
     pub fn frame_size(&self) -> (u32, u32) {
         (self.width, self.height)
     }

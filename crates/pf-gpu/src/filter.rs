@@ -19,16 +19,27 @@ use crate::timing::{GpuTime, StepTimer};
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 pub struct FrameParams {
+    /// Targets T.
     pub targets: u32,
+    /// Particles per target M.
     pub particles: u32,
+    /// State dimensions D.
     pub dims: u32,
+    /// Bit d set: dimension d is an angle.
     pub angular_mask: u32,
+    /// The step index, low 32 bits (the counter of the random streams).
     pub step_lo: u32,
+    /// The step index, high 32 bits.
     pub step_hi: u32,
+    /// 1: clamp diffused states to the bounds.
     pub has_bounds: u32,
+    /// Steps of the Metropolis resampler.
     pub metropolis_steps: u32,
+    /// Resample a target when its ESS is below this × M.
     pub ess_threshold: f32,
+    /// M′ of the best-M′ estimate (0: none).
     pub best: u32,
+    /// Padding to 16 bytes.
     pub _pad: [u32; 2],
 }
 
@@ -36,13 +47,19 @@ pub struct FrameParams {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
 pub struct TargetStats {
+    /// The largest log-weight before normalisation.
     pub max_log_weight: f32,
+    /// log Σ exp(log w − max).
     pub log_sum_shifted: f32,
+    /// The effective sample size.
     pub ess: f32,
     /// 0 ok, 1 every weight zero, 2 NaN log-weight, 3 +inf log-weight.
     pub status: u32,
+    /// The first particle with a NaN or +∞ log-weight (`u32::MAX` when none).
     pub bad_particle: u32,
+    /// 1 when the target resampled at the start of the step.
     pub resampled: u32,
+    /// Padding to 16 bytes.
     pub _pad: [u32; 2],
 }
 
@@ -74,7 +91,9 @@ impl TargetStats {
 /// The resamplers that run on the GPU.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum GpuResampler {
+    /// A prefix sum and one uniform for M evenly spaced points.
     Systematic,
+    /// A prefix sum and one uniform per stratum.
     Stratified,
     /// Metropolis with this many steps.
     Metropolis(u32),
@@ -83,16 +102,23 @@ pub enum GpuResampler {
 /// One stage of the step, for running stages alone ([`GpuFilter::run_stages`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum GpuStage {
+    /// Resampling (ancestor indices).
     Resample,
+    /// Gathering the ancestors' states.
     Gather,
+    /// Diffusion (or the likelihood's own `propagate`).
     Diffuse,
+    /// The likelihood's dispatches.
     Likelihood,
+    /// Normalisation: max, log-sum-exp, ESS.
     Normalise,
+    /// The weighted mean (and the best-M′ mean).
     Estimate,
 }
 
 /// The streams a likelihood reads and writes, handed to [`GpuLikelihood::prepare`].
 pub struct LikelihoodInputs<'a> {
+    /// Targets × particles × dimensions.
     pub shape: BatchShape,
     /// The frame parameters (uniform buffer, `Params` of `shaders/common.wgsl`).
     pub params: &'a wgpu::Buffer,
@@ -111,7 +137,9 @@ pub struct LikelihoodInputs<'a> {
 /// An observation model on the GPU. A tracker builds its pipelines and bind groups once in
 /// `prepare`, uploads each frame's observation before the step, and records its dispatches.
 pub trait GpuLikelihood {
+    /// Binds the filter's streams (once, after construction); builds its bind groups.
     fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError>;
+    /// Records the likelihood's dispatches into the step's compute pass.
     fn record(&self, pass: &mut wgpu::ComputePass<'_>);
 
     /// Whether `prepare` has bound it; a step with an unprepared likelihood is an error rather
@@ -146,6 +174,7 @@ pub trait GpuLikelihood {
 pub struct GpuStepReport {
     /// `[t·D + d]`.
     pub estimates: Vec<f32>,
+    /// Per-target statistics (ESS, status, whether it resampled).
     pub stats: Vec<TargetStats>,
     /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
     pub best_estimates: Vec<f32>,
@@ -543,6 +572,7 @@ impl GpuFilter {
         })
     }
 
+    /// Targets × particles × dimensions.
     pub fn shape(&self) -> &BatchShape {
         &self.shape
     }
@@ -780,6 +810,7 @@ impl GpuFilter {
         self.states.download(ctx)
     }
 
+    /// The normalised weights, `[t·M + m]`.
     pub fn download_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
         self.weights.download(ctx)
     }
@@ -794,6 +825,7 @@ impl GpuFilter {
         self.log_likelihood.download(ctx)
     }
 
+    /// The last resampling's ancestor indices, `[t·M + m]`.
     pub fn download_ancestors(&self, ctx: &GpuContext) -> Result<Vec<u32>, GpuError> {
         self.ancestors.download(ctx)
     }
@@ -824,12 +856,19 @@ impl GpuLikelihood for NoLikelihood {
 
 /// Borrowed views of a filter's device streams.
 pub struct FilterStreams<'a> {
+    /// States, `[(t·D + d)·M + m]`.
     pub states: &'a DeviceStream<f32>,
+    /// Normalised log-weights, `[t·M + m]`.
     pub log_weights: &'a DeviceStream<f32>,
+    /// The likelihood's output, `[t·M + m]`.
     pub log_likelihood: &'a DeviceStream<f32>,
+    /// Normalised weights, `[t·M + m]`.
     pub weights: &'a DeviceStream<f32>,
+    /// The resampler's cumulative sums.
     pub cdf: &'a DeviceStream<f32>,
+    /// Ancestor indices, `[t·M + m]`.
     pub ancestors: &'a DeviceStream<u32>,
+    /// Per-target statistics.
     pub stats: &'a DeviceStream<TargetStats>,
 }
 

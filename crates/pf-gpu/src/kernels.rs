@@ -6,17 +6,29 @@ use crate::error::GpuError;
 /// The WGSL files of the generic stages. `PHILOX` and `COMMON` are libraries prepended to the
 /// stage files (see [`stage_source`]).
 pub mod sources {
+    /// Philox4x32-10 and counter-based Gaussians (a library).
     pub const PHILOX: &str = include_str!("../../../shaders/philox.wgsl");
+    /// `Params`, `TargetStats` and helpers shared by the stages (a library).
     pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
+    /// The diffusion stage.
     pub const DIFFUSE: &str = include_str!("../../../shaders/diffuse.wgsl");
+    /// The normalisation stage.
     pub const NORMALISE: &str = include_str!("../../../shaders/normalise.wgsl");
+    /// The resamplers.
     pub const RESAMPLE: &str = include_str!("../../../shaders/resample.wgsl");
+    /// The gather stage.
     pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
+    /// The estimates.
     pub const ESTIMATE: &str = include_str!("../../../shaders/estimate.wgsl");
+    /// The hand-written toy likelihood.
     pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/toy_likelihood.wgsl");
+    /// Philox blocks and Gaussian draws for the bit-exact tests.
     pub const RANDOM: &str = include_str!("../../../shaders/random.wgsl");
+    /// The body paper's capsule likelihood (paper layout and fast kernel).
     pub const CAPSULE_LIKELIHOOD: &str = include_str!("../../../shaders/capsule_likelihood.wgsl");
+    /// The body's forward kinematics and log-likelihood.
     pub const BODY_KINEMATICS: &str = include_str!("../../../shaders/body_kinematics.wgsl");
+    /// The face likelihood.
     pub const FACE_LIKELIHOOD: &str = include_str!("../../../shaders/face_likelihood.wgsl");
 
     /// Every stage file, by name, for the validation tests.
@@ -146,10 +158,12 @@ impl Kernel {
         })
     }
 
+    /// The kernel's label.
     pub fn name(&self) -> &str {
         &self.name
     }
 
+    /// The compute pipeline.
     pub fn pipeline(&self) -> &wgpu::ComputePipeline {
         &self.pipeline
     }

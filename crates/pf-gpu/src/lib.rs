@@ -1,3 +1,4 @@
+#![warn(missing_docs)]
 //! # pf-gpu: the wgpu runtime of streampf
 //!
 //! The runtime that runs a whole filter step on the GPU for many targets at once: adapter choice

@@ -122,18 +122,22 @@ impl<T: Pod> DeviceStream<T> {
         Ok(())
     }
 
+    /// The wgpu buffer.
     pub fn buffer(&self) -> &wgpu::Buffer {
         &self.buffer
     }
 
+    /// Values in the stream.
     pub fn len(&self) -> usize {
         self.len
     }
 
+    /// Whether it holds no values.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
 
+    /// The whole buffer as a binding resource.
     pub fn binding(&self) -> wgpu::BindingResource<'_> {
         self.buffer.as_entire_binding()
     }
@@ -159,6 +163,7 @@ pub struct Readback<T: Pod> {
 }
 
 impl<T: Pod> Readback<T> {
+    /// A staging buffer for `len` values of `T`.
     pub fn new(ctx: &GpuContext, label: &str, len: usize) -> Result<Self, GpuError> {
         let bytes = byte_len::<T>(len);
         ctx.check_buffer_size(label, bytes)?;

@@ -16,12 +16,14 @@ pub enum GpuTime {
 }
 
 impl GpuTime {
+    /// The step's duration.
     pub fn duration(&self) -> Duration {
         match *self {
             GpuTime::Timestamps(d) | GpuTime::WallClock(d) => d,
         }
     }
 
+    /// "GPU timestamps" or "wall clock".
     pub fn source(&self) -> &'static str {
         match self {
             GpuTime::Timestamps(_) => "GPU timestamps",
@@ -64,6 +66,7 @@ impl StepTimer {
         }))
     }
 
+    /// Records the first timestamp.
     pub fn begin(&self, encoder: &mut wgpu::CommandEncoder) {
         encoder.write_timestamp(&self.query_set, 0);
     }

@@ -7,6 +7,7 @@ use crate::filter::{GpuLikelihood, LikelihoodInputs};
 use crate::kernels::{Kernel, sources, stage_source};
 use crate::stream::DeviceStream;
 
+/// A Gaussian around each target's observed state, written by hand (the plug-in twin is [`TOY_MODEL`]).
 pub struct ToyGaussianLikelihood {
     observed: DeviceStream<f32>,
     inv_sigma: DeviceStream<f32>,
@@ -113,6 +114,7 @@ fn log_likelihood(x: State, observation: Observation, c: Constants) -> f32 {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct ToyObservation {
+    /// The observed state.
     pub z: [f32; 7],
 }
 
@@ -120,6 +122,7 @@ pub struct ToyObservation {
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 pub struct ToyConstants {
+    /// 1/σ per dimension.
     pub inv_sigma: [f32; 7],
 }
 
@@ -139,6 +142,7 @@ impl ToyConstants {
 
 /// The CPU twin of [`TOY_MODEL`]; `angular` says which dimensions are angles.
 pub struct ToyTwin {
+    /// Which dimensions are angles.
     pub angular: [bool; 7],
 }
 

@@ -17,10 +17,12 @@ impl Metropolis {
     /// Used by [`super::ResamplerKind::build`].
     pub const DEFAULT_STEPS: u32 = 32;
 
+    /// A Metropolis resampler with `steps` steps per offspring.
     pub fn new(steps: u32) -> Self {
         Self { steps }
     }
 
+    /// Steps per offspring B.
     pub fn steps(&self) -> u32 {
         self.steps
     }

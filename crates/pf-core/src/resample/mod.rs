@@ -49,15 +49,22 @@ pub trait Resampler: Send + Sync {
 /// The resamplers by name, for configuration files and the command line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum ResamplerKind {
+    /// Independent draws from the weights (binary search in the CDF).
     Multinomial,
+    /// One uniform per stratum of width 1/M.
     Stratified,
+    /// One uniform, M evenly spaced points.
     Systematic,
+    /// ⌊M·wᵢ⌋ copies, the remainder resampled.
     Residual,
+    /// B-step Metropolis chains per offspring (no collective operation).
     Metropolis,
+    /// Accept-reject against the largest weight.
     Rejection,
 }
 
 impl ResamplerKind {
+    /// Every scheme, in the order the benchmarks and figures list them.
     pub const ALL: [ResamplerKind; 6] = [
         ResamplerKind::Multinomial,
         ResamplerKind::Stratified,
@@ -67,6 +74,7 @@ impl ResamplerKind {
         ResamplerKind::Rejection,
     ];
 
+    /// The scheme's name on the command line.
     pub fn name(self) -> &'static str {
         match self {
             ResamplerKind::Multinomial => "multinomial",

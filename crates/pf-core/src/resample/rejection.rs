@@ -10,6 +10,7 @@ use crate::random::UniformSource;
 /// N·max(w), so [`Rejection::max_tries`] bounds the work on degenerate weights.
 #[derive(Debug, Clone, Copy)]
 pub struct Rejection {
+    /// Tries per offspring before [`crate::PfError::RejectionGaveUp`].
     pub max_tries: u32,
 }
 

@@ -16,10 +16,12 @@ pub enum ResidualRemainder {
 /// from the residual weights M w_i − floor(M w_i), normalised.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Residual {
+    /// How the remainder is resampled.
     pub remainder: ResidualRemainder,
 }
 
 impl Residual {
+    /// A residual resampler with the given remainder scheme.
     pub fn new(remainder: ResidualRemainder) -> Self {
         Self { remainder }
     }

@@ -36,9 +36,13 @@ pub fn agrees(gpu: f64, cpu: f64) -> bool {
 pub struct Mismatch {
     /// "log_likelihood" or "propagate, dimension d".
     pub what: String,
+    /// The target.
     pub target: usize,
+    /// The particle.
     pub particle: usize,
+    /// The GPU's value.
     pub gpu: f64,
+    /// The CPU twin's value.
     pub cpu: f64,
 }
 
@@ -54,6 +58,7 @@ pub struct ModelCheck {
 }
 
 impl ModelCheck {
+    /// Whether every value agreed.
     pub fn passed(&self) -> bool {
         self.mismatches.is_empty()
     }
@@ -85,13 +90,17 @@ impl fmt::Display for ModelCheck {
 
 /// The particles, observations and constants of one check.
 pub struct CheckInputs<'a, O, C> {
+    /// Targets × particles × dimensions.
     pub shape: BatchShape,
     /// `[(t·D + d)·M + m]`.
     pub states: &'a [f32],
+    /// One observation per target.
     pub observations: &'a [O],
+    /// The model's constants.
     pub constants: &'a C,
     /// Which dimensions are angles (wrapped after `propagate`).
     pub angular: &'a [bool],
+    /// The seed of the filter's streams (the propagation noise).
     pub seed: u64,
 }
 

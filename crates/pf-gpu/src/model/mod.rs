@@ -47,7 +47,9 @@ use crate::stream::DeviceStream;
 /// A model's WGSL and its name (used in labels and error messages).
 #[derive(Debug, Clone, Copy)]
 pub struct ModelSource<'a> {
+    /// The model's name, in labels and error messages.
     pub name: &'a str,
+    /// The WGSL: the structs and functions the module documentation lists.
     pub wgsl: &'a str,
 }
 
@@ -310,6 +312,7 @@ impl<O: Pod, C: Pod> WgslModel<O, C> {
         self.observations.upload(ctx, observations)
     }
 
+    /// Replaces the constants; they land before the next submission.
     pub fn set_constants(&self, ctx: &GpuContext, constants: &C) -> Result<(), GpuError> {
         self.constants.upload(ctx, std::slice::from_ref(constants))
     }
@@ -424,6 +427,7 @@ impl<O: Pod, C: Pod> ModelFilter<O, C> {
         self.filter.step(ctx, &self.model)
     }
 
+    /// The filter (states, weights, downloads).
     pub fn filter(&self) -> &GpuFilter {
         &self.filter
     }
@@ -433,6 +437,7 @@ impl<O: Pod, C: Pod> ModelFilter<O, C> {
         (&mut self.filter, &self.model)
     }
 
+    /// The model (observations, constants, generated source).
     pub fn model(&self) -> &WgslModel<O, C> {
         &self.model
     }
