@@ -1,0 +1,482 @@
+//! The GPU filter driver: a frame's whole step — resample → gather → diffuse → likelihood →
+//! normalise → estimate — for T targets × M particles, recorded into one command submission. The
+//! host uploads nothing but the per-frame parameters (and what the likelihood needs) and reads
+//! back only the estimates and the per-target statistics.
+//!
+//! CPU twin: `pf_core::batch::BatchFilter` (same layout, same counter-based random numbers).
+
+use pf_core::batch::{BatchConfig, BatchShape};
+
+mod likelihood;
+mod params;
+mod setup;
+
+pub use likelihood::{GpuLikelihood, LikelihoodInputs, NoLikelihood};
+pub use params::{FrameParams, TargetStats};
+
+use setup::{
+    BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, resample_dispatches,
+    uniform_buffer,
+};
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::stream::{DeviceStream, ReadbackSet};
+use crate::timing::{GpuTime, StepTimer};
+
+/// The resamplers that run on the GPU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GpuResampler {
+    /// A prefix sum and one uniform for M evenly spaced points.
+    Systematic,
+    /// A prefix sum and one uniform per stratum.
+    Stratified,
+    /// Metropolis with this many steps.
+    Metropolis(u32),
+}
+
+/// One stage of the step, for running stages alone ([`GpuFilter::run_stages`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GpuStage {
+    /// Resampling (ancestor indices).
+    Resample,
+    /// Gathering the ancestors' states.
+    Gather,
+    /// Diffusion (or the likelihood's own `propagate`).
+    Diffuse,
+    /// The likelihood's dispatches.
+    Likelihood,
+    /// Normalisation: max, log-sum-exp, ESS.
+    Normalise,
+    /// The weighted mean (and the best-M′ mean).
+    Estimate,
+}
+
+/// What one GPU step read back.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GpuStepReport {
+    /// `[t·D + d]`.
+    pub estimates: Vec<f32>,
+    /// Per-target statistics (ESS, status, whether it resampled).
+    pub stats: Vec<TargetStats>,
+    /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
+    pub best_estimates: Vec<f32>,
+    /// The step's duration: GPU timestamps where the adapter has them, else wall clock.
+    pub time: GpuTime,
+}
+
+/// T targets × M particles on one GPU.
+pub struct GpuFilter {
+    shape: BatchShape,
+    params: FrameParams,
+    params_buffer: wgpu::Buffer,
+    states: DeviceStream<f32>,
+    selected: DeviceStream<f32>,
+    log_weights: DeviceStream<f32>,
+    log_likelihood: DeviceStream<f32>,
+    weights: DeviceStream<f32>,
+    cdf: DeviceStream<f32>,
+    ancestors: DeviceStream<u32>,
+    stats: DeviceStream<TargetStats>,
+    estimates: DeviceStream<f32>,
+    best_estimates: DeviceStream<f32>,
+    // Kept alive for the bind groups.
+    _sigma: DeviceStream<f32>,
+    _lower: DeviceStream<f32>,
+    _upper: DeviceStream<f32>,
+    _diffusion_keys: DeviceStream<[u32; 2]>,
+    _resampling_keys: DeviceStream<[u32; 2]>,
+    stages: Stages,
+    groups: BindGroups,
+    /// The resample stage: one to five dispatches depending on the resampler and M.
+    resample_steps: Vec<Dispatch>,
+    _block_sums: DeviceStream<f32>,
+    /// The step's readbacks in one staging buffer: estimates, statistics, best-M′ estimates
+    /// (empty without them) and the timestamps (empty without a timer).
+    step_back: ReadbackSet,
+    has_best: bool,
+    timer: Option<StepTimer>,
+    step: u64,
+}
+
+/// The sections of a step's readback.
+const STEP_BACK_ESTIMATES: usize = 0;
+const STEP_BACK_STATS: usize = 1;
+const STEP_BACK_BEST: usize = 2;
+const STEP_BACK_TICKS: usize = 3;
+
+/// Above this many particles per target, systematic and stratified resampling scan the weights
+/// device-wide (four dispatches) instead of in one workgroup per target.
+pub const SINGLE_WORKGROUP_SCAN_LIMIT: usize = 4096;
+
+impl GpuFilter {
+    /// Uploads `initial_states` (`[(t·D + d)·M + m]`) with equal weights and builds every stage.
+    pub fn new(
+        ctx: &GpuContext,
+        config: &BatchConfig,
+        resampler: GpuResampler,
+        initial_states: &[f32],
+    ) -> Result<Self, GpuError> {
+        config.validate()?;
+        let shape = config.shape;
+        check_fits(ctx, &shape, initial_states)?;
+        let params = FrameParams::for_config(config, resampler);
+        let params_buffer = uniform_buffer(ctx, &params)?;
+        let streams = Streams::new(ctx, config, initial_states)?;
+        let stages = Stages::new(ctx, config.best > 0)?;
+        let groups = BindGroups::new(ctx, &stages, &streams, &params_buffer)?;
+        let resample_steps = resample_dispatches(
+            ctx,
+            resampler,
+            &shape,
+            &streams.resample_bindings(&params_buffer),
+        )?;
+        let timer = StepTimer::new(ctx)?;
+        let estimate_bytes = (shape.targets * shape.dims * 4) as u64;
+        let step_back = ReadbackSet::new(
+            ctx,
+            "step readback",
+            &[
+                estimate_bytes,
+                (shape.targets * std::mem::size_of::<TargetStats>()) as u64,
+                if config.best > 0 { estimate_bytes } else { 0 },
+                if timer.is_some() { 16 } else { 0 },
+            ],
+        )?;
+        let Streams {
+            states,
+            selected,
+            log_weights,
+            log_likelihood,
+            weights,
+            cdf,
+            ancestors,
+            stats,
+            estimates,
+            best_estimates,
+            sigma,
+            lower,
+            upper,
+            diffusion_keys,
+            resampling_keys,
+            block_sums,
+        } = streams;
+        Ok(Self {
+            shape,
+            params,
+            params_buffer,
+            step_back,
+            has_best: config.best > 0,
+            timer,
+            states,
+            selected,
+            log_weights,
+            log_likelihood,
+            weights,
+            cdf,
+            ancestors,
+            stats,
+            estimates,
+            best_estimates,
+            _sigma: sigma,
+            _lower: lower,
+            _upper: upper,
+            _diffusion_keys: diffusion_keys,
+            _resampling_keys: resampling_keys,
+            stages,
+            groups,
+            resample_steps,
+            _block_sums: block_sums,
+            step: 0,
+        })
+    }
+
+    /// Targets × particles × dimensions.
+    pub fn shape(&self) -> &BatchShape {
+        &self.shape
+    }
+
+    /// The streams a likelihood binds; pass to [`GpuLikelihood::prepare`] once.
+    pub fn likelihood_inputs(&self) -> LikelihoodInputs<'_> {
+        LikelihoodInputs {
+            shape: self.shape,
+            params: &self.params_buffer,
+            states: &self.states,
+            log_likelihood: &self.log_likelihood,
+            estimates: if self.has_best {
+                &self.best_estimates
+            } else {
+                &self.estimates
+            },
+            diffusion_keys: &self._diffusion_keys,
+        }
+    }
+
+    /// Records a frame's whole step into `encoder` (no submission).
+    pub fn record_step(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        use GpuStage::*;
+        self.record_stages(
+            ctx,
+            encoder,
+            &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
+            likelihood,
+        );
+    }
+
+    /// Records the given stages, in the step's order, with the next step index.
+    fn record_stages(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        let step = self.step;
+        self.step += 1;
+        self.params.step_lo = step as u32;
+        self.params.step_hi = (step >> 32) as u32;
+        ctx.queue
+            .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.params));
+
+        let (t, m) = (self.shape.targets, self.shape.particles);
+        let per_particle = [groups_for(m, 64), t as u32, 1];
+        let per_target = [1, t as u32, 1];
+        let wants = |s: GpuStage| stages.contains(&s);
+        if wants(GpuStage::Resample) || wants(GpuStage::Gather) {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("select"),
+                timestamp_writes: None,
+            });
+            if wants(GpuStage::Resample) {
+                for step in &self.resample_steps {
+                    step.kernel.record(&mut pass, &step.group, step.groups);
+                }
+            }
+            if wants(GpuStage::Gather) {
+                self.stages
+                    .gather
+                    .record(&mut pass, &self.groups.gather, per_particle);
+            }
+        }
+        if wants(GpuStage::Gather) {
+            let bytes = (self.shape.state_len() * 4) as u64;
+            encoder.copy_buffer_to_buffer(
+                self.selected.buffer(),
+                0,
+                self.states.buffer(),
+                0,
+                bytes,
+            );
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("diffuse, measure, normalise, estimate"),
+                timestamp_writes: None,
+            });
+            if wants(GpuStage::Diffuse) {
+                if likelihood.propagates() {
+                    likelihood.record_propagate(&mut pass);
+                } else {
+                    self.stages
+                        .diffuse
+                        .record(&mut pass, &self.groups.diffuse, per_particle);
+                }
+            }
+            if wants(GpuStage::Likelihood) {
+                likelihood.record(&mut pass);
+            }
+            if wants(GpuStage::Normalise) {
+                self.stages
+                    .normalise
+                    .record(&mut pass, &self.groups.normalise, per_target);
+            }
+            if wants(GpuStage::Estimate) {
+                self.stages
+                    .estimate
+                    .record(&mut pass, &self.groups.estimate, per_target);
+                if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
+                    k.record(&mut pass, g, per_target);
+                }
+                likelihood.record_after_estimate(&mut pass);
+            }
+        }
+        if wants(GpuStage::Estimate) {
+            likelihood.record_readbacks(encoder);
+        }
+        self.step_back
+            .record_copy(encoder, STEP_BACK_ESTIMATES, self.estimates.buffer());
+        self.step_back
+            .record_copy(encoder, STEP_BACK_STATS, self.stats.buffer());
+        self.step_back
+            .record_copy(encoder, STEP_BACK_BEST, self.best_estimates.buffer());
+    }
+
+    /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.
+    /// Stages that are left out keep their streams as they are.
+    pub fn run_stages(
+        &mut self,
+        ctx: &GpuContext,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) -> Result<GpuStepReport, GpuError> {
+        let uses_likelihood = stages.contains(&GpuStage::Likelihood)
+            || (stages.contains(&GpuStage::Diffuse) && likelihood.propagates());
+        if uses_likelihood && !likelihood.is_prepared() {
+            return Err(GpuError::InvalidConfig(
+                "the likelihood was never prepared: call its prepare(ctx, \
+                 &filter.likelihood_inputs()) once before stepping (pf_gpu::model::ModelFilter \
+                 does it for a WGSL model)"
+                    .into(),
+            ));
+        }
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("filter step"),
+            });
+        let started = std::time::Instant::now();
+        let submission = ctx.scoped("recording filter stages", || {
+            if let Some(timer) = &self.timer {
+                timer.begin(&mut encoder);
+            }
+            self.record_stages(ctx, &mut encoder, stages, likelihood);
+            if let Some(timer) = &self.timer {
+                timer.end(&mut encoder);
+                self.step_back
+                    .record_copy(&mut encoder, STEP_BACK_TICKS, timer.resolved());
+            }
+            ctx.queue.submit([encoder.finish()])
+        })?;
+        // Every readback is mapped behind one wait: one poll a frame.
+        let step_map = self.step_back.request_map();
+        if stages.contains(&GpuStage::Estimate) {
+            likelihood.request_maps();
+        }
+        ctx.wait(Some(submission), "the filter step")?;
+        let wall = started.elapsed();
+        let sections = self.step_back.collect(step_map)?;
+        let estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_ESTIMATES]);
+        let stats = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_STATS]);
+        let best_estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_BEST]);
+        let time = match &self.timer {
+            Some(timer) => GpuTime::Timestamps(
+                timer.elapsed(&bytemuck::pod_collect_to_vec(&sections[STEP_BACK_TICKS])),
+            ),
+            None => GpuTime::WallClock(wall),
+        };
+        Ok(GpuStepReport {
+            estimates,
+            stats,
+            best_estimates,
+            time,
+        })
+    }
+
+    /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights and
+    /// fresh statistics: a new track in a slot another target left. The writes are queued before
+    /// the next step's submission; the other targets are untouched.
+    pub fn reset_target(&self, ctx: &GpuContext, t: usize, states: &[f32]) -> Result<(), GpuError> {
+        let shape = self.shape;
+        if t >= shape.targets {
+            return Err(GpuError::InvalidConfig(format!(
+                "target {t} of a batch of {}",
+                shape.targets
+            )));
+        }
+        let block = shape.dims * shape.particles;
+        if states.len() != block {
+            return Err(GpuError::LengthMismatch {
+                what: "a target's states".into(),
+                expected: block,
+                got: states.len(),
+            });
+        }
+        let m = shape.particles;
+        self.states.upload_at(ctx, t * block, states)?;
+        self.log_weights
+            .upload_at(ctx, t * m, &vec![-(m as f32).ln(); m])?;
+        self.weights
+            .upload_at(ctx, t * m, &vec![1.0 / m as f32; m])?;
+        self.stats.upload_at(ctx, t, &[TargetStats::initial(m)])
+    }
+
+    /// Sets the index of the next step (it keys the step's random numbers).
+    pub fn set_step(&mut self, step: u64) {
+        self.step = step;
+    }
+
+    /// One frame: record, submit once, wait, read back the estimates and statistics.
+    pub fn step(
+        &mut self,
+        ctx: &GpuContext,
+        likelihood: &dyn GpuLikelihood,
+    ) -> Result<GpuStepReport, GpuError> {
+        use GpuStage::*;
+        self.run_stages(
+            ctx,
+            &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
+            likelihood,
+        )
+    }
+
+    /// Reads the particle states back (tests and debugging; allocates).
+    pub fn download_states(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.states.download(ctx)
+    }
+
+    /// The normalised weights, `[t·M + m]`.
+    pub fn download_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.weights.download(ctx)
+    }
+
+    /// The normalised log-weights, `[t·M + m]`.
+    pub fn download_log_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.log_weights.download(ctx)
+    }
+
+    /// The last Likelihood stage's `log p(z | x)`, `[t·M + m]` (tests and model checks).
+    pub fn download_log_likelihood(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.log_likelihood.download(ctx)
+    }
+
+    /// The last resampling's ancestor indices, `[t·M + m]`.
+    pub fn download_ancestors(&self, ctx: &GpuContext) -> Result<Vec<u32>, GpuError> {
+        self.ancestors.download(ctx)
+    }
+
+    /// The streams of the stages, for stage-by-stage tests.
+    pub fn streams(&self) -> FilterStreams<'_> {
+        FilterStreams {
+            states: &self.states,
+            log_weights: &self.log_weights,
+            log_likelihood: &self.log_likelihood,
+            weights: &self.weights,
+            cdf: &self.cdf,
+            ancestors: &self.ancestors,
+            stats: &self.stats,
+        }
+    }
+}
+
+/// Borrowed views of a filter's device streams.
+pub struct FilterStreams<'a> {
+    /// States, `[(t·D + d)·M + m]`.
+    pub states: &'a DeviceStream<f32>,
+    /// Normalised log-weights, `[t·M + m]`.
+    pub log_weights: &'a DeviceStream<f32>,
+    /// The likelihood's output, `[t·M + m]`.
+    pub log_likelihood: &'a DeviceStream<f32>,
+    /// Normalised weights, `[t·M + m]`.
+    pub weights: &'a DeviceStream<f32>,
+    /// The resampler's cumulative sums.
+    pub cdf: &'a DeviceStream<f32>,
+    /// Ancestor indices, `[t·M + m]`.
+    pub ancestors: &'a DeviceStream<u32>,
+    /// Per-target statistics.
+    pub stats: &'a DeviceStream<TargetStats>,
+}
