@@ -473,6 +473,72 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .next_frame()
         .context("frame 0")?
         .context("the input has no frames")?;
+    let size = (first.width, first.height);
+    let (mut runner, backend_name) = build_runner(args, size, &rects, detect)?;
+    for (i, r) in rects.iter().enumerate() {
+        runner
+            .add_face(&first, r)
+            .with_context(|| format!("face {i}"))?;
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    if let Some(dir) = &args.save_particles {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
+    }
+    let mut annotated = match &args.overlay {
+        Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
+        None => None,
+    };
+    let limit = args.max_frames.map_or(usize::MAX, |n| n as usize);
+    let frames_known = source.len().map(|n| n.min(limit));
+    if !args.quiet {
+        announce(args, detect, rects.len(), frames_known, size, &backend_name);
+    }
+    let bar = crate::body::progress_bar(frames_known.unwrap_or(0), args.quiet);
+    let mut record = TrackRecord::new();
+    let started = Instant::now();
+    let mut next = Some(first);
+    let mut frame = 0usize;
+    while let Some(image) = next.take() {
+        let step_started = Instant::now();
+        let estimates = runner
+            .step(&image)
+            .with_context(|| format!("frame {frame}"))?;
+        record.tracking_time += step_started.elapsed().as_secs_f64();
+        if let Some(dir) = &args.save_particles {
+            save_particles(dir, frame, runner.tracker(), &estimates)
+                .with_context(|| format!("frame {frame}: --save-particles"))?;
+        }
+        record.add(frame, &estimates, truth.as_ref().and_then(|t| t.get(frame)));
+        if let Some(out) = annotated.as_mut() {
+            let drawn = overlay(&image, &runner.tracker().templates(), &estimates);
+            out.write(frame, &drawn)
+                .with_context(|| format!("frame {frame}"))?;
+        }
+        bar.inc(1);
+        frame += 1;
+        if frame < limit {
+            next = source
+                .next_frame()
+                .with_context(|| format!("frame {frame}"))?;
+        }
+    }
+    bar.finish_and_clear();
+    if let Some(out) = annotated {
+        out.finish()?;
+    }
+    record.finish(args, &runner, frame, started.elapsed().as_secs_f64())
+}
+
+/// The tracker for `args` on the backend it asks for: the automatic tracker with the detector
+/// when `detect`, else a tracker with room for the given rectangles; and the backend's name.
+fn build_runner(
+    args: &TrackArgs,
+    size: (u32, u32),
+    rects: &[FaceRect],
+    detect: bool,
+) -> anyhow::Result<(Runner, String)> {
     let face_model = match (&args.heightmap, &args.normalmap) {
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
         _ => model()?,
@@ -496,7 +562,6 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         FaceBackend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
     };
     let personaliser = load_personaliser(args)?;
-    let size = (first.width, first.height);
     let mut runner = match cascade {
         Some(cascade) => {
             let auto = AutoConfig {
@@ -529,147 +594,145 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         )?)),
     };
     runner.set_personaliser(personaliser);
-    for (i, r) in rects.iter().enumerate() {
-        runner
-            .add_face(&first, r)
-            .with_context(|| format!("face {i}"))?;
-    }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    if let Some(dir) = &args.save_particles {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
-    }
-    let mut annotated = match &args.overlay {
-        Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
-        None => None,
+    Ok((runner, backend_name))
+}
+
+/// The line that says what is about to be tracked.
+fn announce(
+    args: &TrackArgs,
+    detect: bool,
+    rectangles: usize,
+    frames: Option<usize>,
+    size: (u32, u32),
+    backend_name: &str,
+) {
+    let starts = if detect {
+        format!(
+            "faces found by the detector ({} every {} frames)",
+            args.cascade.display(),
+            args.detect_every
+        )
+    } else {
+        format!("{rectangles} faces from their rectangles")
     };
-    let limit = args.max_frames.map_or(usize::MAX, |n| n as usize);
-    let frames_known = source.len().map(|n| n.min(limit));
-    if !args.quiet {
-        let starts = if detect {
-            format!(
-                "faces found by the detector ({} every {} frames)",
-                args.cascade.display(),
-                args.detect_every
-            )
-        } else {
-            format!("{} faces from their rectangles", rects.len())
-        };
-        let length = frames_known.map_or("frames".to_string(), |n| format!("{n} frames"));
-        println!(
-            "tracking {starts} through {length} of {}x{}, {} particles each, on {backend_name}",
-            size.0, size.1, args.particles
-        );
-    }
-    let bar = crate::body::progress_bar(frames_known.unwrap_or(0), args.quiet);
-    let mut states = String::from("frame,track,status");
-    for n in STATE_NAMES {
-        states.push(',');
-        states.push_str(n);
-    }
-    states.push_str(",error\n");
-    let mut errors = String::from("frame,face,translation_px,rotation_deg\n");
-    let (mut translation, mut rotation, mut measured) = (0.0f64, 0.0f64, 0usize);
-    let (mut tracking_time, mut tracks_seen) = (0.0f64, std::collections::BTreeSet::new());
-    let started = Instant::now();
-    let mut next = Some(first);
-    let mut frame = 0usize;
-    while let Some(image) = next.take() {
-        let step_started = Instant::now();
-        let estimates = runner
-            .step(&image)
-            .with_context(|| format!("frame {frame}"))?;
-        tracking_time += step_started.elapsed().as_secs_f64();
-        if let Some(dir) = &args.save_particles {
-            save_particles(dir, frame, runner.tracker(), &estimates)
-                .with_context(|| format!("frame {frame}: --save-particles"))?;
+    let length = frames.map_or("frames".to_string(), |n| format!("{n} frames"));
+    println!(
+        "tracking {starts} through {length} of {}x{}, {} particles each, on {backend_name}",
+        size.0, size.1, args.particles
+    );
+}
+
+/// What a run has tracked: the rows of states.csv and errors.csv, the error sums and the time
+/// spent in the tracker.
+struct TrackRecord {
+    states: String,
+    errors: String,
+    translation: f64,
+    rotation: f64,
+    measured: usize,
+    tracks_seen: std::collections::BTreeSet<usize>,
+    tracking_time: f64,
+}
+
+impl TrackRecord {
+    fn new() -> Self {
+        let mut states = String::from("frame,track,status");
+        for n in STATE_NAMES {
+            states.push(',');
+            states.push_str(n);
         }
-        for e in &estimates {
-            tracks_seen.insert(e.track);
+        states.push_str(",error\n");
+        Self {
+            states,
+            errors: String::from("frame,face,translation_px,rotation_deg\n"),
+            translation: 0.0,
+            rotation: 0.0,
+            measured: 0,
+            tracks_seen: std::collections::BTreeSet::new(),
+            tracking_time: 0.0,
+        }
+    }
+
+    /// One frame's estimates, and their errors where the ground truth (`truth[track]`) is known.
+    fn add(&mut self, frame: usize, estimates: &[FaceEstimate], truth: Option<&Vec<[f32; DIMS]>>) {
+        for e in estimates {
+            self.tracks_seen.insert(e.track);
             let status = match e.status {
                 TrackStatus::Tracking => "tracking".to_string(),
                 TrackStatus::Lost { frame } => format!("lost@{frame}"),
             };
-            states.push_str(&format!("{frame},{},{status}", e.track));
+            self.states
+                .push_str(&format!("{frame},{},{status}", e.track));
             for v in e.state {
-                states.push_str(&format!(",{v}"));
+                self.states.push_str(&format!(",{v}"));
             }
-            states.push_str(&format!(",{}\n", e.error));
-            let known = truth
-                .as_ref()
-                .and_then(|t| t.get(frame))
-                .and_then(|f| f.get(e.track));
+            self.states.push_str(&format!(",{}\n", e.error));
+            let known = truth.and_then(|f| f.get(e.track));
             if let (Some(t), TrackStatus::Tracking) = (known, e.status)
                 && t.iter().all(|v| v.is_finite())
             {
                 let (te, re) = pose_errors(&e.state, t);
-                errors.push_str(&format!("{frame},{},{te},{re}\n", e.track));
-                translation += f64::from(te);
-                rotation += f64::from(re);
-                measured += 1;
+                self.errors
+                    .push_str(&format!("{frame},{},{te},{re}\n", e.track));
+                self.translation += f64::from(te);
+                self.rotation += f64::from(re);
+                self.measured += 1;
             }
         }
-        if let Some(out) = annotated.as_mut() {
-            let drawn = overlay(&image, &runner.tracker().templates(), &estimates);
-            out.write(frame, &drawn)
-                .with_context(|| format!("frame {frame}"))?;
-        }
-        bar.inc(1);
-        frame += 1;
-        if frame < limit {
-            next = source
-                .next_frame()
-                .with_context(|| format!("frame {frame}"))?;
-        }
     }
-    bar.finish_and_clear();
-    if let Some(out) = annotated {
-        out.finish()?;
-    }
-    write_text(&args.out.join("states.csv"), &states)?;
-    let elapsed = started.elapsed().as_secs_f64();
-    println!(
-        "tracked {} faces through {frame} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}",
-        tracks_seen.len(),
-        frame as f64 / tracking_time.max(1e-9),
-        frame as f64 / elapsed.max(1e-9),
-        if args.overlay.as_deref().is_some() {
-            " and drawing"
-        } else {
-            ""
-        }
-    );
-    let (personalised, missed) = runner.tracker().personalisation_counts();
-    if personalised + missed > 0 {
+
+    /// Writes the CSVs and prints the summary.
+    fn finish(
+        self,
+        args: &TrackArgs,
+        runner: &Runner,
+        frames: usize,
+        elapsed: f64,
+    ) -> anyhow::Result<()> {
+        write_text(&args.out.join("states.csv"), &self.states)?;
         println!(
-            "face model personalised to the landmarks of {personalised} of {} templates{}",
-            personalised + missed,
-            if missed > 0 {
-                format!(" (the landmark fit missed {missed}: generic model)")
+            "tracked {} faces through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}",
+            self.tracks_seen.len(),
+            frames as f64 / self.tracking_time.max(1e-9),
+            frames as f64 / elapsed.max(1e-9),
+            if args.overlay.as_deref().is_some() {
+                " and drawing"
             } else {
-                String::new()
+                ""
             }
         );
-    }
-    if measured > 0 {
-        write_text(&args.out.join("errors.csv"), &errors)?;
+        let (personalised, missed) = runner.tracker().personalisation_counts();
+        if personalised + missed > 0 {
+            println!(
+                "face model personalised to the landmarks of {personalised} of {} templates{}",
+                personalised + missed,
+                if missed > 0 {
+                    format!(" (the landmark fit missed {missed}: generic model)")
+                } else {
+                    String::new()
+                }
+            );
+        }
+        let measured = self.measured;
+        if measured > 0 {
+            write_text(&args.out.join("errors.csv"), &self.errors)?;
+            println!(
+                "mean translation error: {:.2} px, mean rotation error: {:.2} deg ({measured} face-frames)",
+                self.translation / measured as f64,
+                self.rotation / measured as f64
+            );
+        }
         println!(
-            "mean translation error: {:.2} px, mean rotation error: {:.2} deg ({measured} face-frames)",
-            translation / measured as f64,
-            rotation / measured as f64
+            "wrote states.csv{} to {}{}",
+            if measured > 0 { ", errors.csv" } else { "" },
+            args.out.display(),
+            args.overlay.as_deref().map_or(String::new(), |p| format!(
+                ", the annotated frames to {}",
+                p.display()
+            ))
         );
+        Ok(())
     }
-    println!(
-        "wrote states.csv{} to {}{}",
-        if measured > 0 { ", errors.csv" } else { "" },
-        args.out.display(),
-        args.overlay.as_deref().map_or(String::new(), |p| format!(
-            ", the annotated frames to {}",
-            p.display()
-        ))
-    );
-    Ok(())
 }
 
 /// One frame's clouds as numpy files, with the track that runs in each slot (-1: free).
