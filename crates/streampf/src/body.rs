@@ -253,8 +253,9 @@ fn pose_from_points(skeleton: &Skeleton, points: &[Vector3<f32>]) -> anyhow::Res
     Ok(theta)
 }
 
-fn track(args: &TrackArgs) -> anyhow::Result<()> {
-    let (source, skeleton, truth) = if args.synthetic {
+/// The frames (generated or a sequence directory), the skeleton and the ground truth if known.
+fn open_sequence(args: &TrackArgs) -> anyhow::Result<(Source, Skeleton, Option<Vec<Vec<f32>>>)> {
+    Ok(if args.synthetic {
         let config = args.sequence.config()?;
         let skeleton = args.sequence.skeleton()?;
         let truth = (0..config.frames)
@@ -281,7 +282,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             );
         }
         (Source::Directory(sequence), skeleton, truth)
-    };
+    })
+}
+
+fn track(args: &TrackArgs) -> anyhow::Result<()> {
+    let (source, skeleton, truth) = open_sequence(args)?;
     let frames = source.frames();
     let first_points = source.points(&skeleton, 0)?;
     let start = match (&args.init_pose, &truth) {
@@ -350,24 +355,14 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
 
-    write_csv(&args.out.join("poses.csv"), &skeleton.pose_names(), &poses)?;
-    write_csv(
-        &args.out.join("joints.csv"),
-        &joint_columns(&skeleton),
-        &joints,
-    )?;
+    let rate = frames as f64 / tracking_time.max(1e-9);
+    let points_per_frame = points_seen as f64 / frames as f64;
+    write_results(args, &skeleton, &poses, &joints, &errors)?;
     println!(
-        "tracked {frames} frames ({:.0} points a frame) in {:.2} s: {:.1} frames/s in the tracker",
-        points_seen as f64 / frames as f64,
+        "tracked {frames} frames ({points_per_frame:.0} points a frame) in {:.2} s: {rate:.1} frames/s in the tracker",
         started.elapsed().as_secs_f64(),
-        frames as f64 / tracking_time.max(1e-9)
     );
     if !errors.is_empty() {
-        write_csv(
-            &args.out.join("errors.csv"),
-            &["mean_joint_error_m".to_string()],
-            &errors,
-        )?;
         let mean = errors.iter().map(|e| f64::from(e[0])).sum::<f64>() / errors.len() as f64;
         println!("mean joint position error: {mean:.4} m over {frames} frames");
     }
@@ -380,5 +375,29 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         },
         args.out.display()
     );
+    Ok(())
+}
+
+/// poses.csv, joints.csv and (with ground truth) errors.csv.
+fn write_results(
+    args: &TrackArgs,
+    skeleton: &Skeleton,
+    poses: &[Vec<f32>],
+    joints: &[Vec<f32>],
+    errors: &[Vec<f32>],
+) -> anyhow::Result<()> {
+    write_csv(&args.out.join("poses.csv"), &skeleton.pose_names(), poses)?;
+    write_csv(
+        &args.out.join("joints.csv"),
+        &joint_columns(skeleton),
+        joints,
+    )?;
+    if !errors.is_empty() {
+        write_csv(
+            &args.out.join("errors.csv"),
+            &["mean_joint_error_m".to_string()],
+            errors,
+        )?;
+    }
     Ok(())
 }

@@ -143,20 +143,41 @@ pub fn check_against_cpu<O: Pod, C: Pod, M: CpuModel<O, C>>(
         )));
     }
     filter.model().set_observations(ctx, inputs.observations)?;
-    let mut mismatches = Vec::new();
-    let state = |t: usize, m: usize, states: &[f32]| -> Vec<f32> {
-        (0..shape.dims)
-            .map(|d| states[shape.state_index(t, d, m)])
-            .collect()
-    };
+    let mut mismatches = compare_log_likelihoods(ctx, &mut filter, cpu, inputs)?;
+    if M::PROPAGATES {
+        mismatches.extend(compare_propagation(ctx, &mut filter, cpu, inputs)?);
+    }
+    Ok(ModelCheck {
+        particles: shape.targets * shape.particles,
+        checked_propagate: M::PROPAGATES,
+        mismatches,
+    })
+}
+
+/// One particle's state from the batch layout.
+fn particle(shape: &BatchShape, states: &[f32], t: usize, m: usize) -> Vec<f32> {
+    (0..shape.dims)
+        .map(|d| states[shape.state_index(t, d, m)])
+        .collect()
+}
+
+/// The measure kernel on the given particles against the twin's `log_likelihood`.
+fn compare_log_likelihoods<O: Pod, C: Pod, M: CpuModel<O, C>>(
+    ctx: &GpuContext,
+    filter: &mut ModelFilter<O, C>,
+    cpu: &M,
+    inputs: &CheckInputs<'_, O, C>,
+) -> Result<Vec<Mismatch>, GpuError> {
+    let shape = inputs.shape;
     {
         let (gpu_filter, model) = filter.parts();
         gpu_filter.run_stages(ctx, &[GpuStage::Likelihood], model)?;
     }
     let gpu = filter.filter().download_log_likelihood(ctx)?;
+    let mut mismatches = Vec::new();
     for t in 0..shape.targets {
         for m in 0..shape.particles {
-            let x = state(t, m, inputs.states);
+            let x = particle(&shape, inputs.states, t, m);
             let cpu_value =
                 f64::from(cpu.log_likelihood(&x, &inputs.observations[t], inputs.constants));
             let gpu_value = f64::from(gpu[t * shape.particles + m]);
@@ -171,46 +192,52 @@ pub fn check_against_cpu<O: Pod, C: Pod, M: CpuModel<O, C>>(
             }
         }
     }
-    if M::PROPAGATES {
-        let step = 7;
-        {
-            let (gpu_filter, model) = filter.parts();
-            gpu_filter.set_step(step);
-            gpu_filter.run_stages(ctx, &[GpuStage::Diffuse], model)?;
-        }
-        let moved = filter.filter().download_states(ctx)?;
-        let keys = stage_keys(inputs.seed, shape.targets, Stage::Diffusion);
-        let mut next = vec![0.0f32; shape.dims];
-        for t in 0..shape.targets {
-            for m in 0..shape.particles {
-                let x = state(t, m, inputs.states);
-                let noise: Vec<f32> = (0..shape.dims)
-                    .map(|d| counter_gaussian(keys[t], m as u32, d as u32, step) as f32)
-                    .collect();
-                cpu.propagate(&x, &noise, inputs.constants, &mut next);
-                for d in 0..shape.dims {
-                    let cpu_value = if inputs.angular.get(d) == Some(&true) {
-                        wrap_angle_floor(next[d])
-                    } else {
-                        next[d]
-                    };
-                    let gpu_value = moved[shape.state_index(t, d, m)];
-                    if !agrees(f64::from(gpu_value), f64::from(cpu_value)) {
-                        mismatches.push(Mismatch {
-                            what: format!("propagate, dimension {d}"),
-                            target: t,
-                            particle: m,
-                            gpu: f64::from(gpu_value),
-                            cpu: f64::from(cpu_value),
-                        });
-                    }
+    Ok(mismatches)
+}
+
+/// The propagate kernel at one step against the twin's `propagate` fed the same draws.
+fn compare_propagation<O: Pod, C: Pod, M: CpuModel<O, C>>(
+    ctx: &GpuContext,
+    filter: &mut ModelFilter<O, C>,
+    cpu: &M,
+    inputs: &CheckInputs<'_, O, C>,
+) -> Result<Vec<Mismatch>, GpuError> {
+    let shape = inputs.shape;
+    let step = 7;
+    {
+        let (gpu_filter, model) = filter.parts();
+        gpu_filter.set_step(step);
+        gpu_filter.run_stages(ctx, &[GpuStage::Diffuse], model)?;
+    }
+    let moved = filter.filter().download_states(ctx)?;
+    let keys = stage_keys(inputs.seed, shape.targets, Stage::Diffusion);
+    let mut next = vec![0.0f32; shape.dims];
+    let mut mismatches = Vec::new();
+    for t in 0..shape.targets {
+        for m in 0..shape.particles {
+            let x = particle(&shape, inputs.states, t, m);
+            let noise: Vec<f32> = (0..shape.dims)
+                .map(|d| counter_gaussian(keys[t], m as u32, d as u32, step) as f32)
+                .collect();
+            cpu.propagate(&x, &noise, inputs.constants, &mut next);
+            for d in 0..shape.dims {
+                let cpu_value = if inputs.angular.get(d) == Some(&true) {
+                    wrap_angle_floor(next[d])
+                } else {
+                    next[d]
+                };
+                let gpu_value = moved[shape.state_index(t, d, m)];
+                if !agrees(f64::from(gpu_value), f64::from(cpu_value)) {
+                    mismatches.push(Mismatch {
+                        what: format!("propagate, dimension {d}"),
+                        target: t,
+                        particle: m,
+                        gpu: f64::from(gpu_value),
+                        cpu: f64::from(cpu_value),
+                    });
                 }
             }
         }
     }
-    Ok(ModelCheck {
-        particles: shape.targets * shape.particles,
-        checked_propagate: M::PROPAGATES,
-        mismatches,
-    })
+    Ok(mismatches)
 }
