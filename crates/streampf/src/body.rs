@@ -253,8 +253,12 @@ fn pose_from_points(skeleton: &Skeleton, points: &[Vector3<f32>]) -> anyhow::Res
     Ok(theta)
 }
 
-/// The frames (generated or a sequence directory), the skeleton and the ground truth if known.
-fn open_sequence(args: &TrackArgs) -> anyhow::Result<(Source, Skeleton, Option<Vec<Vec<f32>>>)> {
+/// The frames (generated or a sequence directory), the skeleton and the ground truth (one θ
+/// per frame) if known.
+type Sequence = (Source, Skeleton, Option<Vec<Vec<f32>>>);
+
+/// Opens what `args` asks to track.
+fn open_sequence(args: &TrackArgs) -> anyhow::Result<Sequence> {
     Ok(if args.synthetic {
         let config = args.sequence.config()?;
         let skeleton = args.sequence.skeleton()?;
