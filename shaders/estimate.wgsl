@@ -1,6 +1,6 @@
 // Point estimates per target from the normalised weights: the weighted mean of every dimension
 // (angles as the mean of unit vectors, atan2(sum w sin, sum w cos)). One workgroup per target.
-// CPU twin: pf_core::estimate::weighted_mean.
+// CPU twin: pf_core::batch::weighted_means (pf_core::estimate::weighted_mean for one target).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> states: array<f32>;

@@ -1,7 +1,7 @@
 // Log-weight normalisation per target: lw += log-likelihood, then max and log-sum-exp reductions,
 // normalised weights and log-weights, and ESS = 1 / sum w^2. One workgroup per target.
 // A NaN or +inf log-weight, or every log-weight -inf, sets the target's status and leaves its
-// weights uniform (the failure policy of pf-core). CPU twin: pf_core::batch::normalise.
+// weights uniform (the failure policy of pf-core). CPU twin: pf_core::batch::normalise_target.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read_write> log_weights: array<f32>;

@@ -11,7 +11,7 @@
 //   per offspring).
 // - metropolis: one invocation per (offspring, target), B steps, no collective operation.
 // CPU twins: pf_core::resample::{Systematic, Stratified, Metropolis} fed CounterUniforms with the
-// target's resampling key (pf_core::batch::resample).
+// target's resampling key (as pf_core::batch::BatchFilter does).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> weights: array<f32>;

@@ -295,6 +295,68 @@ mod tests {
         );
     }
 
+    /// The Rust items a shader's comments name (`pf_core::batch::diffuse`, `a::{b, c}`): the
+    /// last segment of each path.
+    fn named_items(comment: &str) -> Vec<String> {
+        let mut names = Vec::new();
+        for start in ["pf_core::", "pf_gpu::", "body_tracker::", "face_tracker::"] {
+            for (at, _) in comment.match_indices(start) {
+                let rest = &comment[at..];
+                let end = rest
+                    .find(|c: char| !(c.is_alphanumeric() || c == '_' || c == ':'))
+                    .unwrap_or(rest.len());
+                let path = rest[..end].trim_end_matches(':');
+                if rest[end..].starts_with('{') && path.len() < end {
+                    let group = &rest[end + 1..rest.find('}').unwrap_or(rest.len())];
+                    names.extend(group.split(',').map(|n| n.trim().to_string()));
+                } else if let Some(last) = path.rsplit("::").next() {
+                    names.push(last.to_string());
+                }
+            }
+        }
+        names
+    }
+
+    #[test]
+    fn every_rust_item_a_shader_names_exists() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let mut code = String::new();
+        let mut files = Vec::new();
+        for krate in ["pf-core", "pf-gpu", "body-tracker", "face-tracker"] {
+            let mut stack = vec![root.join("crates").join(krate).join("src")];
+            while let Some(dir) = stack.pop() {
+                for entry in std::fs::read_dir(&dir).unwrap().flatten() {
+                    let path = entry.path();
+                    if path.is_dir() {
+                        stack.push(path);
+                    } else {
+                        files.push(path.file_stem().unwrap().to_string_lossy().into_owned());
+                        code.push_str(&std::fs::read_to_string(&path).unwrap());
+                    }
+                }
+            }
+        }
+        let mut missing = Vec::new();
+        for entry in std::fs::read_dir(root.join("shaders")).unwrap().flatten() {
+            let source = std::fs::read_to_string(entry.path()).unwrap();
+            let comments: String = source
+                .lines()
+                .filter_map(|l| l.trim_start().strip_prefix("//"))
+                .collect::<Vec<_>>()
+                .join(" ");
+            for name in named_items(&comments) {
+                let defined = ["fn ", "struct ", "enum ", "trait ", "mod ", "type "]
+                    .iter()
+                    .any(|kind| code.contains(&format!("{kind}{name}")))
+                    || files.contains(&name);
+                if !defined {
+                    missing.push(format!("{}: {name}", entry.file_name().to_string_lossy()));
+                }
+            }
+        }
+        assert!(missing.is_empty(), "shader comments name items that do not exist: {missing:?}");
+    }
+
     #[test]
     fn invalid_wgsl_is_reported_with_its_location() {
         let err = validate_wgsl("fn broken( { }").unwrap_err();
