@@ -354,7 +354,10 @@ mod tests {
                 }
             }
         }
-        assert!(missing.is_empty(), "shader comments name items that do not exist: {missing:?}");
+        assert!(
+            missing.is_empty(),
+            "shader comments name items that do not exist: {missing:?}"
+        );
     }
 
     #[test]
