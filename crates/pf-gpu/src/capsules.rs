@@ -65,6 +65,117 @@ pub struct CapsuleLikelihoodGpu {
     sums_back: Readback<f32>,
 }
 
+/// Checks the configuration against the kernels' and the adapter's limits; returns the number
+/// of point tiles and the lengths of the capsule and partial-sum buffers.
+fn checked_sizes(
+    ctx: &GpuContext,
+    kind: CapsuleKernel,
+    samples: usize,
+    points: usize,
+    capsules_per_sample: usize,
+    origin: [f32; 3],
+    tau: f32,
+) -> Result<(usize, usize, usize), GpuError> {
+    if samples == 0 || points == 0 || capsules_per_sample == 0 {
+        return Err(GpuError::InvalidConfig(format!(
+            "the capsule likelihood needs samples, points and capsules (got {samples}, {points}, {capsules_per_sample})"
+        )));
+    }
+    if capsules_per_sample > MAX_CAPSULES {
+        return Err(GpuError::InvalidConfig(format!(
+            "{capsules_per_sample} capsules per sample; the kernels hold at most {MAX_CAPSULES}"
+        )));
+    }
+    if !(tau.is_finite() && tau > 0.0 && origin.iter().all(|x| x.is_finite())) {
+        return Err(GpuError::InvalidConfig(format!(
+            "invalid tau {tau} or camera origin {origin:?}"
+        )));
+    }
+    let tiles = points.div_ceil(if kind == CapsuleKernel::Fast {
+        FAST_TILE
+    } else {
+        TILE
+    });
+    let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
+    if tiles > max_groups {
+        return Err(GpuError::InvalidConfig(format!(
+            "{points} points need {tiles} tiles, over the adapter's {max_groups} workgroups per dimension"
+        )));
+    }
+    let too_big = |what: &str| GpuError::InvalidConfig(format!("{what} overflow 32-bit indices"));
+    let capsule_values = samples
+        .checked_mul(capsules_per_sample * 2)
+        .ok_or_else(|| too_big("capsules"))?;
+    let partial_values = samples
+        .checked_mul(tiles)
+        .ok_or_else(|| too_big("partial sums"))?;
+    if capsule_values > u32::MAX as usize
+        || partial_values > u32::MAX as usize
+        || points > u32::MAX as usize
+    {
+        return Err(too_big("the buffers"));
+    }
+    Ok((tiles, capsule_values, partial_values))
+}
+
+/// The streams a chunk's bind groups use.
+struct ChunkStreams<'a> {
+    rays: &'a DeviceStream<[f32; 4]>,
+    capsules: &'a DeviceStream<[f32; 4]>,
+    partials: &'a DeviceStream<f32>,
+    terms: &'a DeviceStream<[f32; 24]>,
+    sums: &'a DeviceStream<f32>,
+    tile_cones: &'a DeviceStream<[f32; 4]>,
+}
+
+/// One dispatch chunk of `count` samples (at most the adapter's grid): its parameter buffer and
+/// a bind group per kernel, by the `@binding` numbers of `capsule_likelihood.wgsl`.
+fn chunk(
+    ctx: &GpuContext,
+    kernels: &[Kernel],
+    params: &CapsuleParams,
+    count: usize,
+    s: &ChunkStreams<'_>,
+) -> Result<Chunk, GpuError> {
+    let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("capsule likelihood params"),
+        size: std::mem::size_of::<CapsuleParams>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    ctx.queue
+        .write_buffer(&buffer, 0, bytemuck::bytes_of(params));
+    let groups = kernels
+        .iter()
+        .map(|k| {
+            let p = buffer.as_entire_binding();
+            let entries: Vec<(u32, wgpu::BindingResource<'_>)> = match k.name() {
+                "paper_layout" => vec![
+                    (0, p),
+                    (1, s.capsules.binding()),
+                    (2, s.rays.binding()),
+                    (3, s.partials.binding()),
+                ],
+                "capsule_terms" => vec![(0, p), (1, s.capsules.binding()), (4, s.terms.binding())],
+                "fast" => vec![
+                    (0, p),
+                    (2, s.rays.binding()),
+                    (3, s.partials.binding()),
+                    (4, s.terms.binding()),
+                    (6, s.tile_cones.binding()),
+                ],
+                _ => vec![(0, p), (3, s.partials.binding()), (5, s.sums.binding())],
+            };
+            k.bind(ctx, &entries)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Chunk {
+        samples: count as u32,
+        groups,
+        _params: buffer,
+    })
+}
+
 impl CapsuleLikelihoodGpu {
     /// A likelihood for `samples` × `points` × `capsules` with the given kernel, camera centre and τ.
     pub fn new(
@@ -76,46 +187,9 @@ impl CapsuleLikelihoodGpu {
         origin: [f32; 3],
         tau: f32,
     ) -> Result<Self, GpuError> {
-        if samples == 0 || points == 0 || capsules_per_sample == 0 {
-            return Err(GpuError::InvalidConfig(format!(
-                "the capsule likelihood needs samples, points and capsules (got {samples}, {points}, {capsules_per_sample})"
-            )));
-        }
-        if capsules_per_sample > MAX_CAPSULES {
-            return Err(GpuError::InvalidConfig(format!(
-                "{capsules_per_sample} capsules per sample; the kernels hold at most {MAX_CAPSULES}"
-            )));
-        }
-        if !(tau.is_finite() && tau > 0.0 && origin.iter().all(|x| x.is_finite())) {
-            return Err(GpuError::InvalidConfig(format!(
-                "invalid tau {tau} or camera origin {origin:?}"
-            )));
-        }
-        let tiles = points.div_ceil(if kind == CapsuleKernel::Fast {
-            FAST_TILE
-        } else {
-            TILE
-        });
+        let (tiles, capsule_values, partial_values) =
+            checked_sizes(ctx, kind, samples, points, capsules_per_sample, origin, tau)?;
         let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
-        if tiles > max_groups {
-            return Err(GpuError::InvalidConfig(format!(
-                "{points} points need {tiles} tiles, over the adapter's {max_groups} workgroups per dimension"
-            )));
-        }
-        let too_big =
-            |what: &str| GpuError::InvalidConfig(format!("{what} overflow 32-bit indices"));
-        let capsule_values = samples
-            .checked_mul(capsules_per_sample * 2)
-            .ok_or_else(|| too_big("capsules"))?;
-        let partial_values = samples
-            .checked_mul(tiles)
-            .ok_or_else(|| too_big("partial sums"))?;
-        if capsule_values > u32::MAX as usize
-            || partial_values > u32::MAX as usize
-            || points > u32::MAX as usize
-        {
-            return Err(too_big("the buffers"));
-        }
         let rays = DeviceStream::zeroed(ctx, "rays", points)?;
         let capsules = DeviceStream::zeroed(ctx, "capsules", capsule_values)?;
         let partials = DeviceStream::zeroed(ctx, "likelihood partial sums", partial_values)?;
@@ -138,6 +212,14 @@ impl CapsuleLikelihoodGpu {
             .iter()
             .map(|e| Kernel::new(ctx, e, sources::CAPSULE_LIKELIHOOD, e))
             .collect::<Result<Vec<_>, _>>()?;
+        let streams = ChunkStreams {
+            rays: &rays,
+            capsules: &capsules,
+            partials: &partials,
+            terms: &terms,
+            sums: &sums,
+            tile_cones: &tile_cones,
+        };
         let mut chunks = Vec::new();
         let mut offset = 0;
         while offset < samples {
@@ -152,45 +234,7 @@ impl CapsuleLikelihoodGpu {
                 origin,
                 tau,
             };
-            let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("capsule likelihood params"),
-                size: std::mem::size_of::<CapsuleParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            ctx.queue
-                .write_buffer(&buffer, 0, bytemuck::bytes_of(&params));
-            let groups = kernels
-                .iter()
-                .map(|k| {
-                    let p = buffer.as_entire_binding();
-                    let entries: Vec<(u32, wgpu::BindingResource<'_>)> = match k.name() {
-                        "paper_layout" => vec![
-                            (0, p),
-                            (1, capsules.binding()),
-                            (2, rays.binding()),
-                            (3, partials.binding()),
-                        ],
-                        "capsule_terms" => {
-                            vec![(0, p), (1, capsules.binding()), (4, terms.binding())]
-                        }
-                        "fast" => vec![
-                            (0, p),
-                            (2, rays.binding()),
-                            (3, partials.binding()),
-                            (4, terms.binding()),
-                            (6, tile_cones.binding()),
-                        ],
-                        _ => vec![(0, p), (3, partials.binding()), (5, sums.binding())],
-                    };
-                    k.bind(ctx, &entries)
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            chunks.push(Chunk {
-                samples: count as u32,
-                groups,
-                _params: buffer,
-            });
+            chunks.push(chunk(ctx, &kernels, &params, count, &streams)?);
             offset += count;
         }
         Ok(Self {
