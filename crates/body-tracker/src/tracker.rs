@@ -13,11 +13,10 @@
 //! angles (wrapped, averaged on the circle).
 
 use nalgebra::Vector3;
-use pf_core::PfError;
-use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
-use pf_core::resample::Systematic;
+use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
-use pf_gpu::{GpuContext, GpuFilter, GpuResampler, NoLikelihood};
+use pf_gpu::engine::FilterEngine;
+use pf_gpu::{GpuContext, NoLikelihood};
 use rayon::prelude::*;
 
 use crate::error::BodyError;
@@ -107,26 +106,25 @@ pub struct FrameResult {
     pub points: usize,
 }
 
-struct GpuEngine {
-    ctx: GpuContext,
-    filter: GpuFilter,
-    likelihood: BodyLikelihoodGpu,
-}
-
-enum Engine {
-    Cpu(BatchFilter<Systematic>),
-    Gpu(Box<GpuEngine>),
+/// How the particles are weighed, beside the filter's engine.
+enum Measure {
+    /// On the host, all cores (the CPU engine).
+    Host,
+    /// On the GPU, in the engine's submission (the GPU engine).
+    Gpu(Box<BodyLikelihoodGpu>),
+    /// The samples split over several GPUs, called from the CPU engine's measure.
     Split {
         contexts: Vec<GpuContext>,
-        filter: BatchFilter<Systematic>,
         likelihood: SplitBodyLikelihood,
     },
 }
 
+/// The tracker: a filter over θ on one engine, and how it weighs.
 pub struct BodyTracker {
     skeleton: Skeleton,
     config: TrackerConfig,
-    engine: Engine,
+    engine: FilterEngine,
+    measure: Measure,
 }
 
 impl BodyTracker {
@@ -183,32 +181,33 @@ impl BodyTracker {
             tau: config.tau,
             sigma: config.sigma_at_1000_points,
         };
-        let engine = match backend {
-            Backend::Cpu => Engine::Cpu(BatchFilter::new(&batch, Systematic, states)?),
+        let (engine, measure) = match backend {
+            Backend::Cpu => (FilterEngine::cpu(&batch, states)?, Measure::Host),
             Backend::Gpu(ctx) => {
-                let filter = GpuFilter::new(&ctx, &batch, GpuResampler::Systematic, &states)?;
                 let mut likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config(), config.particles)?;
-                pf_gpu::GpuLikelihood::prepare(&mut likelihood, &ctx, &filter.likelihood_inputs())?;
-                Engine::Gpu(Box::new(GpuEngine {
-                    ctx: *ctx,
-                    filter,
-                    likelihood,
-                }))
+                let engine = FilterEngine::gpu(*ctx, &batch, &states)?;
+                if let Some((ctx, inputs)) = engine.likelihood_inputs() {
+                    pf_gpu::GpuLikelihood::prepare(&mut likelihood, ctx, &inputs)?;
+                }
+                (engine, Measure::Gpu(Box::new(likelihood)))
             }
             Backend::SplitGpus(contexts) => {
                 let likelihood =
                     SplitBodyLikelihood::new(&contexts, &gpu_config(), config.particles)?;
-                Engine::Split {
-                    contexts,
-                    filter: BatchFilter::new(&batch, Systematic, states)?,
-                    likelihood,
-                }
+                (
+                    FilterEngine::cpu(&batch, states)?,
+                    Measure::Split {
+                        contexts,
+                        likelihood,
+                    },
+                )
             }
         };
         Ok(Self {
             skeleton,
             config,
             engine,
+            measure,
         })
     }
 
@@ -220,18 +219,7 @@ impl BodyTracker {
     /// batch layout `[d·J + j]` and the normalised log-weights. On the GPU this reads them back
     /// (a wait), so call it only when needed.
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), BodyError> {
-        Ok(match &self.engine {
-            Engine::Cpu(filter) | Engine::Split { filter, .. } => (
-                *filter.shape(),
-                filter.states.clone(),
-                filter.log_weights.clone(),
-            ),
-            Engine::Gpu(gpu) => (
-                *gpu.filter.shape(),
-                gpu.filter.download_states(&gpu.ctx)?,
-                gpu.filter.download_log_weights(&gpu.ctx)?,
-            ),
-        })
+        Ok(self.engine.particles()?)
     }
 
     /// Thins `points` to at most `max_points` by taking every k-th one.
@@ -255,62 +243,58 @@ impl BodyTracker {
         let flat = self.config.weighing == Weighing::Flat;
         let sigma = self.config.sigma_at_1000_points * (points.len().max(1) as f32 / 1000.0).sqrt();
         let params = CapsuleLikelihoodParams::new(self.config.tau, sigma)?;
-        let (pose, ess) = match &mut self.engine {
-            Engine::Cpu(filter) => {
-                let skeleton = &self.skeleton;
-                step_on_host(filter, |poses, out| {
-                    if flat {
-                        out.fill(0.0);
-                        return Ok(());
-                    }
-                    let particles = out.len();
-                    out.par_iter_mut().enumerate().try_for_each(
-                        |(m, out)| -> Result<(), BodyError> {
-                            let theta = pose_of(poses, particles, skeleton, m);
-                            let capsules = skeleton.capsules(&theta)?;
-                            let sum = culled_sum_of_squared_distances(&capsules, &rays, params.tau);
-                            *out = params.log_likelihood(sum) as f32;
-                            Ok(())
-                        },
-                    )
-                })?
+        let Self {
+            skeleton,
+            engine,
+            measure,
+            ..
+        } = self;
+        match measure {
+            Measure::Gpu(likelihood) => {
+                if let Some(ctx) = engine.context() {
+                    likelihood.upload_rays(ctx, &rays.gpu_layout())?;
+                    likelihood.set_sigma(ctx, sigma)?;
+                }
             }
-            Engine::Split {
+            Measure::Split {
                 contexts,
-                filter,
                 likelihood,
-            } => {
-                likelihood.upload_rays(contexts, &rays.gpu_layout())?;
-                step_on_host(filter, |poses, out| {
-                    if flat {
-                        out.fill(0.0);
-                        return Ok(());
-                    }
-                    let sums = likelihood.evaluate(contexts, poses)?;
-                    for (o, m) in out.iter_mut().zip(sums) {
-                        *o = params.log_likelihood(m) as f32;
-                    }
-                    Ok(())
-                })?
-            }
-            Engine::Gpu(gpu) => {
-                let GpuEngine {
-                    ctx,
-                    filter,
-                    likelihood,
-                } = gpu.as_mut();
-                likelihood.upload_rays(ctx, &rays.gpu_layout())?;
-                likelihood.set_sigma(ctx, sigma)?;
-                let report = if flat {
-                    filter.step(ctx, &NoLikelihood)?
-                } else {
-                    filter.step(ctx, &*likelihood)?
-                };
-                let stats = report.stats[0];
-                stats.result(self.config.particles)?;
-                (report.estimates, f64::from(stats.ess))
-            }
+            } => likelihood.upload_rays(contexts, &rays.gpu_layout())?,
+            Measure::Host => {}
+        }
+        let measure = &*measure;
+        let on_gpu: &dyn pf_gpu::GpuLikelihood = match measure {
+            Measure::Gpu(likelihood) if !flat => &**likelihood,
+            _ => &NoLikelihood,
         };
+        let report = engine.step(
+            |_, poses, out| -> Result<(), BodyError> {
+                if flat {
+                    out.fill(0.0);
+                    return Ok(());
+                }
+                match measure {
+                    Measure::Host => host_log_likelihoods(skeleton, &rays, params, poses, out),
+                    Measure::Split {
+                        contexts,
+                        likelihood,
+                    } => {
+                        let sums = likelihood.evaluate(contexts, poses)?;
+                        for (o, m) in out.iter_mut().zip(sums) {
+                            *o = params.log_likelihood(m) as f32;
+                        }
+                        Ok(())
+                    }
+                    // The GPU engine never measures on the host.
+                    Measure::Gpu(_) => Ok(()),
+                }
+            },
+            on_gpu,
+        )?;
+        if let Some(Err(e)) = report.status.into_iter().next() {
+            return Err(e.into());
+        }
+        let (pose, ess) = (report.estimates, report.ess[0]);
         Ok(FrameResult {
             pose,
             ess,
@@ -327,26 +311,24 @@ fn pose_of(poses: &[f32], particles: usize, skeleton: &Skeleton, m: usize) -> Ve
 }
 
 /// A host filter step with the measurement `measure(poses, log_likelihood)`, its error kept.
-fn step_on_host(
-    filter: &mut BatchFilter<Systematic>,
-    measure: impl FnOnce(&[f32], &mut [f32]) -> Result<(), BodyError>,
-) -> Result<(Vec<f32>, f64), BodyError> {
-    let mut failure = None;
-    let report = filter.step_batched(|_, poses, out| {
-        measure(poses, out).map_err(|e| {
-            let message = e.to_string();
-            failure = Some(e);
-            PfError::InvalidConfig(message)
+/// The CPU engine's measure: every sample's log-likelihood on all cores (culled capsules).
+fn host_log_likelihoods(
+    skeleton: &Skeleton,
+    rays: &Rays,
+    params: CapsuleLikelihoodParams,
+    poses: &[f32],
+    out: &mut [f32],
+) -> Result<(), BodyError> {
+    let particles = out.len();
+    out.par_iter_mut()
+        .enumerate()
+        .try_for_each(|(m, out)| -> Result<(), BodyError> {
+            let theta = pose_of(poses, particles, skeleton, m);
+            let capsules = skeleton.capsules(&theta)?;
+            let sum = culled_sum_of_squared_distances(&capsules, rays, params.tau);
+            *out = params.log_likelihood(sum) as f32;
+            Ok(())
         })
-    });
-    if let Some(e) = failure {
-        return Err(e);
-    }
-    let report = report?;
-    if let Some(Err(e)) = report.status.into_iter().next() {
-        return Err(e.into());
-    }
-    Ok((report.estimates, report.ess[0]))
 }
 
 /// The mean distance (m) between the tracked joints of two poses.

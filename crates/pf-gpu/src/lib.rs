@@ -17,6 +17,7 @@ pub use error::{GpuError, NO_ADAPTER_HELP};
 pub mod body;
 pub mod capsules;
 pub mod context;
+pub mod engine;
 pub mod faces;
 pub mod filter;
 pub mod kernels;

@@ -1,0 +1,171 @@
+//! One seam for the CPU and GPU engines: a tracker holds a [`FilterEngine`] and steps it with
+//! its measurement on the host (for the CPU) and its [`GpuLikelihood`] (for the GPU); both give
+//! the same [`EngineReport`], and a slot is reset and the particles read the same way.
+//!
+//! The CPU engine is pf-core's [`BatchFilter`] (the GPU driver's twin, drawing the same random
+//! numbers); the GPU engine is [`GpuFilter`] with the context it runs on.
+
+use pf_core::PfError;
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
+use pf_core::resample::Systematic;
+
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::filter::{GpuFilter, GpuLikelihood, GpuResampler, LikelihoodInputs};
+use crate::timing::GpuTime;
+
+/// Where a filter runs.
+pub enum FilterEngine {
+    /// pf-core's batch filter on the host (systematic resampling, all cores for the measure).
+    Cpu(Box<BatchFilter<Systematic>>),
+    /// The whole step on the GPU.
+    Gpu(Box<GpuEngine>),
+}
+
+/// The GPU driver and the context it runs on.
+pub struct GpuEngine {
+    /// The device.
+    pub ctx: GpuContext,
+    /// The driver.
+    pub filter: GpuFilter,
+}
+
+/// What one step of either engine reports.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EngineReport {
+    /// The weighted means, `[t·D + d]`.
+    pub estimates: Vec<f32>,
+    /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
+    pub best_estimates: Vec<f32>,
+    /// Each target's effective sample size after weighing.
+    pub ess: Vec<f64>,
+    /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
+    pub status: Vec<Result<(), PfError>>,
+    /// The step's GPU time (GPU engine only).
+    pub gpu_time: Option<GpuTime>,
+}
+
+impl EngineReport {
+    /// The estimates a tracker reports: the best-M′ means where computed, else the means.
+    pub fn point_estimates(&self) -> &[f32] {
+        if self.best_estimates.is_empty() {
+            &self.estimates
+        } else {
+            &self.best_estimates
+        }
+    }
+}
+
+impl FilterEngine {
+    /// The CPU engine over `initial_states` (`[(t·D + d)·M + m]`).
+    pub fn cpu(config: &BatchConfig, initial_states: Vec<f32>) -> Result<Self, GpuError> {
+        Ok(Self::Cpu(Box::new(BatchFilter::new(
+            config,
+            Systematic,
+            initial_states,
+        )?)))
+    }
+
+    /// The GPU engine on `ctx` (systematic resampling, as the CPU engine).
+    pub fn gpu(
+        ctx: GpuContext,
+        config: &BatchConfig,
+        initial_states: &[f32],
+    ) -> Result<Self, GpuError> {
+        let filter = GpuFilter::new(&ctx, config, GpuResampler::Systematic, initial_states)?;
+        Ok(Self::Gpu(Box::new(GpuEngine { ctx, filter })))
+    }
+
+    /// Targets × particles × dimensions.
+    pub fn shape(&self) -> BatchShape {
+        match self {
+            Self::Cpu(filter) => *filter.shape(),
+            Self::Gpu(gpu) => *gpu.filter.shape(),
+        }
+    }
+
+    /// The GPU context, on the GPU engine.
+    pub fn context(&self) -> Option<&GpuContext> {
+        match self {
+            Self::Cpu(_) => None,
+            Self::Gpu(gpu) => Some(&gpu.ctx),
+        }
+    }
+
+    /// The streams a GPU likelihood binds once (`None` on the CPU engine).
+    pub fn likelihood_inputs(&self) -> Option<(&GpuContext, LikelihoodInputs<'_>)> {
+        match self {
+            Self::Cpu(_) => None,
+            Self::Gpu(gpu) => Some((&gpu.ctx, gpu.filter.likelihood_inputs())),
+        }
+    }
+
+    /// One step. The CPU engine measures with `cpu_measure(shape, states, out)` (fill
+    /// `out[t·M + m]` with log-likelihoods; an error is returned as it is); the GPU engine
+    /// records `gpu_likelihood` (which must have been prepared against this engine).
+    pub fn step<E: From<GpuError>>(
+        &mut self,
+        cpu_measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), E>,
+        gpu_likelihood: &dyn GpuLikelihood,
+    ) -> Result<EngineReport, E> {
+        match self {
+            Self::Cpu(filter) => {
+                // BatchFilter takes a PfError; keep the caller's own error to return it as is.
+                let mut failure = None;
+                let report = filter.step_batched(|shape, states, out| {
+                    cpu_measure(shape, states, out).map_err(|e| {
+                        failure = Some(e);
+                        PfError::InvalidConfig("the measurement failed".into())
+                    })
+                });
+                if let Some(e) = failure {
+                    return Err(e);
+                }
+                let report = report.map_err(GpuError::from)?;
+                Ok(EngineReport {
+                    estimates: report.estimates,
+                    best_estimates: report.best_estimates,
+                    ess: report.ess,
+                    status: report.status,
+                    gpu_time: None,
+                })
+            }
+            Self::Gpu(gpu) => {
+                let report = gpu.filter.step(&gpu.ctx, gpu_likelihood)?;
+                let particles = gpu.filter.shape().particles;
+                Ok(EngineReport {
+                    ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
+                    status: report.stats.iter().map(|s| s.result(particles)).collect(),
+                    estimates: report.estimates,
+                    best_estimates: report.best_estimates,
+                    gpu_time: Some(report.time),
+                })
+            }
+        }
+    }
+
+    /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights.
+    pub fn reset_target(&mut self, t: usize, states: &[f32]) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(filter) => Ok(filter.reset_target(t, states)?),
+            Self::Gpu(gpu) => gpu.filter.reset_target(&gpu.ctx, t, states),
+        }
+    }
+
+    /// The particles after the last step: the shape, the states (`[(t·D + d)·M + m]`) and the
+    /// normalised log-weights (`[t·M + m]`). The GPU engine reads them back (a wait).
+    pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), GpuError> {
+        Ok(match self {
+            Self::Cpu(filter) => (
+                *filter.shape(),
+                filter.states.clone(),
+                filter.log_weights.clone(),
+            ),
+            Self::Gpu(gpu) => (
+                *gpu.filter.shape(),
+                gpu.filter.download_states(&gpu.ctx)?,
+                gpu.filter.download_log_weights(&gpu.ctx)?,
+            ),
+        })
+    }
+}
