@@ -9,11 +9,10 @@
 //! (eq. 14). A track ends when the estimate's ε stays above a threshold for n frames in a row, or
 //! when the face's centre leaves the frame; its slot is then free for a new face.
 
-use pf_core::PfError;
-use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
-use pf_core::resample::Systematic;
+use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_gpu::engine::FilterEngine;
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
-use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuTime};
+use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood};
 use rayon::prelude::*;
 
 use crate::error::FaceError;
@@ -104,18 +103,6 @@ pub struct FaceEstimate {
     pub rect: FaceRect,
 }
 
-enum Engine {
-    Cpu(Box<BatchFilter<Systematic>>),
-    Gpu(Box<GpuEngine>),
-}
-
-struct GpuEngine {
-    ctx: GpuContext,
-    filter: GpuFilter,
-    likelihood: FaceLikelihoodGpu,
-    last_time: Option<GpuTime>,
-}
-
 /// A face being tracked in a slot.
 struct Track {
     id: usize,
@@ -139,7 +126,12 @@ pub struct FaceTracker {
     next_track: usize,
     frame_size: (u32, u32),
     frame_index: usize,
-    engine: Engine,
+    /// The filter, on the CPU or the GPU.
+    engine: FilterEngine,
+    /// The GPU likelihood (the GPU engine only; the CPU engine weighs on the host).
+    gpu_likelihood: Option<Box<FaceLikelihoodGpu>>,
+    /// The last step's GPU time (GPU engine only).
+    last_time: Option<GpuTime>,
 }
 
 /// The state bounds: S and α in sensible ranges, pitch and yaw within ±`MAX_TURN`.
@@ -221,12 +213,9 @@ impl FaceTracker {
         batch.validate()?;
         // Free slots hold a cloud at the origin until a face arrives; they are never reported.
         let states = vec![0.0; shape.state_len()];
-        let engine = match backend {
-            FaceBackend::Cpu => {
-                Engine::Cpu(Box::new(BatchFilter::new(&batch, Systematic, states)?))
-            }
+        let (engine, gpu_likelihood) = match backend {
+            FaceBackend::Cpu => (FilterEngine::cpu(&batch, states)?, None),
             FaceBackend::Gpu(ctx) => {
-                let filter = GpuFilter::new(&ctx, &batch, GpuResampler::Systematic, &states)?;
                 let mut likelihood = FaceLikelihoodGpu::new(
                     &ctx,
                     config.gpu_dispatch,
@@ -238,13 +227,11 @@ impl FaceTracker {
                     MIN_ERROR,
                     MIN_VISIBLE_SHARE,
                 )?;
-                likelihood.prepare(&ctx, &filter.likelihood_inputs())?;
-                Engine::Gpu(Box::new(GpuEngine {
-                    ctx: *ctx,
-                    filter,
-                    likelihood,
-                    last_time: None,
-                }))
+                let engine = FilterEngine::gpu(*ctx, &batch, &states)?;
+                if let Some((ctx, inputs)) = engine.likelihood_inputs() {
+                    likelihood.prepare(ctx, &inputs)?;
+                }
+                (engine, Some(Box::new(likelihood)))
             }
         };
         Ok(Self {
@@ -257,6 +244,8 @@ impl FaceTracker {
             frame_size,
             frame_index: 0,
             engine,
+            gpu_likelihood,
+            last_time: None,
             config,
         })
     }
@@ -376,13 +365,9 @@ impl FaceTracker {
             &[cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0],
             &self.config.diffusion,
         );
-        match &mut self.engine {
-            Engine::Cpu(filter) => filter.reset_target(slot, &cloud)?,
-            Engine::Gpu(gpu) => {
-                gpu.filter.reset_target(&gpu.ctx, slot, &cloud)?;
-                gpu.likelihood
-                    .upload_template(&gpu.ctx, slot, &template.gpu_layout())?;
-            }
+        self.engine.reset_target(slot, &cloud)?;
+        if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
+            likelihood.upload_template(ctx, slot, &template.gpu_layout())?;
         }
         self.slots[slot] = Some(Track {
             id: track,
@@ -414,31 +399,17 @@ impl FaceTracker {
         out
     }
 
-    /// The GPU's time for the last step's submission (timestamps where the adapter has them),
-    /// on the GPU backend after a step.
     /// Every slot's particles after the last step: the batch shape (slots × particles × 7), the
     /// states in the batch layout `[(slot·7 + d)·M + m]` and the normalised log-weights
     /// `[slot·M + m]`. On the GPU this reads them back (a wait), so call it only when needed.
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
-        Ok(match &self.engine {
-            Engine::Cpu(filter) => (
-                *filter.shape(),
-                filter.states.clone(),
-                filter.log_weights.clone(),
-            ),
-            Engine::Gpu(gpu) => (
-                *gpu.filter.shape(),
-                gpu.filter.download_states(&gpu.ctx)?,
-                gpu.filter.download_log_weights(&gpu.ctx)?,
-            ),
-        })
+        Ok(self.engine.particles()?)
     }
 
+    /// The GPU's time for the last step's submission (timestamps where the adapter has them),
+    /// on the GPU backend after a step.
     pub fn last_gpu_time(&self) -> Option<GpuTime> {
-        match &self.engine {
-            Engine::Gpu(gpu) => gpu.last_time,
-            Engine::Cpu(_) => None,
-        }
+        self.last_time
     }
 
     fn check_size(&self, frame: &GrayImage) -> Result<(), FaceError> {
@@ -461,56 +432,53 @@ impl FaceTracker {
         };
         // Each slot's estimate and its ε (the failure test's input); free slots are not weighed
         // on the CPU, and weigh the GPU's empty template there (ε = 1, a flat likelihood).
-        let checked: Vec<([f32; DIMS], f64)> = match &mut self.engine {
-            Engine::Cpu(filter) => {
-                let (tracks, sharpness) = (&self.slots, self.config.sharpness);
-                let report = filter.step_batched(|shape, states, out| {
-                    out.par_iter_mut().enumerate().for_each(|(k, out)| {
-                        let (t, m) = (k / shape.particles, k % shape.particles);
-                        let Some(track) = &tracks[t] else {
-                            *out = 0.0;
-                            return;
-                        };
-                        let mut s = [0.0f32; DIMS];
-                        for (d, x) in s.iter_mut().enumerate() {
-                            *x = states[shape.state_index(t, d, m)];
-                        }
-                        *out = log_weight(residual_error(&s, &track.template, frame), sharpness);
-                    });
-                    Ok::<(), PfError>(())
-                })?;
-                let estimates = if report.best_estimates.is_empty() {
-                    report.estimates
-                } else {
-                    report.best_estimates
-                };
-                // Faces in parallel (at 64 faces this is 15 000 points).
+        if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
+            likelihood.upload_frame(ctx, &frame.data)?;
+        }
+        let (tracks, sharpness) = (&self.slots, self.config.sharpness);
+        let on_gpu: &dyn GpuLikelihood = match &self.gpu_likelihood {
+            Some(likelihood) => &**likelihood,
+            None => &NoLikelihood,
+        };
+        let report = self.engine.step(
+            |shape, states, out| -> Result<(), FaceError> {
+                out.par_iter_mut().enumerate().for_each(|(k, out)| {
+                    let (t, m) = (k / shape.particles, k % shape.particles);
+                    let Some(track) = &tracks[t] else {
+                        *out = 0.0;
+                        return;
+                    };
+                    let mut s = [0.0f32; DIMS];
+                    for (d, x) in s.iter_mut().enumerate() {
+                        *x = states[shape.state_index(t, d, m)];
+                    }
+                    *out = log_weight(residual_error(&s, &track.template, frame), sharpness);
+                });
+                Ok(())
+            },
+            on_gpu,
+        )?;
+        self.last_time = report.gpu_time;
+        let estimates = report.point_estimates();
+        let checked: Vec<([f32; DIMS], f64)> = match &self.gpu_likelihood {
+            // The GPU weighed the estimates in the step's submission.
+            Some(likelihood) => {
+                let errors = likelihood.take_estimate_errors()?;
                 (0..slots)
-                    .into_par_iter()
-                    .map(|t| {
-                        let state = state_of(&estimates, t);
-                        let error = self.slots[t]
-                            .as_ref()
-                            .map_or(1.0, |track| residual_error(&state, &track.template, frame));
-                        (state, error)
-                    })
+                    .map(|t| (state_of(estimates, t), f64::from(errors[t])))
                     .collect()
             }
-            Engine::Gpu(gpu) => {
-                gpu.likelihood.upload_frame(&gpu.ctx, &frame.data)?;
-                let report = gpu.filter.step(&gpu.ctx, &gpu.likelihood)?;
-                gpu.last_time = Some(report.time);
-                let estimates = if report.best_estimates.is_empty() {
-                    report.estimates
-                } else {
-                    report.best_estimates
-                };
-                // The GPU weighed the estimates in the step's submission.
-                let errors = gpu.likelihood.take_estimate_errors()?;
-                (0..slots)
-                    .map(|t| (state_of(&estimates, t), f64::from(errors[t])))
-                    .collect()
-            }
+            // Faces in parallel (at 64 faces this is 15 000 points).
+            None => (0..slots)
+                .into_par_iter()
+                .map(|t| {
+                    let state = state_of(estimates, t);
+                    let error = self.slots[t]
+                        .as_ref()
+                        .map_or(1.0, |track| residual_error(&state, &track.template, frame));
+                    (state, error)
+                })
+                .collect(),
         };
         let mut out = Vec::new();
         for (slot, (state, error)) in checked.into_iter().enumerate() {
