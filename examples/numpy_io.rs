@@ -42,6 +42,11 @@ pub fn run(
     let seen = pf_numpy::read_finite_f32(observations)?;
     seen.expect_shape(observations, &[None, None, Some(2)])?;
     let (frames, targets) = (seen.shape[0], seen.shape[1]);
+    anyhow::ensure!(
+        frames > 0 && targets > 0,
+        "{}: no frames or no targets",
+        observations.display()
+    );
     let shape = BatchShape::new(targets, 512, 2)?;
     let config = BatchConfig {
         shape,

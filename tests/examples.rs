@@ -106,6 +106,13 @@ fn numpy_io_reads_observations_from_numpy_and_writes_the_posterior_for_it() {
     ));
     let err = numpy_io::run(&ctx, &dir.join("bad.npy"), &out, 0.5, 0.3).unwrap_err();
     assert!(err.to_string().contains("expected (any, any, 2)"), "{err}");
+    // So is a file with no frames (no first frame to start the clouds from).
+    assert!(python(
+        &dir,
+        "np.save(f'{d}/empty.npy', np.zeros((0, 3, 2), dtype=np.float32))"
+    ));
+    let err = numpy_io::run(&ctx, &dir.join("empty.npy"), &out, 0.5, 0.3).unwrap_err();
+    assert!(err.to_string().contains("no frames"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

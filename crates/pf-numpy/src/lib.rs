@@ -107,6 +107,11 @@ pub fn read_f32(path: &Path) -> Result<Array<f32>, NpyError> {
         });
     }
     let shape: Vec<usize> = npy.shape().iter().map(|&s| s as usize).collect();
+    // A corrupt header can claim any shape: refuse one whose size overflows before reading.
+    let expected = shape
+        .iter()
+        .try_fold(1usize, |n, &s| n.checked_mul(s))
+        .ok_or_else(|| format_error(path, format!("shape {shape:?} overflows")))?;
     let fortran = npy.order() == npyz::Order::Fortran;
     let npyz::DType::Plain(type_str) = npy.dtype() else {
         return Err(NpyError::Dtype {
@@ -128,7 +133,6 @@ pub fn read_f32(path: &Path) -> Result<Array<f32>, NpyError> {
             });
         }
     };
-    let expected: usize = shape.iter().product();
     if stored.len() != expected {
         return Err(format_error(
             path,

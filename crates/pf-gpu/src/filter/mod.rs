@@ -70,27 +70,12 @@ pub struct GpuFilter {
     shape: BatchShape,
     params: FrameParams,
     params_buffer: wgpu::Buffer,
-    states: DeviceStream<f32>,
-    selected: DeviceStream<f32>,
-    log_weights: DeviceStream<f32>,
-    log_likelihood: DeviceStream<f32>,
-    weights: DeviceStream<f32>,
-    cdf: DeviceStream<f32>,
-    ancestors: DeviceStream<u32>,
-    stats: DeviceStream<TargetStats>,
-    estimates: DeviceStream<f32>,
-    best_estimates: DeviceStream<f32>,
-    // Kept alive for the bind groups.
-    _sigma: DeviceStream<f32>,
-    _lower: DeviceStream<f32>,
-    _upper: DeviceStream<f32>,
-    _diffusion_keys: DeviceStream<[u32; 2]>,
-    _resampling_keys: DeviceStream<[u32; 2]>,
+    /// Every device stream, created once (some only for the bind groups).
+    streams: Streams,
     stages: Stages,
     groups: BindGroups,
     /// The resample stage: one to five dispatches depending on the resampler and M.
     resample_steps: Vec<Dispatch>,
-    _block_sums: DeviceStream<f32>,
     /// The step's readbacks in one staging buffer: estimates, statistics, best-M′ estimates
     /// (empty without them) and the timestamps (empty without a timer).
     step_back: ReadbackSet,
@@ -143,24 +128,6 @@ impl GpuFilter {
                 if timer.is_some() { 16 } else { 0 },
             ],
         )?;
-        let Streams {
-            states,
-            selected,
-            log_weights,
-            log_likelihood,
-            weights,
-            cdf,
-            ancestors,
-            stats,
-            estimates,
-            best_estimates,
-            sigma,
-            lower,
-            upper,
-            diffusion_keys,
-            resampling_keys,
-            block_sums,
-        } = streams;
         Ok(Self {
             shape,
             params,
@@ -168,25 +135,10 @@ impl GpuFilter {
             step_back,
             has_best: config.best > 0,
             timer,
-            states,
-            selected,
-            log_weights,
-            log_likelihood,
-            weights,
-            cdf,
-            ancestors,
-            stats,
-            estimates,
-            best_estimates,
-            _sigma: sigma,
-            _lower: lower,
-            _upper: upper,
-            _diffusion_keys: diffusion_keys,
-            _resampling_keys: resampling_keys,
+            streams,
             stages,
             groups,
             resample_steps,
-            _block_sums: block_sums,
             step: 0,
         })
     }
@@ -201,14 +153,14 @@ impl GpuFilter {
         LikelihoodInputs {
             shape: self.shape,
             params: &self.params_buffer,
-            states: &self.states,
-            log_likelihood: &self.log_likelihood,
+            states: &self.streams.states,
+            log_likelihood: &self.streams.log_likelihood,
             estimates: if self.has_best {
-                &self.best_estimates
+                &self.streams.best_estimates
             } else {
-                &self.estimates
+                &self.streams.estimates
             },
-            diffusion_keys: &self._diffusion_keys,
+            diffusion_keys: &self.streams.diffusion_keys,
         }
     }
 
@@ -266,9 +218,9 @@ impl GpuFilter {
         if wants(GpuStage::Gather) {
             let bytes = (self.shape.state_len() * 4) as u64;
             encoder.copy_buffer_to_buffer(
-                self.selected.buffer(),
+                self.streams.selected.buffer(),
                 0,
-                self.states.buffer(),
+                self.streams.states.buffer(),
                 0,
                 bytes,
             );
@@ -308,12 +260,18 @@ impl GpuFilter {
         if wants(GpuStage::Estimate) {
             likelihood.record_readbacks(encoder);
         }
+        self.step_back.record_copy(
+            encoder,
+            STEP_BACK_ESTIMATES,
+            self.streams.estimates.buffer(),
+        );
         self.step_back
-            .record_copy(encoder, STEP_BACK_ESTIMATES, self.estimates.buffer());
-        self.step_back
-            .record_copy(encoder, STEP_BACK_STATS, self.stats.buffer());
-        self.step_back
-            .record_copy(encoder, STEP_BACK_BEST, self.best_estimates.buffer());
+            .record_copy(encoder, STEP_BACK_STATS, self.streams.stats.buffer());
+        self.step_back.record_copy(
+            encoder,
+            STEP_BACK_BEST,
+            self.streams.best_estimates.buffer(),
+        );
     }
 
     /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.
@@ -397,12 +355,16 @@ impl GpuFilter {
             });
         }
         let m = shape.particles;
-        self.states.upload_at(ctx, t * block, states)?;
-        self.log_weights
+        self.streams.states.upload_at(ctx, t * block, states)?;
+        self.streams
+            .log_weights
             .upload_at(ctx, t * m, &vec![-(m as f32).ln(); m])?;
-        self.weights
+        self.streams
+            .weights
             .upload_at(ctx, t * m, &vec![1.0 / m as f32; m])?;
-        self.stats.upload_at(ctx, t, &[TargetStats::initial(m)])
+        self.streams
+            .stats
+            .upload_at(ctx, t, &[TargetStats::initial(m)])
     }
 
     /// Sets the index of the next step (it keys the step's random numbers).
@@ -426,39 +388,39 @@ impl GpuFilter {
 
     /// Reads the particle states back (tests and debugging; allocates).
     pub fn download_states(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
-        self.states.download(ctx)
+        self.streams.states.download(ctx)
     }
 
     /// The normalised weights, `[t·M + m]`.
     pub fn download_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
-        self.weights.download(ctx)
+        self.streams.weights.download(ctx)
     }
 
     /// The normalised log-weights, `[t·M + m]`.
     pub fn download_log_weights(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
-        self.log_weights.download(ctx)
+        self.streams.log_weights.download(ctx)
     }
 
     /// The last Likelihood stage's `log p(z | x)`, `[t·M + m]` (tests and model checks).
     pub fn download_log_likelihood(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
-        self.log_likelihood.download(ctx)
+        self.streams.log_likelihood.download(ctx)
     }
 
     /// The last resampling's ancestor indices, `[t·M + m]`.
     pub fn download_ancestors(&self, ctx: &GpuContext) -> Result<Vec<u32>, GpuError> {
-        self.ancestors.download(ctx)
+        self.streams.ancestors.download(ctx)
     }
 
     /// The streams of the stages, for stage-by-stage tests.
     pub fn streams(&self) -> FilterStreams<'_> {
         FilterStreams {
-            states: &self.states,
-            log_weights: &self.log_weights,
-            log_likelihood: &self.log_likelihood,
-            weights: &self.weights,
-            cdf: &self.cdf,
-            ancestors: &self.ancestors,
-            stats: &self.stats,
+            states: &self.streams.states,
+            log_weights: &self.streams.log_weights,
+            log_likelihood: &self.streams.log_likelihood,
+            weights: &self.streams.weights,
+            cdf: &self.streams.cdf,
+            ancestors: &self.streams.ancestors,
+            stats: &self.streams.stats,
         }
     }
 }

@@ -128,16 +128,15 @@ fn shader_error(name: &str, message: String) -> GpuError {
 
 /// Parses and validates, with errors located in the user's lines.
 fn compile(name: &str, source: &str, user_lines: usize) -> Result<naga::Module, GpuError> {
-    let in_user = |line: Option<u32>| line.is_some_and(|l| (l as usize) <= user_lines);
+    // naga's parse and validation errors both give a location and a rendered message.
+    let error = |line: Option<u32>, message: String| {
+        let in_user = line.is_some_and(|l| (l as usize) <= user_lines);
+        shader_error(name, located(name, in_user, message))
+    };
     let module = naga::front::wgsl::parse_str(source).map_err(|e| {
-        let line = e.location(source).map(|l| l.line_number);
-        shader_error(
-            name,
-            located(
-                name,
-                in_user(line),
-                e.emit_to_string_with_path(source, name),
-            ),
+        error(
+            e.location(source).map(|l| l.line_number),
+            e.emit_to_string_with_path(source, name),
         )
     })?;
     naga::valid::Validator::new(
@@ -146,14 +145,9 @@ fn compile(name: &str, source: &str, user_lines: usize) -> Result<naga::Module, 
     )
     .validate(&module)
     .map_err(|e| {
-        let line = e.location(source).map(|l| l.line_number);
-        shader_error(
-            name,
-            located(
-                name,
-                in_user(line),
-                e.emit_to_string_with_path(source, name),
-            ),
+        error(
+            e.location(source).map(|l| l.line_number),
+            e.emit_to_string_with_path(source, name),
         )
     })?;
     Ok(module)
