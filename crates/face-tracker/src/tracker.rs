@@ -462,8 +462,8 @@ impl FaceTracker {
         let estimates = report.point_estimates();
         let checked: Vec<([f32; DIMS], f64)> = match &self.gpu_likelihood {
             // The GPU weighed the estimates in the step's submission.
-            Some(likelihood) => {
-                let errors = likelihood.take_estimate_errors()?;
+            Some(_) => {
+                let errors: Vec<f32> = report.likelihood.get(FaceLikelihoodGpu::ESTIMATE_ERRORS)?;
                 (0..slots)
                     .map(|t| (state_of(estimates, t), f64::from(errors[t])))
                     .collect()

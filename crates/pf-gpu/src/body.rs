@@ -14,7 +14,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::capsules::{CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES};
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase};
 use crate::kernels::{Kernel, sources};
 use crate::stream::{DeviceStream, Readback};
 
@@ -353,7 +353,10 @@ impl GpuLikelihood for BodyLikelihoodGpu {
         self.filter_groups.is_some()
     }
 
-    fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
+    fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
+        if phase != LikelihoodPhase::Measure {
+            return;
+        }
         if let Some((kinematics, to_log_likelihood)) = &self.filter_groups {
             let groups = self.kinematics_groups();
             self.kinematics.record(pass, kinematics, groups);

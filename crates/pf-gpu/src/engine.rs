@@ -11,7 +11,9 @@ use pf_core::resample::Systematic;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuFilter, GpuLikelihood, GpuResampler, LikelihoodInputs};
+use crate::filter::{
+    GpuFilter, GpuLikelihood, GpuResampler, LikelihoodInputs, LikelihoodReadbacks,
+};
 use crate::timing::GpuTime;
 
 /// Where a filter runs.
@@ -43,6 +45,8 @@ pub struct EngineReport {
     pub status: Vec<Result<(), PfError>>,
     /// The step's GPU time (GPU engine only).
     pub gpu_time: Option<GpuTime>,
+    /// What the GPU likelihood asked to read back (empty on the CPU engine).
+    pub likelihood: LikelihoodReadbacks,
 }
 
 impl EngineReport {
@@ -128,6 +132,7 @@ impl FilterEngine {
                     ess: report.ess,
                     status: report.status,
                     gpu_time: None,
+                    likelihood: LikelihoodReadbacks::default(),
                 })
             }
             Self::Gpu(gpu) => {
@@ -139,6 +144,7 @@ impl FilterEngine {
                     estimates: report.estimates,
                     best_estimates: report.best_estimates,
                     gpu_time: Some(report.time),
+                    likelihood: report.likelihood,
                 })
             }
         }

@@ -5,15 +5,13 @@
 //! filter it reads the particles where they are and writes log π = −sharpness·ln ε, and it keeps
 //! ε per particle for failure detection. CPU twin: `face_tracker::likelihood::residual_error`.
 
-use std::sync::Mutex;
-
 use bytemuck::{Pod, Zeroable};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
 use crate::kernels::{Kernel, sources, stage_source};
-use crate::stream::{DeviceStream, PendingMap, Readback};
+use crate::stream::DeviceStream;
 
 /// How the faces of a frame are dispatched.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,13 +42,11 @@ struct FaceParams {
     _pad: u32,
 }
 
-/// The check of each face's estimate: ε per face, read back in the step's submission.
+/// The check of each face's estimate: ε per face, read back with the step
+/// ([`FaceLikelihoodGpu::ESTIMATE_ERRORS`]).
 struct EstimateCheck {
     group: wgpu::BindGroup,
     errors: DeviceStream<f32>,
-    back: Readback<f32>,
-    /// The map requested before the step's wait, collected by `take_estimate_errors`.
-    pending: Mutex<Option<PendingMap>>,
 }
 
 /// The face likelihood for `faces` faces of up to `max_points` points on `width × height` frames.
@@ -76,6 +72,11 @@ pub struct FaceLikelihoodGpu {
 }
 
 impl FaceLikelihoodGpu {
+    /// The name of the step report's readback of ε at each face's pose estimate (`[t]`, `f32`):
+    /// the same ε as the particles' (the CPU twin is `residual_error` at the estimate), computed
+    /// after the Estimate stage in the step's submission.
+    pub const ESTIMATE_ERRORS: &'static str = "face estimate errors";
+
     /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1; γ = 0 weighs every particle the
     /// same, the diffusion-only baseline); ε is floored at `min_error`, and is 1 for a pose that shows less than `min_visible_share` of its face's points.
     #[allow(clippy::too_many_arguments)]
@@ -234,24 +235,6 @@ impl FaceLikelihoodGpu {
         }
     }
 
-    /// ε of each face's pose estimate (`[t]`) from the last step that ran the Estimate stage:
-    /// the same ε as the particles' (the CPU twin is `residual_error` at the estimate), read back
-    /// behind the step's wait. Errors when no step has run since the last call.
-    pub fn take_estimate_errors(&self) -> Result<Vec<f32>, GpuError> {
-        let check = self.estimate_check.as_ref().ok_or_else(|| {
-            GpuError::InvalidConfig("the face likelihood has not been prepared for a filter".into())
-        })?;
-        let pending = check
-            .pending
-            .lock()
-            .map_err(|_| GpuError::InvalidConfig("a readback panicked".into()))?
-            .take()
-            .ok_or_else(|| {
-                GpuError::InvalidConfig("no filter step has run since the last readback".into())
-            })?;
-        check.back.collect(pending)
-    }
-
     /// The per-particle ε stream, for a readback in the frame's submission.
     pub fn error_stream(&self) -> Option<&DeviceStream<f32>> {
         self.errors.as_ref()
@@ -309,9 +292,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
         )?;
         self.estimate_check = Some(EstimateCheck {
             group,
-            back: Readback::new(ctx, "face estimate errors readback", self.faces)?,
             errors: estimate_errors,
-            pending: Mutex::new(None),
         });
         Ok(())
     }
@@ -320,45 +301,36 @@ impl GpuLikelihood for FaceLikelihoodGpu {
         self.errors.is_some()
     }
 
-    fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
-        let (x, y) = match self.dispatch {
-            FaceDispatch::PerFace => (self.particles, 1),
-            FaceDispatch::Batched => (self.particles, self.faces as u32),
-            FaceDispatch::Packed => (
-                (self.particles as usize).div_ceil(PACKED) as u32,
-                self.faces as u32,
-            ),
-        };
-        for group in &self.groups {
-            self.kernel.record(pass, group, [x, y, 1]);
+    fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
+        match phase {
+            LikelihoodPhase::Measure => {
+                let (x, y) = match self.dispatch {
+                    FaceDispatch::PerFace => (self.particles, 1),
+                    FaceDispatch::Batched => (self.particles, self.faces as u32),
+                    FaceDispatch::Packed => (
+                        (self.particles as usize).div_ceil(PACKED) as u32,
+                        self.faces as u32,
+                    ),
+                };
+                for group in &self.groups {
+                    self.kernel.record(pass, group, [x, y, 1]);
+                }
+            }
+            LikelihoodPhase::AfterEstimate => {
+                if let Some(check) = &self.estimate_check {
+                    self.estimate_kernel
+                        .record(pass, &check.group, [1, self.faces as u32, 1]);
+                }
+            }
+            LikelihoodPhase::Propagate => {}
         }
     }
 
-    fn record_after_estimate(&self, pass: &mut wgpu::ComputePass<'_>) {
-        if let Some(check) = &self.estimate_check {
-            self.estimate_kernel
-                .record(pass, &check.group, [1, self.faces as u32, 1]);
-        }
-    }
-
-    fn record_readbacks(&self, encoder: &mut wgpu::CommandEncoder) {
-        if let Some(check) = &self.estimate_check {
-            check.back.record_copy(encoder, &check.errors);
-        }
-    }
-
-    fn request_maps(&self) {
-        let Some(check) = &self.estimate_check else {
-            return;
-        };
-        let Ok(mut pending) = check.pending.lock() else {
-            return;
-        };
-        // A map nobody collected is released first (a buffer cannot be mapped twice).
-        if let Some(stale) = pending.take() {
-            let _ = check.back.collect(stale);
-        }
-        *pending = Some(check.back.request_map());
+    fn readbacks(&self) -> Vec<ReadbackSource<'_>> {
+        self.estimate_check
+            .iter()
+            .map(|check| ReadbackSource::of(Self::ESTIMATE_ERRORS, &check.errors))
+            .collect()
     }
 }
 

@@ -30,7 +30,7 @@ pub mod toy;
 pub use context::{ContextOptions, GpuContext};
 pub use filter::{
     GpuFilter, GpuLikelihood, GpuResampler, GpuStage, GpuStepReport, LikelihoodInputs,
-    NoLikelihood, TargetStats,
+    LikelihoodPhase, LikelihoodReadbacks, NoLikelihood, ReadbackSource, TargetStats,
 };
 pub use kernels::Kernel;
 pub use stream::{DeviceStream, Readback, ReadbackSet};

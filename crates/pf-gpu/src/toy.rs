@@ -3,7 +3,7 @@
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase};
 use crate::kernels::{Kernel, sources, stage_source};
 use crate::stream::DeviceStream;
 
@@ -76,7 +76,10 @@ impl GpuLikelihood for ToyGaussianLikelihood {
         self.bind_group.is_some()
     }
 
-    fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
+    fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
+        if phase != LikelihoodPhase::Measure {
+            return;
+        }
         if let Some(group) = &self.bind_group {
             self.kernel.record(pass, group, self.groups);
         }

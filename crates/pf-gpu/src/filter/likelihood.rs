@@ -1,5 +1,8 @@
 //! The seam between the filter and an observation model on the GPU: the streams a likelihood
-//! binds, the trait it implements, and the likelihood that does nothing (stage tests).
+//! binds, the trait it implements (one `record` per phase of the step, plus the buffers it wants
+//! read back with the step), and the likelihood that does nothing (stage tests).
+
+use bytemuck::Pod;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -24,13 +27,94 @@ pub struct LikelihoodInputs<'a> {
     pub diffusion_keys: &'a DeviceStream<[u32; 2]>,
 }
 
+/// Where in the step a likelihood's dispatches are recorded (all in the step's one pass).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LikelihoodPhase {
+    /// The Diffuse stage, in place of the filter's Gaussian random walk; recorded only for a
+    /// likelihood that [`GpuLikelihood::propagates`].
+    Propagate,
+    /// The Likelihood stage: write `log p(z | x)` of every particle.
+    Measure,
+    /// After the Estimate stage, on the step's estimates (a tracker's check of its estimate,
+    /// say); its results come back through [`GpuLikelihood::readbacks`].
+    AfterEstimate,
+}
+
+/// A device buffer a likelihood wants read back with every step: the filter copies its first
+/// `bytes` into a section of the step's one staging buffer, and the step's report returns them
+/// under `name` ([`LikelihoodReadbacks::get`]).
+#[derive(Debug, Clone, Copy)]
+pub struct ReadbackSource<'a> {
+    /// The name the report files the bytes under.
+    pub name: &'static str,
+    /// The buffer copied from its start.
+    pub buffer: &'a wgpu::Buffer,
+    /// How many bytes (a multiple of 4).
+    pub bytes: u64,
+}
+
+impl<'a> ReadbackSource<'a> {
+    /// The whole of `stream`.
+    pub fn of<T: Pod>(name: &'static str, stream: &'a DeviceStream<T>) -> Self {
+        Self {
+            name,
+            buffer: stream.buffer(),
+            bytes: (stream.len() * std::mem::size_of::<T>()) as u64,
+        }
+    }
+}
+
+/// The likelihood's readbacks of one step, by name (empty on the CPU engine and for a
+/// likelihood that asks for none).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct LikelihoodReadbacks {
+    sections: Vec<(&'static str, Vec<u8>)>,
+}
+
+impl LikelihoodReadbacks {
+    pub(crate) fn new(sections: Vec<(&'static str, Vec<u8>)>) -> Self {
+        Self { sections }
+    }
+
+    /// The values read back under `name`, as `T`s; an error names a section the likelihood did
+    /// not ask for, or bytes that are not a whole number of `T`s.
+    pub fn get<T: Pod>(&self, name: &str) -> Result<Vec<T>, GpuError> {
+        let (_, bytes) = self
+            .sections
+            .iter()
+            .find(|(n, _)| *n == name)
+            .ok_or_else(|| {
+                let known: Vec<&str> = self.sections.iter().map(|(n, _)| *n).collect();
+                GpuError::InvalidConfig(format!(
+                    "the step read back no section named {name:?} (it has {known:?})"
+                ))
+            })?;
+        if !bytes.len().is_multiple_of(std::mem::size_of::<T>().max(1)) {
+            return Err(GpuError::InvalidConfig(format!(
+                "readback {name:?}: {} bytes are not a whole number of {}-byte values",
+                bytes.len(),
+                std::mem::size_of::<T>()
+            )));
+        }
+        Ok(bytemuck::pod_collect_to_vec(bytes))
+    }
+
+    /// Whether there is none.
+    pub fn is_empty(&self) -> bool {
+        self.sections.is_empty()
+    }
+}
+
 /// An observation model on the GPU. A tracker builds its pipelines and bind groups once in
-/// `prepare`, uploads each frame's observation before the step, and records its dispatches.
+/// `prepare`, uploads each frame's observation before the step, and records its dispatches for
+/// each phase of the step; what it wants back comes in the step's report.
 pub trait GpuLikelihood {
     /// Binds the filter's streams (once, after construction); builds its bind groups.
     fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError>;
-    /// Records the likelihood's dispatches into the step's compute pass.
-    fn record(&self, pass: &mut wgpu::ComputePass<'_>);
+
+    /// Records the dispatches of `phase` into the step's compute pass (nothing for a phase it
+    /// has no work in).
+    fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>);
 
     /// Whether `prepare` has bound it; a step with an unprepared likelihood is an error rather
     /// than a step that weighs stale values.
@@ -38,25 +122,17 @@ pub trait GpuLikelihood {
         true
     }
 
-    /// Whether it brings its own dynamics, recorded by [`GpuLikelihood::record_propagate`] in
-    /// place of the filter's Gaussian random walk.
+    /// Whether it brings its own dynamics, recorded in [`LikelihoodPhase::Propagate`] in place
+    /// of the filter's Gaussian random walk.
     fn propagates(&self) -> bool {
         false
     }
 
-    /// The dynamics' dispatches (the Diffuse stage) when [`GpuLikelihood::propagates`].
-    fn record_propagate(&self, _pass: &mut wgpu::ComputePass<'_>) {}
-
-    /// Work on the step's estimates (a tracker's check of its estimate, say), recorded after
-    /// the Estimate stage in the same pass.
-    fn record_after_estimate(&self, _pass: &mut wgpu::ComputePass<'_>) {}
-
-    /// Copies into the likelihood's own readbacks, recorded at the end of a step that ran the
-    /// Estimate stage; [`GpuLikelihood::request_maps`] follows before the step's one wait.
-    fn record_readbacks(&self, _encoder: &mut wgpu::CommandEncoder) {}
-
-    /// Asks for the likelihood's readbacks to be mapped, so that they share the step's wait.
-    fn request_maps(&self) {}
+    /// The buffers read back with every step, each into its own section of the filter's one
+    /// staging buffer (copied after the last stage that ran, mapped behind the step's one wait).
+    fn readbacks(&self) -> Vec<ReadbackSource<'_>> {
+        Vec::new()
+    }
 }
 
 /// A likelihood that records nothing (the log-likelihood stream keeps its contents).
@@ -66,5 +142,5 @@ impl GpuLikelihood for NoLikelihood {
     fn prepare(&mut self, _: &GpuContext, _: &LikelihoodInputs<'_>) -> Result<(), GpuError> {
         Ok(())
     }
-    fn record(&self, _: &mut wgpu::ComputePass<'_>) {}
+    fn record(&self, _: LikelihoodPhase, _: &mut wgpu::ComputePass<'_>) {}
 }

@@ -11,7 +11,10 @@ mod likelihood;
 mod params;
 mod setup;
 
-pub use likelihood::{GpuLikelihood, LikelihoodInputs, NoLikelihood};
+pub use likelihood::{
+    GpuLikelihood, LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood,
+    ReadbackSource,
+};
 pub use params::{FrameParams, TargetStats};
 
 use setup::{
@@ -63,6 +66,8 @@ pub struct GpuStepReport {
     pub best_estimates: Vec<f32>,
     /// The step's duration: GPU timestamps where the adapter has them, else wall clock.
     pub time: GpuTime,
+    /// What the likelihood asked to read back ([`GpuLikelihood::readbacks`]).
+    pub likelihood: LikelihoodReadbacks,
 }
 
 /// T targets × M particles on one GPU.
@@ -77,8 +82,12 @@ pub struct GpuFilter {
     /// The resample stage: one to five dispatches depending on the resampler and M.
     resample_steps: Vec<Dispatch>,
     /// The step's readbacks in one staging buffer: estimates, statistics, best-M′ estimates
-    /// (empty without them) and the timestamps (empty without a timer).
+    /// (empty without them), the timestamps (empty without a timer), then the likelihood's.
     step_back: ReadbackSet,
+    /// The byte lengths of the filter's own sections of `step_back`.
+    own_sections: [u64; STEP_BACK_OWN],
+    /// The likelihood sections `step_back` was last built with (name, bytes).
+    likelihood_sections: Vec<(&'static str, u64)>,
     has_best: bool,
     timer: Option<StepTimer>,
     step: u64,
@@ -89,6 +98,8 @@ const STEP_BACK_ESTIMATES: usize = 0;
 const STEP_BACK_STATS: usize = 1;
 const STEP_BACK_BEST: usize = 2;
 const STEP_BACK_TICKS: usize = 3;
+/// The filter's own sections; the likelihood's follow.
+const STEP_BACK_OWN: usize = 4;
 
 /// Above this many particles per target, systematic and stratified resampling scan the weights
 /// device-wide (four dispatches) instead of in one workgroup per target.
@@ -118,21 +129,20 @@ impl GpuFilter {
         )?;
         let timer = StepTimer::new(ctx)?;
         let estimate_bytes = (shape.targets * shape.dims * 4) as u64;
-        let step_back = ReadbackSet::new(
-            ctx,
-            "step readback",
-            &[
-                estimate_bytes,
-                (shape.targets * std::mem::size_of::<TargetStats>()) as u64,
-                if config.best > 0 { estimate_bytes } else { 0 },
-                if timer.is_some() { 16 } else { 0 },
-            ],
-        )?;
+        let own_sections = [
+            estimate_bytes,
+            (shape.targets * std::mem::size_of::<TargetStats>()) as u64,
+            if config.best > 0 { estimate_bytes } else { 0 },
+            if timer.is_some() { 16 } else { 0 },
+        ];
+        let step_back = ReadbackSet::new(ctx, "step readback", &own_sections)?;
         Ok(Self {
             shape,
             params,
             params_buffer,
             step_back,
+            own_sections,
+            likelihood_sections: Vec::new(),
             has_best: config.best > 0,
             timer,
             streams,
@@ -232,7 +242,7 @@ impl GpuFilter {
             });
             if wants(GpuStage::Diffuse) {
                 if likelihood.propagates() {
-                    likelihood.record_propagate(&mut pass);
+                    likelihood.record(LikelihoodPhase::Propagate, &mut pass);
                 } else {
                     self.stages
                         .diffuse
@@ -240,7 +250,7 @@ impl GpuFilter {
                 }
             }
             if wants(GpuStage::Likelihood) {
-                likelihood.record(&mut pass);
+                likelihood.record(LikelihoodPhase::Measure, &mut pass);
             }
             if wants(GpuStage::Normalise) {
                 self.stages
@@ -254,11 +264,12 @@ impl GpuFilter {
                 if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
                     k.record(&mut pass, g, per_target);
                 }
-                likelihood.record_after_estimate(&mut pass);
+                likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
             }
         }
-        if wants(GpuStage::Estimate) {
-            likelihood.record_readbacks(encoder);
+        for (k, source) in likelihood.readbacks().iter().enumerate() {
+            self.step_back
+                .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
         }
         self.step_back.record_copy(
             encoder,
@@ -292,6 +303,7 @@ impl GpuFilter {
                     .into(),
             ));
         }
+        self.fit_likelihood_readbacks(ctx, &likelihood.readbacks())?;
         let mut encoder = ctx
             .device
             .create_command_encoder(&wgpu::CommandEncoderDescriptor {
@@ -312,9 +324,6 @@ impl GpuFilter {
         })?;
         // Every readback is mapped behind one wait: one poll a frame.
         let step_map = self.step_back.request_map();
-        if stages.contains(&GpuStage::Estimate) {
-            likelihood.request_maps();
-        }
         ctx.wait(Some(submission), "the filter step")?;
         let wall = started.elapsed();
         let sections = self.step_back.collect(step_map)?;
@@ -327,12 +336,45 @@ impl GpuFilter {
             ),
             None => GpuTime::WallClock(wall),
         };
+        let likelihood = LikelihoodReadbacks::new(
+            self.likelihood_sections
+                .iter()
+                .map(|&(name, _)| name)
+                .zip(sections.into_iter().skip(STEP_BACK_OWN))
+                .collect(),
+        );
         Ok(GpuStepReport {
             estimates,
             stats,
             best_estimates,
             time,
+            likelihood,
         })
+    }
+
+    /// Rebuilds the step's staging buffer when the likelihood's readbacks differ from the ones
+    /// it holds sections for (the first step with a likelihood, or another likelihood).
+    fn fit_likelihood_readbacks(
+        &mut self,
+        ctx: &GpuContext,
+        sources: &[ReadbackSource<'_>],
+    ) -> Result<(), GpuError> {
+        let wanted: Vec<(&'static str, u64)> = sources.iter().map(|s| (s.name, s.bytes)).collect();
+        if wanted == self.likelihood_sections {
+            return Ok(());
+        }
+        for (k, (name, _)) in wanted.iter().enumerate() {
+            if wanted[..k].iter().any(|(other, _)| other == name) {
+                return Err(GpuError::InvalidConfig(format!(
+                    "the likelihood asks to read back two sections named {name:?}"
+                )));
+            }
+        }
+        let mut bytes = self.own_sections.to_vec();
+        bytes.extend(wanted.iter().map(|&(_, b)| b));
+        self.step_back = ReadbackSet::new(ctx, "step readback", &bytes)?;
+        self.likelihood_sections = wanted;
+        Ok(())
     }
 
     /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights and

@@ -40,7 +40,9 @@ use wgpu::naga;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuFilter, GpuLikelihood, GpuResampler, GpuStepReport, LikelihoodInputs};
+use crate::filter::{
+    GpuFilter, GpuLikelihood, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodPhase,
+};
 use crate::kernels::{Kernel, sources};
 use crate::stream::DeviceStream;
 
@@ -368,22 +370,23 @@ impl<O: Pod, C: Pod> GpuLikelihood for WgslModel<O, C> {
         self.bound.is_some()
     }
 
-    fn record(&self, pass: &mut wgpu::ComputePass<'_>) {
-        if let Some(b) = &self.bound {
-            self.measure.record(pass, &b.measure, b.groups);
+    fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
+        let Some(b) = &self.bound else {
+            return;
+        };
+        match phase {
+            LikelihoodPhase::Measure => self.measure.record(pass, &b.measure, b.groups),
+            LikelihoodPhase::Propagate => {
+                if let (Some(kernel), Some(group)) = (&self.propagate, &b.propagate) {
+                    kernel.record(pass, group, b.groups);
+                }
+            }
+            LikelihoodPhase::AfterEstimate => {}
         }
     }
 
     fn propagates(&self) -> bool {
         self.propagate.is_some()
-    }
-
-    fn record_propagate(&self, pass: &mut wgpu::ComputePass<'_>) {
-        if let (Some(kernel), Some(b)) = (&self.propagate, &self.bound)
-            && let Some(group) = &b.propagate
-        {
-            kernel.record(pass, group, b.groups);
-        }
     }
 }
 
