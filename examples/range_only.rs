@@ -1,47 +1,41 @@
-//! Range-only 2-D tracking: eight targets, each heard by three beacons that measure only their
-//! distance, tracked with a constant-velocity model written in WGSL (`MODEL`, the whole GPU side:
-//! data, likelihood and dynamics) and its CPU twin (`RangeOnly`), side by side on the same
-//! random numbers. `cargo run --release --example range_only` (add `--allow-software` to use
-//! Mesa's lavapipe when there is no GPU).
+//! Range-only 2-D tracking: targets heard by three beacons that measure only their distance,
+//! tracked with a constant-velocity model written in WGSL (`MODEL`: the whole GPU side) and its
+//! CPU twin (`RangeOnly`), side by side on the same random numbers.
+//! `cargo run --release --example range_only [-- --allow-software]` (Mesa's lavapipe, no GPU).
 
 use bytemuck::{Pod, Zeroable};
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
-use pf_core::plugin::CpuModel;
-use pf_core::resample::Systematic;
+use pf_core::{plugin::CpuModel, resample::Systematic};
 use pf_gpu::model::{ModelFilter, ModelSource};
-use pf_gpu::{GpuContext, GpuResampler};
+use pf_gpu::{ContextOptions, GpuContext, GpuResampler};
 
-/// The model on the GPU.
+// The user's GPU model: the 17 lines of WGSL below and the two bytemuck types it reads.
 pub const MODEL: ModelSource = ModelSource {
     name: "range-only constant velocity",
     wgsl: "
 struct Observation { r: array<f32, 3> }
 struct Constants { beacons: array<f32, 6>, dt: f32, accel: f32, range_sigma: f32 }
-
 fn log_likelihood(x: State, z: Observation, c: Constants) -> f32 {
     var b = c.beacons;
     var r = z.r;
     var sum = 0.0;
-    for (var k = 0u; k < 3u; k = k + 1u) {
+    for (var k = 0u; k < 3u; k++) {
         let e = (length(vec2(x[0] - b[2u * k], x[1] - b[2u * k + 1u])) - r[k]) / c.range_sigma;
-        sum = sum + e * e;
+        sum += e * e;
     }
     return -0.5 * sum;
 }
-
 fn propagate(x: State, n: State, c: Constants) -> State {
     let vx = x[2] + c.accel * c.dt * n[2];
     let vy = x[3] + c.accel * c.dt * n[3];
     return State(x[0] + vx * c.dt, x[1] + vy * c.dt, vx, vy);
 }",
 };
-
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct Ranges {
     pub r: [f32; 3],
 }
-
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 pub struct Constants {
@@ -53,25 +47,21 @@ pub struct Constants {
 
 /// The CPU twin of `MODEL`.
 pub struct RangeOnly;
-
 impl CpuModel<Ranges, Constants> for RangeOnly {
     const PROPAGATES: bool = true;
-
     fn log_likelihood(&self, x: &[f32], z: &Ranges, c: &Constants) -> f32 {
-        let sum: f32 = (0..3)
-            .map(|k| {
-                let d = (x[0] - c.beacons[2 * k]).hypot(x[1] - c.beacons[2 * k + 1]);
-                ((d - z.r[k]) / c.range_sigma).powi(2)
-            })
-            .sum();
-        -0.5 * sum
+        -0.5 * (0..3)
+            .map(|k| ((range(x, c, k) - z.r[k]) / c.range_sigma).powi(2))
+            .sum::<f32>()
     }
-
     fn propagate(&self, x: &[f32], n: &[f32], c: &Constants, next: &mut [f32]) {
-        let vx = x[2] + c.accel * c.dt * n[2];
-        let vy = x[3] + c.accel * c.dt * n[3];
+        let (vx, vy) = (x[2] + c.accel * c.dt * n[2], x[3] + c.accel * c.dt * n[3]);
         next.copy_from_slice(&[x[0] + vx * c.dt, x[1] + vy * c.dt, vx, vy]);
     }
+}
+
+fn range(x: &[f32], c: &Constants, k: usize) -> f32 {
+    (x[0] - c.beacons[2 * k]).hypot(x[1] - c.beacons[2 * k + 1])
 }
 
 pub const CONSTANTS: Constants = Constants {
@@ -81,88 +71,67 @@ pub const CONSTANTS: Constants = Constants {
     range_sigma: 0.2,
 };
 
-/// Target t's true position at `time` (s): a straight line from a start that depends on t.
+/// Target t's true state at `time` (s): a straight line from a start that depends on t.
 fn truth(t: usize, time: f32) -> [f32; 4] {
     let (vx, vy) = ((t as f32 * 0.7).cos(), (t as f32 * 0.7).sin());
-    [
-        6.0 + t as f32 + vx * time,
-        8.0 + (t % 3) as f32 + vy * time,
-        vx,
-        vy,
-    ]
+    let start = [6.0 + t as f32, 8.0 + (t % 3) as f32];
+    [start[0] + vx * time, start[1] + vy * time, vx, vy]
 }
 
-/// Tracks `targets` targets for `frames` frames; the mean position error (m) over the last half
-/// of the frames, on the GPU (when `ctx` is given) and on the CPU.
+/// The mean distance of the estimates `[t·4 + d]` from the true positions.
+fn position_error(truths: &[[f32; 4]], estimates: &[f32]) -> f32 {
+    let e = |t: usize, p: &[f32; 4]| (estimates[4 * t] - p[0]).hypot(estimates[4 * t + 1] - p[1]);
+    truths.iter().enumerate().map(|(t, p)| e(t, p)).sum::<f32>() / truths.len() as f32
+}
+
+/// Tracks `targets` targets for `frames` frames; the mean position error (m) over the second
+/// half of the frames, on the GPU (when `ctx` is given) and on the CPU.
 pub fn run(
     ctx: Option<&GpuContext>,
     targets: usize,
     frames: usize,
 ) -> anyhow::Result<(Option<f32>, f32)> {
-    let shape = BatchShape::new(targets, 1000, 4)?;
-    let config = BatchConfig {
-        shape,
-        seed: 3,
-        sigma: vec![0.0; 4],
-        bounds: None,
-        angular: vec![false; 4],
-        ess_threshold: f64::INFINITY,
-        best: 0,
-    };
+    let config = BatchConfig::new(BatchShape::new(targets, 1000, 4)?, 3, vec![0.0; 4]);
     let means: Vec<f32> = (0..targets).flat_map(|t| truth(t, 0.0)).collect();
-    let start = gaussian_clouds(&shape, 4, &means, &[1.0, 1.0, 0.5, 0.5]);
-    let mut gpu = ctx
-        .map(|ctx| {
-            ModelFilter::new(
-                ctx,
-                &config,
-                GpuResampler::Systematic,
-                &start,
-                MODEL,
-                &CONSTANTS,
-            )
-        })
-        .transpose()?;
+    let start = gaussian_clouds(&config.shape, 4, &means, &[1.0, 1.0, 0.5, 0.5]);
+    let systematic = GpuResampler::Systematic;
+    let mut gpu = (ctx
+        .map(|ctx| ModelFilter::new(ctx, &config, systematic, &start, MODEL, &CONSTANTS)))
+    .transpose()?;
     let mut cpu = BatchFilter::new(&config, Systematic, start)?;
     let mut noise = pf_core::RandomStreams::new(9).stream(0, pf_core::Stage::Model(0));
-    let (mut gpu_error, mut cpu_error) = (0.0, 0.0);
+    let mut sensor = |p: &[f32; 4]| Ranges {
+        r: std::array::from_fn(|k| {
+            range(p, &CONSTANTS, k) + CONSTANTS.range_sigma * noise.gaussian_f32()
+        }),
+    };
+    let (mut gpu_errors, mut cpu_errors) = (Vec::new(), Vec::new());
     for frame in 1..=frames {
         let truths: Vec<[f32; 4]> = (0..targets)
             .map(|t| truth(t, frame as f32 * CONSTANTS.dt))
             .collect();
-        let c = &CONSTANTS;
-        let observed: Vec<Ranges> = (truths.iter())
-            .map(|p| Ranges {
-                r: std::array::from_fn(|k| {
-                    (p[0] - c.beacons[2 * k]).hypot(p[1] - c.beacons[2 * k + 1])
-                        + c.range_sigma * noise.gaussian_f32()
-                }),
-            })
-            .collect();
-        // Mean position error over the targets, counted over the last half of the frames.
-        let weight = if frame > frames / 2 {
-            1.0 / (targets * (frames - frames / 2)) as f32
-        } else {
-            0.0
-        };
-        let error = |e: &[f32]| -> f32 {
-            (truths.iter().enumerate())
-                .map(|(t, p)| (e[4 * t] - p[0]).hypot(e[4 * t + 1] - p[1]))
-                .sum::<f32>()
-                * weight
-        };
+        let observed: Vec<Ranges> = truths.iter().map(&mut sensor).collect();
         if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
-            gpu_error += error(&filter.step(ctx, &observed)?.estimates);
+            gpu_errors.push(position_error(
+                &truths,
+                &filter.step(ctx, &observed)?.estimates,
+            ));
         }
-        cpu_error += error(&cpu.step_model(&RangeOnly, &observed, c)?.estimates);
+        let on_cpu = cpu.step_model(&RangeOnly, &observed, &CONSTANTS)?;
+        cpu_errors.push(position_error(&truths, &on_cpu.estimates));
     }
-    Ok((gpu.map(|_| gpu_error), cpu_error))
+    let second_half =
+        |e: &[f32]| e[frames / 2..].iter().sum::<f32>() / (frames - frames / 2) as f32;
+    Ok((
+        gpu.map(|_| second_half(&gpu_errors)),
+        second_half(&cpu_errors),
+    ))
 }
 
 #[allow(dead_code)]
 fn main() -> anyhow::Result<()> {
     let allow_software = std::env::args().any(|a| a == "--allow-software");
-    let options = pf_gpu::ContextOptions {
+    let options = ContextOptions {
         allow_software,
         ..Default::default()
     };

@@ -260,6 +260,28 @@ pub struct BatchConfig {
 }
 
 impl BatchConfig {
+    /// The plain configuration: diffusion σ per dimension (the length must be `shape.dims`,
+    /// checked by [`BatchConfig::validate`]), no bounds, no angles, resampling every step, no
+    /// best-M′ mean. Change a field for anything else.
+    ///
+    /// ```
+    /// use pf_core::batch::{BatchConfig, BatchShape};
+    /// let config = BatchConfig::new(BatchShape::new(8, 1000, 4).unwrap(), 3, vec![0.1; 4]);
+    /// assert!(config.validate().is_ok());
+    /// assert!(BatchConfig::new(config.shape, 3, vec![0.1; 3]).validate().is_err());
+    /// ```
+    pub fn new(shape: BatchShape, seed: u64, sigma: Vec<f32>) -> Self {
+        Self {
+            shape,
+            seed,
+            sigma,
+            bounds: None,
+            angular: vec![false; shape.dims],
+            ess_threshold: f64::INFINITY,
+            best: 0,
+        }
+    }
+
     /// Checks lengths, finiteness and ranges; the error says which value is wrong.
     pub fn validate(&self) -> Result<(), PfError> {
         let d = self.shape.dims;
