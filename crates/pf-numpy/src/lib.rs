@@ -8,6 +8,8 @@
 //!   [`Array`]; any other dtype, a truncated file or a pickled array is a clear [`NpyError`].
 //!   [`read_finite_f32`] also refuses NaN and ±∞.
 //! - [`write_f32`] writes a C-order float32 array.
+//! - [`npz`]: several named arrays in one `.npz` (numpy's `savez` / `savez_compressed` /
+//!   `load`), through the `zip` crate.
 //! - [`particles_array`] / [`batch_from_particles`] convert between the filter's batch layout
 //!   (`[(t·D + d)·M + m]`) and numpy's natural `(T, M, D)`; [`write_particles`] writes one
 //!   frame's cloud and log-weights.
@@ -18,6 +20,8 @@ use std::path::{Path, PathBuf};
 
 use npyz::WriterBuilder;
 use pf_core::batch::BatchShape;
+
+pub mod npz;
 
 /// What can go wrong with a `.npy` file; every variant names the file.
 #[derive(Debug, thiserror::Error)]
@@ -99,7 +103,16 @@ fn format_error(path: &Path, e: impl std::fmt::Display) -> NpyError {
 /// beyond f32's range are an error, not infinities.
 pub fn read_f32(path: &Path) -> Result<Array<f32>, NpyError> {
     let file = File::open(path).map_err(io_error(path))?;
-    let npy = npyz::NpyFile::new(BufReader::new(file)).map_err(|e| format_error(path, e))?;
+    read_f32_from(BufReader::new(file), path)
+}
+
+/// [`read_f32`] from the bytes of a `.npy` file; errors name `path` (the file, or `archive/name`
+/// for a member of an `.npz`).
+pub(crate) fn read_f32_from(
+    reader: impl std::io::Read,
+    path: &Path,
+) -> Result<Array<f32>, NpyError> {
+    let npy = npyz::NpyFile::new(reader).map_err(|e| format_error(path, e))?;
     if npy.uses_pickled_array() {
         return Err(NpyError::Dtype {
             path: path.to_path_buf(),
@@ -196,7 +209,10 @@ fn fortran_to_c<T: Copy + Default>(shape: &[usize], stored: &[T]) -> Vec<T> {
 
 /// [`read_f32`], refusing NaN and ±∞ (observations, initial clouds).
 pub fn read_finite_f32(path: &Path) -> Result<Array<f32>, NpyError> {
-    let array = read_f32(path)?;
+    refuse_non_finite(read_f32(path)?, path)
+}
+
+pub(crate) fn refuse_non_finite(array: Array<f32>, path: &Path) -> Result<Array<f32>, NpyError> {
     if let Some((index, &value)) = array.data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
         return Err(NpyError::NotFinite {
             path: path.to_path_buf(),
@@ -209,6 +225,14 @@ pub fn read_finite_f32(path: &Path) -> Result<Array<f32>, NpyError> {
 
 /// Writes `data` (C order) as a float32 array of `shape`.
 pub fn write_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), NpyError> {
+    check_shape(path, shape, data)?;
+    let file = File::create(path).map_err(io_error(path))?;
+    let mut out = BufWriter::new(file);
+    write_f32_to(&mut out, path, shape, data)?;
+    out.flush().map_err(io_error(path))
+}
+
+pub(crate) fn check_shape(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), NpyError> {
     let expected: usize = shape.iter().product();
     if expected != data.len() {
         return Err(NpyError::Invalid {
@@ -216,8 +240,16 @@ pub fn write_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), NpyEr
             message: format!("{} values for shape {shape:?}", data.len()),
         });
     }
-    let file = File::create(path).map_err(io_error(path))?;
-    let mut out = BufWriter::new(file);
+    Ok(())
+}
+
+/// The bytes of a float32 `.npy` file of `shape` into `out` (the shape already checked).
+pub(crate) fn write_f32_to(
+    mut out: impl Write,
+    path: &Path,
+    shape: &[usize],
+    data: &[f32],
+) -> Result<(), NpyError> {
     let dims: Vec<u64> = shape.iter().map(|&s| s as u64).collect();
     let mut writer = npyz::WriteOptions::new()
         .default_dtype()
@@ -228,8 +260,7 @@ pub fn write_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<(), NpyEr
     writer
         .extend(data.iter().copied())
         .map_err(io_error(path))?;
-    writer.finish().map_err(io_error(path))?;
-    out.flush().map_err(io_error(path))
+    writer.finish().map_err(io_error(path))
 }
 
 /// The batch layout `[(t·D + d)·M + m]` as a `(T, M, D)` C-order array.

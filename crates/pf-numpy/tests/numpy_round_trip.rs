@@ -193,3 +193,77 @@ fn particles_of_the_wrong_shape_are_an_error() {
     let err = write_f32(Path::new("x.npy"), &[3], &[1.0, 2.0]).unwrap_err();
     assert!(err.to_string().contains("2 values for shape [3]"), "{err}");
 }
+
+#[test]
+fn npz_archives_round_trip_with_numpy() {
+    use pf_numpy::npz::{NpzReader, write_npz};
+    let dir = scratch("npz");
+    let mut rng = pf_core::RandomStreams::new(23).stream(0, pf_core::Stage::Model(0));
+    let states: Vec<f32> = (0..2 * 5 * 3).map(|_| rng.gaussian_f32()).collect();
+    let weights: Vec<f32> = (0..10).map(|i| -(i as f32) * 0.25).collect();
+    let ours = dir.join("ours.npz");
+    write_npz(
+        &ours,
+        &[
+            ("particles", &[2, 5, 3], &states),
+            ("log_weights", &[2, 5], &weights),
+            ("empty", &[0, 4], &[]),
+        ],
+    )
+    .unwrap();
+    write_f32(&dir.join("particles.npy"), &[2, 5, 3], &states).unwrap();
+    // numpy reads ours; writes its own, stored and compressed, in other layouts and dtypes.
+    let code = "z = np.load(f'{d}/ours.npz')\n\
+                assert sorted(z.files) == ['empty', 'log_weights', 'particles'], z.files\n\
+                assert np.array_equal(z['particles'], np.load(f'{d}/particles.npy'))\n\
+                assert z['log_weights'].dtype == np.float32 and z['empty'].shape == (0, 4)\n\
+                assert np.array_equal(z['log_weights'], -np.arange(10, dtype=np.float32).reshape(2, 5) / 4)\n\
+                x = np.arange(24, dtype=np.float64).reshape(2, 3, 4) / 8 - 1\n\
+                np.savez(f'{d}/stored.npz', x=np.asfortranarray(x), ints=np.arange(3))\n\
+                np.savez_compressed(f'{d}/compressed.npz', x=x.astype(np.float32), bad=np.array([0.0, np.inf]))\n\
+                open(f'{d}/truncated.npz', 'wb').write(open(f'{d}/compressed.npz', 'rb').read()[:40])\n\
+                print('ok')";
+    let Some(out) = python(&dir, code) else {
+        return;
+    };
+    assert_eq!(out.trim(), "ok");
+    let expected: Vec<f32> = (0..24).map(|i| i as f32 / 8.0 - 1.0).collect();
+    for file in ["stored.npz", "compressed.npz"] {
+        let mut npz = NpzReader::open(&dir.join(file)).unwrap();
+        let x = npz.read_finite_f32("x").unwrap();
+        assert_eq!(
+            (x.shape.as_slice(), &x.data),
+            (&[2, 3, 4][..], &expected),
+            "{file}"
+        );
+    }
+    let mut stored = NpzReader::open(&dir.join("stored.npz")).unwrap();
+    let err = stored.read_f32("ints").unwrap_err();
+    assert!(
+        matches!(err, NpyError::Dtype { .. }) && err.to_string().contains("ints.npy"),
+        "{err}"
+    );
+    let err = stored.read_f32("y").unwrap_err();
+    assert!(err.to_string().contains("no array named \"y\""), "{err}");
+    let mut compressed = NpzReader::open(&dir.join("compressed.npz")).unwrap();
+    let err = compressed.read_finite_f32("bad").unwrap_err();
+    assert!(matches!(err, NpyError::NotFinite { index: 1, .. }), "{err}");
+    let mut back = NpzReader::open(&ours).unwrap();
+    assert_eq!(back.read_f32("particles").unwrap().data, states);
+    for bad in ["truncated.npz", "particles.npy"] {
+        let err = NpzReader::open(&dir.join(bad)).err().expect(bad);
+        assert!(
+            matches!(err, NpyError::Format { .. }) && err.to_string().contains(bad),
+            "{err}"
+        );
+    }
+    let err = write_npz(
+        &dir.join("x.npz"),
+        &[("a", &[1], &[1.0]), ("a", &[1], &[2.0])],
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("repeated"), "{err}");
+    let err = write_npz(&dir.join("x.npz"), &[("a", &[3], &[1.0])]).unwrap_err();
+    assert!(err.to_string().contains("1 values for shape [3]"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
