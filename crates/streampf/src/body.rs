@@ -11,13 +11,14 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use body_tracker::human::{BASE_CAPSULES, MAX_CAPSULES, human_skeleton, standing_pose};
 use body_tracker::sequence::{
-    FrameFormat, SequenceDir, joint_columns, joint_row, read_numeric_csv, write_csv,
-    write_synthetic,
+    FrameFormat, SequenceDir, joint_columns, joint_row, read_numeric_csv, write_synthetic,
 };
 use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_error};
 use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
+
+use crate::run_output::{self, CsvStream, Interrupted, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
 pub enum BodyCommand {
@@ -150,6 +151,10 @@ pub struct TrackArgs {
     /// log_weights_FRAME.npy (1, J). On a GPU this reads the cloud back every frame.
     #[arg(long)]
     pub save_particles: Option<PathBuf>,
+    /// Stop at the first frame that cannot be read (after writing every frame before it)
+    /// instead of skipping it with a warning.
+    #[arg(long)]
+    pub strict: bool,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
@@ -324,84 +329,197 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         );
     }
 
+    clear_old_results(&args.out, &[POSES_FILE, JOINTS_FILE, ERRORS_FILE])?;
+    let mut files = BodyFiles::create(&args.out, &skeleton, truth.is_some())?;
+    run_output::install_interrupt_handler()?;
     let bar = progress_bar(frames, args.quiet);
-    let mut poses = Vec::with_capacity(frames);
-    let mut joints = Vec::with_capacity(frames);
-    let mut errors = Vec::new();
-    let mut points_seen = 0usize;
+    let mut run = BodyRun::new(&args.out)?;
     let started = Instant::now();
-    let mut tracking_time = 0.0f64;
+    let mut end = LoopEnd::Done;
     for frame in 0..frames {
         let points = if frame == 0 {
-            first_points.clone()
+            Ok(first_points.clone())
         } else {
-            source.points(&skeleton, frame)?
+            source.points(&skeleton, frame)
         };
+        let result = match points {
+            Ok(points) => run.track_one(
+                args,
+                &mut tracker,
+                &skeleton,
+                &mut files,
+                frame,
+                &points,
+                truth.as_deref(),
+            ),
+            Err(e) if args.strict || matches!(source, Source::Synthetic(_)) => {
+                Err(e.context("unreadable frame (--strict)"))
+            }
+            Err(e) => run.skip_one(frame, e),
+        };
+        if let Err(e) = result {
+            end = LoopEnd::Failed(e.context(format!("frame {frame}")));
+            break;
+        }
+        if let Some(error) = run.errors.last() {
+            bar.set_message(format!("joint error {:.1} cm", 100.0 * error));
+        }
+        bar.inc(1);
+        if run_output::stop_requested() {
+            end = LoopEnd::Interrupted;
+            break;
+        }
+    }
+    bar.finish_and_clear();
+    run.summary(args, started.elapsed().as_secs_f64());
+    match end {
+        LoopEnd::Done => Ok(()),
+        LoopEnd::Interrupted => Err(Interrupted {
+            frames: run.frames,
+            out: args.out.clone(),
+        }
+        .into()),
+        LoopEnd::Failed(e) => Err(e.context(format!(
+            "stopped; the {} frames before it were written to {}",
+            run.frames,
+            args.out.display()
+        ))),
+    }
+}
+
+const POSES_FILE: &str = "poses.csv";
+const JOINTS_FILE: &str = "joints.csv";
+const ERRORS_FILE: &str = "errors.csv";
+
+/// Why the frame loop ended.
+enum LoopEnd {
+    Done,
+    Interrupted,
+    Failed(anyhow::Error),
+}
+
+/// poses.csv, joints.csv and (with ground truth) errors.csv, written a frame at a time.
+struct BodyFiles {
+    poses: CsvStream,
+    joints: CsvStream,
+    errors: Option<CsvStream>,
+}
+
+impl BodyFiles {
+    fn create(out: &Path, skeleton: &Skeleton, with_truth: bool) -> anyhow::Result<Self> {
+        let header = |names: &[String]| format!("frame,{}", names.join(","));
+        Ok(Self {
+            poses: CsvStream::create(&out.join(POSES_FILE), &header(&skeleton.pose_names()))?,
+            joints: CsvStream::create(&out.join(JOINTS_FILE), &header(&joint_columns(skeleton)))?,
+            errors: with_truth
+                .then(|| CsvStream::create(&out.join(ERRORS_FILE), "frame,mean_joint_error_m"))
+                .transpose()?,
+        })
+    }
+}
+
+fn csv_row(frame: usize, values: &[f32]) -> String {
+    let mut row = frame.to_string();
+    for v in values {
+        row.push(',');
+        row.push_str(&v.to_string());
+    }
+    row
+}
+
+/// What a body run has tracked so far.
+struct BodyRun {
+    /// Frames finished and written (tracked or skipped).
+    frames: usize,
+    errors: Vec<f32>,
+    skipped: SkipLog,
+    points_seen: usize,
+    tracking_time: f64,
+}
+
+impl BodyRun {
+    fn new(out: &Path) -> anyhow::Result<Self> {
+        Ok(Self {
+            frames: 0,
+            errors: Vec::new(),
+            skipped: SkipLog::new(out)?,
+            points_seen: 0,
+            tracking_time: 0.0,
+        })
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn track_one(
+        &mut self,
+        args: &TrackArgs,
+        tracker: &mut BodyTracker,
+        skeleton: &Skeleton,
+        files: &mut BodyFiles,
+        frame: usize,
+        points: &[Vector3<f32>],
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
         let step_started = Instant::now();
-        let result = tracker
-            .step(&points)
-            .with_context(|| format!("frame {frame}"))?;
-        tracking_time += step_started.elapsed().as_secs_f64();
+        let result = tracker.step(points)?;
+        self.tracking_time += step_started.elapsed().as_secs_f64();
         if let Some(dir) = &args.save_particles {
             let (shape, states, log_weights) = tracker.particles()?;
             pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)
-                .with_context(|| format!("frame {frame}: --save-particles"))?;
+                .context("--save-particles")?;
         }
-        points_seen += result.points;
-        joints.push(joint_row(&skeleton.tracked_joint_positions(&result.pose)?));
-        if let Some(truth) = &truth {
-            let error = mean_joint_error(&skeleton, &result.pose, &truth[frame])?;
-            errors.push(vec![error]);
-            bar.set_message(format!("joint error {:.1} cm", 100.0 * error));
+        self.points_seen += result.points;
+        files.poses.row(&csv_row(frame, &result.pose))?;
+        let joints = joint_row(&skeleton.tracked_joint_positions(&result.pose)?);
+        files.joints.row(&csv_row(frame, &joints))?;
+        if let (Some(truth), Some(out)) = (truth, files.errors.as_mut()) {
+            let error = mean_joint_error(skeleton, &result.pose, &truth[frame])?;
+            out.row(&csv_row(frame, &[error]))?;
+            out.end_frame()?;
+            self.errors.push(error);
         }
-        poses.push(result.pose);
-        bar.inc(1);
+        files.poses.end_frame()?;
+        files.joints.end_frame()?;
+        self.frames += 1;
+        Ok(())
     }
-    bar.finish_and_clear();
 
-    let rate = frames as f64 / tracking_time.max(1e-9);
-    let points_per_frame = points_seen as f64 / frames as f64;
-    write_results(args, &skeleton, &poses, &joints, &errors)?;
-    println!(
-        "tracked {frames} frames ({points_per_frame:.0} points a frame) in {:.2} s: {rate:.1} frames/s in the tracker",
-        started.elapsed().as_secs_f64(),
-    );
-    if !errors.is_empty() {
-        let mean = errors.iter().map(|e| f64::from(e[0])).sum::<f64>() / errors.len() as f64;
-        println!("mean joint position error: {mean:.4} m over {frames} frames");
+    /// A frame that cannot be read: a warning and a row in skipped.csv; the filter is not
+    /// stepped (the pose holds), and poses.csv has no row for the frame.
+    fn skip_one(&mut self, frame: usize, error: anyhow::Error) -> anyhow::Result<()> {
+        self.skipped.record(frame, &error)?;
+        self.frames += 1;
+        Ok(())
     }
-    println!(
-        "wrote poses.csv, joints.csv{} to {}",
-        if errors.is_empty() {
-            ""
-        } else {
-            ", errors.csv"
-        },
-        args.out.display()
-    );
-    Ok(())
-}
 
-/// poses.csv, joints.csv and (with ground truth) errors.csv.
-fn write_results(
-    args: &TrackArgs,
-    skeleton: &Skeleton,
-    poses: &[Vec<f32>],
-    joints: &[Vec<f32>],
-    errors: &[Vec<f32>],
-) -> anyhow::Result<()> {
-    write_csv(&args.out.join("poses.csv"), &skeleton.pose_names(), poses)?;
-    write_csv(
-        &args.out.join("joints.csv"),
-        &joint_columns(skeleton),
-        joints,
-    )?;
-    if !errors.is_empty() {
-        write_csv(
-            &args.out.join("errors.csv"),
-            &["mean_joint_error_m".to_string()],
-            errors,
-        )?;
+    fn summary(&self, args: &TrackArgs, elapsed: f64) {
+        let tracked = self.frames - self.skipped.frames.len();
+        println!(
+            "tracked {tracked} frames ({:.0} points a frame) in {elapsed:.2} s: {:.1} frames/s in the tracker{}",
+            self.points_seen as f64 / tracked.max(1) as f64,
+            tracked as f64 / self.tracking_time.max(1e-9),
+            self.skipped.note(),
+        );
+        if !self.errors.is_empty() {
+            let mean =
+                self.errors.iter().map(|&e| f64::from(e)).sum::<f64>() / self.errors.len() as f64;
+            println!(
+                "mean joint position error: {mean:.4} m over {} frames",
+                self.errors.len()
+            );
+        }
+        println!(
+            "wrote poses.csv, joints.csv{}{} to {}",
+            if self.errors.is_empty() {
+                ""
+            } else {
+                ", errors.csv"
+            },
+            if self.skipped.frames.is_empty() {
+                ""
+            } else {
+                ", skipped.csv"
+            },
+            args.out.display()
+        );
     }
-    Ok(())
 }

@@ -29,7 +29,8 @@ use face_tracker::{
 };
 use std::sync::Arc;
 
-use crate::face_io::{Annotated, Source, overlay};
+use crate::face_io::{Annotated, FrameRead, Source, overlay};
+use crate::run_output::{self, CsvStream, Interrupted, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
 pub enum FaceCommand {
@@ -181,6 +182,14 @@ pub struct TrackArgs {
     /// Build every template on the generic face model (no landmark fit).
     #[arg(long)]
     pub generic_model: bool,
+    /// Stop at the first frame that cannot be read (after writing every frame before it)
+    /// instead of skipping it with a warning.
+    #[arg(long)]
+    pub strict: bool,
+    /// Accept a video that ends before the length its container announces (a warning instead
+    /// of a non-zero exit).
+    #[arg(long)]
+    pub allow_short: bool,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
@@ -199,6 +208,8 @@ const RECTS_FILE: &str = "faces.csv";
 /// Debian's opencv-data puts OpenCV's cascades here.
 const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
 const TRUTH_FILE: &str = "ground_truth.csv";
+const STATES_FILE: &str = "states.csv";
+const ERRORS_FILE: &str = "errors.csv";
 
 fn model() -> anyhow::Result<FaceModel> {
     Ok(FaceModel::generic(129)?)
@@ -466,12 +477,15 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             .map(|r| parse_rect(r, "--face"))
             .collect::<anyhow::Result<_>>()?;
     }
+    if let Some(path) = &args.overlay {
+        Annotated::check_path(path)?;
+    }
     let detect = rects.is_empty() || args.detect;
     // Errors against the ground truth need track k to be face k: tracks from rectangles only.
     let truth = truth.filter(|_| !detect);
     let first = source
         .next_frame()
-        .context("frame 0")?
+        .context("frame 0 (the first frame must be readable: it starts the tracks)")?
         .context("the input has no frames")?;
     let size = (first.width, first.height);
     let (mut runner, backend_name) = build_runner(args, size, &rects, detect)?;
@@ -482,11 +496,12 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE])?;
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
     }
-    let mut annotated = match &args.overlay {
+    let annotated = match &args.overlay {
         Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
         None => None,
     };
@@ -495,40 +510,172 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     if !args.quiet {
         announce(args, detect, rects.len(), frames_known, size, &backend_name);
     }
-    let bar = crate::body::progress_bar(frames_known.unwrap_or(0), args.quiet);
-    let mut record = TrackRecord::new();
+    run_output::install_interrupt_handler()?;
+    let mut run = FaceRun {
+        args,
+        record: TrackRecord::create(&args.out, truth.is_some())?,
+        truth,
+        annotated,
+        last_drawn: None,
+        last_estimates: Vec::new(),
+        skipped: SkipLog::new(&args.out)?,
+        frames: 0,
+    };
     let started = Instant::now();
-    let mut next = Some(first);
-    let mut frame = 0usize;
-    while let Some(image) = next.take() {
+    let ended = run.track_frames(&mut runner, &mut source, first, limit, frames_known);
+    run.finish(&runner, &source, started.elapsed().as_secs_f64(), ended)
+}
+
+/// Why the frame loop ended.
+enum LoopEnd {
+    /// The source ran out, or --max-frames was reached.
+    Done,
+    Interrupted,
+    /// A frame could not be tracked or written (or, with --strict, read).
+    Failed(anyhow::Error),
+}
+
+/// A face run in progress: what it writes as it goes, and what it has seen.
+struct FaceRun<'a> {
+    args: &'a TrackArgs,
+    record: TrackRecord,
+    truth: Option<Vec<Vec<[f32; DIMS]>>>,
+    annotated: Option<Annotated>,
+    /// The last frame drawn, drawn again for a skipped frame so that a video keeps its timing.
+    last_drawn: Option<image::RgbImage>,
+    /// The last tracked frame's estimates: a skipped frame's tracks coast on them.
+    last_estimates: Vec<FaceEstimate>,
+    skipped: SkipLog,
+    /// Frames finished and written (tracked or skipped).
+    frames: usize,
+}
+
+impl FaceRun<'_> {
+    /// Tracks frame after frame, writing each as it is finished, until the source ends, the
+    /// limit, an interrupt or a failure.
+    fn track_frames(
+        &mut self,
+        runner: &mut Runner,
+        source: &mut Source,
+        first: GrayImage,
+        limit: usize,
+        frames_known: Option<usize>,
+    ) -> LoopEnd {
+        let bar = crate::body::progress_bar(frames_known.unwrap_or(0), self.args.quiet);
+        let mut next = FrameRead::Frame(first);
+        let end = loop {
+            let frame = self.frames;
+            let result = match next {
+                FrameRead::End => break LoopEnd::Done,
+                FrameRead::Frame(image) => self.track_one(runner, frame, &image),
+                FrameRead::Unreadable(e) => self.skip_one(frame, e),
+            };
+            if let Err(e) = result {
+                break LoopEnd::Failed(e.context(format!("frame {frame}")));
+            }
+            self.frames += 1;
+            bar.inc(1);
+            if run_output::stop_requested() {
+                break LoopEnd::Interrupted;
+            }
+            if self.frames >= limit {
+                break LoopEnd::Done;
+            }
+            next = match source.read_next() {
+                Ok(read) => read,
+                Err(e) => break LoopEnd::Failed(e.context(format!("frame {}", self.frames))),
+            };
+        };
+        bar.finish_and_clear();
+        end
+    }
+
+    fn track_one(
+        &mut self,
+        runner: &mut Runner,
+        frame: usize,
+        image: &GrayImage,
+    ) -> anyhow::Result<()> {
         let step_started = Instant::now();
-        let estimates = runner
-            .step(&image)
-            .with_context(|| format!("frame {frame}"))?;
-        record.tracking_time += step_started.elapsed().as_secs_f64();
-        if let Some(dir) = &args.save_particles {
-            save_particles(dir, frame, runner.tracker(), &estimates)
-                .with_context(|| format!("frame {frame}: --save-particles"))?;
+        let estimates = runner.step(image)?;
+        self.record.tracking_time += step_started.elapsed().as_secs_f64();
+        if let Some(dir) = &self.args.save_particles {
+            save_particles(dir, frame, runner.tracker(), &estimates).context("--save-particles")?;
         }
-        record.add(frame, &estimates, truth.as_ref().and_then(|t| t.get(frame)));
-        if let Some(out) = annotated.as_mut() {
-            let drawn = overlay(&image, &runner.tracker().templates(), &estimates);
-            out.write(frame, &drawn)
-                .with_context(|| format!("frame {frame}"))?;
+        let truth = self.truth.as_ref().and_then(|t| t.get(frame));
+        self.record.add(frame, &estimates, "", truth)?;
+        if let Some(out) = self.annotated.as_mut() {
+            let drawn = overlay(image, &runner.tracker().templates(), &estimates);
+            out.write(frame, &drawn)?;
+            self.last_drawn = Some(drawn);
         }
-        bar.inc(1);
-        frame += 1;
-        if frame < limit {
-            next = source
-                .next_frame()
-                .with_context(|| format!("frame {frame}"))?;
-        }
+        self.last_estimates = estimates;
+        Ok(())
     }
-    bar.finish_and_clear();
-    if let Some(out) = annotated {
-        out.finish()?;
+
+    /// A frame that cannot be read: an error with --strict; else a warning, and every track
+    /// coasts through it (rows with status `skipped` holding its last estimate).
+    fn skip_one(&mut self, frame: usize, error: anyhow::Error) -> anyhow::Result<()> {
+        if self.args.strict {
+            return Err(error.context("unreadable frame (--strict)"));
+        }
+        self.skipped.record(frame, &error)?;
+        let coasting: Vec<FaceEstimate> = (self.last_estimates.iter())
+            .filter(|e| e.status == TrackStatus::Tracking)
+            .cloned()
+            .collect();
+        self.record.add(frame, &coasting, "skipped", None)?;
+        if let (Some(out), Some(drawn)) = (self.annotated.as_mut(), &self.last_drawn) {
+            out.write(frame, drawn)?;
+        }
+        Ok(())
     }
-    record.finish(args, &runner, frame, started.elapsed().as_secs_f64())
+
+    /// Closes the files (the overlay video is finalised), prints the summary, and says how the
+    /// run ended: interrupted, failed, or a video shorter than announced (unless --allow-short).
+    fn finish(
+        mut self,
+        runner: &Runner,
+        source: &Source,
+        elapsed: f64,
+        end: LoopEnd,
+    ) -> anyhow::Result<()> {
+        let closed = self.annotated.take().map_or(Ok(()), Annotated::finish);
+        self.record
+            .summary(self.args, runner, self.frames, elapsed, &self.skipped);
+        match end {
+            LoopEnd::Failed(e) => {
+                return Err(e.context(format!(
+                    "stopped; the {} frames before it were written to {}",
+                    self.frames,
+                    self.args.out.display()
+                )));
+            }
+            LoopEnd::Interrupted => {
+                closed?;
+                return Err(Interrupted {
+                    frames: self.frames,
+                    out: self.args.out.clone(),
+                }
+                .into());
+            }
+            LoopEnd::Done => closed?,
+        }
+        if let Some(short) = source
+            .short_end()
+            .filter(|_| self.frames < self.args.max_frames.map_or(usize::MAX, |n| n as usize))
+        {
+            if self.args.allow_short {
+                eprintln!("warning: {short}");
+            } else {
+                bail!(
+                    "{short}; the {} frames decoded were tracked and written (--allow-short accepts a short video)",
+                    self.frames
+                );
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The tracker for `args` on the backend it asks for: the automatic tracker with the detector
@@ -622,11 +769,11 @@ fn announce(
     );
 }
 
-/// What a run has tracked: the rows of states.csv and errors.csv, the error sums and the time
-/// spent in the tracker.
+/// What a run has tracked: states.csv and (with ground truth) errors.csv, written as each frame
+/// is finished, the error sums and the time spent in the tracker.
 struct TrackRecord {
-    states: String,
-    errors: String,
+    states: CsvStream,
+    errors: Option<CsvStream>,
     translation: f64,
     rotation: f64,
     measured: usize,
@@ -635,63 +782,77 @@ struct TrackRecord {
 }
 
 impl TrackRecord {
-    fn new() -> Self {
-        let mut states = String::from("frame,track,status");
-        for n in STATE_NAMES {
-            states.push(',');
-            states.push_str(n);
-        }
-        states.push_str(",error\n");
-        Self {
-            states,
-            errors: String::from("frame,face,translation_px,rotation_deg\n"),
+    fn create(out: &Path, with_truth: bool) -> anyhow::Result<Self> {
+        let header = format!("frame,track,status,{},error", STATE_NAMES.join(","));
+        let errors = with_truth
+            .then(|| {
+                CsvStream::create(
+                    &out.join(ERRORS_FILE),
+                    "frame,face,translation_px,rotation_deg",
+                )
+            })
+            .transpose()?;
+        Ok(Self {
+            states: CsvStream::create(&out.join(STATES_FILE), &header)?,
+            errors,
             translation: 0.0,
             rotation: 0.0,
             measured: 0,
             tracks_seen: std::collections::BTreeSet::new(),
             tracking_time: 0.0,
-        }
+        })
     }
 
-    /// One frame's estimates, and their errors where the ground truth (`truth[track]`) is known.
-    fn add(&mut self, frame: usize, estimates: &[FaceEstimate], truth: Option<&Vec<[f32; DIMS]>>) {
+    /// One frame's rows (status `status` when given, else each estimate's own), their errors
+    /// where the ground truth (`truth[track]`) is known; flushed to the files.
+    fn add(
+        &mut self,
+        frame: usize,
+        estimates: &[FaceEstimate],
+        status: &str,
+        truth: Option<&Vec<[f32; DIMS]>>,
+    ) -> anyhow::Result<()> {
         for e in estimates {
             self.tracks_seen.insert(e.track);
             let status = match e.status {
+                _ if !status.is_empty() => status.to_string(),
                 TrackStatus::Tracking => "tracking".to_string(),
                 TrackStatus::Lost { frame } => format!("lost@{frame}"),
             };
-            self.states
-                .push_str(&format!("{frame},{},{status}", e.track));
-            for v in e.state {
-                self.states.push_str(&format!(",{v}"));
-            }
-            self.states.push_str(&format!(",{}\n", e.error));
+            let values: Vec<String> = e.state.iter().map(|v| v.to_string()).collect();
+            self.states.row(&format!(
+                "{frame},{},{status},{},{}",
+                e.track,
+                values.join(","),
+                e.error
+            ))?;
             let known = truth.and_then(|f| f.get(e.track));
-            if let (Some(t), TrackStatus::Tracking) = (known, e.status)
+            if let (Some(t), TrackStatus::Tracking, Some(errors)) =
+                (known, e.status, self.errors.as_mut())
                 && t.iter().all(|v| v.is_finite())
             {
                 let (te, re) = pose_errors(&e.state, t);
-                self.errors
-                    .push_str(&format!("{frame},{},{te},{re}\n", e.track));
+                errors.row(&format!("{frame},{},{te},{re}", e.track))?;
                 self.translation += f64::from(te);
                 self.rotation += f64::from(re);
                 self.measured += 1;
             }
         }
+        self.states.end_frame()?;
+        self.errors.as_mut().map_or(Ok(()), CsvStream::end_frame)
     }
 
-    /// Writes the CSVs and prints the summary.
-    fn finish(
-        self,
+    /// Prints the summary of what was tracked and written.
+    fn summary(
+        &self,
         args: &TrackArgs,
         runner: &Runner,
         frames: usize,
         elapsed: f64,
-    ) -> anyhow::Result<()> {
-        write_text(&args.out.join("states.csv"), &self.states)?;
+        skipped: &SkipLog,
+    ) {
         println!(
-            "tracked {} faces through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}",
+            "tracked {} faces through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}{}",
             self.tracks_seen.len(),
             frames as f64 / self.tracking_time.max(1e-9),
             frames as f64 / elapsed.max(1e-9),
@@ -699,7 +860,8 @@ impl TrackRecord {
                 " and drawing"
             } else {
                 ""
-            }
+            },
+            skipped.note(),
         );
         let (personalised, missed) = runner.tracker().personalisation_counts();
         if personalised + missed > 0 {
@@ -715,7 +877,6 @@ impl TrackRecord {
         }
         let measured = self.measured;
         if measured > 0 {
-            write_text(&args.out.join("errors.csv"), &self.errors)?;
             println!(
                 "mean translation error: {:.2} px, mean rotation error: {:.2} deg ({measured} face-frames)",
                 self.translation / measured as f64,
@@ -724,14 +885,17 @@ impl TrackRecord {
         }
         println!(
             "wrote states.csv{} to {}{}",
-            if measured > 0 { ", errors.csv" } else { "" },
+            if self.errors.is_some() {
+                ", errors.csv"
+            } else {
+                ""
+            },
             args.out.display(),
             args.overlay.as_deref().map_or(String::new(), |p| format!(
                 ", the annotated frames to {}",
                 p.display()
             ))
         );
-        Ok(())
     }
 }
 

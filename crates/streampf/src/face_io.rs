@@ -81,15 +81,28 @@ impl Source {
         }
     }
 
-    /// The next frame, `None` after the last.
+    /// The next frame, `None` after the last; an image file that cannot be read is an error.
     pub fn next_frame(&mut self) -> anyhow::Result<Option<GrayImage>> {
+        match self.read_next()? {
+            FrameRead::Frame(image) => Ok(Some(image)),
+            FrameRead::Unreadable(e) => Err(e),
+            FrameRead::End => Ok(None),
+        }
+    }
+
+    /// The next frame, telling a frame that cannot be read (an image file that is truncated or
+    /// not an image: the run may skip it) from a source that cannot go on (an error).
+    pub fn read_next(&mut self) -> anyhow::Result<FrameRead> {
         match self {
             Source::Images { files, next } => {
                 let Some(path) = files.get(*next) else {
-                    return Ok(None);
+                    return Ok(FrameRead::End);
                 };
                 *next += 1;
-                Ok(Some(GrayImage::load(path)?))
+                Ok(match GrayImage::load(path) {
+                    Ok(image) => FrameRead::Frame(image),
+                    Err(e) => FrameRead::Unreadable(e.into()),
+                })
             }
             Source::Synthetic {
                 config,
@@ -97,14 +110,33 @@ impl Source {
                 next,
             } => {
                 if *next >= config.frames {
-                    return Ok(None);
+                    return Ok(FrameRead::End);
                 }
                 *next += 1;
-                Ok(Some(render_frame(config, model, *next - 1)?))
+                Ok(FrameRead::Frame(render_frame(config, model, *next - 1)?))
             }
-            Source::Video(reader) => reader.next_frame(),
+            Source::Video(reader) => Ok(match reader.next_frame()? {
+                Some(image) => FrameRead::Frame(image),
+                None => FrameRead::End,
+            }),
         }
     }
+
+    /// After the last frame: how a video fell short of the length its container announced.
+    pub fn short_end(&self) -> Option<&crate::video::ShortEnd> {
+        match self {
+            Source::Video(reader) => reader.short_end(),
+            _ => None,
+        }
+    }
+}
+
+/// One read of a [`Source`].
+pub enum FrameRead {
+    Frame(GrayImage),
+    /// This frame cannot be read; the next may be.
+    Unreadable(anyhow::Error),
+    End,
 }
 
 /// Colours of the tracks in overlays (by track number).
@@ -189,6 +221,20 @@ pub enum Annotated {
 }
 
 impl Annotated {
+    /// Checks that `path` names something an overlay can be written as (a video container we
+    /// encode, or a directory), before the run creates or writes anything.
+    pub fn check_path(path: &Path) -> anyhow::Result<()> {
+        if is_video_path(path) {
+            crate::video::encoder_args(path)?;
+        } else if path.extension().is_some() && !path.is_dir() {
+            bail!(
+                "{}: give a directory for PNG frames or a .mp4, .mkv, .avi or .webm file",
+                path.display()
+            );
+        }
+        Ok(())
+    }
+
     pub fn create(path: &Path, width: u32, height: u32, fps: f64) -> anyhow::Result<Self> {
         if is_video_path(path) {
             if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {

@@ -6,6 +6,7 @@ mod devices;
 mod face;
 mod face_io;
 mod gpu;
+mod run_output;
 mod video;
 
 use clap::{Parser, Subcommand};
@@ -44,12 +45,35 @@ enum Command {
     },
 }
 
-fn main() -> anyhow::Result<()> {
+fn main() -> std::process::ExitCode {
+    quiet_mesa_device_selection();
     let cli = Cli::parse();
-    match cli.command {
+    let result = match cli.command {
         Command::Devices => devices::run(),
         Command::Demo(args) => demo::run(&args),
         Command::Body { command } => body::run(&command),
         Command::Face { command } => face::run(&command),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            if let Some(interrupted) = e.downcast_ref::<run_output::Interrupted>() {
+                eprintln!("{interrupted}");
+                return std::process::ExitCode::from(run_output::INTERRUPTED_EXIT as u8);
+            }
+            eprintln!("Error: {e:?}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+/// Mesa's Vulkan device-selection layer prints "XDG_RUNTIME_DIR is invalid or not set" on a
+/// headless machine before any output of ours, and selects nothing wgpu does not choose itself:
+/// keep it off unless the user set it.
+fn quiet_mesa_device_selection() {
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: the first thing main does, before any thread exists that could read the
+        // environment.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }

@@ -68,6 +68,10 @@ pub fn parse_probe(text: &str) -> anyhow::Result<VideoInfo> {
 }
 
 fn spawn(command: &mut Command, what: &str) -> anyhow::Result<Child> {
+    // Its own process group: a terminal's Ctrl-C reaches only us, and we finish the frame and
+    // close the encoder properly instead of finding FFmpeg already killed.
+    #[cfg(unix)]
+    std::os::unix::process::CommandExt::process_group(command, 0);
     command.spawn().map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
             anyhow::anyhow!("{what}: FFmpeg is not installed ({e}); {INSTALL}")
@@ -130,6 +134,41 @@ pub struct VideoReader {
     stdout: ChildStdout,
     stderr: Option<std::thread::JoinHandle<String>>,
     decoded: usize,
+    short: Option<ShortEnd>,
+}
+
+/// A video that ended before the length its container announced.
+#[derive(Debug, Clone)]
+pub struct ShortEnd {
+    pub decoded: usize,
+    pub expected: usize,
+    /// What FFmpeg said (may be empty).
+    pub message: String,
+}
+
+impl std::fmt::Display for ShortEnd {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "the video ended after {} of the {} frames its container announces",
+            self.decoded, self.expected
+        )?;
+        // FFmpeg repeats itself on a damaged file: its last lines say enough.
+        let lines: Vec<&str> = self.message.trim().lines().collect();
+        match lines.len() {
+            0 => write!(f, " (FFmpeg reported no error: is the file truncated?)"),
+            n => write!(
+                f,
+                "; FFmpeg said{}: {}",
+                if n > 4 {
+                    format!(" ({} lines, the last 4)", n)
+                } else {
+                    String::new()
+                },
+                lines[n.saturating_sub(4)..].join("\n")
+            ),
+        }
+    }
 }
 
 impl VideoReader {
@@ -177,6 +216,7 @@ impl VideoReader {
             stdout,
             stderr: Some(stderr),
             decoded: 0,
+            short: None,
         })
     }
 
@@ -223,7 +263,19 @@ impl VideoReader {
         if self.decoded == 0 {
             bail!("{}: FFmpeg decoded no frames", self.name);
         }
+        if let Some(expected) = self.info.frames.filter(|&n| self.decoded < n) {
+            self.short = Some(ShortEnd {
+                decoded: self.decoded,
+                expected,
+                message,
+            });
+        }
         Ok(None)
+    }
+
+    /// After the end: how the stream fell short of its announced length, if it did.
+    pub fn short_end(&self) -> Option<&ShortEnd> {
+        self.short.as_ref()
     }
 }
 
@@ -247,7 +299,7 @@ fn webcam_command(device: &Path, width: u32, height: u32) -> Command {
 }
 
 /// The encoder for an output file's container.
-fn encoder_args(path: &Path) -> anyhow::Result<&'static [&'static str]> {
+pub(crate) fn encoder_args(path: &Path) -> anyhow::Result<&'static [&'static str]> {
     let ext = path
         .extension()
         .and_then(|e| e.to_str())

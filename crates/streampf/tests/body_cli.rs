@@ -123,6 +123,26 @@ fn bad_body_inputs_are_clear_errors() {
         png
     };
     std::fs::write(data.join("depth_00002.png"), eight_bit).unwrap();
+    // Skipped with a warning by default; with --strict the run stops there, keeping frames 0-1.
+    let out = data.join("out");
+    let o = out.to_str().unwrap();
+    let run = streampf(&[
+        "body",
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        o,
+    ]);
+    let text = ok(&run);
+    let warning = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        warning.contains("skipping frame 2") && warning.contains("16-bit single-channel"),
+        "{warning}"
+    );
+    assert!(text.contains("1 unreadable frame skipped (2"), "{text}");
     let err = failure(&streampf(&[
         "body",
         "track",
@@ -130,8 +150,24 @@ fn bad_body_inputs_are_clear_errors() {
         "--backend",
         "cpu",
         "--quiet",
+        "--out",
+        o,
+        "--strict",
     ]));
-    assert!(err.contains("16-bit single-channel"), "{err}");
+    assert!(
+        err.contains("16-bit single-channel") && err.contains("frame 2"),
+        "{err}"
+    );
+    let poses = std::fs::read_to_string(out.join("poses.csv")).unwrap();
+    assert_eq!(
+        poses.lines().count(),
+        3,
+        "a header and frames 0 and 1:\n{poses}"
+    );
+    assert!(
+        !out.join("skipped.csv").exists(),
+        "the old run's skipped.csv was removed"
+    );
     // A starting pose of the wrong width, and bad numbers.
     let pose = data.join("pose.csv");
     std::fs::write(&pose, "frame,a\n0,1\n").unwrap();

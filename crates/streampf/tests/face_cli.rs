@@ -152,18 +152,56 @@ fn bad_face_inputs_are_clear_errors() {
         "cpu",
     ]));
     assert!(err.contains("x,y,width,height"), "{err}");
+    // A frame that is not an image: skipped with a warning (its track coasts), or with
+    // --strict the end of the run, after the frames before it were written.
     std::fs::write(data.join("frame_00003.png"), "not a png").unwrap();
-    let err = failure(&streampf(&[
-        "face",
-        "track",
-        d,
+    let out = data.join("out");
+    let o = out.to_str().unwrap();
+    let face = [
         "--face",
         "100,80,90,110",
         "--backend",
         "cpu",
         "--quiet",
-    ]));
-    assert!(err.contains("frame_00003.png"), "{err}");
+        "--out",
+        o,
+    ];
+    let run = streampf(&[&["face", "track", d][..], &face].concat());
+    let text = ok(&run);
+    assert!(text.contains("1 unreadable frame skipped (3"), "{text}");
+    let warning = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        warning.contains("skipping frame 3") && warning.contains("frame_00003.png"),
+        "{warning}"
+    );
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    assert!(
+        states.lines().any(|l| l.starts_with("3,0,skipped,")),
+        "{states}"
+    );
+    let skipped = std::fs::read_to_string(out.join("skipped.csv")).unwrap();
+    assert!(
+        skipped.lines().nth(1).is_some_and(|l| l.starts_with("3,")),
+        "{skipped}"
+    );
+    let err = failure(&streampf(
+        &[&["face", "track", d, "--strict"][..], &face].concat(),
+    ));
+    assert!(
+        err.contains("frame_00003.png") && err.contains("--strict"),
+        "{err}"
+    );
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    let frames: Vec<&str> = states
+        .lines()
+        .skip(1)
+        .map(|l| &l[..l.find(',').unwrap()])
+        .collect();
+    assert_eq!(
+        frames,
+        ["0", "1", "2"],
+        "the rows of the frames before the bad one"
+    );
     // An odd-sized frame in the middle of a video.
     image::GrayImage::new(100, 100)
         .save(data.join("frame_00003.png"))
