@@ -1,0 +1,286 @@
+//! Long runs lose nothing: a face run and a body run interrupted part-way (SIGINT from the test)
+//! keep whole rows of every finished frame and a finalised overlay video; a video cut short says
+//! so with a non-zero exit (or a warning with --allow-short). Needs FFmpeg (`cargo xtask
+//! fetch-media` installs it) unless STREAMPF_NO_MEDIA=1 opts out of the video checks.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{failure, ok, scratch, streampf};
+
+const INTERRUPTED_EXIT: i32 = 130;
+
+fn spawn(args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_streampf"))
+        .args(args)
+        .env("NODEVICE_SELECT", "1")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("the streampf binary runs")
+}
+
+/// Waits until `file` has more than `rows` lines, then sends SIGINT; returns the run's output.
+fn interrupt_after_rows(mut child: Child, file: &Path, rows: usize) -> std::process::Output {
+    let started = Instant::now();
+    loop {
+        let lines = std::fs::read_to_string(file).map_or(0, |t| t.lines().count());
+        if lines > rows {
+            break;
+        }
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!("the run ended ({status}) before it was interrupted");
+        }
+        assert!(
+            started.elapsed() < Duration::from_secs(120),
+            "no rows after 120 s"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let sent = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    child.wait_with_output().unwrap()
+}
+
+/// The frame column of a CSV's rows, checking that every row is whole (`columns` fields, each a
+/// number or a status word) and that the file ends with a newline.
+fn frames_of(path: &Path, columns: usize) -> Vec<usize> {
+    let text = std::fs::read_to_string(path).unwrap();
+    assert!(text.ends_with('\n'), "{} ends inside a row", path.display());
+    text.lines()
+        .skip(1)
+        .map(|line| {
+            let fields: Vec<&str> = line.split(',').collect();
+            assert_eq!(fields.len(), columns, "{}: {line}", path.display());
+            for f in &fields[3..] {
+                assert!(f.parse::<f64>().is_ok(), "{}: {line}", path.display());
+            }
+            fields[0].parse().unwrap()
+        })
+        .collect()
+}
+
+fn media_opted_out() -> bool {
+    std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1")
+}
+
+#[test]
+fn an_interrupted_face_run_keeps_every_finished_frame_and_a_finalised_video() {
+    let dir = scratch("face-interrupt");
+    let out = dir.join("out");
+    let video = dir.join("overlay.mp4");
+    let with_video = !media_opted_out();
+    let mut args = vec![
+        "face",
+        "track",
+        "--synthetic",
+        "--frames",
+        "100000",
+        "--faces",
+        "1",
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    if with_video {
+        args.extend(["--overlay", video.to_str().unwrap()]);
+    }
+    let run = interrupt_after_rows(spawn(&args), &out.join("states.csv"), 20);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(INTERRUPTED_EXIT), "{stderr}");
+    assert!(stderr.contains("interrupted after"), "{stderr}");
+    let said: usize = stderr
+        .split("interrupted after ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{stderr}"));
+    // One face: one row a frame, frames 0.. in order, as many as the run said it wrote.
+    let frames = frames_of(&out.join("states.csv"), 11);
+    assert_eq!(frames, (0..said).collect::<Vec<_>>());
+    assert_eq!(frames_of(&out.join("errors.csv"), 4).len(), said);
+    if with_video {
+        let probe = Command::new("ffprobe")
+            .args(["-v", "error", "-count_frames", "-select_streams", "v:0"])
+            .args(["-show_entries", "stream=nb_read_frames", "-of", "csv=p=0"])
+            .arg(&video)
+            .output()
+            .expect("ffprobe runs (cargo xtask fetch-media installs FFmpeg)");
+        let decoded = String::from_utf8_lossy(&probe.stdout);
+        assert_eq!(
+            decoded.trim().parse::<usize>().ok(),
+            Some(said),
+            "{decoded}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_interrupted_body_run_keeps_every_finished_frame() {
+    let dir = scratch("body-interrupt");
+    let out = dir.join("out");
+    let args = [
+        "body",
+        "track",
+        "--synthetic",
+        "--frames",
+        "100000",
+        "--particles",
+        "100",
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let run = interrupt_after_rows(spawn(&args), &out.join("poses.csv"), 5);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(INTERRUPTED_EXIT), "{stderr}");
+    let poses = std::fs::read_to_string(out.join("poses.csv")).unwrap();
+    let columns = poses.lines().next().unwrap().split(',').count();
+    let frames = frames_of(&out.join("poses.csv"), columns);
+    assert!(frames.len() >= 5 && frames.len() < 100000);
+    assert_eq!(frames, (0..frames.len()).collect::<Vec<_>>());
+    let joints = std::fs::read_to_string(out.join("joints.csv")).unwrap();
+    let joint_columns = joints.lines().next().unwrap().split(',').count();
+    assert_eq!(frames_of(&out.join("joints.csv"), joint_columns), frames);
+    assert!(
+        stderr.contains(&format!("interrupted after {} frames", frames.len())),
+        "{stderr}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_video_cut_short_is_a_warning_and_a_non_zero_exit() {
+    if media_opted_out() {
+        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+        return;
+    }
+    let dir = scratch("short-video");
+    let frames = dir.join("frames");
+    ok(&streampf(&[
+        "face",
+        "synth",
+        "--out",
+        frames.to_str().unwrap(),
+        "--frames",
+        "60",
+        "--faces",
+        "1",
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ]));
+    // An mp4 with its index first (as streaming sites serve them), then only its first half.
+    let full = dir.join("full.mp4");
+    let encoded = Command::new("ffmpeg")
+        .args(["-nostdin", "-v", "error", "-y", "-framerate", "25", "-i"])
+        .arg(frames.join("frame_%05d.png"))
+        .args([
+            "-c:v",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            "-movflags",
+            "+faststart",
+        ])
+        .arg(&full)
+        .status()
+        .expect("ffmpeg runs (cargo xtask fetch-media installs FFmpeg)");
+    assert!(encoded.success());
+    let bytes = std::fs::read(&full).unwrap();
+    let half = dir.join("half.mp4");
+    std::fs::write(&half, &bytes[..bytes.len() / 2]).unwrap();
+    let out = dir.join("out");
+    let args = [
+        "face",
+        "track",
+        half.to_str().unwrap(),
+        "--face",
+        "100,60,120,120",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    let err = failure(&streampf(&args));
+    assert!(
+        err.contains("of the 60 frames its container announces"),
+        "{err}"
+    );
+    assert!(err.contains("--allow-short"), "{err}");
+    let decoded: usize = err
+        .split("ended after ")
+        .nth(1)
+        .and_then(|t| t.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("{err}"));
+    assert!((1..60).contains(&decoded), "{err}");
+    assert_eq!(frames_of(&out.join("states.csv"), 11).len(), decoded);
+    let run = streampf(&[&args[..], &["--allow-short"]].concat());
+    ok(&run);
+    let warning = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        warning.contains("warning: the video ended after"),
+        "{warning}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_headless_run_prints_no_mesa_noise() {
+    // As a user runs it: no NODEVICE_SELECT, no XDG_RUNTIME_DIR; the GPU path opens Mesa's
+    // Vulkan driver (lavapipe here), whose device-selection layer would complain.
+    let dir = scratch("quiet-mesa");
+    let run = Command::new(env!("CARGO_BIN_EXE_streampf"))
+        .args([
+            "face",
+            "track",
+            "--synthetic",
+            "--frames",
+            "3",
+            "--faces",
+            "1",
+            "--width",
+            "320",
+        ])
+        .args([
+            "--height",
+            "240",
+            "--backend",
+            "gpu",
+            "--allow-software",
+            "--quiet",
+            "--out",
+        ])
+        .arg(dir.join("out"))
+        .env_remove("NODEVICE_SELECT")
+        .env_remove("XDG_RUNTIME_DIR")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    assert!(!stderr.contains("XDG_RUNTIME_DIR"), "{stderr}");
+    assert!(stderr.trim().is_empty(), "nothing on stderr: {stderr}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
