@@ -118,9 +118,31 @@ impl SequenceDir {
         if !path.exists() {
             return Ok(None);
         }
-        let rows = read_numeric_csv(&path, skeleton.dofs() + 1)?;
-        Ok(Some(rows.into_iter().map(|r| r[1..].to_vec()).collect()))
+        let rows = read_pose_csv(&path, skeleton.dofs())?;
+        Ok(Some(rows))
     }
+}
+
+/// The largest magnitude a pose value may have: metres for the root's position, radians for
+/// every angle. A value beyond it is a unit mistake or a corrupt file, not a pose.
+pub const MAX_POSE_MAGNITUDE: f32 = 1000.0;
+
+/// Reads pose rows (`frame` then `dofs` values, a header line first), refusing values beyond
+/// [`MAX_POSE_MAGNITUDE`] with the line they are on.
+pub fn read_pose_csv(path: &Path, dofs: usize) -> Result<Vec<Vec<f32>>, BodyError> {
+    let rows = read_numeric_csv(path, dofs + 1)?;
+    for (n, row) in rows.iter().enumerate() {
+        if let Some(v) = row[1..].iter().find(|v| v.abs() > MAX_POSE_MAGNITUDE) {
+            return Err(file_error(
+                path,
+                format!(
+                    "row {}: pose value {v:e} is beyond ±{MAX_POSE_MAGNITUDE} (metres for the root's position, radians for angles)",
+                    n + 1
+                ),
+            ));
+        }
+    }
+    Ok(rows.into_iter().map(|r| r[1..].to_vec()).collect())
 }
 
 /// Reads a CSV with a header line and `columns` numbers per row.

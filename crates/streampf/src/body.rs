@@ -11,7 +11,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use body_tracker::human::{BASE_CAPSULES, MAX_CAPSULES, human_skeleton, standing_pose};
 use body_tracker::sequence::{
-    FrameFormat, SequenceDir, joint_columns, joint_row, read_numeric_csv, write_synthetic,
+    FrameFormat, SequenceDir, joint_columns, joint_row, read_pose_csv, write_synthetic,
 };
 use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_error};
@@ -65,7 +65,10 @@ pub struct SequenceArgs {
 impl SequenceArgs {
     fn config(&self) -> anyhow::Result<SynthConfig> {
         if !(self.fov.is_finite() && self.fov > 1.0 && self.fov < 179.0) {
-            bail!("--fov must be between 1 and 179 degrees, got {}", self.fov);
+            bail!(
+                "--fov must be more than 1 and less than 179 degrees, got {}",
+                self.fov
+            );
         }
         let config = SynthConfig {
             frames: self.frames as usize,
@@ -299,9 +302,9 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let frames = source.frames();
     let first_points = source.points(&skeleton, 0)?;
     let start = match (&args.init_pose, &truth) {
-        (Some(path), _) => read_numeric_csv(path, skeleton.dofs() + 1)?
-            .first()
-            .map(|row| row[1..].to_vec())
+        (Some(path), _) => read_pose_csv(path, skeleton.dofs())?
+            .into_iter()
+            .next()
             .with_context(|| format!("{} has no pose row", path.display()))?,
         (None, Some(truth)) => truth[0].clone(),
         (None, None) => pose_from_points(&skeleton, &first_points)?,

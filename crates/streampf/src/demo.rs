@@ -251,7 +251,19 @@ fn observe(k: u32, t: u32, noise: &mut RandomStream, space: &StateSpace<7>) -> P
     z
 }
 
+/// The most particles a demo holds in all (about 8 GB of host memory at ~80 bytes each): a
+/// larger run is refused before it allocates rather than aborted by the allocator.
+const MAX_TOTAL_PARTICLES: u64 = 100_000_000;
+
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
+    let total = u64::from(args.targets) * u64::from(args.particles);
+    if total > MAX_TOTAL_PARTICLES {
+        bail!(
+            "--targets {} x --particles {} is {total} particles in all; the demo holds at most {MAX_TOTAL_PARTICLES} (about 80 bytes each): fewer targets or particles",
+            args.targets,
+            args.particles
+        );
+    }
     let policy = match args.ess_threshold {
         None => ResamplePolicy::EveryStep,
         Some(f) if f > 0.0 && f <= 1.0 => ResamplePolicy::EssBelow(f),

@@ -62,6 +62,10 @@ pub struct VideoArgs {
 
 impl VideoArgs {
     fn config(&self) -> anyhow::Result<FaceSynthConfig> {
+        // Checked here in the option's own unit (the config holds radians).
+        if !(self.max_yaw.is_finite() && self.max_yaw.abs() <= 90.0) {
+            bail!("--max-yaw must be within ±90 degrees, got {}", self.max_yaw);
+        }
         let config = FaceSynthConfig {
             width: self.width,
             height: self.height,
@@ -127,9 +131,10 @@ pub struct TrackArgs {
     /// The smallest face the detector looks for, in pixels.
     #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub min_face: u32,
-    /// Faces tracked at once.
-    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=256))]
-    pub max_faces: u32,
+    /// Faces tracked at once (default 8 with the detector; rectangles given with --face or
+    /// faces.csv may not exceed it when it is given).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]
+    pub max_faces: Option<u32>,
     /// Stop after this many frames.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub max_frames: Option<u64>,
@@ -205,6 +210,8 @@ pub fn run(command: &FaceCommand) -> anyhow::Result<()> {
 }
 
 const RECTS_FILE: &str = "faces.csv";
+/// Faces tracked at once with the detector unless --max-faces says otherwise.
+const DEFAULT_MAX_FACES: u32 = 8;
 /// Debian's opencv-data puts OpenCV's cascades here.
 const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
 const TRUTH_FILE: &str = "ground_truth.csv";
@@ -224,6 +231,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     let model = model()?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    remove_old_frames(&args.out)?;
     let bar = crate::body::progress_bar(config.frames, false);
     let mut truth = String::from("frame,face");
     for n in STATE_NAMES {
@@ -263,6 +271,30 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// Removes the frames an earlier `face synth` left in `dir` (frame_NNNNN.png), so that the new
+/// video is not mixed with the tail of a longer old one; says how many when there were some.
+fn remove_old_frames(dir: &Path) -> anyhow::Result<()> {
+    let mut removed = 0;
+    for entry in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
+        let path = entry
+            .with_context(|| format!("reading {}", dir.display()))?
+            .path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        if name.starts_with("frame_") && name.ends_with(".png") {
+            std::fs::remove_file(&path)
+                .with_context(|| format!("removing the old frame {}", path.display()))?;
+            removed += 1;
+        }
+    }
+    if removed > 0 {
+        eprintln!(
+            "note: removed {removed} frames of an earlier video from {}",
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// Parses `x,y,width,height`.
 fn parse_rect(text: &str, origin: &str) -> anyhow::Result<FaceRect> {
     let values: Vec<f32> = text
@@ -284,12 +316,18 @@ fn parse_rect(text: &str, origin: &str) -> anyhow::Result<FaceRect> {
     })
 }
 
+/// faces.csv: `x,y,width,height` per face, with or without a header line (a first line that
+/// is four numbers is a rectangle, not a header).
 fn read_rects(path: &Path) -> anyhow::Result<Vec<FaceRect>> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("reading the face rectangles {}", path.display()))?;
+    let has_header = text
+        .lines()
+        .next()
+        .is_some_and(|first| parse_rect(first, "").is_err());
     text.lines()
         .enumerate()
-        .skip(1)
+        .skip(usize::from(has_header))
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(n, l)| parse_rect(l, &format!("{} line {}", path.display(), n + 1)))
         .collect()
@@ -479,6 +517,14 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.overlay {
         Annotated::check_path(path)?;
+    }
+    if let Some(max) = args.max_faces
+        && rects.len() > max as usize
+    {
+        bail!(
+            "{} face rectangles were given but --max-faces is {max}: give fewer rectangles or a larger --max-faces",
+            rects.len()
+        );
     }
     let detect = rects.is_empty() || args.detect;
     // Errors against the ground truth need track k to be face k: tracks from rectangles only.
@@ -717,7 +763,7 @@ fn build_runner(
                     min_size: args.min_face,
                     ..DetectConfig::default()
                 },
-                max_faces: (args.max_faces as usize).max(rects.len()),
+                max_faces: (args.max_faces.unwrap_or(DEFAULT_MAX_FACES) as usize).max(rects.len()),
                 // A file plays as if live: the detector's answer is used before the next one is
                 // due (a camera never waits for it).
                 max_detection_lag: args.webcam.is_none().then_some(1),
