@@ -225,9 +225,16 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Vec<Vector3<f32>>, BodyError> {
 
 /// Reads a PLY point cloud.
 pub fn read_ply(path: &Path) -> Result<Vec<Vector3<f32>>, BodyError> {
-    let bytes = std::fs::read(path)
-        .map_err(|e| BodyError::InvalidInput(format!("reading {}: {e}", path.display())))?;
-    parse_ply(&bytes).map_err(|e| BodyError::InvalidInput(format!("{}: {e}", path.display())))
+    let file_error = |message: String| BodyError::File {
+        path: path.display().to_string(),
+        message,
+    };
+    let bytes = std::fs::read(path).map_err(|e| file_error(e.to_string()))?;
+    // The parser's message already says "PLY: ..."; the file's name leads it once.
+    parse_ply(&bytes).map_err(|e| match e {
+        BodyError::InvalidInput(message) => file_error(message),
+        other => file_error(other.to_string()),
+    })
 }
 
 /// Writes points as a binary little-endian PLY (x, y, z as float).

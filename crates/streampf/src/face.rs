@@ -48,9 +48,11 @@ pub struct VideoArgs {
     /// Faces in the video (1 to 16; the paper's Fig. 1 has four).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub faces: u32,
-    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(64..=8192))]
+    /// Frame width in pixels (at least 160: the heads scale with the frame and need 8 px of half-width).
+    #[arg(long, default_value_t = 1024, value_parser = clap::value_parser!(u32).range(160..=8192))]
     pub width: u32,
-    #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u32).range(64..=8192))]
+    /// Frame height in pixels (at least 120).
+    #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u32).range(120..=8192))]
     pub height: u32,
     /// Largest yaw of the heads, in degrees (at most 90).
     #[arg(long, default_value_t = 60.0)]

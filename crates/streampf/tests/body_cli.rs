@@ -108,7 +108,15 @@ fn bad_body_inputs_are_clear_errors() {
     )
     .unwrap();
     let err = failure(&streampf(&["body", "track", d, "--backend", "cpu"]));
-    assert!(err.contains("frame_0.ply"), "{err}");
+    assert!(
+        err.contains("frame_0.ply") && !err.contains("invalid input"),
+        "{err}"
+    );
+    assert_eq!(
+        err.matches("frame_0.ply").count(),
+        1,
+        "the file named once: {err}"
+    );
     std::fs::remove_file(data.join("frame_0.ply")).unwrap();
     // An 8-bit PNG where a 16-bit depth image belongs.
     let mut args = vec!["body", "synth", "--out", d, "--format", "depth-png"];

@@ -119,10 +119,20 @@ impl<'a> Reader<'a> {
         let cols = self.signed(what)?;
         // The new layout writes negated sizes; dlib still reads the old (positive) one.
         let (rows, cols) = (rows.unsigned_abs(), cols.unsigned_abs());
-        if cols != 1 || rows > self.remaining() as u64 {
+        if cols != 1 {
             return Err(FormatError {
                 offset: start,
                 message: format!("{what}: expected a column vector, found a {rows}x{cols} matrix"),
+            });
+        }
+        // Every float takes at least one byte: more rows than bytes left is a cut file.
+        if rows > self.remaining() as u64 {
+            return Err(FormatError {
+                offset: start,
+                message: format!(
+                    "{what}: a column of {rows} values, but only {} bytes are left (is the file truncated?)",
+                    self.remaining()
+                ),
             });
         }
         (0..rows).map(|_| self.float(what)).collect()
@@ -195,5 +205,20 @@ mod tests {
         assert!(e.message.contains("more than this file can hold"), "{e}");
         let e = Reader::new(&pack(-4)).unsigned("an index").unwrap_err();
         assert!(e.message.contains("negative"), "{e}");
+        // A column of 136 values cut after two of them: truncated, not "not a column".
+        let mut cut = pack(-136);
+        cut.extend(pack(-1));
+        cut.extend([pack(3), pack(0)].concat().repeat(2));
+        let e = Reader::new(&cut)
+            .float_column("the mean shape")
+            .unwrap_err();
+        assert!(
+            e.message.contains("136 values") && e.message.contains("truncated"),
+            "{e}"
+        );
+        let mut wide = pack(-2);
+        wide.extend(pack(-3));
+        let e = Reader::new(&wide).float_column("a column").unwrap_err();
+        assert!(e.message.contains("found a 2x3 matrix"), "{e}");
     }
 }
