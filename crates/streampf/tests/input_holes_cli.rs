@@ -75,6 +75,22 @@ fn face_inputs_are_taken_as_stated() {
         err.contains("2 face rectangles") && err.contains("--max-faces is 1"),
         "{err}"
     );
+    // The smallest frame the options allow renders, with every face.
+    let tiny = dir.join("tiny");
+    ok(&streampf(&[
+        "face",
+        "synth",
+        "--out",
+        tiny.to_str().unwrap(),
+        "--width",
+        "160",
+        "--height",
+        "120",
+        "--faces",
+        "16",
+        "--frames",
+        "1",
+    ]));
     // Options checked in their own units, and before anything is created.
     let err = failure(&streampf(&[
         "face",
