@@ -222,6 +222,11 @@ impl BodyTracker {
         Ok(self.engine.particles()?)
     }
 
+    /// The GPU the filter runs on (`None` on the CPU engine).
+    pub fn gpu_context(&self) -> Option<&pf_gpu::GpuContext> {
+        self.engine.context()
+    }
+
     /// Thins `points` to at most `max_points` by taking every k-th one.
     fn thinned<'a>(&self, points: &'a [Vector3<f32>]) -> std::borrow::Cow<'a, [Vector3<f32>]> {
         if points.len() <= self.config.max_points {

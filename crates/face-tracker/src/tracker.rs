@@ -406,6 +406,11 @@ impl FaceTracker {
         Ok(self.engine.particles()?)
     }
 
+    /// The GPU the filter runs on (`None` on the CPU engine).
+    pub fn gpu_context(&self) -> Option<&pf_gpu::GpuContext> {
+        self.engine.context()
+    }
+
     /// The GPU's time for the last step's submission (timestamps where the adapter has them),
     /// on the GPU backend after a step.
     pub fn last_gpu_time(&self) -> Option<GpuTime> {

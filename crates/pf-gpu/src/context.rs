@@ -190,6 +190,20 @@ impl GpuContext {
         self.timestamps
     }
 
+    /// Loses the device on purpose, through the same path a driver reset or a removed GPU takes
+    /// (wgpu's device-lost callback): every later use of this context is a
+    /// [`GpuError::DeviceLost`]. For testing that a run survives a GPU fault with its results.
+    pub fn simulate_device_loss(&self) {
+        self.device.destroy();
+        // Some backends report the loss only at the next poll.
+        let _ = self.device.poll(wgpu::PollType::Poll);
+        if let Ok(mut slot) = self.lost.lock()
+            && slot.is_none()
+        {
+            *slot = Some("the device was destroyed (a simulated fault)".into());
+        }
+    }
+
     /// Errors if the device was lost.
     pub fn check_lost(&self) -> Result<(), GpuError> {
         match self.lost.lock().ok().and_then(|slot| slot.clone()) {

@@ -462,6 +462,7 @@ impl BodyRun {
         points: &[Vector3<f32>],
         truth: Option<&[Vec<f32>]>,
     ) -> anyhow::Result<()> {
+        run_output::maybe_simulate_gpu_fault(frame, tracker.gpu_context());
         let step_started = Instant::now();
         let result = tracker.step(points)?;
         self.tracking_time += step_started.elapsed().as_secs_f64();

@@ -644,6 +644,7 @@ impl FaceRun<'_> {
         frame: usize,
         image: &GrayImage,
     ) -> anyhow::Result<()> {
+        run_output::maybe_simulate_gpu_fault(frame, runner.tracker().gpu_context());
         let step_started = Instant::now();
         let estimates = runner.step(image)?;
         self.record.tracking_time += step_started.elapsed().as_secs_f64();

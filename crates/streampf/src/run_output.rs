@@ -32,6 +32,22 @@ pub fn stop_requested() -> bool {
     STOP_REQUESTED.load(Ordering::SeqCst)
 }
 
+/// The environment variable that loses the GPU on purpose before frame N of a `face track` or
+/// `body track` run (`STREAMPF_SIMULATE_GPU_FAULT_AT=N`), through wgpu's device-lost path: the
+/// tests' way to check that a GPU fault ends a run with a clear error and every earlier frame
+/// written.
+pub const SIMULATE_GPU_FAULT_ENV: &str = "STREAMPF_SIMULATE_GPU_FAULT_AT";
+
+/// Loses `ctx`'s device when `frame` is the one [`SIMULATE_GPU_FAULT_ENV`] names.
+pub fn maybe_simulate_gpu_fault(frame: usize, ctx: Option<&pf_gpu::GpuContext>) {
+    let at = std::env::var(SIMULATE_GPU_FAULT_ENV).ok();
+    if let (Some(ctx), Some(at)) = (ctx, at.and_then(|v| v.parse::<usize>().ok()))
+        && at == frame
+    {
+        ctx.simulate_device_loss();
+    }
+}
+
 /// The error of a run that stopped on an interrupt after writing `frames` frames; `main` turns it
 /// into [`INTERRUPTED_EXIT`].
 #[derive(Debug, thiserror::Error)]

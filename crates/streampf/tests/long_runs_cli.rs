@@ -284,3 +284,77 @@ fn a_headless_run_prints_no_mesa_noise() {
     assert!(stderr.trim().is_empty(), "nothing on stderr: {stderr}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_gpu_fault_mid_run_is_a_clear_error_after_every_earlier_frame_is_written() {
+    let dir = scratch("gpu-fault");
+    let face_out = dir.join("face");
+    let body_out = dir.join("body");
+    let runs = [
+        (
+            vec![
+                "face",
+                "track",
+                "--synthetic",
+                "--frames",
+                "20",
+                "--faces",
+                "1",
+                "--width",
+                "320",
+                "--height",
+                "240",
+                "--out",
+                face_out.to_str().unwrap(),
+            ],
+            face_out.join("states.csv"),
+            11,
+        ),
+        (
+            vec![
+                "body",
+                "track",
+                "--synthetic",
+                "--frames",
+                "10",
+                "--particles",
+                "100",
+                "--out",
+                body_out.to_str().unwrap(),
+            ],
+            body_out.join("poses.csv"),
+            0,
+        ),
+    ];
+    for (mut args, rows, columns) in runs {
+        args.extend(["--backend", "gpu", "--allow-software", "--quiet"]);
+        let run = Command::new(env!("CARGO_BIN_EXE_streampf"))
+            .args(&args)
+            .env("NODEVICE_SELECT", "1")
+            .env("STREAMPF_SIMULATE_GPU_FAULT_AT", "4")
+            .output()
+            .unwrap();
+        let err = failure(&run);
+        if err.contains("no GPU adapter was found") {
+            assert!(
+                std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
+                "this test needs a GPU adapter (or Mesa's lavapipe); set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly.\n{err}"
+            );
+            eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
+            return;
+        }
+        assert!(
+            err.contains("device was lost") && err.contains("frame 4"),
+            "{err}"
+        );
+        assert!(err.contains("the 4 frames before it were written"), "{err}");
+        let header = std::fs::read_to_string(&rows).unwrap();
+        let columns = if columns == 0 {
+            header.lines().next().unwrap().split(',').count()
+        } else {
+            columns
+        };
+        assert_eq!(frames_of(&rows, columns), [0, 1, 2, 3], "{args:?}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
