@@ -155,12 +155,13 @@ fn read_feature(node: Node, width: u32, height: u32) -> Result<Vec<WeightedRect>
             if whole.iter().any(|&c| c < 0.0 || c.fract() != 0.0) {
                 return Err(format!("rectangle {whole:?} is not in whole pixels"));
             }
-            let (x, y, w, h) = (x as u32, y as u32, w as u32, h as u32);
-            if w == 0 || h == 0 || x + w > width || y + h > height {
+            // Checked in f64: a corrupt file's coordinates can be far beyond u32.
+            if w == 0.0 || h == 0.0 || x + w > f64::from(width) || y + h > f64::from(height) {
                 return Err(format!(
                     "rectangle ({x}, {y}, {w}, {h}) is empty or outside the {width}x{height} window"
                 ));
             }
+            let (x, y, w, h) = (x as u32, y as u32, w as u32, h as u32);
             Ok(WeightedRect {
                 x,
                 y,
