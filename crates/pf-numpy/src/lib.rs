@@ -109,9 +109,12 @@ pub fn read_f32(path: &Path) -> Result<Array<f32>, NpyError> {
 /// [`read_f32`] from the bytes of a `.npy` file; errors name `path` (the file, or `archive/name`
 /// for a member of an `.npz`).
 pub(crate) fn read_f32_from(
-    reader: impl std::io::Read,
+    mut reader: impl std::io::Read,
     path: &Path,
 ) -> Result<Array<f32>, NpyError> {
+    let header = read_header_bytes(&mut reader, path)?;
+    check_header_shape(&header, path)?;
+    let reader = std::io::Read::chain(std::io::Cursor::new(header), reader);
     let npy = npyz::NpyFile::new(reader).map_err(|e| format_error(path, e))?;
     if npy.uses_pickled_array() {
         return Err(NpyError::Dtype {
@@ -158,6 +161,68 @@ pub(crate) fn read_f32_from(
         stored
     };
     Ok(Array { shape, data })
+}
+
+/// The bytes of a `.npy` header: magic, version, length and the header dict (`npyz` reads them
+/// again from these bytes).
+fn read_header_bytes(reader: &mut impl std::io::Read, path: &Path) -> Result<Vec<u8>, NpyError> {
+    let mut start = [0u8; 10];
+    reader
+        .read_exact(&mut start)
+        .map_err(|e| truncated(path, e))?;
+    if &start[..6] != b"\x93NUMPY" {
+        return Err(format_error(path, "no .npy magic string (not a .npy file)"));
+    }
+    // Version 1 has a 2-byte header length; versions 2 and 3 a 4-byte one.
+    let (length, mut bytes) = if start[6] == 1 {
+        (
+            usize::from(u16::from_le_bytes([start[8], start[9]])),
+            start.to_vec(),
+        )
+    } else {
+        let mut more = [0u8; 2];
+        reader
+            .read_exact(&mut more)
+            .map_err(|e| truncated(path, e))?;
+        let length = u32::from_le_bytes([start[8], start[9], more[0], more[1]]) as usize;
+        let mut bytes = start.to_vec();
+        bytes.extend(more);
+        (length, bytes)
+    };
+    if length > 1 << 20 {
+        return Err(format_error(path, format!("a header of {length} bytes")));
+    }
+    let at = bytes.len();
+    bytes.resize(at + length, 0);
+    reader
+        .read_exact(&mut bytes[at..])
+        .map_err(|e| truncated(path, e))?;
+    Ok(bytes)
+}
+
+/// Refuses a header whose shape's element count overflows (`npyz` multiplies it unchecked).
+fn check_header_shape(header: &[u8], path: &Path) -> Result<(), NpyError> {
+    let text = String::from_utf8_lossy(header);
+    let Some(at) = text.find("'shape'") else {
+        return Ok(()); // npyz reports the missing key
+    };
+    let tuple = text[at..]
+        .split_once('(')
+        .and_then(|(_, rest)| rest.split_once(')'))
+        .map_or("", |(inside, _)| inside);
+    let mut count: u64 = 1;
+    for extent in tuple.split(',').map(str::trim).filter(|t| !t.is_empty()) {
+        let extent: u64 = extent.trim_end_matches('L').parse().map_err(|_| {
+            format_error(
+                path,
+                format!("shape extent {extent:?} is not a whole number"),
+            )
+        })?;
+        count = count
+            .checked_mul(extent)
+            .ok_or_else(|| format_error(path, format!("shape ({tuple}) overflows")))?;
+    }
+    Ok(())
 }
 
 fn truncated(path: &Path, e: std::io::Error) -> NpyError {
@@ -328,6 +393,25 @@ pub fn write_particles(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A fuzzing finding kept as a regression: a shape whose element count overflows u64 was
+    /// multiplied unchecked inside npyz (a panic in debug builds).
+    #[test]
+    fn a_header_whose_shape_overflows_is_a_format_error() {
+        let dict =
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (3, 4, 18446744073709551610), }";
+        let mut header = format!("{dict:<117}\n").into_bytes();
+        let mut bytes = b"\x93NUMPY\x01\x00".to_vec();
+        bytes.extend((header.len() as u16).to_le_bytes());
+        bytes.append(&mut header);
+        let err = read_f32_from(bytes.as_slice(), Path::new("big.npy")).unwrap_err();
+        assert!(
+            matches!(err, NpyError::Format { .. }) && err.to_string().contains("overflows"),
+            "{err}"
+        );
+        let err = read_f32_from(&b"\x93NUMPY\x01"[..], Path::new("cut.npy")).unwrap_err();
+        assert!(err.to_string().contains("truncated"), "{err}");
+    }
 
     #[test]
     fn fortran_order_maps_to_c_order() {
