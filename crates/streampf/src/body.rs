@@ -18,7 +18,7 @@ use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_err
 use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
-use crate::run_output::{self, CsvStream, Interrupted, SkipLog, clear_old_results};
+use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
 pub enum BodyCommand {
@@ -154,6 +154,11 @@ pub struct TrackArgs {
     /// log_weights_FRAME.npy (1, J). On a GPU this reads the cloud back every frame.
     #[arg(long)]
     pub save_particles: Option<PathBuf>,
+    /// Continue an interrupted run in --out instead of starting over: the frames it wrote are
+    /// tracked again (each row checked against the file: different inputs or settings are
+    /// refused at the first row that differs) and the run goes on from its last frame.
+    #[arg(long)]
+    pub resume: bool,
     /// Stop at the first frame that cannot be read (after writing every frame before it)
     /// instead of skipping it with a warning.
     #[arg(long)]
@@ -332,8 +337,26 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         );
     }
 
-    clear_old_results(&args.out, &[POSES_FILE, JOINTS_FILE, ERRORS_FILE])?;
-    let mut files = BodyFiles::create(&args.out, &skeleton, truth.is_some())?;
+    let resume = args
+        .resume
+        .then(|| {
+            ResumePoint::of(
+                &args.out.join(POSES_FILE),
+                &BodyFiles::poses_header(&skeleton),
+            )
+        })
+        .transpose()?;
+    if resume.is_none() {
+        clear_old_results(&args.out, &[POSES_FILE, JOINTS_FILE, ERRORS_FILE])?;
+    } else if let Some(point) = resume.as_ref().filter(|_| !args.quiet) {
+        println!(
+            "resuming at frame {}: the frames before it are tracked again and checked against {}",
+            point.frame,
+            args.out.join(POSES_FILE).display()
+        );
+    }
+    let mut files = BodyFiles::create(&args.out, &skeleton, truth.is_some(), resume.as_ref())?;
+    let resume_from = resume.map_or(0, |p| p.frame);
     run_output::install_interrupt_handler()?;
     let bar = progress_bar(frames, args.quiet);
     let mut run = BodyRun::new(&args.out)?;
@@ -346,15 +369,21 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             source.points(&skeleton, frame)
         };
         let result = match points {
-            Ok(points) => run.track_one(
-                args,
-                &mut tracker,
-                &skeleton,
-                &mut files,
-                frame,
-                &points,
-                truth.as_deref(),
-            ),
+            Ok(points) => {
+                let save = args
+                    .save_particles
+                    .as_deref()
+                    .filter(|_| frame >= resume_from);
+                run.track_one(
+                    save,
+                    &mut tracker,
+                    &skeleton,
+                    &mut files,
+                    frame,
+                    &points,
+                    truth.as_deref(),
+                )
+            }
             Err(e) if args.strict || matches!(source, Source::Synthetic(_)) => {
                 Err(e.context("unreadable frame (--strict)"))
             }
@@ -409,13 +438,27 @@ struct BodyFiles {
 }
 
 impl BodyFiles {
-    fn create(out: &Path, skeleton: &Skeleton, with_truth: bool) -> anyhow::Result<Self> {
-        let header = |names: &[String]| format!("frame,{}", names.join(","));
+    fn poses_header(skeleton: &Skeleton) -> String {
+        format!("frame,{}", skeleton.pose_names().join(","))
+    }
+
+    /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
+    fn create(
+        out: &Path,
+        skeleton: &Skeleton,
+        with_truth: bool,
+        resume: Option<&ResumePoint>,
+    ) -> anyhow::Result<Self> {
+        let open = |name: &str, header: &str| match resume {
+            Some(point) => CsvStream::resume(&out.join(name), header, point),
+            None => CsvStream::create(&out.join(name), header),
+        };
+        let joints_header = format!("frame,{}", joint_columns(skeleton).join(","));
         Ok(Self {
-            poses: CsvStream::create(&out.join(POSES_FILE), &header(&skeleton.pose_names()))?,
-            joints: CsvStream::create(&out.join(JOINTS_FILE), &header(&joint_columns(skeleton)))?,
+            poses: open(POSES_FILE, &Self::poses_header(skeleton))?,
+            joints: open(JOINTS_FILE, &joints_header)?,
             errors: with_truth
-                .then(|| CsvStream::create(&out.join(ERRORS_FILE), "frame,mean_joint_error_m"))
+                .then(|| open(ERRORS_FILE, "frame,mean_joint_error_m"))
                 .transpose()?,
         })
     }
@@ -454,7 +497,7 @@ impl BodyRun {
     #[allow(clippy::too_many_arguments)]
     fn track_one(
         &mut self,
-        args: &TrackArgs,
+        save_particles: Option<&Path>,
         tracker: &mut BodyTracker,
         skeleton: &Skeleton,
         files: &mut BodyFiles,
@@ -466,7 +509,7 @@ impl BodyRun {
         let step_started = Instant::now();
         let result = tracker.step(points)?;
         self.tracking_time += step_started.elapsed().as_secs_f64();
-        if let Some(dir) = &args.save_particles {
+        if let Some(dir) = save_particles {
             let (shape, states, log_weights) = tracker.particles()?;
             pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)
                 .context("--save-particles")?;

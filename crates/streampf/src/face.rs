@@ -30,7 +30,7 @@ use face_tracker::{
 use std::sync::Arc;
 
 use crate::face_io::{Annotated, FrameRead, Source, overlay};
-use crate::run_output::{self, CsvStream, Interrupted, SkipLog, clear_old_results};
+use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
 pub enum FaceCommand {
@@ -193,6 +193,11 @@ pub struct TrackArgs {
     /// instead of skipping it with a warning.
     #[arg(long)]
     pub strict: bool,
+    /// Continue an interrupted run in --out instead of starting over: the frames it wrote are
+    /// tracked again (each row checked against the file: different inputs or settings are
+    /// refused at the first row that differs) and the run goes on from its last frame.
+    #[arg(long)]
+    pub resume: bool,
     /// Accept a video that ends before the length its container announces (a warning instead
     /// of a non-zero exit).
     #[arg(long)]
@@ -519,7 +524,17 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.overlay {
         Annotated::check_path(path)?;
+        if args.resume && crate::video::is_video_path(path) {
+            bail!(
+                "--resume cannot continue an overlay video ({}); write the overlay as PNG frames (a directory) to resume",
+                path.display()
+            );
+        }
     }
+    let resume = args
+        .resume
+        .then(|| ResumePoint::of(&args.out.join(STATES_FILE), &TrackRecord::states_header()))
+        .transpose()?;
     if let Some(max) = args.max_faces
         && rects.len() > max as usize
     {
@@ -544,7 +559,9 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
-    clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE])?;
+    if resume.is_none() {
+        clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE])?;
+    }
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
@@ -557,11 +574,19 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let frames_known = source.len().map(|n| n.min(limit));
     if !args.quiet {
         announce(args, detect, rects.len(), frames_known, size, &backend_name);
+        if let Some(point) = &resume {
+            println!(
+                "resuming at frame {}: the frames before it are tracked again and checked against {}",
+                point.frame,
+                args.out.join(STATES_FILE).display()
+            );
+        }
     }
     run_output::install_interrupt_handler()?;
     let mut run = FaceRun {
         args,
-        record: TrackRecord::create(&args.out, truth.is_some())?,
+        record: TrackRecord::create(&args.out, truth.is_some(), resume.as_ref())?,
+        resume_from: resume.as_ref().map_or(0, |p| p.frame),
         truth,
         annotated,
         last_drawn: None,
@@ -594,6 +619,8 @@ struct FaceRun<'a> {
     /// The last tracked frame's estimates: a skipped frame's tracks coast on them.
     last_estimates: Vec<FaceEstimate>,
     skipped: SkipLog,
+    /// A resumed run's first frame to write: earlier ones are only checked against the files.
+    resume_from: usize,
     /// Frames finished and written (tracked or skipped).
     frames: usize,
 }
@@ -648,12 +675,13 @@ impl FaceRun<'_> {
         let step_started = Instant::now();
         let estimates = runner.step(image)?;
         self.record.tracking_time += step_started.elapsed().as_secs_f64();
-        if let Some(dir) = &self.args.save_particles {
+        let replayed = frame < self.resume_from;
+        if let Some(dir) = self.args.save_particles.as_ref().filter(|_| !replayed) {
             save_particles(dir, frame, runner.tracker(), &estimates).context("--save-particles")?;
         }
         let truth = self.truth.as_ref().and_then(|t| t.get(frame));
         self.record.add(frame, &estimates, "", truth)?;
-        if let Some(out) = self.annotated.as_mut() {
+        if let Some(out) = self.annotated.as_mut().filter(|_| !replayed) {
             let drawn = overlay(image, &runner.tracker().templates(), &estimates);
             out.write(frame, &drawn)?;
             self.last_drawn = Some(drawn);
@@ -831,18 +859,21 @@ struct TrackRecord {
 }
 
 impl TrackRecord {
-    fn create(out: &Path, with_truth: bool) -> anyhow::Result<Self> {
-        let header = format!("frame,track,status,{},error", STATE_NAMES.join(","));
+    fn states_header() -> String {
+        format!("frame,track,status,{},error", STATE_NAMES.join(","))
+    }
+
+    /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
+    fn create(out: &Path, with_truth: bool, resume: Option<&ResumePoint>) -> anyhow::Result<Self> {
+        let open = |name: &str, header: &str| match resume {
+            Some(point) => CsvStream::resume(&out.join(name), header, point),
+            None => CsvStream::create(&out.join(name), header),
+        };
         let errors = with_truth
-            .then(|| {
-                CsvStream::create(
-                    &out.join(ERRORS_FILE),
-                    "frame,face,translation_px,rotation_deg",
-                )
-            })
+            .then(|| open(ERRORS_FILE, "frame,face,translation_px,rotation_deg"))
             .transpose()?;
         Ok(Self {
-            states: CsvStream::create(&out.join(STATES_FILE), &header)?,
+            states: open(STATES_FILE, &Self::states_header())?,
             errors,
             translation: 0.0,
             rotation: 0.0,

@@ -7,7 +7,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use anyhow::Context;
+use anyhow::{Context, bail};
 
 /// The exit status of a run stopped by Ctrl-C or SIGTERM (128 + SIGINT, as shells report it).
 pub const INTERRUPTED_EXIT: i32 = 130;
@@ -59,9 +59,48 @@ pub struct Interrupted {
 
 /// A CSV file written a row at a time; [`CsvStream::end_frame`] flushes it, so that the file
 /// holds whole rows of every finished frame whatever stops the run.
+///
+/// A resumed run ([`CsvStream::resume`]) first re-makes the rows the file already holds: each is
+/// checked against the file instead of written, so that a run whose inputs or settings differ
+/// from the interrupted one's is refused at the first row that differs.
 pub struct CsvStream {
     path: PathBuf,
     out: BufWriter<File>,
+    /// Rows already in the file that the resumed run must make again, in order.
+    expected: std::collections::VecDeque<String>,
+}
+
+/// Where an interrupted run's files let a resumed one continue.
+pub struct ResumePoint {
+    /// The first frame to write again: the last frame in the file (which may have been cut
+    /// mid-frame), 0 when it holds no rows.
+    pub frame: usize,
+}
+
+impl ResumePoint {
+    /// The resume point of `path` (a CSV whose rows start with the frame number); an error when
+    /// the file is missing or is not this kind of file.
+    pub fn of(path: &Path, header: &str) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| {
+            format!(
+                "--resume: nothing to resume at {} (no earlier run there)",
+                path.display()
+            )
+        })?;
+        if text.lines().next() != Some(header) {
+            bail!(
+                "--resume: {} was not written by this command (its header differs)",
+                path.display()
+            );
+        }
+        let frame = text
+            .lines()
+            .skip(1)
+            .filter_map(|l| l.split(',').next()?.parse::<usize>().ok())
+            .max()
+            .unwrap_or(0);
+        Ok(Self { frame })
+    }
 }
 
 impl CsvStream {
@@ -71,14 +110,63 @@ impl CsvStream {
         let mut stream = Self {
             path: path.to_path_buf(),
             out: BufWriter::new(file),
+            expected: Default::default(),
         };
         stream.row(header)?;
         stream.end_frame()?;
         Ok(stream)
     }
 
-    /// Appends one line (without its newline).
+    /// Reopens an interrupted run's `path` at `from`: its rows of earlier frames are kept (and
+    /// will be checked as the resumed run makes them again), later ones are dropped.
+    pub fn resume(path: &Path, header: &str, from: &ResumePoint) -> anyhow::Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("--resume: reading {}", path.display()))?;
+        if text.lines().next() != Some(header) {
+            bail!("--resume: {} has another header", path.display());
+        }
+        let kept: Vec<String> = text
+            .lines()
+            .skip(1)
+            .take_while(|l| {
+                l.split(',')
+                    .next()
+                    .and_then(|f| f.parse::<usize>().ok())
+                    .is_some_and(|f| f < from.frame)
+            })
+            .map(str::to_string)
+            .collect();
+        // Rewritten whole and renamed over the old file: a stop here leaves one or the other.
+        let staged = path.with_extension("csv.resume");
+        let mut body = format!("{header}\n");
+        kept.iter().for_each(|l| {
+            body.push_str(l);
+            body.push('\n');
+        });
+        std::fs::write(&staged, body).with_context(|| format!("writing {}", staged.display()))?;
+        std::fs::rename(&staged, path).with_context(|| format!("replacing {}", path.display()))?;
+        let file = std::fs::OpenOptions::new()
+            .append(true)
+            .open(path)
+            .with_context(|| format!("opening {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            out: BufWriter::new(file),
+            expected: kept.into(),
+        })
+    }
+
+    /// Appends one line (without its newline); while resuming, checks it against the file.
     pub fn row(&mut self, line: &str) -> anyhow::Result<()> {
+        if let Some(kept) = self.expected.pop_front() {
+            if kept != line {
+                bail!(
+                    "--resume: this run's row differs from the interrupted run's in {}: the inputs or settings differ (give the same ones, or start over without --resume)\n  before: {kept}\n  now:    {line}",
+                    self.path.display()
+                );
+            }
+            return Ok(());
+        }
         writeln!(self.out, "{line}").with_context(|| format!("writing {}", self.path.display()))
     }
 

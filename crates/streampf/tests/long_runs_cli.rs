@@ -358,3 +358,98 @@ fn a_gpu_fault_mid_run_is_a_clear_error_after_every_earlier_frame_is_written() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// Runs `args` to the end into `full`, and interrupted then resumed into `part`; the files must
+/// be the same. Then a resume with another seed is refused, and one with nothing to resume.
+fn as_strs(v: &[String]) -> Vec<&str> {
+    v.iter().map(String::as_str).collect()
+}
+
+fn resume_matches_an_uninterrupted_run(args: &[&str], files: &[&str], dir: &Path) {
+    let (full, part) = (dir.join("full"), dir.join("part"));
+    let with_out = |out: &Path, extra: &[&str]| -> Vec<String> {
+        let mut a: Vec<String> = args.iter().map(|s| s.to_string()).collect();
+        a.extend(["--out".to_string(), out.display().to_string()]);
+        a.extend(extra.iter().map(|s| s.to_string()));
+        a
+    };
+    ok(&streampf(&as_strs(&with_out(&full, &[]))));
+    let run = interrupt_after_rows(
+        spawn(&as_strs(&with_out(&part, &[]))),
+        &part.join(files[0]),
+        8,
+    );
+    assert_eq!(run.status.code(), Some(INTERRUPTED_EXIT));
+    let text = ok(&streampf(&as_strs(&with_out(&part, &["--resume"]))));
+    assert!(!text.is_empty());
+    for f in files {
+        let (a, b) = (full.join(f), part.join(f));
+        assert_eq!(
+            std::fs::read_to_string(&a).unwrap(),
+            std::fs::read_to_string(&b).unwrap(),
+            "{f}: a resumed run's rows must be an uninterrupted run's"
+        );
+    }
+    let err = failure(&streampf(&as_strs(&with_out(
+        &part,
+        &["--resume", "--seed", "99"],
+    ))));
+    assert!(err.contains("differs from the interrupted run's"), "{err}");
+    let err = failure(&streampf(&as_strs(&with_out(
+        &dir.join("empty"),
+        &["--resume"],
+    ))));
+    assert!(err.contains("nothing to resume"), "{err}");
+}
+
+#[test]
+fn a_resumed_face_run_writes_what_an_uninterrupted_one_writes() {
+    let dir = scratch("face-resume");
+    resume_matches_an_uninterrupted_run(
+        &[
+            "face",
+            "track",
+            "--synthetic",
+            "--frames",
+            "400",
+            "--faces",
+            "2",
+            "--width",
+            "320",
+            "--height",
+            "240",
+            "--backend",
+            "cpu",
+            "--quiet",
+        ],
+        &["states.csv", "errors.csv"],
+        &dir,
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_resumed_body_run_writes_what_an_uninterrupted_one_writes() {
+    let dir = scratch("body-resume");
+    resume_matches_an_uninterrupted_run(
+        &[
+            "body",
+            "track",
+            "--synthetic",
+            "--frames",
+            "80",
+            "--particles",
+            "100",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--backend",
+            "cpu",
+            "--quiet",
+        ],
+        &["poses.csv", "joints.csv", "errors.csv"],
+        &dir,
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
