@@ -738,6 +738,13 @@ impl FaceRun<'_> {
             }
             LoopEnd::Done => closed?,
         }
+        let messages: Vec<&str> = source.decoder_messages().lines().collect();
+        if !self.skipped.frames.is_empty() && !messages.is_empty() {
+            eprintln!(
+                "FFmpeg said while decoding (last lines): {}",
+                messages[messages.len().saturating_sub(4)..].join("\n")
+            );
+        }
         if let Some(short) = source
             .short_end()
             .filter(|_| self.frames < self.args.max_frames.map_or(usize::MAX, |n| n as usize))

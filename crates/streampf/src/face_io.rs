@@ -9,7 +9,7 @@ use face_tracker::synth::{FaceSynthConfig, render_frame};
 use face_tracker::{FaceEstimate, GrayImage, Pose, Template, TrackStatus};
 use nalgebra::Vector3;
 
-use crate::video::{VideoReader, VideoWriter, is_video_path};
+use crate::video::{VideoRead, VideoReader, VideoWriter, is_video_path};
 
 /// Image files read from a directory of frames.
 pub const IMAGE_EXTENSIONS: [&str; 7] = ["png", "jpg", "jpeg", "bmp", "pgm", "ppm", "pnm"];
@@ -115,10 +115,21 @@ impl Source {
                 *next += 1;
                 Ok(FrameRead::Frame(render_frame(config, model, *next - 1)?))
             }
-            Source::Video(reader) => Ok(match reader.next_frame()? {
-                Some(image) => FrameRead::Frame(image),
-                None => FrameRead::End,
+            Source::Video(reader) => Ok(match reader.read()? {
+                VideoRead::Frame(image) => FrameRead::Frame(image),
+                VideoRead::Undecodable(index) => FrameRead::Unreadable(anyhow::anyhow!(
+                    "frame {index} of the video could not be decoded (FFmpeg dropped it; its messages come at the end)"
+                )),
+                VideoRead::End => FrameRead::End,
             }),
+        }
+    }
+
+    /// After the last frame: the decoder's error messages (empty when none, or not a video).
+    pub fn decoder_messages(&self) -> &str {
+        match self {
+            Source::Video(reader) => reader.messages(),
+            _ => "",
         }
     }
 

@@ -92,6 +92,39 @@ fn drain_messages(child: &mut Child) -> anyhow::Result<std::thread::JoinHandle<S
     }))
 }
 
+/// Reads a decoder's level-tagged messages in a thread: `showinfo`'s frame times go to the
+/// returned channel as they come, error lines are kept (untagged) and returned at the end.
+fn frame_times_and_errors(
+    child: &mut Child,
+) -> anyhow::Result<(
+    std::thread::JoinHandle<String>,
+    std::sync::mpsc::Receiver<f64>,
+)> {
+    use std::io::BufRead;
+    let err = child.stderr.take().context("ffmpeg's error pipe")?;
+    let (sender, receiver) = std::sync::mpsc::channel();
+    let thread = std::thread::spawn(move || {
+        let mut kept = String::new();
+        for line in std::io::BufReader::new(err).lines().map_while(Result::ok) {
+            if let Some(time) = line
+                .split_once("pts_time:")
+                .filter(|_| line.contains("Parsed_showinfo"))
+                .and_then(|(_, rest)| rest.split_whitespace().next()?.parse::<f64>().ok())
+            {
+                let _ = sender.send(time);
+            } else if let Some(tag) = ["[error] ", "[fatal] "]
+                .into_iter()
+                .find(|tag| line.contains(tag))
+            {
+                kept.push_str(&line.replacen(tag, "", 1));
+                kept.push('\n');
+            }
+        }
+        kept
+    });
+    Ok((thread, receiver))
+}
+
 /// Asks ffprobe for the size, rate and length of `path`'s first video stream.
 pub fn probe(path: &Path) -> anyhow::Result<VideoInfo> {
     if !path.is_file() {
@@ -127,14 +160,39 @@ pub fn probe(path: &Path) -> anyhow::Result<VideoInfo> {
 }
 
 /// Gray frames from an FFmpeg decoder process.
+///
+/// A file is decoded with FFmpeg's `showinfo` filter and `-fps_mode passthrough`: a frame FFmpeg
+/// cannot decode leaves a gap in the decoded frames' times, which tells which frame it was
+/// ([`VideoRead::Undecodable`]) instead of a silently repeated neighbour.
 pub struct VideoReader {
     name: String,
     pub info: VideoInfo,
     child: Child,
     stdout: ChildStdout,
     stderr: Option<std::thread::JoinHandle<String>>,
+    /// Each decoded frame's time (s), from `showinfo`, when the reader asked for them.
+    frame_times: Option<std::sync::mpsc::Receiver<f64>>,
+    /// Frames read from FFmpeg.
     decoded: usize,
+    /// The index the next frame should have.
+    next_index: usize,
+    /// The first decoded frame's time (s): frame indices count from it.
+    first_time: Option<f64>,
+    /// Frames found missing before `held`, reported one at a time.
+    missing: std::collections::VecDeque<usize>,
+    /// A frame read ahead while its missing predecessors are reported.
+    held: Option<GrayImage>,
     short: Option<ShortEnd>,
+    /// FFmpeg's error messages, after the end.
+    messages: String,
+}
+
+/// One read of a [`VideoReader`].
+pub enum VideoRead {
+    Frame(GrayImage),
+    /// Frame `index` could not be decoded (FFmpeg dropped it).
+    Undecodable(usize),
+    End,
 }
 
 /// A video that ended before the length its container announced.
@@ -176,11 +234,21 @@ impl VideoReader {
     pub fn open(path: &Path) -> anyhow::Result<Self> {
         let info = probe(path)?;
         let mut command = Command::new("ffmpeg");
+        // Messages tagged by level (errors are kept, showinfo's lines give each frame's time).
         command
-            .args(["-nostdin", "-v", "error", "-i"])
+            .args([
+                "-nostdin",
+                "-hide_banner",
+                "-nostats",
+                "-v",
+                "level+info",
+                "-i",
+            ])
             .arg(path)
-            .args(["-map", "0:v:0", "-f", "rawvideo", "-pix_fmt", "gray", "-"]);
-        Self::start(path.display().to_string(), info, command)
+            .args(["-map", "0:v:0", "-fps_mode", "passthrough"])
+            .args(["-vf", "showinfo=checksum=0"])
+            .args(["-f", "rawvideo", "-pix_fmt", "gray", "-"]);
+        Self::start(path.display().to_string(), info, command, true)
     }
 
     /// Opens a V4L2 camera (Linux) at the given size.
@@ -196,10 +264,17 @@ impl VideoReader {
             device.display().to_string(),
             info,
             webcam_command(device, width, height),
+            false,
         )
     }
 
-    fn start(name: String, info: VideoInfo, mut command: Command) -> anyhow::Result<Self> {
+    /// Starts the decoder; `frame_times`: its messages carry showinfo's frame times.
+    fn start(
+        name: String,
+        info: VideoInfo,
+        mut command: Command,
+        frame_times: bool,
+    ) -> anyhow::Result<Self> {
         let mut child = spawn(
             command
                 .stdin(Stdio::null())
@@ -208,16 +283,74 @@ impl VideoReader {
             &format!("decoding {name}"),
         )?;
         let stdout = child.stdout.take().context("ffmpeg's output pipe")?;
-        let stderr = drain_messages(&mut child)?;
+        let (stderr, frame_times) = if frame_times {
+            let (stderr, times) = frame_times_and_errors(&mut child)?;
+            (stderr, Some(times))
+        } else {
+            (drain_messages(&mut child)?, None)
+        };
         Ok(Self {
             name,
             info,
             child,
             stdout,
             stderr: Some(stderr),
+            frame_times,
             decoded: 0,
+            next_index: 0,
+            first_time: None,
+            missing: Default::default(),
+            held: None,
             short: None,
+            messages: String::new(),
         })
+    }
+
+    /// The next frame, a frame FFmpeg could not decode, or the end (see [`VideoReader`]).
+    pub fn read(&mut self) -> anyhow::Result<VideoRead> {
+        if let Some(index) = self.missing.pop_front() {
+            return Ok(VideoRead::Undecodable(index));
+        }
+        if let Some(frame) = self.held.take() {
+            return Ok(VideoRead::Frame(frame));
+        }
+        let Some(frame) = self.next_frame()? else {
+            return Ok(VideoRead::End);
+        };
+        let index = self.index_of_decoded_frame();
+        self.missing.extend(self.next_index..index);
+        self.next_index = index.max(self.next_index) + 1;
+        match self.missing.pop_front() {
+            Some(first) => {
+                self.held = Some(frame);
+                Ok(VideoRead::Undecodable(first))
+            }
+            None => Ok(VideoRead::Frame(frame)),
+        }
+    }
+
+    /// The index of the frame just read: its time since the first frame × the frame rate, when
+    /// both are known, else the next in order. A jump of more than two seconds is taken for a
+    /// break in the timestamps, not for lost frames: the count goes on from there.
+    fn index_of_decoded_frame(&mut self) -> usize {
+        let (Some(times), Some(fps)) = (&self.frame_times, self.info.fps) else {
+            return self.next_index;
+        };
+        // showinfo logs a frame before FFmpeg writes it, so its line is there or nearly.
+        let Ok(time) = times.recv_timeout(std::time::Duration::from_secs(5)) else {
+            return self.next_index;
+        };
+        let origin = *self.first_time.get_or_insert(time);
+        let index = ((time - origin) * fps).round();
+        if !index.is_finite()
+            || index < self.next_index as f64
+            || index > (self.next_index as f64 + 2.0 * fps)
+        {
+            // Re-based so that this frame is the next one.
+            self.first_time = Some(time - self.next_index as f64 / fps);
+            return self.next_index;
+        }
+        index as usize
     }
 
     /// The next frame; `None` at the end of the stream. A stream that ends inside a frame, or an
@@ -263,14 +396,22 @@ impl VideoReader {
         if self.decoded == 0 {
             bail!("{}: FFmpeg decoded no frames", self.name);
         }
-        if let Some(expected) = self.info.frames.filter(|&n| self.decoded < n) {
+        // Frames found undecodable count as read: only frames missing at the end make it short.
+        let accounted = self.decoded.max(self.next_index);
+        if let Some(expected) = self.info.frames.filter(|&n| accounted < n) {
             self.short = Some(ShortEnd {
-                decoded: self.decoded,
+                decoded: accounted,
                 expected,
-                message,
+                message: message.clone(),
             });
         }
+        self.messages = message;
         Ok(None)
+    }
+
+    /// After the end: FFmpeg's error messages (empty when it had none).
+    pub fn messages(&self) -> &str {
+        &self.messages
     }
 
     /// After the end: how the stream fell short of its announced length, if it did.

@@ -453,3 +453,82 @@ fn a_resumed_body_run_writes_what_an_uninterrupted_one_writes() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_corrupt_frame_in_the_middle_of_a_video_is_skipped_and_named() {
+    if media_opted_out() {
+        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+        return;
+    }
+    let dir = scratch("corrupt-video");
+    let frames = dir.join("frames");
+    ok(&streampf(&[
+        "face",
+        "synth",
+        "--out",
+        frames.to_str().unwrap(),
+        "--frames",
+        "30",
+        "--faces",
+        "1",
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ]));
+    // Motion JPEG: every frame its own JPEG, so that damage stays in frame 10.
+    let video = dir.join("mjpeg.avi");
+    let encoded = Command::new("ffmpeg")
+        .args(["-nostdin", "-v", "error", "-y", "-framerate", "25", "-i"])
+        .arg(frames.join("frame_%05d.png"))
+        .args(["-c:v", "mjpeg", "-q:v", "3"])
+        .arg(&video)
+        .status()
+        .expect("ffmpeg runs (cargo xtask fetch-media installs FFmpeg)");
+    assert!(encoded.success());
+    let mut bytes = std::fs::read(&video).unwrap();
+    let starts: Vec<usize> = (0..bytes.len() - 2)
+        .filter(|&i| bytes[i..i + 3] == [0xff, 0xd8, 0xff])
+        .collect();
+    assert_eq!(starts.len(), 30, "one JPEG a frame");
+    for k in (starts[10] + 700..starts[11] - 100).step_by(5) {
+        bytes[k] = 0xff;
+    }
+    std::fs::write(&video, &bytes).unwrap();
+    let out = dir.join("out");
+    let run = streampf(&[
+        "face",
+        "track",
+        video.to_str().unwrap(),
+        "--face",
+        "100,60,120,120",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    let text = ok(&run);
+    assert!(
+        text.contains("through 30 frames") && text.contains("skipped (10;"),
+        "{text}"
+    );
+    let warning = String::from_utf8_lossy(&run.stderr);
+    assert!(warning.contains("skipping frame 10"), "{warning}");
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    let statuses: Vec<&str> = states
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(2).unwrap())
+        .collect();
+    assert_eq!(statuses.len(), 30);
+    assert_eq!(statuses[10], "skipped");
+    assert!(
+        statuses
+            .iter()
+            .enumerate()
+            .all(|(f, s)| f == 10 || *s == "tracking"),
+        "{statuses:?}"
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
