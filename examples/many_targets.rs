@@ -5,10 +5,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
-use pf_core::plugin::CpuModel;
-use pf_core::resample::Systematic;
+use pf_core::{plugin::CpuModel, resample::Systematic};
 use pf_gpu::model::{ModelFilter, ModelSource};
-use pf_gpu::{GpuContext, GpuResampler};
+use pf_gpu::{ContextOptions, GpuContext, GpuResampler};
 
 pub const MODEL: ModelSource = ModelSource {
     name: "noisy 2-D position",
@@ -46,47 +45,35 @@ impl CpuModel<Position, Constants> for NoisyPosition {
 const NOISE: f32 = 0.5;
 const STEP: f32 = 0.3;
 
-/// Tracks `targets` random walkers for `frames` frames; the mean position error over the last
+/// The mean distance of the estimates `[t·2 + d]` from the true positions.
+fn position_error(truth: &[[f32; 2]], estimates: &[f32]) -> f32 {
+    let e = |t: usize, p: &[f32; 2]| (estimates[2 * t] - p[0]).hypot(estimates[2 * t + 1] - p[1]);
+    truth.iter().enumerate().map(|(t, p)| e(t, p)).sum::<f32>() / truth.len() as f32
+}
+
+/// Tracks `targets` random walkers for `frames` frames; the mean position error over the second
 /// half, on the GPU (when `ctx` is given) and on the CPU, and the raw observations' error.
 pub fn run(
     ctx: Option<&GpuContext>,
     targets: usize,
     frames: usize,
 ) -> anyhow::Result<(Option<f32>, f32, f32)> {
-    let shape = BatchShape::new(targets, 256, 2)?;
-    let config = BatchConfig {
-        shape,
-        seed: 1,
-        sigma: vec![STEP; 2],
-        bounds: None,
-        angular: vec![false; 2],
-        ess_threshold: f64::INFINITY,
-        best: 0,
-    };
+    let config = BatchConfig::new(BatchShape::new(targets, 256, 2)?, 1, vec![STEP; 2]);
     let mut rng = pf_core::RandomStreams::new(2).stream(0, pf_core::Stage::Model(0));
     let mut truth: Vec<[f32; 2]> = (0..targets).map(|t| [t as f32, -(t as f32)]).collect();
-    let start = gaussian_clouds(&shape, 3, truth.as_flattened(), &[1.0, 1.0]);
+    let start = gaussian_clouds(&config.shape, 3, truth.as_flattened(), &[1.0, 1.0]);
     let constants = Constants {
         inv_sigma: 1.0 / NOISE,
     };
-    let gpu_filter = |ctx| {
-        ModelFilter::new(
-            ctx,
-            &config,
-            GpuResampler::Systematic,
-            &start,
-            MODEL,
-            &constants,
-        )
-    };
-    let mut gpu = ctx.map(gpu_filter).transpose()?;
+    let systematic = GpuResampler::Systematic;
+    let mut gpu = (ctx
+        .map(|ctx| ModelFilter::new(ctx, &config, systematic, &start, MODEL, &constants)))
+    .transpose()?;
     let mut cpu = BatchFilter::new(&config, Systematic, start.clone())?;
-    let (mut gpu_error, mut cpu_error, mut raw_error) = (0.0, 0.0, 0.0);
-    let weight = 1.0 / (targets * (frames - frames / 2)) as f32;
-    for frame in 0..frames {
+    let mut errors = [Vec::new(), Vec::new(), Vec::new()]; // GPU, CPU, raw
+    for _ in 0..frames {
         for p in &mut truth {
-            p[0] += STEP * rng.gaussian_f32();
-            p[1] += STEP * rng.gaussian_f32();
+            p.iter_mut().for_each(|x| *x += STEP * rng.gaussian_f32());
         }
         let seen: Vec<Position> = (truth.iter())
             .map(|p| Position {
@@ -94,28 +81,29 @@ pub fn run(
                 y: p[1] + NOISE * rng.gaussian_f32(),
             })
             .collect();
-        let w = if frame >= frames / 2 { weight } else { 0.0 };
-        let error = |e: &[f32]| -> f32 {
-            truth
-                .iter()
-                .enumerate()
-                .map(|(t, p)| (e[2 * t] - p[0]).hypot(e[2 * t + 1] - p[1]))
-                .sum::<f32>()
-                * w
-        };
         if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
-            gpu_error += error(&filter.step(ctx, &seen)?.estimates);
+            errors[0].push(position_error(&truth, &filter.step(ctx, &seen)?.estimates));
         }
-        cpu_error += error(&cpu.step_model(&NoisyPosition, &seen, &constants)?.estimates);
-        raw_error += error(&seen.iter().flat_map(|p| [p.x, p.y]).collect::<Vec<_>>());
+        let on_cpu = cpu.step_model(&NoisyPosition, &seen, &constants)?;
+        errors[1].push(position_error(&truth, &on_cpu.estimates));
+        errors[2].push(position_error(
+            &truth,
+            &seen.iter().flat_map(|p| [p.x, p.y]).collect::<Vec<_>>(),
+        ));
     }
-    Ok((gpu.map(|_| gpu_error), cpu_error, raw_error))
+    let second_half =
+        |e: &[f32]| e[frames / 2..].iter().sum::<f32>() / (frames - frames / 2) as f32;
+    Ok((
+        gpu.map(|_| second_half(&errors[0])),
+        second_half(&errors[1]),
+        second_half(&errors[2]),
+    ))
 }
 
 #[allow(dead_code)]
 fn main() -> anyhow::Result<()> {
     let allow_software = std::env::args().any(|a| a == "--allow-software");
-    let options = pf_gpu::ContextOptions {
+    let options = ContextOptions {
         allow_software,
         ..Default::default()
     };
