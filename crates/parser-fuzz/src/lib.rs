@@ -1,0 +1,256 @@
+//! # parser-fuzz: the parsers a user can feed, as fuzz targets
+//!
+//! Each [`Target`] names one parser, runs it on bytes (through a scratch file for the parsers
+//! that read paths) and carries valid seed inputs the project writes itself. Two fuzzers use the
+//! same targets: the mutation fuzzer of `tests/fuzz_parsers.rs` (in the test suite) and the
+//! coverage-guided AFL++ harness in `fuzz/` (`cargo xtask fuzz`). A target passes when no input
+//! panics it and every input it refuses gets an error with a message (`Err` holds the message).
+
+use std::path::{Path, PathBuf};
+
+use body_tracker::camera::{DepthImage, Intrinsics, read_depth_png, write_depth_png};
+use body_tracker::human::human_skeleton;
+use body_tracker::ply::{parse_ply, ply_ascii, write_ply_binary};
+use body_tracker::sequence::{read_numeric_csv, read_pose_csv};
+use body_tracker::skeleton::Skeleton;
+use face_tracker::GrayImage;
+use face_tracker::detect::Cascade;
+use face_tracker::landmarks::ShapePredictor;
+use face_tracker::landmarks::pts::parse_pts;
+use nalgebra::Vector3;
+
+/// A parse of some bytes: `Err` holds the parser's message.
+pub type Parse = Box<dyn Fn(&[u8]) -> Result<(), String>>;
+
+/// One parser: its name, valid seeds, and the parse of some bytes.
+pub struct Target {
+    pub name: &'static str,
+    pub seeds: Vec<Vec<u8>>,
+    pub parse: Parse,
+}
+
+/// The cascade the face detector uses by default (Debian's opencv-data): the cascade target's
+/// seed.
+pub const CASCADE_SEED: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
+
+/// Every target; path-reading parsers write their input under `scratch` (a directory that
+/// exists). The cascade target is left out when [`CASCADE_SEED`] is not installed.
+pub fn targets(scratch: &Path) -> Result<Vec<Target>, String> {
+    let skeleton = human_skeleton(19).map_err(|e| e.to_string())?;
+    let dofs = skeleton.dofs();
+    let seed_file = |name: &str, write: &dyn Fn(&Path) -> Result<(), String>| {
+        let path = scratch.join(format!("seed-{name}"));
+        write(&path)?;
+        std::fs::read(&path).map_err(|e| e.to_string())
+    };
+    let through = |name: &str, read: fn(&Path) -> Result<(), String>| -> Parse {
+        let path = scratch.join(name);
+        Box::new(move |bytes| {
+            std::fs::write(&path, bytes).map_err(|e| format!("scratch file: {e}"))?;
+            read(&path)
+        })
+    };
+    let camera = Intrinsics::with_fov(32, 24, 60.0).map_err(|e| e.to_string())?;
+    let depth = DepthImage {
+        width: 32,
+        height: 24,
+        depth: (0..32 * 24).map(|i| 1000 + (i % 97) as u16).collect(),
+    };
+    let frame = GrayImage::new(24, 16, (0..24 * 16).map(|i| (i * 7 % 251) as u8).collect())
+        .map_err(|e| e.to_string())?;
+    let pose_csv = {
+        let mut csv = format!("frame,{}\n", skeleton.pose_names().join(","));
+        for r in 0..3 {
+            let values: Vec<String> = (0..dofs)
+                .map(|d| ((r * dofs + d) as f32 * 0.01).to_string())
+                .collect();
+            csv.push_str(&format!("{r},{}\n", values.join(",")));
+        }
+        csv.into_bytes()
+    };
+    let pose_path = scratch.join("poses.csv");
+    let mut targets = vec![
+        Target {
+            name: "dlib-model",
+            seeds: vec![small_dlib_model()],
+            parse: Box::new(|b| {
+                ShapePredictor::from_bytes(b)
+                    .map(drop)
+                    .map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "pts",
+            seeds: vec![pts_text(68).into_bytes(), pts_text(3).into_bytes()],
+            parse: Box::new(|b| parse_pts(&String::from_utf8_lossy(b)).map(drop)),
+        },
+        Target {
+            name: "ply",
+            seeds: vec![
+                ply_ascii(&body_points()).into_bytes(),
+                seed_file("b.ply", &|p| {
+                    write_ply_binary(p, &body_points()).map_err(|e| e.to_string())
+                })?,
+            ],
+            parse: Box::new(|b| parse_ply(b).map(drop).map_err(|e| e.to_string())),
+        },
+        Target {
+            name: "depth-png",
+            seeds: vec![seed_file("d.png", &|p| {
+                write_depth_png(p, &depth).map_err(|e| e.to_string())
+            })?],
+            parse: through("depth.png", |p| {
+                read_depth_png(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "camera-json",
+            seeds: vec![seed_file("camera.json", &|p| {
+                camera.save(p).map_err(|e| e.to_string())
+            })?],
+            parse: through("camera.json", |p| {
+                Intrinsics::load(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "skeleton-json",
+            seeds: vec![seed_file("skeleton.json", &|p| {
+                skeleton.save(p).map_err(|e| e.to_string())
+            })?],
+            parse: through("skeleton.json", |p| {
+                Skeleton::load(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "pose-csv",
+            seeds: vec![pose_csv],
+            parse: Box::new(move |b| {
+                std::fs::write(&pose_path, b).map_err(|e| format!("scratch file: {e}"))?;
+                read_pose_csv(&pose_path, dofs)
+                    .map(drop)
+                    .map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "numeric-csv",
+            seeds: vec![b"frame,face,a,b\n0,0,1.5,2\n1,0,-3,4e-3\n".to_vec()],
+            parse: through("numbers.csv", |p| {
+                read_numeric_csv(p, 4).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "npy",
+            seeds: vec![seed_file("a.npy", &|p| {
+                let values: Vec<f32> = (0..24).map(|i| i as f32 * 0.5).collect();
+                pf_numpy::write_f32(p, &[3, 4, 2], &values).map_err(|e| e.to_string())
+            })?],
+            parse: through("x.npy", |p| {
+                pf_numpy::read_f32(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "npz",
+            seeds: vec![seed_file("a.npz", &|p| {
+                let arrays: [(&str, &[usize], &[f32]); 2] = [
+                    ("x", &[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+                    ("y", &[1], &[7.0]),
+                ];
+                pf_numpy::npz::write_npz(p, &arrays).map_err(|e| e.to_string())
+            })?],
+            parse: through("x.npz", |p| {
+                let mut npz = pf_numpy::npz::NpzReader::open(p).map_err(|e| e.to_string())?;
+                npz.read_f32("x").map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "image-frame",
+            seeds: vec![seed_file("f.png", &|p| {
+                frame.save_png(p).map_err(|e| e.to_string())
+            })?],
+            parse: through("frame.png", |p| {
+                GrayImage::load(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+    ];
+    if let Ok(cascade) = std::fs::read(CASCADE_SEED) {
+        targets.push(Target {
+            name: "haar-cascade",
+            seeds: vec![cascade],
+            parse: Box::new(|b| Cascade::parse(&String::from_utf8_lossy(b)).map(drop)),
+        });
+    }
+    Ok(targets)
+}
+
+/// A scratch directory for one fuzzing process.
+pub fn scratch_dir(label: &str) -> PathBuf {
+    std::env::temp_dir().join(format!("streampf-{label}-{}", std::process::id()))
+}
+
+/// dlib's integer encoding (`pack_int`).
+fn pack(value: i64) -> Vec<u8> {
+    let mut magnitude = value.unsigned_abs();
+    let mut body = Vec::new();
+    loop {
+        body.push((magnitude & 0xff) as u8);
+        magnitude >>= 8;
+        if magnitude == 0 {
+            break;
+        }
+    }
+    let mut out = vec![body.len() as u8 | if value < 0 { 0x80 } else { 0 }];
+    out.extend(body);
+    out
+}
+
+/// dlib's float encoding: a mantissa and a binary exponent.
+fn pack_float(value: f32) -> Vec<u8> {
+    let mut out = pack((f64::from(value) * 1_048_576.0).round() as i64);
+    out.extend(pack(-20));
+    out
+}
+
+/// A two-landmark dlib shape predictor: one level, one tree of one split, two leaves.
+fn small_dlib_model() -> Vec<u8> {
+    let column = |values: &[f32]| {
+        let mut out = pack(-(values.len() as i64));
+        out.extend(pack(-1));
+        values.iter().for_each(|&v| out.extend(pack_float(v)));
+        out
+    };
+    let mut b = pack(1);
+    b.extend(column(&[0.25, 0.5, 0.75, 0.5]));
+    for v in [1, 1, 1, 0, 1] {
+        b.extend(pack(v));
+    }
+    b.extend(pack_float(10.0));
+    b.extend(pack(2));
+    b.extend(column(&[0.125, 0.0, 0.125, 0.0]));
+    b.extend(column(&[-0.125, 0.0, -0.125, 0.0]));
+    for v in [1, 2, 0, 1, 1, 2] {
+        b.extend(pack(v));
+    }
+    (0..4).for_each(|_| b.extend(pack_float(0.0)));
+    b
+}
+
+fn body_points() -> Vec<Vector3<f32>> {
+    (0..40)
+        .map(|i| {
+            Vector3::new(
+                i as f32 * 0.01 - 0.2,
+                1.0 - i as f32 * 0.02,
+                3.0 + (i % 5) as f32 * 0.01,
+            )
+        })
+        .collect()
+}
+
+fn pts_text(points: usize) -> String {
+    let mut text = format!("version: 1\nn_points: {points}\n{{\n");
+    for k in 0..points {
+        text.push_str(&format!("{}.5 {}.25\n", 100 + k, 200 - k));
+    }
+    text.push_str("}\n");
+    text
+}
