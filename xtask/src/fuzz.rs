@@ -34,9 +34,12 @@ pub fn fuzz(args: &[String]) -> anyhow::Result<()> {
     ensure_cargo_afl()?;
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz");
     run(
+        // Its own target directory (fuzz/target), whatever CARGO_TARGET_DIR says: the harness is
+        // looked for there, and its instrumented build must not evict the workspace's.
         Command::new("cargo")
             .args(["afl", "build", "--release"])
-            .current_dir(&dir),
+            .current_dir(&dir)
+            .env_remove("CARGO_TARGET_DIR"),
         "building the AFL++ harness (cargo afl build, in fuzz/)",
     )?;
     let harness = dir.join("target/release/parsers");
