@@ -115,3 +115,22 @@ fn two_sections_of_one_name_are_refused() {
     // The filter still steps afterwards.
     assert!(filter.step(&ctx, &NoLikelihood).is_ok());
 }
+
+#[test]
+fn recording_a_step_for_a_likelihood_the_staging_was_not_fitted_for_copies_nothing() {
+    let Some(ctx) = common::gpu_context("likelihood readbacks") else {
+        return;
+    };
+    let mut filter = filter(&ctx, 1, 32, 0);
+    let sections = Sections {
+        streams: vec![DeviceStream::from_slice(&ctx, "section", &[7u32; 5]).unwrap()],
+        names: vec!["first"],
+    };
+    // record_step does not fit the staging buffer: the section has nowhere to go, and is skipped.
+    let mut encoder = ctx.device.create_command_encoder(&Default::default());
+    filter.record_step(&ctx, &mut encoder, &sections);
+    ctx.queue.submit([encoder.finish()]);
+    // A full step fits it and reads the section back.
+    let report = filter.step(&ctx, &sections).unwrap();
+    assert_eq!(report.likelihood.get::<u32>("first").unwrap(), [7; 5]);
+}

@@ -384,9 +384,9 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                     truth.as_deref(),
                 )
             }
-            Err(e) if args.strict || matches!(source, Source::Synthetic(_)) => {
-                Err(e.context("unreadable frame (--strict)"))
-            }
+            Err(e) if args.strict => Err(e.context("unreadable frame (--strict)")),
+            // A generated frame that fails is a bug or a bad setting, not a frame to skip.
+            Err(e) if matches!(source, Source::Synthetic(_)) => Err(e),
             Err(e) => run.skip_one(frame, e),
         };
         if let Err(e) = result {

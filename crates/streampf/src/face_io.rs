@@ -247,6 +247,7 @@ impl Annotated {
     }
 
     pub fn create(path: &Path, width: u32, height: u32, fps: f64) -> anyhow::Result<Self> {
+        Self::check_path(path)?;
         if is_video_path(path) {
             if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
                 std::fs::create_dir_all(parent)
@@ -255,12 +256,6 @@ impl Annotated {
             return Ok(Annotated::Video(VideoWriter::create(
                 path, width, height, fps,
             )?));
-        }
-        if path.extension().is_some() && !path.is_dir() {
-            bail!(
-                "{}: give a directory for PNG frames or a .mp4, .mkv, .avi or .webm file",
-                path.display()
-            );
         }
         std::fs::create_dir_all(path).with_context(|| format!("creating {}", path.display()))?;
         Ok(Annotated::Frames(path.to_path_buf()))

@@ -168,21 +168,22 @@ fn an_interrupted_body_run_keeps_every_finished_frame() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-#[test]
-fn a_video_cut_short_is_a_warning_and_a_non_zero_exit() {
-    if media_opted_out() {
-        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
-        return;
-    }
-    let dir = scratch("short-video");
-    let frames = dir.join("frames");
+/// A one-face synthetic video of `frames` frames at 320×240, encoded by FFmpeg with `codec`
+/// (output options) into `dir/name`.
+fn encoded_synthetic_video(
+    dir: &Path,
+    frames: &str,
+    name: &str,
+    codec: &[&str],
+) -> std::path::PathBuf {
+    let pngs = dir.join("frames");
     ok(&streampf(&[
         "face",
         "synth",
         "--out",
-        frames.to_str().unwrap(),
+        pngs.to_str().unwrap(),
         "--frames",
-        "60",
+        frames,
         "--faces",
         "1",
         "--width",
@@ -190,23 +191,39 @@ fn a_video_cut_short_is_a_warning_and_a_non_zero_exit() {
         "--height",
         "240",
     ]));
-    // An mp4 with its index first (as streaming sites serve them), then only its first half.
-    let full = dir.join("full.mp4");
+    let video = dir.join(name);
     let encoded = Command::new("ffmpeg")
         .args(["-nostdin", "-v", "error", "-y", "-framerate", "25", "-i"])
-        .arg(frames.join("frame_%05d.png"))
-        .args([
+        .arg(pngs.join("frame_%05d.png"))
+        .args(codec)
+        .arg(&video)
+        .status()
+        .expect("ffmpeg runs (cargo xtask fetch-media installs FFmpeg)");
+    assert!(encoded.success());
+    video
+}
+
+#[test]
+fn a_video_cut_short_is_a_warning_and_a_non_zero_exit() {
+    if media_opted_out() {
+        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+        return;
+    }
+    let dir = scratch("short-video");
+    // An mp4 with its index first (as streaming sites serve them), then only its first half.
+    let full = encoded_synthetic_video(
+        &dir,
+        "60",
+        "full.mp4",
+        &[
             "-c:v",
             "libx264",
             "-pix_fmt",
             "yuv420p",
             "-movflags",
             "+faststart",
-        ])
-        .arg(&full)
-        .status()
-        .expect("ffmpeg runs (cargo xtask fetch-media installs FFmpeg)");
-    assert!(encoded.success());
+        ],
+    );
     let bytes = std::fs::read(&full).unwrap();
     let half = dir.join("half.mp4");
     std::fs::write(&half, &bytes[..bytes.len() / 2]).unwrap();
@@ -461,31 +478,8 @@ fn a_corrupt_frame_in_the_middle_of_a_video_is_skipped_and_named() {
         return;
     }
     let dir = scratch("corrupt-video");
-    let frames = dir.join("frames");
-    ok(&streampf(&[
-        "face",
-        "synth",
-        "--out",
-        frames.to_str().unwrap(),
-        "--frames",
-        "30",
-        "--faces",
-        "1",
-        "--width",
-        "320",
-        "--height",
-        "240",
-    ]));
     // Motion JPEG: every frame its own JPEG, so that damage stays in frame 10.
-    let video = dir.join("mjpeg.avi");
-    let encoded = Command::new("ffmpeg")
-        .args(["-nostdin", "-v", "error", "-y", "-framerate", "25", "-i"])
-        .arg(frames.join("frame_%05d.png"))
-        .args(["-c:v", "mjpeg", "-q:v", "3"])
-        .arg(&video)
-        .status()
-        .expect("ffmpeg runs (cargo xtask fetch-media installs FFmpeg)");
-    assert!(encoded.success());
+    let video = encoded_synthetic_video(&dir, "30", "mjpeg.avi", &["-c:v", "mjpeg", "-q:v", "3"]);
     let mut bytes = std::fs::read(&video).unwrap();
     let starts: Vec<usize> = (0..bytes.len() - 2)
         .filter(|&i| bytes[i..i + 3] == [0xff, 0xd8, 0xff])

@@ -267,9 +267,17 @@ impl GpuFilter {
                 likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
             }
         }
-        for (k, source) in likelihood.readbacks().iter().enumerate() {
-            self.step_back
-                .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
+        // Only into sections the staging buffer was fitted with (`run_stages` fits it first; a
+        // bare `record_step` of a likelihood it was never fitted for copies nothing).
+        let fitted = likelihood
+            .readbacks()
+            .into_iter()
+            .zip(&self.likelihood_sections);
+        for (k, (source, &(name, bytes))) in fitted.enumerate() {
+            if source.name == name && source.bytes == bytes {
+                self.step_back
+                    .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
+            }
         }
         self.step_back.record_copy(
             encoder,
