@@ -93,6 +93,7 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
             angular: vec![false, false, false, true, true, true, false],
             ess_threshold: f64::INFINITY,
             best: 0,
+            annealing: Default::default(),
         };
         let mut filter = GpuFilter::new(ctx, &batch, GpuResampler::Systematic, &layout).unwrap();
         let mut gpu = FaceLikelihoodGpu::new(

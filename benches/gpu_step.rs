@@ -67,6 +67,7 @@ fn bench_whole_step(c: &mut Criterion) {
             angular: ANGLES.to_vec(),
             ess_threshold: f64::INFINITY,
             best: 0,
+            annealing: Default::default(),
         };
         let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
         let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
@@ -163,6 +164,7 @@ fn bench_resampling_alone(c: &mut Criterion) {
             angular: vec![false],
             ess_threshold: f64::INFINITY,
             best: 0,
+            annealing: Default::default(),
         };
         // Uneven weights: a Gaussian likelihood over a Gaussian cloud.
         let mut rng = RandomStreams::new(3).stream(0, Stage::Model(0));

@@ -56,6 +56,7 @@ pub fn run(
         angular: vec![false; 2],
         ess_threshold: f64::INFINITY,
         best: 0,
+        annealing: Default::default(),
     };
     // The first frame's observations, spread by the noise, start the clouds.
     let start = gaussian_clouds(&shape, 3, &seen.data[..2 * targets], &[noise; 2]);

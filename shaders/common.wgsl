@@ -19,6 +19,13 @@ struct Params {
     ess_threshold: f32,
     // Particles averaged by the best-M' estimate.
     best: u32,
+    // This annealing layer's exponent of the likelihood (used when survival_rate is 0).
+    beta: f32,
+    // > 0: choose beta so that ESS = survival_rate * M, at most max_beta (pf_core::anneal).
+    survival_rate: f32,
+    max_beta: f32,
+    // This layer's diffusion scale: sigma_d * sigma_scale.
+    sigma_scale: f32,
     _pad0: u32,
     _pad1: u32,
 }
@@ -32,10 +39,11 @@ struct TargetStats {
     status: u32,
     // The first particle with a NaN or +inf log-weight (0xffffffff when none).
     bad_particle: u32,
-    // 1 when this target resampled at the start of the step.
+    // 1 when this target resampled at the start of the step (its last annealing layer).
     resampled: u32,
+    // The exponent of the last layer's weighing.
+    beta: f32,
     _pad0: u32,
-    _pad1: u32,
 }
 
 const PI: f32 = 3.14159265358979;

@@ -1,4 +1,4 @@
-// Diffusion: x_d += sigma_d * n, n ~ N(0, 1) from counter_gaussian(key_t, m, d, step); optional
+// Diffusion: x_d += (sigma_d * s) * n (s: the annealing layer's scale, 1 without), n ~ N(0, 1) from counter_gaussian(key_t, m, d, step); optional
 // clamping to [lower, upper]; angle dimensions wrapped. One invocation per (particle, target).
 // CPU twin: pf_core::batch::diffuse.
 
@@ -19,7 +19,7 @@ fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
     let step = vec2<u32>(params.step_lo, params.step_hi);
     for (var d = 0u; d < params.dims; d = d + 1u) {
         let i = state_index(t, d, m);
-        var x = states[i] + sigma[d] * counter_gaussian(diffusion_keys[t], m, d, step);
+        var x = states[i] + (sigma[d] * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
         // A NaN state stays NaN (clamp would turn it into a bound), so the failure policy sees it.
         if (params.has_bounds == 1u && !is_nan(x)) {
             x = clamp(x, lower[d], upper[d]);

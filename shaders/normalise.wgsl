@@ -1,5 +1,7 @@
-// Log-weight normalisation per target: lw += log-likelihood, then max and log-sum-exp reductions,
-// normalised weights and log-weights, and ESS = 1 / sum w^2. One workgroup per target.
+// Log-weight normalisation per target: lw += beta * log-likelihood, then max and log-sum-exp
+// reductions, normalised weights and log-weights, and ESS = 1 / sum w^2. One workgroup per target.
+// beta is the annealing layer's (1 without annealing): fixed, or chosen by the survival rule, a
+// bisection for ESS = survival_rate * M (pf_core::anneal::survival_beta).
 // A NaN or +inf log-weight, or every log-weight -inf, sets the target's status and leaves its
 // weights uniform (the failure policy of pf-core). CPU twin: pf_core::batch::normalise_target.
 
@@ -11,6 +13,8 @@
 
 const WG: u32 = 256u;
 var<workgroup> partial: array<f32, 256>;
+// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
+var<workgroup> partial_ess: array<vec3<f32>, 256>;
 var<workgroup> first_nan: atomic<u32>;
 var<workgroup> first_inf: atomic<u32>;
 
@@ -42,6 +46,72 @@ fn reduce_sum(lid: u32, value: f32) -> f32 {
     return result;
 }
 
+// prior + beta * ll (beta > 0 always, so NaN, +inf and zero weights stay so). Twin of
+// pf_core::anneal::tempered.
+fn tempered(prior: f32, ll: f32, beta: f32) -> f32 {
+    return prior + beta * ll;
+}
+
+// Merges two (max, s1, s2) triples of shifted sums into one at the larger max.
+fn merge_ess(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    if (is_neg_inf(a.x)) {
+        return b;
+    }
+    if (is_neg_inf(b.x)) {
+        return a;
+    }
+    let m = max(a.x, b.x);
+    let ea = exp(a.x - m);
+    let eb = exp(b.x - m);
+    return vec3<f32>(m, a.y * ea + b.y * eb, a.z * ea * ea + b.z * eb * eb);
+}
+
+// The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
+// weight is zero): one pass, one reduction of (max, s1, s2). Twin of pf_core::anneal::tempered_ess.
+fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
+    var acc = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
+    for (var i = lid; i < n; i = i + WG) {
+        let x = tempered(log_weights[base + i], log_likelihood[base + i], beta);
+        if (!is_neg_inf(x)) {
+            acc = merge_ess(acc, vec3<f32>(x, 1.0, 1.0));
+        }
+    }
+    partial_ess[lid] = acc;
+    workgroupBarrier();
+    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial_ess[lid] = merge_ess(partial_ess[lid], partial_ess[lid + stride]);
+        }
+        workgroupBarrier();
+    }
+    let total = partial_ess[0];
+    workgroupBarrier();
+    if (is_neg_inf(total.x)) {
+        return 0.0;
+    }
+    return total.y * total.y / total.z;
+}
+
+// The survival rule: max_beta when it keeps rate * M effective particles, else the midpoint of
+// a 20-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta.
+fn survival_beta(lid: u32, base: u32, n: u32) -> f32 {
+    let wanted = params.survival_rate * f32(n);
+    if (tempered_ess(lid, base, n, params.max_beta) >= wanted) {
+        return params.max_beta;
+    }
+    var lo = 0.0;
+    var hi = params.max_beta;
+    for (var k = 0u; k < 20u; k = k + 1u) {
+        let mid = 0.5 * (lo + hi);
+        if (tempered_ess(lid, base, n, mid) >= wanted) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    return 0.5 * (lo + hi);
+}
+
 @compute @workgroup_size(256)
 fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
@@ -54,11 +124,11 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     }
     workgroupBarrier();
 
-    // Pass 1: accumulate the likelihood, find the max and any NaN / +inf.
+    // Pass 1: find any NaN / +inf and whether every weight is zero (the same at every beta > 0,
+    // so judged at beta = 1), and the max at beta = 1.
     var local_max = bitcast<f32>(0xff800000u);
     for (var i = lid; i < n; i = i + WG) {
         let lw = log_weights[base + i] + log_likelihood[base + i];
-        log_weights[base + i] = lw;
         if (is_nan(lw)) {
             atomicMin(&first_nan, i);
         } else if (is_pos_inf(lw)) {
@@ -67,7 +137,7 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
             local_max = max(local_max, lw);
         }
     }
-    let max_lw = reduce_max(lid, local_max);
+    let max_at_one = reduce_max(lid, local_max);
     let nan_at = atomicLoad(&first_nan);
     let inf_at = atomicLoad(&first_inf);
     var status = 0u;
@@ -79,7 +149,7 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     } else if (inf_at != 0xffffffffu) {
         status = 3u;
         bad = inf_at;
-    } else if (is_neg_inf(max_lw)) {
+    } else if (is_neg_inf(max_at_one)) {
         status = 1u;
     }
     if (status != 0u) {
@@ -90,13 +160,31 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
             log_weights[base + i] = uniform_lw;
         }
         if (lid == 0u) {
-            stats[t].max_log_weight = max_lw;
+            stats[t].max_log_weight = max_at_one;
             stats[t].log_sum_shifted = 0.0;
             stats[t].ess = f32(n);
             stats[t].status = status;
             stats[t].bad_particle = bad;
+            stats[t].beta = params.beta;
         }
         return;
+    }
+
+    // The layer's beta, then the tempered log-weights and their max (at beta = 1 exactly the
+    // sums of pass 1).
+    var beta = params.beta;
+    if (params.survival_rate > 0.0) {
+        beta = survival_beta(lid, base, n);
+    }
+    var local_tempered_max = bitcast<f32>(0xff800000u);
+    for (var i = lid; i < n; i = i + WG) {
+        let lw = tempered(log_weights[base + i], log_likelihood[base + i], beta);
+        log_weights[base + i] = lw;
+        local_tempered_max = max(local_tempered_max, lw);
+    }
+    var max_lw = max_at_one;
+    if (beta != 1.0) {
+        max_lw = reduce_max(lid, local_tempered_max);
     }
 
     // Pass 2: sum of exp(lw - max); every term is in [0, 1] and the max contributes 1.
@@ -131,5 +219,6 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
         stats[t].ess = 1.0 / sum_sq;
         stats[t].status = 0u;
         stats[t].bad_particle = 0xffffffffu;
+        stats[t].beta = beta;
     }
 }

@@ -30,6 +30,7 @@ fn config() -> BatchConfig {
         angular: ANGLES.to_vec(),
         ess_threshold: f64::INFINITY,
         best: 0,
+        annealing: Default::default(),
     }
 }
 

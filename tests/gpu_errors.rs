@@ -111,6 +111,7 @@ fn wrong_lengths_and_configurations_are_typed_errors() {
         angular: vec![false; 3],
         ess_threshold: 0.5,
         best: 0,
+        annealing: Default::default(),
     };
     let states = vec![0.0; shape.state_len()];
     let bad_sigma = BatchConfig {
@@ -144,6 +145,7 @@ fn every_adapter_can_be_opened_and_run_a_step() {
         angular: vec![false, true],
         ess_threshold: f64::INFINITY,
         best: 16,
+        annealing: Default::default(),
     };
     for ctx in &contexts {
         let mut filter = GpuFilter::new(

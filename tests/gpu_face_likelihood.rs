@@ -168,6 +168,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
                 angular: vec![false, false, false, true, true, true, false],
                 ess_threshold: f64::INFINITY,
                 best: 0,
+                annealing: Default::default(),
             };
             let mut filter = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();
             let max_points = templates.iter().map(Template::len).max().unwrap();
@@ -272,6 +273,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
                 angular: vec![false, false, false, true, true, true, false],
                 ess_threshold: f64::INFINITY,
                 best,
+                annealing: Default::default(),
             };
             let mut filter =
                 GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();

@@ -92,6 +92,7 @@ fn run(
         angular: ANGLES.to_vec(),
         ess_threshold,
         best: 100,
+        annealing: Default::default(),
     };
     let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
     let initial = gaussian_clouds(&shape, 77, &means, &OBS_SIGMA.map(|s| 2.0 * s));

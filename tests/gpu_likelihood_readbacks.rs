@@ -48,6 +48,7 @@ fn filter(ctx: &GpuContext, targets: usize, particles: usize, best: usize) -> Gp
         angular: vec![false; 2],
         ess_threshold: f64::INFINITY,
         best,
+        annealing: Default::default(),
     };
     GpuFilter::new(
         ctx,

@@ -45,6 +45,7 @@ fn config(
         angular,
         ess_threshold: f64::INFINITY,
         best: 0,
+        annealing: Default::default(),
     }
 }
 
@@ -150,7 +151,7 @@ fn diffusion_matches_cpu_within_tolerance() {
                 let mut want = states.clone();
                 let keys = batch::stage_keys(5, shape.targets, Stage::Diffusion);
                 let b = bounds.as_ref().map(|(l, h)| (l.as_slice(), h.as_slice()));
-                batch::diffuse(&shape, &mut want, &sigma, b, &angular, &keys, step);
+                batch::diffuse(&shape, &mut want, &sigma, 1.0, b, &angular, &keys, step);
                 for t in 0..shape.targets {
                     for d in 0..shape.dims {
                         for m in 0..shape.particles {
@@ -239,7 +240,13 @@ fn normalisation_matches_cpu_within_tolerance() {
                 let range = t * m..(t + 1) * m;
                 let mut lw = log_weights[range.clone()].to_vec();
                 let mut w = vec![0.0; m];
-                let cpu = batch::normalise_target(&mut lw, &log_likelihood[range.clone()], &mut w);
+                let cpu = batch::normalise_target(
+                    &mut lw,
+                    &log_likelihood[range.clone()],
+                    &mut w,
+                    batch::LayerBeta::Fixed(1.0),
+                )
+                .map(|n| n.ess);
                 let stats = report.stats[t];
                 match &cpu {
                     Ok(ess) => {

@@ -20,6 +20,7 @@ fn step_time_is_positive_and_within_the_host_wall_clock() {
         angular: vec![false; 7],
         ess_threshold: f64::INFINITY,
         best: 50,
+        annealing: Default::default(),
     };
     let mut filter = GpuFilter::new(
         &ctx,

@@ -176,6 +176,7 @@ fn a_likelihood_that_was_never_prepared_is_an_error_not_stale_weights() {
         angular: vec![false; 4],
         ess_threshold: f64::INFINITY,
         best: 0,
+        annealing: Default::default(),
     };
     let mut filter = pf_gpu::GpuFilter::new(
         &ctx,

@@ -163,6 +163,7 @@ impl BodyTracker {
             angular,
             ess_threshold: f64::INFINITY,
             best: 0,
+            annealing: Default::default(),
         };
         batch.validate()?;
         let mut states = gaussian_clouds(&shape, config.seed, &start, &sigma);

@@ -209,6 +209,7 @@ impl FaceTracker {
             angular: vec![false, false, false, false, false, true, false],
             ess_threshold: f64::INFINITY,
             best: config.best.min(config.particles),
+            annealing: Default::default(),
         };
         batch.validate()?;
         // Free slots hold a cloud at the origin until a face arrives; they are never reported.

@@ -9,6 +9,7 @@
 
 use rayon::prelude::*;
 
+use crate::anneal::{Annealing, Tempering, survival_beta, tempered};
 use crate::error::PfError;
 use crate::plugin::CpuModel;
 use crate::random::{CounterUniforms, RandomStreams, Stage, counter_gaussian, key_words};
@@ -84,13 +85,14 @@ pub fn stage_keys(seed: u64, targets: usize, stage: Stage) -> Vec<[u32; 2]> {
         .collect()
 }
 
-/// Twin of `diffuse.wgsl`: x += σ_d·n with n = counter_gaussian(key_t, m, d, step), then clamp
-/// and angle wrap.
+/// Twin of `diffuse.wgsl`: x += (σ_d·s)·n with n = counter_gaussian(key_t, m, d, step) and s the
+/// annealing layer's scale (1 for plain Condensation), then clamp and angle wrap.
 #[allow(clippy::too_many_arguments)]
 pub fn diffuse(
     shape: &BatchShape,
     states: &mut [f32],
     sigma: &[f32],
+    sigma_scale: f32,
     bounds: Option<(&[f32], &[f32])>,
     angular: &[bool],
     keys: &[[u32; 2]],
@@ -101,7 +103,7 @@ pub fn diffuse(
             for m in 0..shape.particles {
                 let i = shape.state_index(t, d, m);
                 let z = counter_gaussian(keys[t], m as u32, d as u32, step);
-                let mut x = (f64::from(states[i]) + f64::from(sigma[d]) * z) as f32;
+                let mut x = (f64::from(states[i]) + f64::from(sigma[d] * sigma_scale) * z) as f32;
                 if let Some((lo, hi)) = bounds {
                     x = x.clamp(lo[d], hi[d]);
                 }
@@ -114,23 +116,70 @@ pub fn diffuse(
     }
 }
 
-/// Twin of `normalise.wgsl` for one target: adds the log-likelihood, normalises (f64), writes the
-/// weights and returns the ESS; on a degenerate target it leaves uniform weights and returns the
-/// error.
+/// How one layer's exponent β is set (see [`crate::anneal`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LayerBeta {
+    /// This β (1: the plain likelihood).
+    Fixed(f32),
+    /// The survival rule: ESS = `rate`·M, β at most `max_beta`.
+    Survival {
+        /// α.
+        rate: f32,
+        /// The cap on β.
+        max_beta: f32,
+    },
+}
+
+impl LayerBeta {
+    /// Layer `layer`'s rule under `annealing`.
+    pub fn of_layer(annealing: &Annealing, layer: usize) -> Self {
+        match &annealing.tempering {
+            Tempering::Fixed(betas) => Self::Fixed(betas.get(layer).copied().unwrap_or(1.0)),
+            Tempering::Survival { rate, max_beta } => Self::Survival {
+                rate: *rate,
+                max_beta: *max_beta,
+            },
+        }
+    }
+}
+
+/// One target's normalisation: its effective sample size and the β it weighed with.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Normalised {
+    /// 1 / Σw².
+    pub ess: f64,
+    /// The exponent applied to the log-likelihood.
+    pub beta: f32,
+}
+
+/// Twin of `normalise.wgsl` for one target: adds β·log-likelihood (β from `beta`), normalises
+/// (f64), writes the weights and returns the ESS and β; on a degenerate target it leaves uniform
+/// weights and returns the error. A NaN, +∞ or all-zero weight is one at every β > 0, so the
+/// failure does not depend on β.
 pub fn normalise_target(
     log_weights: &mut [f32],
     log_likelihood: &[f32],
     weights_out: &mut [f64],
-) -> Result<f64, PfError> {
-    for (lw, ll) in log_weights.iter_mut().zip(log_likelihood) {
-        *lw += ll;
+    beta: LayerBeta,
+) -> Result<Normalised, PfError> {
+    let beta = match beta {
+        LayerBeta::Fixed(b) => b,
+        LayerBeta::Survival { rate, max_beta } => {
+            survival_beta(log_weights, log_likelihood, rate, max_beta)
+        }
+    };
+    for (lw, &ll) in log_weights.iter_mut().zip(log_likelihood) {
+        *lw = tempered(*lw, ll, beta);
     }
     match weights::normalise(log_weights, weights_out) {
         Ok(lse) => {
             for lw in log_weights.iter_mut() {
                 *lw = lse.normalised_log(*lw) as f32;
             }
-            Ok(weights::effective_sample_size(weights_out))
+            Ok(Normalised {
+                ess: weights::effective_sample_size(weights_out),
+                beta,
+            })
         }
         Err(err) => {
             let n = log_weights.len();
@@ -208,8 +257,10 @@ pub struct BatchReport {
     pub best_estimates: Vec<f32>,
     /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,
-    /// Whether each target resampled at the start of the step.
+    /// Whether each target resampled at the start of the step (of its last annealing layer).
     pub resampled: Vec<bool>,
+    /// The exponent each target's last layer weighed with (1 without annealing).
+    pub beta: Vec<f32>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
     pub status: Vec<Result<(), PfError>>,
 }
@@ -225,6 +276,7 @@ pub struct BatchFilter<R> {
     /// Resample a target when ESS < threshold·M (`f64::INFINITY`: every step).
     ess_threshold: f64,
     best: usize,
+    annealing: Annealing,
     diffusion_keys: Vec<[u32; 2]>,
     resampling_keys: Vec<[u32; 2]>,
     /// The states, `[(t·D + d)·M + m]`.
@@ -257,6 +309,8 @@ pub struct BatchConfig {
     pub ess_threshold: f64,
     /// M′ of the best-M′ weighted mean (eq. 14 of the face paper); 0: not computed.
     pub best: usize,
+    /// Annealing layers per frame ([`Annealing::none`]: plain Condensation).
+    pub annealing: Annealing,
 }
 
 impl BatchConfig {
@@ -279,6 +333,7 @@ impl BatchConfig {
             angular: vec![false; shape.dims],
             ess_threshold: f64::INFINITY,
             best: 0,
+            annealing: Annealing::none(),
         }
     }
 
@@ -295,6 +350,7 @@ impl BatchConfig {
             }
         };
         check("sigma", self.sigma.len())?;
+        self.annealing.validate()?;
         check("angular", self.angular.len())?;
         if let Some((lo, hi)) = &self.bounds {
             check("lower bounds", lo.len())?;
@@ -358,6 +414,7 @@ impl<R: Resampler> BatchFilter<R> {
             angular: config.angular.clone(),
             ess_threshold: config.ess_threshold,
             best: config.best,
+            annealing: config.annealing.clone(),
             diffusion_keys: stage_keys(config.seed, shape.targets, Stage::Diffusion),
             resampling_keys: stage_keys(config.seed, shape.targets, Stage::Resampling),
             scratch: vec![0.0; initial_states.len()],
@@ -426,11 +483,11 @@ impl<R: Resampler> BatchFilter<R> {
     /// The same step with the whole measurement in one call: `measure(shape, states, out)` fills
     /// the log-likelihood of every particle, `out[t·M + m]`, from the diffused states (batch
     /// layout). This is the form for likelihoods that evaluate many particles at once (on all
-    /// cores, or on GPUs). An error from it is returned as is: the particles have then been moved but
-    /// not reweighted.
+    /// cores, or on GPUs). With annealing it is called once per layer. An error from it is returned
+    /// as is: the particles have then been moved but not reweighted.
     pub fn step_batched(
         &mut self,
-        measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
+        measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
     ) -> Result<BatchReport, PfError> {
         self.step_with(None, measure)
     }
@@ -506,18 +563,62 @@ impl<R: Resampler> BatchFilter<R> {
     fn step_with(
         &mut self,
         propagate: Option<&Propagate<'_>>,
-        measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
+        mut measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
     ) -> Result<BatchReport, PfError> {
+        let shape = self.shape;
+        let mut last = None;
+        for layer in 0..self.annealing.layers {
+            last = Some(self.step_layer(layer, propagate, &mut measure)?);
+        }
+        let (resampled, beta, status) = last
+            .ok_or_else(|| PfError::InvalidConfig("annealing needs at least one layer".into()))?;
+        let best_estimates = if self.best > 0 {
+            best_weighted_means(
+                &shape,
+                &self.states,
+                &self.weights,
+                &self.angular,
+                self.best,
+            )
+        } else {
+            Vec::new()
+        };
+        Ok(BatchReport {
+            estimates: weighted_means(&shape, &self.states, &self.weights, &self.angular),
+            best_estimates,
+            ess: self.ess.clone(),
+            resampled,
+            beta,
+            status,
+        })
+    }
+
+    /// One layer of a frame (the whole frame without annealing): resample, gather, move, measure,
+    /// weigh. Layer 0 resamples by the ESS policy and moves with the dynamics; later layers always
+    /// resample and take the random walk scaled by the schedule. Each layer draws with its own
+    /// step index. Returns each target's resampled flag, β and status.
+    #[allow(clippy::type_complexity)]
+    fn step_layer(
+        &mut self,
+        layer: usize,
+        propagate: Option<&Propagate<'_>>,
+        measure: &mut impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
+    ) -> Result<(Vec<bool>, Vec<f32>, Vec<Result<(), PfError>>), PfError> {
         let shape = self.shape;
         let (m_count, dims) = (shape.particles, shape.dims);
         let step = self.step;
         self.step += 1;
+        let ess_threshold = if layer == 0 {
+            self.ess_threshold
+        } else {
+            f64::INFINITY
+        };
 
         let mut resampled = vec![false; shape.targets];
         for t in 0..shape.targets {
             let range = t * m_count..(t + 1) * m_count;
             let ancestors = &mut self.ancestors[range.clone()];
-            if self.ess[t] < self.ess_threshold * m_count as f64 {
+            if self.ess[t] < ess_threshold * m_count as f64 {
                 resampled[t] = true;
                 let uniforms = CounterUniforms::new(self.resampling_keys[t], step);
                 self.resampler
@@ -540,54 +641,43 @@ impl<R: Resampler> BatchFilter<R> {
         }
         std::mem::swap(&mut self.states, &mut self.scratch);
 
-        if let Some(propagate) = propagate {
-            self.propagate_all(propagate, step);
-        } else {
-            let bounds = self
-                .bounds
-                .as_ref()
-                .map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
-            diffuse(
-                &shape,
-                &mut self.states,
-                &self.sigma,
-                bounds,
-                &self.angular,
-                &self.diffusion_keys,
-                step,
-            );
+        match propagate {
+            Some(propagate) if layer == 0 => self.propagate_all(propagate, step),
+            _ => {
+                let bounds = self
+                    .bounds
+                    .as_ref()
+                    .map(|(lo, hi)| (lo.as_slice(), hi.as_slice()));
+                diffuse(
+                    &shape,
+                    &mut self.states,
+                    &self.sigma,
+                    self.annealing.sigma_scale(layer),
+                    bounds,
+                    &self.angular,
+                    &self.diffusion_keys,
+                    step,
+                );
+            }
         }
 
         measure(&shape, &self.states, &mut self.log_likelihood)?;
+        let rule = LayerBeta::of_layer(&self.annealing, layer);
         let mut status = Vec::with_capacity(shape.targets);
+        let mut betas = Vec::with_capacity(shape.targets);
         for t in 0..shape.targets {
             let range = t * m_count..(t + 1) * m_count;
             let result = normalise_target(
                 &mut self.log_weights[range.clone()],
                 &self.log_likelihood[range.clone()],
                 &mut self.weights[range],
+                rule,
             );
-            self.ess[t] = *result.as_ref().unwrap_or(&(m_count as f64));
+            self.ess[t] = result.as_ref().map_or(m_count as f64, |n| n.ess);
+            betas.push(result.as_ref().map_or(0.0, |n| n.beta));
             status.push(result.map(|_| ()));
         }
-        let best_estimates = if self.best > 0 {
-            best_weighted_means(
-                &shape,
-                &self.states,
-                &self.weights,
-                &self.angular,
-                self.best,
-            )
-        } else {
-            Vec::new()
-        };
-        Ok(BatchReport {
-            estimates: weighted_means(&shape, &self.states, &self.weights, &self.angular),
-            best_estimates,
-            ess: self.ess.clone(),
-            resampled,
-            status,
-        })
+        Ok((resampled, betas, status))
     }
 }
 

@@ -13,6 +13,8 @@
 //!   averaged on the circle;
 //! - [`random`]: seeded xoshiro256++ streams per (target, stage) and counter-based Philox
 //!   uniforms, all reproducible from one seed;
+//! - [`anneal`]: annealed particle filtering (layers of tempered weighing and shrinking
+//!   diffusion per frame), run by the batch filter and its GPU twin;
 //! - [`ParticleFilter`]: the loop, with an ESS-triggered or every-step resampling policy, typed
 //!   errors for degenerate weights and a recovery helper.
 //!
@@ -33,6 +35,7 @@
 //!
 //! pf-core has no GPU type and does no file or image I/O.
 
+pub mod anneal;
 pub mod batch;
 pub mod error;
 pub mod estimate;

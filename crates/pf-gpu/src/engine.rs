@@ -105,11 +105,12 @@ impl FilterEngine {
     }
 
     /// One step. The CPU engine measures with `cpu_measure(shape, states, out)` (fill
-    /// `out[t·M + m]` with log-likelihoods; an error is returned as it is); the GPU engine
-    /// records `gpu_likelihood` (which must have been prepared against this engine).
+    /// `out[t·M + m]` with log-likelihoods; an error is returned as it is; called once per
+    /// annealing layer); the GPU engine records `gpu_likelihood` (which must have been prepared
+    /// against this engine).
     pub fn step<E: From<GpuError>>(
         &mut self,
-        cpu_measure: impl FnOnce(&BatchShape, &[f32], &mut [f32]) -> Result<(), E>,
+        mut cpu_measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), E>,
         gpu_likelihood: &dyn GpuLikelihood,
     ) -> Result<EngineReport, E> {
         match self {

@@ -155,6 +155,7 @@ impl Trackers {
                 ResamplePolicy::EssBelow(f) => f,
             },
             best: 0,
+            annealing: Default::default(),
         };
         let means: Vec<f32> = (0..args.targets)
             .flat_map(|k| truth(k, 0).as_slice().to_vec())

@@ -156,6 +156,7 @@ fn gpu_weighting(
         angular: vec![false, false, false, true, true, true, false],
         ess_threshold: f64::INFINITY,
         best: 0,
+        annealing: Default::default(),
     };
     let mut filter = GpuFilter::new(ctx, &batch, GpuResampler::Systematic, layout)?;
     let mut gpu = FaceLikelihoodGpu::new(

@@ -1,10 +1,12 @@
 //! The GPU filter driver: a frame's whole step — resample → gather → diffuse → likelihood →
-//! normalise → estimate — for T targets × M particles, recorded into one command submission. The
+//! normalise (once per annealing layer) → estimate — for T targets × M particles, recorded into
+//! one command submission. The
 //! host uploads nothing but the per-frame parameters (and what the likelihood needs) and reads
 //! back only the estimates and the per-target statistics.
 //!
 //! CPU twin: `pf_core::batch::BatchFilter` (same layout, same counter-based random numbers).
 
+use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape};
 
 mod likelihood;
@@ -18,8 +20,8 @@ pub use likelihood::{
 pub use params::{FrameParams, TargetStats};
 
 use setup::{
-    BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, resample_dispatches,
-    uniform_buffer,
+    BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, layer_params_buffer,
+    resample_dispatches, uniform_buffer,
 };
 
 use crate::context::GpuContext;
@@ -75,6 +77,10 @@ pub struct GpuFilter {
     shape: BatchShape,
     params: FrameParams,
     params_buffer: wgpu::Buffer,
+    /// The frame's annealing layers (one for plain Condensation).
+    annealing: Annealing,
+    /// One parameter block per layer, copied into `params_buffer` before that layer runs.
+    layer_params: wgpu::Buffer,
     /// Every device stream, created once (some only for the bind groups).
     streams: Streams,
     stages: Stages,
@@ -118,6 +124,7 @@ impl GpuFilter {
         check_fits(ctx, &shape, initial_states)?;
         let params = FrameParams::for_config(config, resampler);
         let params_buffer = uniform_buffer(ctx, &params)?;
+        let layer_params = layer_params_buffer(ctx, config.annealing.layers)?;
         let streams = Streams::new(ctx, config, initial_states)?;
         let stages = Stages::new(ctx, config.best > 0)?;
         let groups = BindGroups::new(ctx, &stages, &streams, &params_buffer)?;
@@ -140,6 +147,8 @@ impl GpuFilter {
             shape,
             params,
             params_buffer,
+            annealing: config.annealing.clone(),
+            layer_params,
             step_back,
             own_sections,
             likelihood_sections: Vec::new(),
@@ -190,7 +199,9 @@ impl GpuFilter {
         );
     }
 
-    /// Records the given stages, in the step's order, with the next step index.
+    /// Records the given stages, in the step's order: the selection, moving, measuring and
+    /// weighing stages once per annealing layer (each layer with the next step index), then the
+    /// estimate.
     fn record_stages(
         &mut self,
         ctx: &GpuContext,
@@ -198,13 +209,78 @@ impl GpuFilter {
         stages: &[GpuStage],
         likelihood: &dyn GpuLikelihood,
     ) {
-        let step = self.step;
-        self.step += 1;
-        self.params.step_lo = step as u32;
-        self.params.step_hi = (step >> 32) as u32;
+        let layers = self.annealing.layers;
+        let blocks: Vec<FrameParams> = (0..layers)
+            .map(|layer| {
+                self.params
+                    .for_layer(&self.annealing, layer, self.step + layer as u64)
+            })
+            .collect();
+        self.step += layers as u64;
         ctx.queue
-            .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&self.params));
+            .write_buffer(&self.layer_params, 0, bytemuck::cast_slice(&blocks));
+        let block_bytes = std::mem::size_of::<FrameParams>() as u64;
+        for layer in 0..layers {
+            encoder.copy_buffer_to_buffer(
+                &self.layer_params,
+                layer as u64 * block_bytes,
+                &self.params_buffer,
+                0,
+                block_bytes,
+            );
+            self.record_layer(encoder, stages, likelihood, layer);
+        }
 
+        let per_target = [1, self.shape.targets as u32, 1];
+        if stages.contains(&GpuStage::Estimate) {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("estimate"),
+                timestamp_writes: None,
+            });
+            self.stages
+                .estimate
+                .record(&mut pass, &self.groups.estimate, per_target);
+            if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
+                k.record(&mut pass, g, per_target);
+            }
+            likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
+        }
+        // Only into sections the staging buffer was fitted with (`run_stages` fits it first; a
+        // bare `record_step` of a likelihood it was never fitted for copies nothing).
+        let fitted = likelihood
+            .readbacks()
+            .into_iter()
+            .zip(&self.likelihood_sections);
+        for (k, (source, &(name, bytes))) in fitted.enumerate() {
+            if source.name == name && source.bytes == bytes {
+                self.step_back
+                    .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
+            }
+        }
+        self.step_back.record_copy(
+            encoder,
+            STEP_BACK_ESTIMATES,
+            self.streams.estimates.buffer(),
+        );
+        self.step_back
+            .record_copy(encoder, STEP_BACK_STATS, self.streams.stats.buffer());
+        self.step_back.record_copy(
+            encoder,
+            STEP_BACK_BEST,
+            self.streams.best_estimates.buffer(),
+        );
+    }
+
+    /// One annealing layer's stages (the whole frame but the estimate without annealing): the
+    /// first layer moves particles with the likelihood's own dynamics when it has them, later
+    /// layers with the (scaled) random walk.
+    fn record_layer(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+        layer: usize,
+    ) {
         let (t, m) = (self.shape.targets, self.shape.particles);
         let per_particle = [groups_for(m, 64), t as u32, 1];
         let per_target = [1, t as u32, 1];
@@ -235,62 +311,27 @@ impl GpuFilter {
                 bytes,
             );
         }
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("diffuse, measure, normalise, estimate"),
-                timestamp_writes: None,
-            });
-            if wants(GpuStage::Diffuse) {
-                if likelihood.propagates() {
-                    likelihood.record(LikelihoodPhase::Propagate, &mut pass);
-                } else {
-                    self.stages
-                        .diffuse
-                        .record(&mut pass, &self.groups.diffuse, per_particle);
-                }
-            }
-            if wants(GpuStage::Likelihood) {
-                likelihood.record(LikelihoodPhase::Measure, &mut pass);
-            }
-            if wants(GpuStage::Normalise) {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("diffuse, measure, normalise"),
+            timestamp_writes: None,
+        });
+        if wants(GpuStage::Diffuse) {
+            if layer == 0 && likelihood.propagates() {
+                likelihood.record(LikelihoodPhase::Propagate, &mut pass);
+            } else {
                 self.stages
-                    .normalise
-                    .record(&mut pass, &self.groups.normalise, per_target);
-            }
-            if wants(GpuStage::Estimate) {
-                self.stages
-                    .estimate
-                    .record(&mut pass, &self.groups.estimate, per_target);
-                if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
-                    k.record(&mut pass, g, per_target);
-                }
-                likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
+                    .diffuse
+                    .record(&mut pass, &self.groups.diffuse, per_particle);
             }
         }
-        // Only into sections the staging buffer was fitted with (`run_stages` fits it first; a
-        // bare `record_step` of a likelihood it was never fitted for copies nothing).
-        let fitted = likelihood
-            .readbacks()
-            .into_iter()
-            .zip(&self.likelihood_sections);
-        for (k, (source, &(name, bytes))) in fitted.enumerate() {
-            if source.name == name && source.bytes == bytes {
-                self.step_back
-                    .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
-            }
+        if wants(GpuStage::Likelihood) {
+            likelihood.record(LikelihoodPhase::Measure, &mut pass);
         }
-        self.step_back.record_copy(
-            encoder,
-            STEP_BACK_ESTIMATES,
-            self.streams.estimates.buffer(),
-        );
-        self.step_back
-            .record_copy(encoder, STEP_BACK_STATS, self.streams.stats.buffer());
-        self.step_back.record_copy(
-            encoder,
-            STEP_BACK_BEST,
-            self.streams.best_estimates.buffer(),
-        );
+        if wants(GpuStage::Normalise) {
+            self.stages
+                .normalise
+                .record(&mut pass, &self.groups.normalise, per_target);
+        }
     }
 
     /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.

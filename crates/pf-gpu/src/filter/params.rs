@@ -28,6 +28,14 @@ pub struct FrameParams {
     pub ess_threshold: f32,
     /// M′ of the best-M′ estimate (0: none).
     pub best: u32,
+    /// This annealing layer's fixed β (used when `survival_rate` is 0).
+    pub beta: f32,
+    /// > 0: choose β so that ESS = this × M (the survival rule), at most `max_beta`.
+    pub survival_rate: f32,
+    /// The cap of the survival rule's β.
+    pub max_beta: f32,
+    /// This layer's diffusion scale (σ_d × it).
+    pub sigma_scale: f32,
     /// Padding to 16 bytes.
     pub _pad: [u32; 2],
 }
@@ -46,10 +54,12 @@ pub struct TargetStats {
     pub status: u32,
     /// The first particle with a NaN or +∞ log-weight (`u32::MAX` when none).
     pub bad_particle: u32,
-    /// 1 when the target resampled at the start of the step.
+    /// 1 when the target resampled at the start of the step (its last annealing layer).
     pub resampled: u32,
+    /// The exponent β of the last layer's weighing (1 without annealing).
+    pub beta: f32,
     /// Padding to 16 bytes.
-    pub _pad: [u32; 2],
+    pub _pad: u32,
 }
 
 impl TargetStats {
@@ -58,6 +68,7 @@ impl TargetStats {
         Self {
             ess: particles as f32,
             bad_particle: u32::MAX,
+            beta: 1.0,
             ..Self::zeroed()
         }
     }
@@ -96,14 +107,15 @@ mod layout_tests {
             "Params",
             size_of::<FrameParams>(),
             &fields!(FrameParams: targets, particles, dims, angular_mask, step_lo, step_hi,
-                has_bounds, metropolis_steps, ess_threshold, best),
+                has_bounds, metropolis_steps, ess_threshold, best, beta, survival_rate, max_beta,
+                sigma_scale),
         );
         assert_mirrors_wgsl(
             &common,
             "TargetStats",
             size_of::<TargetStats>(),
             &fields!(TargetStats: max_log_weight, log_sum_shifted, ess, status, bad_particle,
-                resampled),
+                resampled, beta),
         );
     }
 }

@@ -3,7 +3,8 @@
 //! once, at construction; a frame allocates nothing.
 
 use pf_core::Stage;
-use pf_core::batch::{BatchConfig, BatchShape, stage_keys};
+use pf_core::anneal::Annealing;
+use pf_core::batch::{BatchConfig, BatchShape, LayerBeta, stage_keys};
 
 use super::{FrameParams, GpuResampler, SINGLE_WORKGROUP_SCAN_LIMIT, TargetStats};
 use crate::context::GpuContext;
@@ -62,9 +63,52 @@ impl FrameParams {
                 f32::MAX
             },
             best: config.best as u32,
+            beta: 1.0,
+            survival_rate: 0.0,
+            max_beta: 1.0,
+            sigma_scale: 1.0,
             _pad: [0; 2],
         }
     }
+
+    /// These parameters for annealing layer `layer` of a frame, drawing with step index `step`:
+    /// its β rule and diffusion scale; layers after the first always resample.
+    pub(super) fn for_layer(&self, annealing: &Annealing, layer: usize, step: u64) -> Self {
+        let (beta, survival_rate, max_beta) = match LayerBeta::of_layer(annealing, layer) {
+            LayerBeta::Fixed(beta) => (beta, 0.0, beta),
+            LayerBeta::Survival { rate, max_beta } => (max_beta, rate, max_beta),
+        };
+        Self {
+            step_lo: step as u32,
+            step_hi: (step >> 32) as u32,
+            ess_threshold: if layer == 0 {
+                self.ess_threshold
+            } else {
+                f32::MAX
+            },
+            beta,
+            survival_rate,
+            max_beta,
+            sigma_scale: annealing.sigma_scale(layer),
+            ..*self
+        }
+    }
+}
+
+/// The parameter blocks of a frame's annealing layers, one per layer, each copied into the
+/// uniform buffer before its layer's dispatches (so that one submission runs every layer).
+pub(super) fn layer_params_buffer(
+    ctx: &GpuContext,
+    layers: usize,
+) -> Result<wgpu::Buffer, GpuError> {
+    ctx.scoped("creating the layer parameter buffer", || {
+        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("annealing layer params"),
+            size: (layers * std::mem::size_of::<FrameParams>()) as u64,
+            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    })
 }
 
 /// The uniform buffer of the frame parameters, holding `params`.

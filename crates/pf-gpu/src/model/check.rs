@@ -121,6 +121,7 @@ pub fn check_against_cpu<O: Pod, C: Pod, M: CpuModel<O, C>>(
         angular: inputs.angular.to_vec(),
         ess_threshold: f64::INFINITY,
         best: 0,
+        annealing: Default::default(),
     };
     let mut filter = ModelFilter::new(
         ctx,
