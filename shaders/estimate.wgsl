@@ -1,11 +1,14 @@
 // Point estimates per target from the normalised weights: the weighted mean of every dimension
-// (angles as the mean of unit vectors, atan2(sum w sin, sum w cos)). One workgroup per target.
-// CPU twin: pf_core::batch::weighted_means (pf_core::estimate::weighted_mean for one target).
+// (angles as the mean of unit vectors, atan2(sum w sin, sum w cos)), and the posterior's spread
+// about it: the weighted standard deviation, or for an angle the circular one, sqrt(-2 ln R) with
+// R the length of the weighted mean unit vector. One workgroup per target.
+// CPU twins: pf_core::batch::weighted_means and pf_core::batch::weighted_spreads.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> states: array<f32>;
 @group(0) @binding(2) var<storage, read> weights: array<f32>;
 @group(0) @binding(3) var<storage, read_write> estimates: array<f32>;
+@group(0) @binding(5) var<storage, read_write> spreads: array<f32>;
 
 const WG: u32 = 256u;
 var<workgroup> partial_a: array<f32, 256>;
@@ -58,10 +61,36 @@ fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgro
             acc = acc + mean_terms(angle, weights[t * n + i], states[state_index(t, d, i)]);
         }
         let sums = reduce_pair(lid, acc.x, acc.y);
+        let mean = mean_from_sums(angle, sums);
         if (lid == 0u) {
-            estimates[t * params.dims + d] = mean_from_sums(angle, sums);
+            estimates[t * params.dims + d] = mean;
+        }
+        if (angle) {
+            if (lid == 0u) {
+                spreads[t * params.dims + d] = circular_spread(length(sums));
+            }
+            continue;
+        }
+        var sq = 0.0;
+        for (var i = lid; i < n; i = i + WG) {
+            let dx = states[state_index(t, d, i)] - mean;
+            sq = sq + weights[t * n + i] * dx * dx;
+        }
+        let spread_sums = reduce_pair(lid, sq, 0.0);
+        if (lid == 0u) {
+            var spread = 0.0;
+            if (sums.y > 0.0) {
+                spread = sqrt(spread_sums.x / sums.y);
+            }
+            spreads[t * params.dims + d] = spread;
         }
     }
+}
+
+// The circular standard deviation sqrt(-2 ln R) of a mean resultant length R (the weights sum to
+// one): 0 for one direction, growing without bound as the directions spread round the circle.
+fn circular_spread(r: f32) -> f32 {
+    return sqrt(-2.0 * log(clamp(r, 1e-30, 1.0)));
 }
 
 // ---- best-M' weighted mean (eq. 14 of the face paper) ------------------------------------------

@@ -631,8 +631,9 @@ fn gather_bit_exact_vs_cpu() {
 }
 
 #[test]
-fn weighted_mean_matches_cpu_within_tolerance() {
-    let Some(ctx) = common::gpu_context("weighted_mean_matches_cpu_within_tolerance") else {
+fn weighted_mean_and_spread_match_cpu_within_tolerance() {
+    let Some(ctx) = common::gpu_context("weighted_mean_and_spread_match_cpu_within_tolerance")
+    else {
         return;
     };
     let mut runner = runner(16);
@@ -675,6 +676,19 @@ fn weighted_mean_matches_cpu_within_tolerance() {
                     (g - c).abs() <= 1e-4 * 100.0
                 };
                 prop_assert!(ok, "estimate {}: GPU {} vs CPU {}", i, g, c);
+            }
+            // The spreads about the CPU's means: standard deviations within 1e-3 of the value
+            // range; for angles the resultant length R = exp(-s²/2) within 1e-3 (R is what is
+            // summed; s = √(−2 ln R) is steep as R → 0).
+            let spreads = batch::weighted_spreads(&shape, &states, &w64, &angular, &want);
+            for (i, (&g, &c)) in report.spreads.iter().zip(&spreads).enumerate() {
+                let ok = if angular[i % shape.dims] {
+                    let r = |s: f32| (-0.5 * s * s).exp();
+                    (r(g) - r(c)).abs() <= 1e-3
+                } else {
+                    (g - c).abs() <= 1e-3 * 100.0
+                };
+                prop_assert!(ok, "spread {}: GPU {} vs CPU {}", i, g, c);
             }
             Ok(())
         })

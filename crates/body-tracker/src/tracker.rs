@@ -13,6 +13,7 @@
 //! angles (wrapped, averaged on the circle).
 
 use nalgebra::Vector3;
+use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
 use pf_gpu::engine::FilterEngine;
@@ -77,6 +78,9 @@ pub struct TrackerConfig {
     pub max_points: usize,
     pub seed: u64,
     pub weighing: Weighing,
+    /// Annealing layers per frame (`pf_core::anneal`): each resamples, diffuses with the σ above
+    /// shrunk by the decay per layer and weighs with the likelihood raised to β.
+    pub annealing: Annealing,
 }
 
 impl Default for TrackerConfig {
@@ -91,6 +95,7 @@ impl Default for TrackerConfig {
             max_points: 20_000,
             seed: 1,
             weighing: Weighing::Capsules,
+            annealing: Annealing::none(),
         }
     }
 }
@@ -163,7 +168,7 @@ impl BodyTracker {
             angular,
             ess_threshold: f64::INFINITY,
             best: 0,
-            annealing: Default::default(),
+            annealing: config.annealing.clone(),
         };
         batch.validate()?;
         let mut states = gaussian_clouds(&shape, config.seed, &start, &sigma);

@@ -226,6 +226,55 @@ pub fn weighted_means(
     out
 }
 
+/// Twin of the spread half of the weighted-mean kernel: per target and dimension, the posterior's
+/// spread about `means` (`[t·D + d]`, from [`weighted_means`]): the weighted standard deviation,
+/// or for an angle the circular standard deviation √(−2 ln R), R the length of the weighted mean
+/// unit vector (0 for one direction; it grows without bound as the directions fill the circle).
+pub fn weighted_spreads(
+    shape: &BatchShape,
+    states: &[f32],
+    weights: &[f64],
+    angular: &[bool],
+    means: &[f32],
+) -> Vec<f32> {
+    let mut out = vec![0.0; shape.targets * shape.dims];
+    for t in 0..shape.targets {
+        let w = &weights[t * shape.particles..(t + 1) * shape.particles];
+        for d in 0..shape.dims {
+            let start = shape.state_index(t, d, 0);
+            let xs = &states[start..start + shape.particles];
+            let mean = f64::from(means[t * shape.dims + d]);
+            out[t * shape.dims + d] = if angular[d] {
+                let (s, c) = xs
+                    .iter()
+                    .zip(w)
+                    .fold((0.0f64, 0.0f64), |(s, c), (&x, &wi)| {
+                        (s + wi * f64::from(x).sin(), c + wi * f64::from(x).cos())
+                    });
+                circular_spread(s.hypot(c)) as f32
+            } else {
+                let (sq, total) = xs
+                    .iter()
+                    .zip(w)
+                    .fold((0.0f64, 0.0f64), |(sq, n), (&x, &wi)| {
+                        (sq + wi * (f64::from(x) - mean).powi(2), n + wi)
+                    });
+                if total > 0.0 {
+                    (sq / total).sqrt() as f32
+                } else {
+                    0.0
+                }
+            };
+        }
+    }
+    out
+}
+
+/// √(−2 ln R) of a mean resultant length R in (0, 1] (clamped), the circular standard deviation.
+pub fn circular_spread(r: f64) -> f64 {
+    (-2.0 * r.clamp(1e-30, 1.0).ln()).sqrt()
+}
+
 /// Twin of the best-M′ kernel: per target, the weighted mean of the `best` heaviest particles,
 /// ties to the lower index (the rule of [`crate::estimate::best_weighted_mean`]).
 pub fn best_weighted_means(
@@ -255,6 +304,8 @@ pub struct BatchReport {
     pub estimates: Vec<f32>,
     /// The best-M′ weighted means, `[t·D + d]` (empty when `best` is 0).
     pub best_estimates: Vec<f32>,
+    /// The posterior's spread about the weighted means, `[t·D + d]` ([`weighted_spreads`]).
+    pub spreads: Vec<f32>,
     /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,
     /// Whether each target resampled at the start of the step (of its last annealing layer).
@@ -583,8 +634,16 @@ impl<R: Resampler> BatchFilter<R> {
         } else {
             Vec::new()
         };
+        let estimates = weighted_means(&shape, &self.states, &self.weights, &self.angular);
         Ok(BatchReport {
-            estimates: weighted_means(&shape, &self.states, &self.weights, &self.angular),
+            spreads: weighted_spreads(
+                &shape,
+                &self.states,
+                &self.weights,
+                &self.angular,
+                &estimates,
+            ),
+            estimates,
             best_estimates,
             ess: self.ess.clone(),
             resampled,

@@ -39,6 +39,9 @@ pub struct EngineReport {
     pub estimates: Vec<f32>,
     /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
     pub best_estimates: Vec<f32>,
+    /// The posterior's spread about the weighted means, `[t·D + d]`: the weighted standard
+    /// deviation, circular for angles (`pf_core::batch::weighted_spreads`).
+    pub spreads: Vec<f32>,
     /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
@@ -130,6 +133,7 @@ impl FilterEngine {
                 Ok(EngineReport {
                     estimates: report.estimates,
                     best_estimates: report.best_estimates,
+                    spreads: report.spreads,
                     ess: report.ess,
                     status: report.status,
                     gpu_time: None,
@@ -144,6 +148,7 @@ impl FilterEngine {
                     status: report.stats.iter().map(|s| s.result(particles)).collect(),
                     estimates: report.estimates,
                     best_estimates: report.best_estimates,
+                    spreads: report.spreads,
                     gpu_time: Some(report.time),
                     likelihood: report.likelihood,
                 })

@@ -167,6 +167,8 @@ pub struct TrackArgs {
     #[arg(long)]
     pub quiet: bool,
     #[command(flatten)]
+    pub annealing: crate::anneal_args::AnnealArgs,
+    #[command(flatten)]
     pub sequence: SequenceArgs,
 }
 
@@ -316,11 +318,13 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     };
     let backend = open_backend(args)?;
     let backend_name = backend.describe();
+    let defaults = TrackerConfig::default();
     let config = TrackerConfig {
         particles: args.particles as usize,
         max_points: args.max_points as usize,
         seed: args.seed,
-        ..TrackerConfig::default()
+        annealing: args.annealing.apply(&defaults.annealing)?,
+        ..defaults
     };
     let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;
     std::fs::create_dir_all(&args.out)

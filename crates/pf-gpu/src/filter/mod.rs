@@ -66,6 +66,9 @@ pub struct GpuStepReport {
     pub stats: Vec<TargetStats>,
     /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
     pub best_estimates: Vec<f32>,
+    /// The posterior's spread about the weighted mean, `[t·D + d]`: the weighted standard
+    /// deviation, circular for angles (`pf_core::batch::weighted_spreads`).
+    pub spreads: Vec<f32>,
     /// The step's duration: GPU timestamps where the adapter has them, else wall clock.
     pub time: GpuTime,
     /// What the likelihood asked to read back ([`GpuLikelihood::readbacks`]).
@@ -104,8 +107,9 @@ const STEP_BACK_ESTIMATES: usize = 0;
 const STEP_BACK_STATS: usize = 1;
 const STEP_BACK_BEST: usize = 2;
 const STEP_BACK_TICKS: usize = 3;
+const STEP_BACK_SPREADS: usize = 4;
 /// The filter's own sections; the likelihood's follow.
-const STEP_BACK_OWN: usize = 4;
+const STEP_BACK_OWN: usize = 5;
 
 /// Above this many particles per target, systematic and stratified resampling scan the weights
 /// device-wide (four dispatches) instead of in one workgroup per target.
@@ -141,6 +145,7 @@ impl GpuFilter {
             (shape.targets * std::mem::size_of::<TargetStats>()) as u64,
             if config.best > 0 { estimate_bytes } else { 0 },
             if timer.is_some() { 16 } else { 0 },
+            estimate_bytes,
         ];
         let step_back = ReadbackSet::new(ctx, "step readback", &own_sections)?;
         Ok(Self {
@@ -269,6 +274,8 @@ impl GpuFilter {
             STEP_BACK_BEST,
             self.streams.best_estimates.buffer(),
         );
+        self.step_back
+            .record_copy(encoder, STEP_BACK_SPREADS, self.streams.spreads.buffer());
     }
 
     /// One annealing layer's stages (the whole frame but the estimate without annealing): the
@@ -379,6 +386,7 @@ impl GpuFilter {
         let estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_ESTIMATES]);
         let stats = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_STATS]);
         let best_estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_BEST]);
+        let spreads = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_SPREADS]);
         let time = match &self.timer {
             Some(timer) => GpuTime::Timestamps(
                 timer.elapsed(&bytemuck::pod_collect_to_vec(&sections[STEP_BACK_TICKS])),
@@ -396,6 +404,7 @@ impl GpuFilter {
             estimates,
             stats,
             best_estimates,
+            spreads,
             time,
             likelihood,
         })

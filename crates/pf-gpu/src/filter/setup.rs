@@ -141,6 +141,7 @@ pub(super) struct Streams {
     pub stats: DeviceStream<TargetStats>,
     pub estimates: DeviceStream<f32>,
     pub best_estimates: DeviceStream<f32>,
+    pub spreads: DeviceStream<f32>,
     pub sigma: DeviceStream<f32>,
     pub lower: DeviceStream<f32>,
     pub upper: DeviceStream<f32>,
@@ -192,6 +193,7 @@ impl Streams {
                 "best-M' estimates",
                 shape.targets * shape.dims,
             )?,
+            spreads: DeviceStream::zeroed(ctx, "spreads", shape.targets * shape.dims)?,
             sigma: DeviceStream::from_slice(ctx, "sigma", &config.sigma)?,
             lower: DeviceStream::from_slice(ctx, "lower bounds", &lo)?,
             upper: DeviceStream::from_slice(ctx, "upper bounds", &hi)?,
@@ -316,6 +318,7 @@ impl BindGroups {
                     (1, s.states.binding()),
                     (2, s.weights.binding()),
                     (3, s.estimates.binding()),
+                    (5, s.spreads.binding()),
                 ],
             )?,
             best_mean: match &stages.best_mean {

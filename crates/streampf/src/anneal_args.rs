@@ -1,0 +1,107 @@
+//! The annealing options shared by `face track` and `body track`: each overrides one part of the
+//! tracker's own default schedule (`pf_core::anneal`).
+
+use anyhow::bail;
+use clap::Args;
+use pf_core::anneal::{Annealing, MAX_LAYERS, Tempering};
+
+#[derive(Debug, Clone, Default, Args)]
+pub struct AnnealArgs {
+    /// Annealing layers per frame (1: plain Condensation). Each layer resamples, diffuses with
+    /// the noise shrunk by --sigma-decay per layer and weighs with the likelihood raised to β.
+    /// Default: the tracker's own schedule.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=MAX_LAYERS as i64))]
+    pub layers: Option<u32>,
+    /// β of each layer chosen so that this fraction of the particles stays effective
+    /// (Deutscher's survival rate α, in (0, 1)); β is at most 1.
+    #[arg(long, conflicts_with = "betas")]
+    pub survival_rate: Option<f32>,
+    /// A fixed β per layer instead of the survival rule, comma-separated (as many as --layers).
+    #[arg(long, value_delimiter = ',')]
+    pub betas: Option<Vec<f32>>,
+    /// Layer l diffuses with σ × decay^l, in (0, 1].
+    #[arg(long)]
+    pub sigma_decay: Option<f32>,
+}
+
+impl AnnealArgs {
+    /// The tracker's `default` schedule with the given options applied, checked.
+    pub fn apply(&self, default: &Annealing) -> anyhow::Result<Annealing> {
+        let mut annealing = default.clone();
+        if let Some(layers) = self.layers {
+            annealing.layers = layers as usize;
+        }
+        if let Some(decay) = self.sigma_decay {
+            annealing.sigma_decay = decay;
+        }
+        match (&self.betas, self.survival_rate) {
+            (Some(betas), _) => {
+                if self.layers.is_none() {
+                    annealing.layers = betas.len();
+                }
+                annealing.tempering = Tempering::Fixed(betas.clone());
+            }
+            (None, Some(rate)) => {
+                annealing.tempering = Tempering::Survival {
+                    rate,
+                    max_beta: 1.0,
+                };
+            }
+            (None, None) => {
+                // A fixed schedule of the default's length cannot serve another number of layers:
+                // one layer is plain weighing, more take the survival rule at 0.5.
+                if let Tempering::Fixed(betas) = &annealing.tempering
+                    && betas.len() != annealing.layers
+                {
+                    annealing.tempering = if annealing.layers == 1 {
+                        Tempering::Fixed(vec![1.0])
+                    } else {
+                        Tempering::Survival {
+                            rate: 0.5,
+                            max_beta: 1.0,
+                        }
+                    };
+                }
+            }
+        }
+        if let Err(e) = annealing.validate() {
+            bail!("{e} (--layers, --survival-rate, --betas, --sigma-decay)");
+        }
+        Ok(annealing)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn options_override_the_default_and_bad_ones_are_named() {
+        let none = AnnealArgs::default();
+        assert_eq!(none.apply(&Annealing::none()).unwrap(), Annealing::none());
+        let layers = AnnealArgs {
+            layers: Some(4),
+            ..AnnealArgs::default()
+        };
+        let four = layers.apply(&Annealing::none()).unwrap();
+        assert_eq!(four.layers, 4);
+        assert!(matches!(four.tempering, Tempering::Survival { rate, .. } if rate == 0.5));
+        let betas = AnnealArgs {
+            betas: Some(vec![0.1, 0.5]),
+            ..AnnealArgs::default()
+        };
+        assert_eq!(betas.apply(&Annealing::none()).unwrap().layers, 2);
+        let bad = AnnealArgs {
+            survival_rate: Some(1.5),
+            ..AnnealArgs::default()
+        };
+        let message = bad.apply(&Annealing::none()).unwrap_err().to_string();
+        assert!(message.contains("survival rate") && message.contains("--survival-rate"));
+        let mismatch = AnnealArgs {
+            layers: Some(3),
+            betas: Some(vec![0.1, 0.5]),
+            ..AnnealArgs::default()
+        };
+        assert!(mismatch.apply(&Annealing::none()).is_err());
+    }
+}
