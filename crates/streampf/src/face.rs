@@ -206,6 +206,8 @@ pub struct TrackArgs {
     #[arg(long)]
     pub quiet: bool,
     #[command(flatten)]
+    pub annealing: crate::anneal_args::AnnealArgs,
+    #[command(flatten)]
     pub video: VideoArgs,
 }
 
@@ -774,13 +776,15 @@ fn build_runner(
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
         _ => model()?,
     };
+    let defaults = FaceTrackerConfig::default();
     let config = FaceTrackerConfig {
         particles: args.particles as usize,
         best: (args.particles as usize / 10).max(1),
         seed: args.seed,
         failure_error: args.failure_error,
         failure_frames: args.failure_frames as usize,
-        ..FaceTrackerConfig::default()
+        annealing: args.annealing.apply(&defaults.annealing)?,
+        ..defaults
     };
     let cascade = if detect {
         Some(load_cascade(&args.cascade)?)
