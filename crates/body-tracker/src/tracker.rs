@@ -110,8 +110,15 @@ impl Default for TrackerConfig {
 pub struct FrameResult {
     /// The weighted-mean pose (eq. 1).
     pub pose: Vec<f32>,
-    /// The effective sample size after weighing.
+    /// The posterior's spread per pose value: the weighted standard deviation of the samples
+    /// about the mean (m, rad), circular for the root's rotations.
+    pub spread: Vec<f32>,
+    /// The effective sample size after weighing (of the last annealing layer).
     pub ess: f64,
+    /// How much of the frame the estimated body explains, in [0, 1]: 1 − M / (I·τ²), M the sum
+    /// of eq. 3's truncated squared distances of the I points from the estimate's capsules. 1:
+    /// every point on a capsule's surface; 0: every point τ or more from the body.
+    pub confidence: f32,
     /// Points used (after thinning).
     pub points: usize,
 }
@@ -311,9 +318,14 @@ impl BodyTracker {
             return Err(e.into());
         }
         let (pose, ess) = (report.estimates, report.ess[0]);
+        let tau = self.config.tau;
+        let fit = culled_sum_of_squared_distances(&self.skeleton.capsules(&pose)?, &rays, tau);
+        let confidence = 1.0 - fit / (rays.depths.len().max(1) as f64 * f64::from(tau * tau));
         Ok(FrameResult {
             pose,
+            spread: report.spreads,
             ess,
+            confidence: confidence.clamp(0.0, 1.0) as f32,
             points: points.len(),
         })
     }

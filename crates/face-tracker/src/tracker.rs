@@ -104,6 +104,15 @@ pub struct FaceEstimate {
     pub state: [f32; DIMS],
     /// ε of the estimate.
     pub error: f64,
+    /// The posterior's spread per state dimension: the weighted standard deviation of the
+    /// particles about their weighted mean (pixels, scale, radians, α), circular for the roll.
+    pub spread: [f32; DIMS],
+    /// The effective sample size of the last weighing (of the last annealing layer).
+    pub ess: f64,
+    /// How well the estimate fits, in [0, 1]: 1 − ε / `failure_error`, clamped. 1 is a perfect
+    /// fit; 0 means ε is at or above the failure threshold, so a track's confidence is 0 for
+    /// its last `failure_frames` frames before it is declared lost.
+    pub confidence: f32,
     pub status: TrackStatus,
     /// The face's rectangle at this estimate: the starting rectangle scaled by S about the
     /// estimated centre (rotation ignored), for overlap tests and drawing.
@@ -473,6 +482,7 @@ impl FaceTracker {
         )?;
         self.last_time = report.gpu_time;
         let estimates = report.point_estimates();
+        let spreads = &report.spreads;
         let checked: Vec<([f32; DIMS], f64)> = match &self.gpu_likelihood {
             // The GPU weighed the estimates in the step's submission.
             Some(_) => {
@@ -516,11 +526,15 @@ impl FaceTracker {
                 track.start.width * state[SCALE],
                 track.start.height * state[SCALE],
             );
+            let confidence = (1.0 - error / f64::from(self.config.failure_error)).clamp(0.0, 1.0);
             out.push(FaceEstimate {
                 track: track.id,
                 slot,
                 state,
                 error,
+                spread: std::array::from_fn(|d| spreads[slot * DIMS + d]),
+                ess: report.ess[slot],
+                confidence: confidence as f32,
                 status,
                 rect: FaceRect {
                     x: state[TX] - w / 2.0,

@@ -442,8 +442,16 @@ struct BodyFiles {
 }
 
 impl BodyFiles {
+    /// The pose, its spread per value (`sd_` + the value's name), the ESS and the confidence
+    /// (docs/OUTPUT.md).
     fn poses_header(skeleton: &Skeleton) -> String {
-        format!("frame,{}", skeleton.pose_names().join(","))
+        let names = skeleton.pose_names();
+        let spreads: Vec<String> = names.iter().map(|n| format!("sd_{n}")).collect();
+        format!(
+            "frame,{},{},ess,confidence",
+            names.join(","),
+            spreads.join(",")
+        )
     }
 
     /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
@@ -519,7 +527,10 @@ impl BodyRun {
                 .context("--save-particles")?;
         }
         self.points_seen += result.points;
-        files.poses.row(&csv_row(frame, &result.pose))?;
+        let mut pose_row = result.pose.clone();
+        pose_row.extend(&result.spread);
+        pose_row.extend([result.ess as f32, result.confidence]);
+        files.poses.row(&csv_row(frame, &pose_row))?;
         let joints = joint_row(&skeleton.tracked_joint_positions(&result.pose)?);
         files.joints.row(&csv_row(frame, &joints))?;
         if let (Some(truth), Some(out)) = (truth, files.errors.as_mut()) {

@@ -20,7 +20,9 @@ use face_tracker::extraction::FaceRect;
 use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::model::FaceModel;
 use face_tracker::personal::Personaliser;
-use face_tracker::projection::{DIMS, STATE_NAMES};
+use face_tracker::projection::{
+    DIMS, RZ, STATE_NAMES, pitch_yaw_roll_degrees, rotation_quaternion,
+};
 use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{
@@ -865,13 +867,42 @@ struct TrackRecord {
     translation: f64,
     rotation: f64,
     measured: usize,
+    /// Per state dimension, the face-frames whose true value lay within ±2 reported standard
+    /// deviations of the estimate (with ground truth).
+    within_two_sd: [usize; DIMS],
     tracks_seen: std::collections::BTreeSet<usize>,
     tracking_time: f64,
 }
 
 impl TrackRecord {
+    /// The state, ε, then how sure the estimate is (the posterior's spread per dimension, the
+    /// ESS, the confidence) and the rotation as degrees and as a quaternion (docs/OUTPUT.md).
     fn states_header() -> String {
-        format!("frame,track,status,{},error", STATE_NAMES.join(","))
+        let spreads: Vec<String> = STATE_NAMES.iter().map(|n| format!("sd_{n}")).collect();
+        format!(
+            "frame,track,status,{},error,{},ess,confidence,pitch_deg,yaw_deg,roll_deg,qw,qx,qy,qz",
+            STATE_NAMES.join(","),
+            spreads.join(",")
+        )
+    }
+
+    /// The columns after the state and ε (see [`TrackRecord::states_header`]).
+    fn certainty_columns(e: &FaceEstimate) -> String {
+        let join = |values: &[f32]| {
+            values
+                .iter()
+                .map(|v| v.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        format!(
+            "{},{},{},{},{}",
+            join(&e.spread),
+            e.ess,
+            e.confidence,
+            join(&pitch_yaw_roll_degrees(&e.state)),
+            join(&rotation_quaternion(&e.state))
+        )
     }
 
     /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
@@ -889,6 +920,7 @@ impl TrackRecord {
             translation: 0.0,
             rotation: 0.0,
             measured: 0,
+            within_two_sd: [0; DIMS],
             tracks_seen: std::collections::BTreeSet::new(),
             tracking_time: 0.0,
         })
@@ -912,10 +944,11 @@ impl TrackRecord {
             };
             let values: Vec<String> = e.state.iter().map(|v| v.to_string()).collect();
             self.states.row(&format!(
-                "{frame},{},{status},{},{}",
+                "{frame},{},{status},{},{},{}",
                 e.track,
                 values.join(","),
-                e.error
+                e.error,
+                Self::certainty_columns(e)
             ))?;
             let known = truth.and_then(|f| f.get(e.track));
             if let (Some(t), TrackStatus::Tracking, Some(errors)) =
@@ -927,6 +960,13 @@ impl TrackRecord {
                 self.translation += f64::from(te);
                 self.rotation += f64::from(re);
                 self.measured += 1;
+                for (d, &true_value) in t.iter().enumerate() {
+                    let mut miss = e.state[d] - true_value;
+                    if d == RZ {
+                        miss = pf_core::batch::wrap_angle_floor(miss);
+                    }
+                    self.within_two_sd[d] += usize::from(miss.abs() <= 2.0 * e.spread[d]);
+                }
             }
         }
         self.states.end_frame()?;
@@ -972,6 +1012,15 @@ impl TrackRecord {
                 "mean translation error: {:.2} px, mean rotation error: {:.2} deg ({measured} face-frames)",
                 self.translation / measured as f64,
                 self.rotation / measured as f64
+            );
+            let coverage: Vec<String> = STATE_NAMES
+                .iter()
+                .zip(self.within_two_sd)
+                .map(|(n, k)| format!("{n} {:.0}%", 100.0 * k as f64 / measured as f64))
+                .collect();
+            println!(
+                "truth within ±2 reported sd: {} (about 95% for an honest spread)",
+                coverage.join(", ")
             );
         }
         println!(
