@@ -47,19 +47,19 @@ impl AnnealArgs {
                     max_beta: 1.0,
                 };
             }
+            // `--layers 1` alone is plain Condensation (β = 1), whatever the default tempers.
+            (None, None) if annealing.layers == 1 => {
+                annealing.tempering = Tempering::Fixed(vec![1.0]);
+            }
             (None, None) => {
-                // A fixed schedule of the default's length cannot serve another number of layers:
-                // one layer is plain weighing, more take the survival rule at 0.5.
+                // A fixed schedule of the default's length cannot serve another number of
+                // layers: more take the survival rule at 0.5.
                 if let Tempering::Fixed(betas) = &annealing.tempering
                     && betas.len() != annealing.layers
                 {
-                    annealing.tempering = if annealing.layers == 1 {
-                        Tempering::Fixed(vec![1.0])
-                    } else {
-                        Tempering::Survival {
-                            rate: 0.5,
-                            max_beta: 1.0,
-                        }
+                    annealing.tempering = Tempering::Survival {
+                        rate: 0.5,
+                        max_beta: 1.0,
                     };
                 }
             }
@@ -86,6 +86,13 @@ mod tests {
         let four = layers.apply(&Annealing::none()).unwrap();
         assert_eq!(four.layers, 4);
         assert!(matches!(four.tempering, Tempering::Survival { rate, .. } if rate == 0.5));
+        let plain = AnnealArgs {
+            layers: Some(1),
+            ..AnnealArgs::default()
+        };
+        let tempered_default = Annealing::survival(8, 0.5, 0.7);
+        let one = plain.apply(&tempered_default).unwrap();
+        assert_eq!((one.layers, one.fixed_beta(0)), (1, Some(1.0)));
         let betas = AnnealArgs {
             betas: Some(vec![0.1, 0.5]),
             ..AnnealArgs::default()
