@@ -94,6 +94,7 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
             ess_threshold: f64::INFINITY,
             best: 0,
             annealing: Default::default(),
+            motion: Default::default(),
         };
         let mut filter = GpuFilter::new(ctx, &batch, GpuResampler::Systematic, &layout).unwrap();
         let mut gpu = FaceLikelihoodGpu::new(

@@ -68,6 +68,7 @@ fn bench_whole_step(c: &mut Criterion) {
             ess_threshold: f64::INFINITY,
             best: 0,
             annealing: Default::default(),
+            motion: Default::default(),
         };
         let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
         let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
@@ -165,6 +166,7 @@ fn bench_resampling_alone(c: &mut Criterion) {
             ess_threshold: f64::INFINITY,
             best: 0,
             annealing: Default::default(),
+            motion: Default::default(),
         };
         // Uneven weights: a Gaussian likelihood over a Gaussian cloud.
         let mut rng = RandomStreams::new(3).stream(0, Stage::Model(0));

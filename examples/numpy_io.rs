@@ -57,6 +57,7 @@ pub fn run(
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     // The first frame's observations, spread by the noise, start the clouds.
     let start = gaussian_clouds(&shape, 3, &seen.data[..2 * targets], &[noise; 2]);

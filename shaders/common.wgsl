@@ -26,8 +26,10 @@ struct Params {
     max_beta: f32,
     // This layer's diffusion scale: sigma_d * sigma_scale.
     sigma_scale: f32,
-    _pad0: u32,
-    _pad1: u32,
+    // The constant-velocity gain (0: the random walk alone; pf_core::batch::Motion).
+    velocity_gain: f32,
+    // The annealing layer; the drift is added in layer 0 only.
+    layer: u32,
 }
 
 // Per-target results of the normalisation.

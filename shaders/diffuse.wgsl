@@ -8,6 +8,9 @@
 @group(0) @binding(3) var<storage, read> lower: array<f32>;
 @group(0) @binding(4) var<storage, read> upper: array<f32>;
 @group(0) @binding(5) var<storage, read> diffusion_keys: array<vec2<u32>>;
+// The constant-velocity drift [t * D + d], added in the first annealing layer when the gain is
+// set (pf_core::batch::add_drift).
+@group(0) @binding(6) var<storage, read> velocity: array<f32>;
 
 @compute @workgroup_size(64)
 fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
@@ -19,7 +22,11 @@ fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
     let step = vec2<u32>(params.step_lo, params.step_hi);
     for (var d = 0u; d < params.dims; d = d + 1u) {
         let i = state_index(t, d, m);
-        var x = states[i] + (sigma[d] * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
+        var x = states[i];
+        if (params.velocity_gain > 0.0 && params.layer == 0u) {
+            x = x + velocity[t * params.dims + d];
+        }
+        x = x + (sigma[d] * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
         // A NaN state stays NaN (clamp would turn it into a bound), so the failure policy sees it.
         if (params.has_bounds == 1u && !is_nan(x)) {
             x = clamp(x, lower[d], upper[d]);

@@ -9,6 +9,10 @@
 @group(0) @binding(2) var<storage, read> weights: array<f32>;
 @group(0) @binding(3) var<storage, read_write> estimates: array<f32>;
 @group(0) @binding(5) var<storage, read_write> spreads: array<f32>;
+// The constant-velocity drift and the estimates it is the difference of (NaN: none yet); updated
+// only when params.velocity_gain > 0. CPU twin: pf_core::batch::update_velocity.
+@group(0) @binding(6) var<storage, read_write> velocity: array<f32>;
+@group(0) @binding(7) var<storage, read_write> previous_estimates: array<f32>;
 
 const WG: u32 = 256u;
 var<workgroup> partial_a: array<f32, 256>;
@@ -63,7 +67,21 @@ fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgro
         let sums = reduce_pair(lid, acc.x, acc.y);
         let mean = mean_from_sums(angle, sums);
         if (lid == 0u) {
-            estimates[t * params.dims + d] = mean;
+            let k = t * params.dims + d;
+            estimates[k] = mean;
+            if (params.velocity_gain > 0.0) {
+                let previous = previous_estimates[k];
+                var v = 0.0;
+                if (!is_nan(previous)) {
+                    var delta = mean - previous;
+                    if (angle) {
+                        delta = wrap_angle(delta);
+                    }
+                    v = params.velocity_gain * delta;
+                }
+                velocity[k] = v;
+                previous_estimates[k] = mean;
+            }
         }
         if (angle) {
             if (lid == 0u) {

@@ -31,6 +31,7 @@ fn config() -> BatchConfig {
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     }
 }
 

@@ -112,6 +112,7 @@ fn wrong_lengths_and_configurations_are_typed_errors() {
         ess_threshold: 0.5,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let states = vec![0.0; shape.state_len()];
     let bad_sigma = BatchConfig {
@@ -146,6 +147,7 @@ fn every_adapter_can_be_opened_and_run_a_step() {
         ess_threshold: f64::INFINITY,
         best: 16,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     for ctx in &contexts {
         let mut filter = GpuFilter::new(

@@ -169,6 +169,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
                 ess_threshold: f64::INFINITY,
                 best: 0,
                 annealing: Default::default(),
+                motion: Default::default(),
             };
             let mut filter = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();
             let max_points = templates.iter().map(Template::len).max().unwrap();
@@ -274,6 +275,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
                 ess_threshold: f64::INFINITY,
                 best,
                 annealing: Default::default(),
+                motion: Default::default(),
             };
             let mut filter =
                 GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();

@@ -93,6 +93,7 @@ fn run(
         ess_threshold,
         best: 100,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
     let initial = gaussian_clouds(&shape, 77, &means, &OBS_SIGMA.map(|s| 2.0 * s));

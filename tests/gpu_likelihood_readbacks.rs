@@ -49,6 +49,7 @@ fn filter(ctx: &GpuContext, targets: usize, particles: usize, best: usize) -> Gp
         ess_threshold: f64::INFINITY,
         best,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     GpuFilter::new(
         ctx,

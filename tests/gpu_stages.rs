@@ -46,6 +46,7 @@ fn config(
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     }
 }
 

@@ -21,6 +21,7 @@ fn step_time_is_positive_and_within_the_host_wall_clock() {
         ess_threshold: f64::INFINITY,
         best: 50,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let mut filter = GpuFilter::new(
         &ctx,

@@ -177,6 +177,7 @@ fn a_likelihood_that_was_never_prepared_is_an_error_not_stale_weights() {
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let mut filter = pf_gpu::GpuFilter::new(
         &ctx,

@@ -16,7 +16,7 @@
 
 use nalgebra::Vector3;
 use pf_core::anneal::Annealing;
-use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
 use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
 use pf_gpu::engine::FilterEngine;
 use pf_gpu::{GpuContext, NoLikelihood};
@@ -83,6 +83,8 @@ pub struct TrackerConfig {
     /// Annealing layers per frame (`pf_core::anneal`): each resamples, diffuses with the σ above
     /// shrunk by the decay per layer and weighs with the likelihood raised to β.
     pub annealing: Annealing,
+    /// The dynamics' drift before the random walk (`pf_core::batch::Motion`).
+    pub motion: Motion,
 }
 
 impl Default for TrackerConfig {
@@ -101,6 +103,7 @@ impl Default for TrackerConfig {
             // layers keeping half the samples effective, the noise shrinking ×0.7 a layer, took
             // the mean joint error from 10.1 cm (one layer) to 3.6 cm.
             annealing: Annealing::survival(8, 0.5, 0.7),
+            motion: Motion::RandomWalk,
         }
     }
 }
@@ -181,6 +184,7 @@ impl BodyTracker {
             ess_threshold: f64::INFINITY,
             best: 0,
             annealing: config.annealing.clone(),
+            motion: config.motion,
         };
         batch.validate()?;
         let mut states = gaussian_clouds(&shape, config.seed, &start, &sigma);

@@ -10,7 +10,7 @@
 //! when the face's centre leaves the frame; its slot is then free for a new face.
 
 use pf_core::anneal::Annealing;
-use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
 use pf_gpu::engine::FilterEngine;
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
 use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood};
@@ -61,6 +61,8 @@ pub struct FaceTrackerConfig {
     pub seed: u64,
     /// Annealing layers per frame (`pf_core::anneal`; one layer: plain Condensation).
     pub annealing: Annealing,
+    /// The dynamics' drift before the random walk (`pf_core::batch::Motion`).
+    pub motion: Motion,
 }
 
 impl Default for FaceTrackerConfig {
@@ -77,8 +79,10 @@ impl Default for FaceTrackerConfig {
             seed: 1,
             // Chosen on the synthetic four-face video (docs/ACCURACY.md): five layers keeping
             // half the particles effective, the noise ×0.6 a layer, took the mean error from
-            // 2.6 px and 3.8° (one layer) to 1.3 px and 2.2° over three seeds.
+            // 2.6 px and 3.8° (one layer) to 1.3 px and 2.2° over three seeds, and half the last
+            // frame's motion as a drift to 1.2 px and 2.0°.
             annealing: Annealing::survival(5, 0.5, 0.6),
+            motion: Motion::ConstantVelocity { gain: 0.5 },
         }
     }
 }
@@ -226,6 +230,7 @@ impl FaceTracker {
             ess_threshold: f64::INFINITY,
             best: config.best.min(config.particles),
             annealing: config.annealing.clone(),
+            motion: config.motion,
         };
         batch.validate()?;
         // Free slots hold a cloud at the origin until a face arrives; they are never reported.

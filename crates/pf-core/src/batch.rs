@@ -328,6 +328,11 @@ pub struct BatchFilter<R> {
     ess_threshold: f64,
     best: usize,
     annealing: Annealing,
+    motion: Motion,
+    /// Each target's drift `[t·D + d]` (zero until it has two estimates).
+    velocity: Vec<f32>,
+    /// Each target's last weighted-mean estimate (NaN before its first).
+    previous_estimates: Vec<f32>,
     diffusion_keys: Vec<[u32; 2]>,
     resampling_keys: Vec<[u32; 2]>,
     /// The states, `[(t·D + d)·M + m]`.
@@ -362,6 +367,34 @@ pub struct BatchConfig {
     pub best: usize,
     /// Annealing layers per frame ([`Annealing::none`]: plain Condensation).
     pub annealing: Annealing,
+    /// The dynamics' deterministic part ([`Motion::RandomWalk`]: none).
+    pub motion: Motion,
+}
+
+/// What moves the particles before the random walk's noise (in the first annealing layer; a
+/// model plug-in's own `propagate` replaces both).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Motion {
+    /// x ← x + σ·n: no drift.
+    #[default]
+    RandomWalk,
+    /// x ← x + g·(x̂_{t−1} − x̂_{t−2}) + σ·n: each target's particles drift by the share `gain`
+    /// (in (0, 1]) of its estimate's last motion (angles wrapped), then diffuse. A new or reset
+    /// target drifts only once it has two estimates.
+    ConstantVelocity {
+        /// The share of the last motion carried into the prediction.
+        gain: f32,
+    },
+}
+
+impl Motion {
+    /// The drift's gain, 0 for the random walk.
+    pub fn gain(&self) -> f32 {
+        match self {
+            Self::RandomWalk => 0.0,
+            Self::ConstantVelocity { gain } => *gain,
+        }
+    }
 }
 
 impl BatchConfig {
@@ -385,6 +418,7 @@ impl BatchConfig {
             ess_threshold: f64::INFINITY,
             best: 0,
             annealing: Annealing::none(),
+            motion: Motion::RandomWalk,
         }
     }
 
@@ -402,6 +436,13 @@ impl BatchConfig {
         };
         check("sigma", self.sigma.len())?;
         self.annealing.validate()?;
+        if let Motion::ConstantVelocity { gain } = self.motion
+            && !(gain > 0.0 && gain <= 1.0)
+        {
+            return Err(PfError::InvalidConfig(format!(
+                "the constant-velocity gain must be in (0, 1], got {gain}"
+            )));
+        }
         check("angular", self.angular.len())?;
         if let Some((lo, hi)) = &self.bounds {
             check("lower bounds", lo.len())?;
@@ -466,6 +507,9 @@ impl<R: Resampler> BatchFilter<R> {
             ess_threshold: config.ess_threshold,
             best: config.best,
             annealing: config.annealing.clone(),
+            motion: config.motion,
+            velocity: vec![0.0; shape.targets * shape.dims],
+            previous_estimates: vec![f32::NAN; shape.targets * shape.dims],
             diffusion_keys: stage_keys(config.seed, shape.targets, Stage::Diffusion),
             resampling_keys: stage_keys(config.seed, shape.targets, Stage::Resampling),
             scratch: vec![0.0; initial_states.len()],
@@ -503,6 +547,9 @@ impl<R: Resampler> BatchFilter<R> {
             });
         }
         self.states[t * block..(t + 1) * block].copy_from_slice(states);
+        let own = t * shape.dims..(t + 1) * shape.dims;
+        self.velocity[own.clone()].fill(0.0);
+        self.previous_estimates[own].fill(f32::NAN);
         let m = shape.particles;
         let range = t * m..(t + 1) * m;
         self.log_weights[range.clone()].fill(-(m as f32).ln());
@@ -635,6 +682,13 @@ impl<R: Resampler> BatchFilter<R> {
             Vec::new()
         };
         let estimates = weighted_means(&shape, &self.states, &self.weights, &self.angular);
+        update_velocity(
+            self.motion.gain(),
+            &self.angular,
+            &estimates,
+            &mut self.previous_estimates,
+            &mut self.velocity,
+        );
         Ok(BatchReport {
             spreads: weighted_spreads(
                 &shape,
@@ -703,6 +757,9 @@ impl<R: Resampler> BatchFilter<R> {
         match propagate {
             Some(propagate) if layer == 0 => self.propagate_all(propagate, step),
             _ => {
+                if layer == 0 && self.motion.gain() > 0.0 {
+                    add_drift(&shape, &mut self.states, &self.velocity);
+                }
                 let bounds = self
                     .bounds
                     .as_ref()
@@ -737,6 +794,45 @@ impl<R: Resampler> BatchFilter<R> {
             status.push(result.map(|_| ()));
         }
         Ok((resampled, betas, status))
+    }
+}
+
+/// Twin of the drift in `diffuse.wgsl`: x += v_{t,d} (the constant-velocity prediction).
+pub fn add_drift(shape: &BatchShape, states: &mut [f32], velocity: &[f32]) {
+    for t in 0..shape.targets {
+        for d in 0..shape.dims {
+            let v = velocity[t * shape.dims + d];
+            let start = shape.state_index(t, d, 0);
+            for x in &mut states[start..start + shape.particles] {
+                *x += v;
+            }
+        }
+    }
+}
+
+/// Twin of the velocity update in `estimate.wgsl`: v = gain·(x̂ − x̂_previous) (angles wrapped),
+/// 0 where there is no previous estimate yet; then x̂ becomes the previous estimate. Nothing
+/// changes when `gain` is 0 (the random walk).
+pub fn update_velocity(
+    gain: f32,
+    angular: &[bool],
+    estimates: &[f32],
+    previous: &mut [f32],
+    velocity: &mut [f32],
+) {
+    if gain <= 0.0 {
+        return;
+    }
+    let dims = angular.len();
+    for (k, (&x, prev)) in estimates.iter().zip(previous.iter_mut()).enumerate() {
+        velocity[k] = if prev.is_nan() {
+            0.0
+        } else if angular[k % dims] {
+            gain * wrap_angle_floor(x - *prev)
+        } else {
+            gain * (x - *prev)
+        };
+        *prev = x;
     }
 }
 

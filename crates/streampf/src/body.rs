@@ -167,7 +167,7 @@ pub struct TrackArgs {
     #[arg(long)]
     pub quiet: bool,
     #[command(flatten)]
-    pub annealing: crate::anneal_args::AnnealArgs,
+    pub filter: crate::filter_args::FilterArgs,
     #[command(flatten)]
     pub sequence: SequenceArgs,
 }
@@ -323,7 +323,8 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         particles: args.particles as usize,
         max_points: args.max_points as usize,
         seed: args.seed,
-        annealing: args.annealing.apply(&defaults.annealing)?,
+        annealing: args.filter.apply(&defaults.annealing)?,
+        motion: args.filter.motion(defaults.motion)?,
         ..defaults
     };
     let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;

@@ -156,6 +156,7 @@ impl Trackers {
             },
             best: 0,
             annealing: Default::default(),
+            motion: Default::default(),
         };
         let means: Vec<f32> = (0..args.targets)
             .flat_map(|k| truth(k, 0).as_slice().to_vec())

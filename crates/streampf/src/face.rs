@@ -208,7 +208,7 @@ pub struct TrackArgs {
     #[arg(long)]
     pub quiet: bool,
     #[command(flatten)]
-    pub annealing: crate::anneal_args::AnnealArgs,
+    pub filter: crate::filter_args::FilterArgs,
     #[command(flatten)]
     pub video: VideoArgs,
 }
@@ -785,7 +785,8 @@ fn build_runner(
         seed: args.seed,
         failure_error: args.failure_error,
         failure_frames: args.failure_frames as usize,
-        annealing: args.annealing.apply(&defaults.annealing)?,
+        annealing: args.filter.apply(&defaults.annealing)?,
+        motion: args.filter.motion(defaults.motion)?,
         ..defaults
     };
     let cascade = if detect {

@@ -1,11 +1,11 @@
 //! `streampf`: GPU particle filtering for visual tracking, from the command line.
 
-mod anneal_args;
 mod body;
 mod demo;
 mod devices;
 mod face;
 mod face_io;
+mod filter_args;
 mod gpu;
 mod run_output;
 mod video;

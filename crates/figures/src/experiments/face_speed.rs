@@ -157,6 +157,7 @@ fn gpu_weighting(
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let mut filter = GpuFilter::new(ctx, &batch, GpuResampler::Systematic, layout)?;
     let mut gpu = FaceLikelihoodGpu::new(

@@ -161,6 +161,7 @@ fn gpu_resampler(
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let mut gpu = GpuFilter::new(ctx, &config, resampler, states)?;
     let w32: Vec<f32> = weights.iter().map(|&w| w as f32).collect();

@@ -462,6 +462,11 @@ impl GpuFilter {
         self.streams
             .weights
             .upload_at(ctx, t * m, &vec![1.0 / m as f32; m])?;
+        let d = shape.dims;
+        self.streams.velocity.upload_at(ctx, t * d, &vec![0.0; d])?;
+        self.streams
+            .previous_estimates
+            .upload_at(ctx, t * d, &vec![f32::NAN; d])?;
         self.streams
             .stats
             .upload_at(ctx, t, &[TargetStats::initial(m)])

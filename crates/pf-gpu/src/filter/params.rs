@@ -36,8 +36,10 @@ pub struct FrameParams {
     pub max_beta: f32,
     /// This layer's diffusion scale (σ_d × it).
     pub sigma_scale: f32,
-    /// Padding to 16 bytes.
-    pub _pad: [u32; 2],
+    /// The constant-velocity gain (0: the random walk alone).
+    pub velocity_gain: f32,
+    /// The annealing layer (the drift is added in layer 0 only).
+    pub layer: u32,
 }
 
 /// Per-target results, `TargetStats` in `shaders/common.wgsl`.
@@ -108,7 +110,7 @@ mod layout_tests {
             size_of::<FrameParams>(),
             &fields!(FrameParams: targets, particles, dims, angular_mask, step_lo, step_hi,
                 has_bounds, metropolis_steps, ess_threshold, best, beta, survival_rate, max_beta,
-                sigma_scale),
+                sigma_scale, velocity_gain, layer),
         );
         assert_mirrors_wgsl(
             &common,

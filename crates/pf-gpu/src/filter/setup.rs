@@ -67,7 +67,8 @@ impl FrameParams {
             survival_rate: 0.0,
             max_beta: 1.0,
             sigma_scale: 1.0,
-            _pad: [0; 2],
+            velocity_gain: config.motion.gain(),
+            layer: 0,
         }
     }
 
@@ -90,6 +91,7 @@ impl FrameParams {
             survival_rate,
             max_beta,
             sigma_scale: annealing.sigma_scale(layer),
+            layer: layer as u32,
             ..*self
         }
     }
@@ -142,6 +144,9 @@ pub(super) struct Streams {
     pub estimates: DeviceStream<f32>,
     pub best_estimates: DeviceStream<f32>,
     pub spreads: DeviceStream<f32>,
+    /// The constant-velocity drift per target, `[t·D + d]`, and the estimates it comes from.
+    pub velocity: DeviceStream<f32>,
+    pub previous_estimates: DeviceStream<f32>,
     pub sigma: DeviceStream<f32>,
     pub lower: DeviceStream<f32>,
     pub upper: DeviceStream<f32>,
@@ -194,6 +199,12 @@ impl Streams {
                 shape.targets * shape.dims,
             )?,
             spreads: DeviceStream::zeroed(ctx, "spreads", shape.targets * shape.dims)?,
+            velocity: DeviceStream::zeroed(ctx, "velocity", shape.targets * shape.dims)?,
+            previous_estimates: DeviceStream::from_slice(
+                ctx,
+                "previous estimates",
+                &vec![f32::NAN; shape.targets * shape.dims],
+            )?,
             sigma: DeviceStream::from_slice(ctx, "sigma", &config.sigma)?,
             lower: DeviceStream::from_slice(ctx, "lower bounds", &lo)?,
             upper: DeviceStream::from_slice(ctx, "upper bounds", &hi)?,
@@ -299,6 +310,7 @@ impl BindGroups {
                     (3, s.lower.binding()),
                     (4, s.upper.binding()),
                     (5, s.diffusion_keys.binding()),
+                    (6, s.velocity.binding()),
                 ],
             )?,
             normalise: stages.normalise.bind(
@@ -319,6 +331,8 @@ impl BindGroups {
                     (2, s.weights.binding()),
                     (3, s.estimates.binding()),
                     (5, s.spreads.binding()),
+                    (6, s.velocity.binding()),
+                    (7, s.previous_estimates.binding()),
                 ],
             )?,
             best_mean: match &stages.best_mean {

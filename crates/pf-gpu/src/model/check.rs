@@ -122,6 +122,7 @@ pub fn check_against_cpu<O: Pod, C: Pod, M: CpuModel<O, C>>(
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: Default::default(),
+        motion: Default::default(),
     };
     let mut filter = ModelFilter::new(
         ctx,

@@ -1,12 +1,14 @@
-//! The annealing options shared by `face track` and `body track`: each overrides one part of the
-//! tracker's own default schedule (`pf_core::anneal`).
+//! The filter options shared by `face track` and `body track` — the annealing schedule
+//! (`pf_core::anneal`) and the dynamics' drift (`pf_core::batch::Motion`): each overrides one part
+//! of the tracker's own default.
 
 use anyhow::bail;
 use clap::Args;
 use pf_core::anneal::{Annealing, MAX_LAYERS, Tempering};
+use pf_core::batch::Motion;
 
 #[derive(Debug, Clone, Default, Args)]
-pub struct AnnealArgs {
+pub struct FilterArgs {
     /// Annealing layers per frame (1: plain Condensation). Each layer resamples, diffuses with
     /// the noise shrunk by --sigma-decay per layer and weighs with the likelihood raised to β.
     /// Default: the tracker's own schedule.
@@ -22,9 +24,26 @@ pub struct AnnealArgs {
     /// Layer l diffuses with σ × decay^l, in (0, 1].
     #[arg(long)]
     pub sigma_decay: Option<f32>,
+    /// Predict with a constant-velocity drift: each frame the particles move by this share
+    /// (in (0, 1]) of the estimate's last motion before the random walk; 0: the random walk
+    /// alone. Default: the tracker's own.
+    #[arg(long, value_name = "GAIN")]
+    pub constant_velocity: Option<f32>,
 }
 
-impl AnnealArgs {
+impl FilterArgs {
+    /// The tracker's `default` drift with `--constant-velocity` applied, checked.
+    pub fn motion(&self, default: Motion) -> anyhow::Result<Motion> {
+        match self.constant_velocity {
+            None => Ok(default),
+            Some(0.0) => Ok(Motion::RandomWalk),
+            Some(gain) if gain > 0.0 && gain <= 1.0 => Ok(Motion::ConstantVelocity { gain }),
+            Some(gain) => {
+                bail!("--constant-velocity must be in [0, 1] (0: the random walk), got {gain}")
+            }
+        }
+    }
+
     /// The tracker's `default` schedule with the given options applied, checked.
     pub fn apply(&self, default: &Annealing) -> anyhow::Result<Annealing> {
         let mut annealing = default.clone();
@@ -77,38 +96,63 @@ mod tests {
 
     #[test]
     fn options_override_the_default_and_bad_ones_are_named() {
-        let none = AnnealArgs::default();
+        let none = FilterArgs::default();
         assert_eq!(none.apply(&Annealing::none()).unwrap(), Annealing::none());
-        let layers = AnnealArgs {
+        let layers = FilterArgs {
             layers: Some(4),
-            ..AnnealArgs::default()
+            ..FilterArgs::default()
         };
         let four = layers.apply(&Annealing::none()).unwrap();
         assert_eq!(four.layers, 4);
         assert!(matches!(four.tempering, Tempering::Survival { rate, .. } if rate == 0.5));
-        let plain = AnnealArgs {
+        let plain = FilterArgs {
             layers: Some(1),
-            ..AnnealArgs::default()
+            ..FilterArgs::default()
         };
         let tempered_default = Annealing::survival(8, 0.5, 0.7);
         let one = plain.apply(&tempered_default).unwrap();
         assert_eq!((one.layers, one.fixed_beta(0)), (1, Some(1.0)));
-        let betas = AnnealArgs {
+        let betas = FilterArgs {
             betas: Some(vec![0.1, 0.5]),
-            ..AnnealArgs::default()
+            ..FilterArgs::default()
         };
         assert_eq!(betas.apply(&Annealing::none()).unwrap().layers, 2);
-        let bad = AnnealArgs {
+        let bad = FilterArgs {
             survival_rate: Some(1.5),
-            ..AnnealArgs::default()
+            ..FilterArgs::default()
         };
         let message = bad.apply(&Annealing::none()).unwrap_err().to_string();
         assert!(message.contains("survival rate") && message.contains("--survival-rate"));
-        let mismatch = AnnealArgs {
+        let mismatch = FilterArgs {
             layers: Some(3),
             betas: Some(vec![0.1, 0.5]),
-            ..AnnealArgs::default()
+            ..FilterArgs::default()
         };
         assert!(mismatch.apply(&Annealing::none()).is_err());
+        let drift = |gain| FilterArgs {
+            constant_velocity: Some(gain),
+            ..FilterArgs::default()
+        };
+        let walk = Motion::RandomWalk;
+        assert_eq!(none.motion(walk).unwrap(), walk);
+        assert_eq!(
+            drift(0.0)
+                .motion(Motion::ConstantVelocity { gain: 1.0 })
+                .unwrap(),
+            walk
+        );
+        assert_eq!(
+            drift(0.5).motion(walk).unwrap(),
+            Motion::ConstantVelocity { gain: 0.5 }
+        );
+        for bad in [1.5, -0.1, f32::NAN] {
+            assert!(
+                drift(bad)
+                    .motion(walk)
+                    .unwrap_err()
+                    .to_string()
+                    .contains("--constant-velocity")
+            );
+        }
     }
 }
