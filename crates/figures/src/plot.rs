@@ -178,20 +178,22 @@ fn colours(panel: &Panel) -> Vec<RGBAColor> {
         .series
         .iter()
         .map(|s| {
-            let group = s
-                .name
-                .strip_suffix(", tracker")
-                .or_else(|| s.name.strip_suffix(", flat likelihood"))
-                .unwrap_or(&s.name);
+            // "face 2, plain filter" and "face 2, flat likelihood" share face 2's colour.
+            let group = match s.kind {
+                "tracked" | "plain" | "flat" => {
+                    s.name.rsplit_once(", ").map_or(&*s.name, |(g, _)| g)
+                }
+                _ => &s.name,
+            };
             let index = groups.iter().position(|g| *g == group).unwrap_or_else(|| {
                 groups.push(group);
                 groups.len() - 1
             });
             let colour = PALETTE[index % PALETTE.len()].to_rgba();
-            if s.kind == "flat" {
-                colour.mix(0.45)
-            } else {
-                colour
+            match s.kind {
+                "flat" => colour.mix(0.35),
+                "plain" => colour.mix(0.7),
+                _ => colour,
             }
         })
         .collect()
@@ -248,7 +250,7 @@ where
         .map_err(plot_error)?;
     for (series, colour) in panel.series.iter().zip(colours(panel)) {
         let points: Vec<(f64, f64)> = series.points.iter().map(|p| (p.x, p.y)).collect();
-        let width = if series.kind == "flat" { 1 } else { 2 };
+        let width = if series.kind == "tracked" { 2 } else { 1 };
         chart
             .draw_series(LineSeries::new(points.clone(), colour.stroke_width(width)))
             .map_err(plot_error)?

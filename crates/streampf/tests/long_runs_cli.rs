@@ -48,6 +48,10 @@ fn interrupt_after_rows(mut child: Child, file: &Path, rows: usize) -> std::proc
     child.wait_with_output().unwrap()
 }
 
+/// The columns of the face's states.csv: frame, track, status, the 7-D state, ε, its 7 spreads,
+/// the ESS, the confidence, pitch/yaw/roll and the quaternion's 4.
+const STATES_COLUMNS: usize = 3 + 7 + 1 + 7 + 2 + 3 + 4;
+
 /// The frame column of a CSV's rows, checking that every row is whole (`columns` fields, each a
 /// number or a status word) and that the file ends with a newline.
 fn frames_of(path: &Path, columns: usize) -> Vec<usize> {
@@ -108,7 +112,7 @@ fn an_interrupted_face_run_keeps_every_finished_frame_and_a_finalised_video() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("{stderr}"));
     // One face: one row a frame, frames 0.. in order, as many as the run said it wrote.
-    let frames = frames_of(&out.join("states.csv"), 11);
+    let frames = frames_of(&out.join("states.csv"), STATES_COLUMNS);
     assert_eq!(frames, (0..said).collect::<Vec<_>>());
     assert_eq!(frames_of(&out.join("errors.csv"), 4).len(), said);
     if with_video {
@@ -253,7 +257,10 @@ fn a_video_cut_short_is_a_warning_and_a_non_zero_exit() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("{err}"));
     assert!((1..60).contains(&decoded), "{err}");
-    assert_eq!(frames_of(&out.join("states.csv"), 11).len(), decoded);
+    assert_eq!(
+        frames_of(&out.join("states.csv"), STATES_COLUMNS).len(),
+        decoded
+    );
     let run = streampf(&[&args[..], &["--allow-short"]].concat());
     ok(&run);
     let warning = String::from_utf8_lossy(&run.stderr);
@@ -325,7 +332,7 @@ fn a_gpu_fault_mid_run_is_a_clear_error_after_every_earlier_frame_is_written() {
                 face_out.to_str().unwrap(),
             ],
             face_out.join("states.csv"),
-            11,
+            STATES_COLUMNS,
         ),
         (
             vec![

@@ -104,19 +104,27 @@ fn body_track_saves_samples(backend: &str) {
         "--save-particles",
         particles.to_str().unwrap(),
     ]));
-    // poses.csv's estimate is the weighted mean of the saved cloud.
+    // poses.csv's estimate is the weighted mean of the saved cloud, its sd_ columns the weighted
+    // standard deviation about it (the root's translation), its ess 1/Σw².
     numpy_check(
         &particles,
         &out,
         "
 poses = np.loadtxt(f'{out}/poses.csv', delimiter=',', skiprows=1)
+header = open(f'{out}/poses.csv').readline().strip().split(',')
+dims = sum(1 for c in header[1:] if not c.startswith('sd_') and c not in ('ess', 'confidence'))
+sd = header.index('sd_root_tx')
+ess = header.index('ess')
 for f in range(3):
     p = np.load(f'{d}/particles_{f:06}.npy'); w = np.load(f'{d}/log_weights_{f:06}.npy')
-    assert p.dtype == np.float32 and p.shape == (1, 50, poses.shape[1] - 1) and w.shape == (1, 50)
+    assert p.dtype == np.float32 and p.shape == (1, 50, dims) and w.shape == (1, 50)
     weights = np.exp(w[0].astype(np.float64))
     assert abs(weights.sum() - 1) < 1e-4
     mean = (weights[:, None] * p[0]).sum(axis=0)
     assert np.allclose(mean[:3], poses[f, 1:4], atol=1e-3), (mean[:3], poses[f, 1:4])
+    spread = np.sqrt((weights[:, None] * (p[0] - mean) ** 2).sum(axis=0))
+    assert np.allclose(spread[:3], poses[f, sd:sd + 3], rtol=1e-3, atol=1e-5), (spread[:3], poses[f, sd:sd + 3])
+    assert abs(1 / (weights ** 2).sum() - poses[f, ess]) < 1e-2 * poses[f, ess]
 ",
     );
     std::fs::remove_dir_all(&out).unwrap();

@@ -1,6 +1,7 @@
-//! Tracking accuracy over time against the ground truth of the synthetic sequences, each beside
-//! the same filter with a flat likelihood (every particle weighs the same, so it only diffuses):
-//! the baseline a likelihood must beat. Faces: per-frame translation (px) and rotation (°) error
+//! Tracking accuracy over time against the ground truth of the synthetic sequences: each tracker
+//! with its defaults (annealed), the same tracker as a plain one-layer random-walk filter
+//! (Condensation as the papers ran it), and the filter with a flat likelihood (every particle
+//! weighs the same, so it only diffuses): the baseline a likelihood must beat. Faces: per-frame translation (px) and rotation (°) error
 //! of each face on the four-face video. Body: per-frame mean joint error and each joint's mean
 //! error on the walk-wave sequence. Runs on a hardware GPU when there is one, else on the CPU.
 
@@ -11,6 +12,8 @@ use face_tracker::model::FaceModel;
 use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, TrackStatus};
+use pf_core::anneal::Annealing;
+use pf_core::batch::Motion;
 use pf_gpu::GpuContext;
 
 use super::Run;
@@ -18,7 +21,15 @@ use super::face_speed::reopen;
 use crate::record::{Figure, Panel, Point};
 
 const TRACKER: &str = "tracker";
+const PLAIN: &str = "plain filter";
 const FLAT: &str = "flat likelihood";
+
+/// The three filters of each figure: (label, series kind, plain one-layer random walk, flat).
+const VARIANTS: [(&str, &str, bool, bool); 3] = [
+    (TRACKER, "tracked", false, false),
+    (PLAIN, "plain", true, false),
+    (FLAT, "flat", true, true),
+];
 
 fn face_video(quick: bool) -> (FaceSynthConfig, usize) {
     if quick {
@@ -37,7 +48,7 @@ fn face_video(quick: bool) -> (FaceSynthConfig, usize) {
 }
 
 pub fn face_steps(quick: bool) -> u64 {
-    2 * face_video(quick).0.frames as u64
+    VARIANTS.len() as u64 * face_video(quick).0.frames as u64
 }
 
 fn face_backend(gpu: Option<&GpuContext>) -> anyhow::Result<FaceBackend> {
@@ -57,14 +68,25 @@ pub fn face(run: &mut Run) -> anyhow::Result<Figure> {
         "deg",
     );
     let gpu = run.hardware_gpu();
-    for (label, flat) in [(TRACKER, false), (FLAT, true)] {
+    for (label, kind, plain, flat) in VARIANTS {
+        let defaults = FaceTrackerConfig::default();
         let config = FaceTrackerConfig {
             particles,
             best: particles / 10,
             // γ = 0 weighs every particle the same; an ε threshold over 1 never ends a track.
             sharpness: if flat { 0.0 } else { 8.0 },
             failure_error: if flat { 2.0 } else { 0.12 },
-            ..FaceTrackerConfig::default()
+            annealing: if plain {
+                Annealing::none()
+            } else {
+                defaults.annealing.clone()
+            },
+            motion: if plain {
+                Motion::RandomWalk
+            } else {
+                defaults.motion
+            },
+            ..defaults
         };
         let first = render_frame(&video, &model, 0)?;
         let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(&video, k)).collect();
@@ -79,7 +101,6 @@ pub fn face(run: &mut Run) -> anyhow::Result<Figure> {
                 // Tracks are numbered in the rectangles' order.
                 let (t, r) = pose_errors(&e.state, &face_state(&video, e.track, frame));
                 let name = format!("face {}, {label}", e.track);
-                let kind = if flat { "flat" } else { "tracked" };
                 let x = frame as f64;
                 translation
                     .series_mut(&name, kind)
@@ -101,9 +122,10 @@ pub fn face(run: &mut Run) -> anyhow::Result<Figure> {
         ),
         description: format!(
             "The synthetic {}×{} video of {} textured heads ({} frames; yaw up to ±{:.0}°, changing \
-             light{}), each tracked from its rectangle in frame 0 with the tracker's defaults, \
-             against the same filter with γ = 0 (a flat likelihood: diffusion only). A track that \
-             is lost has no points after it.",
+             light{}), each tracked from its rectangle in frame 0 with the tracker's defaults \
+             (five annealing layers, a constant-velocity drift), as a plain filter (one layer, the \
+             random walk: Condensation as the paper ran it; paler lines) and with γ = 0 (a flat \
+             likelihood: diffusion only; palest). A track that is lost has no points after it.",
             video.width,
             video.height,
             video.faces,
@@ -135,7 +157,7 @@ fn body_sequence(quick: bool) -> anyhow::Result<(SynthConfig, usize, usize)> {
 }
 
 pub fn body_steps(quick: bool) -> u64 {
-    body_sequence(quick).map_or(0, |(s, ..)| 2 * s.frames as u64)
+    body_sequence(quick).map_or(0, |(s, ..)| VARIANTS.len() as u64 * s.frames as u64)
 }
 
 pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
@@ -154,10 +176,19 @@ pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
     );
     let gpu = run.hardware_gpu();
     let start = pose_at(&skeleton, &synth, 0)?;
-    for (label, weighing) in [(TRACKER, Weighing::Capsules), (FLAT, Weighing::Flat)] {
+    for (label, kind, plain, flat) in VARIANTS {
         let config = TrackerConfig {
             particles,
-            weighing,
+            weighing: if flat {
+                Weighing::Flat
+            } else {
+                Weighing::Capsules
+            },
+            annealing: if plain {
+                Annealing::none()
+            } else {
+                TrackerConfig::default().annealing
+            },
             ..TrackerConfig::default()
         };
         let backend = match gpu {
@@ -166,11 +197,6 @@ pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
         };
         let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;
         let mut sums = vec![0.0f64; joints.len()];
-        let kind = if weighing == Weighing::Flat {
-            "flat"
-        } else {
-            "tracked"
-        };
         for frame in 0..synth.frames {
             run.step(&format!("body accuracy ({label}): frame {frame}"));
             let truth = pose_at(&skeleton, &synth, frame)?;
@@ -212,8 +238,10 @@ pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
         ),
         description: format!(
             "The synthetic walk-and-wave depth sequence ({} frames, {}×{} camera, depth noise, \
-             dropout, outliers and self-occlusion), tracked from the true first pose, against the \
-             same filter with a flat likelihood (diffusion only). Joints: {}.",
+             dropout, outliers and self-occlusion), tracked from the true first pose with the \
+             tracker's defaults (eight annealing layers), as a plain filter (one layer: \
+             Condensation as the paper ran it; paler) and with a flat likelihood (diffusion only; \
+             palest). Joints: {}.",
             synth.frames,
             synth.camera.width,
             synth.camera.height,
