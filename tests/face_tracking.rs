@@ -139,11 +139,18 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         .unwrap_err();
     assert!(refused.to_string().contains("slots are taken"), "{refused}");
     let mut lost_at = None;
+    // Track 0's confidence per frame, until it is lost.
+    let mut confidences = Vec::new();
     for frame in 0..video.frames {
         let image = render_frame(&video, &model, frame).unwrap();
         let estimates = tracker.step(&image).unwrap();
         if lost_at.is_none() {
             assert_eq!(estimates.len(), 1);
+            let e = &estimates[0];
+            assert!((0.0..=1.0).contains(&e.confidence), "{}", e.confidence);
+            assert!(e.ess >= 1.0 && e.ess <= 256.0 + 1e-3, "{}", e.ess);
+            assert!(e.spread.iter().all(|s| s.is_finite() && *s >= 0.0));
+            confidences.push(e.confidence);
             if let TrackStatus::Lost { frame } = estimates[0].status {
                 lost_at = Some(frame);
                 assert_eq!(tracker.free_slots(), 1);
@@ -174,4 +181,16 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         }
     }
     assert!(lost_at.is_some_and(|f| f < 25), "{lost_at:?}");
+    // The confidence falls as the face leaves, before the track is declared lost: the frames
+    // just before the loss are far less sure than the first frames.
+    eprintln!("track 0's confidence: {confidences:?}");
+    let early = confidences[..4].iter().sum::<f32>() / 4.0;
+    let before_loss = confidences[confidences.len() - 3..confidences.len() - 1]
+        .iter()
+        .sum::<f32>()
+        / 2.0;
+    assert!(
+        before_loss < 0.5 * early,
+        "confidence {before_loss} just before the loss, {early} at the start"
+    );
 }
