@@ -132,7 +132,7 @@ pub struct TrackArgs {
     #[arg(long, default_value = "streampf-body-out")]
     pub out: PathBuf,
     /// Pose samples (particles).
-    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
+    #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub particles: u32,
     /// Frames are thinned to at most this many points.
     #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]

@@ -152,7 +152,11 @@ fn body_sequence(quick: bool) -> anyhow::Result<(SynthConfig, usize, usize)> {
     Ok(if quick {
         (SynthConfig::small(10)?, 200, 19)
     } else {
-        (SynthConfig::small(40)?, 1000, 48)
+        (
+            SynthConfig::small(40)?,
+            TrackerConfig::default().particles,
+            48,
+        )
     })
 }
 
