@@ -1,0 +1,169 @@
+#!/usr/bin/env python3
+"""Checks the face tracker's head pose on a real video against an independent per-frame estimate.
+
+The reference knows nothing of the tracker: dlib's face detector and 68-landmark model, then
+OpenCV's solvePnP (SQPnP) with a generic six-point 3D face (nose tip, chin, the eyes' outer
+corners, the mouth's corners) and a pinhole camera whose focal length is the frame's width. Its
+rotation is split as the tracker's is, R = Rx(pitch)·Ry(yaw)·Rz(roll). OpenCV's camera looks along
++z; the tracker's model frame has z towards the camera, which mirrors z and so negates pitch and
+yaw (S·R·S with S = diag(1, 1, −1)): the reference's pitch and yaw are negated to compare.
+
+For each track of the tracker's states.csv, frames where a detected face's centre lies within a
+quarter of the face's width of the track's centre are paired. Per axis the check reports the
+Pearson correlation r, the ratio of the tracker's spread to the reference's (sd ratio) and the
+mean absolute difference after removing each series' mean (an offset between the generic 3D face
+and the tracker's face model is expected and is not an error).
+
+    python3 tools/head_pose_check.py VIDEO STATES_CSV [--json OUT.json] [--min-frames 30]
+
+Needs numpy, opencv-python and dlib (installed by `cargo xtask fetch-media`) and dlib's model at
+/usr/share/dlib/shape_predictor_68_face_landmarks.dat (Debian's libdlib-data).
+"""
+
+import argparse
+import csv
+import json
+import math
+import sys
+
+import cv2
+import dlib
+import numpy as np
+
+PREDICTOR = "/usr/share/dlib/shape_predictor_68_face_landmarks.dat"
+
+# A generic face in millimetres (x right, y down, z away from the camera), the six points in the
+# 68-landmark numbering: nose tip 30, chin 8, left eye's outer corner 36, right eye's outer
+# corner 45, mouth corners 48 and 54.
+MODEL_POINTS = np.array(
+    [
+        (0.0, 0.0, 0.0),
+        (0.0, 63.6, 12.5),
+        (-43.3, -32.7, 26.0),
+        (43.3, -32.7, 26.0),
+        (-28.9, 28.9, 24.1),
+        (28.9, 28.9, 24.1),
+    ],
+    dtype=np.float64,
+)
+LANDMARKS = [30, 8, 36, 45, 48, 54]
+AXES = ("pitch", "yaw", "roll")
+
+
+def angles_xyz(rotation):
+    """(rx, ry, rz) in degrees with R = Rx(rx)·Ry(ry)·Rz(rz)."""
+    ry = math.asin(max(-1.0, min(1.0, rotation[0, 2])))
+    rx = math.atan2(-rotation[1, 2], rotation[2, 2])
+    rz = math.atan2(-rotation[0, 1], rotation[0, 0])
+    return tuple(math.degrees(a) for a in (rx, ry, rz))
+
+
+def reference_poses(video):
+    """Per frame, a list of (centre_x, centre_y, width, (pitch, yaw, roll)) for each face found."""
+    detector = dlib.get_frontal_face_detector()
+    predictor = dlib.shape_predictor(PREDICTOR)
+    capture = cv2.VideoCapture(video)
+    if not capture.isOpened():
+        sys.exit(f"cannot open {video}")
+    frames = []
+    while True:
+        ok, image = capture.read()
+        if not ok:
+            break
+        gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        height, width = gray.shape
+        camera = np.array(
+            [[width, 0, width / 2], [0, width, height / 2], [0, 0, 1]], dtype=np.float64
+        )
+        faces = []
+        for rect in detector(gray, 1):
+            shape = predictor(gray, rect)
+            image_points = np.array(
+                [(shape.part(i).x, shape.part(i).y) for i in LANDMARKS], dtype=np.float64
+            )
+            ok, rvec, _ = cv2.solvePnP(
+                MODEL_POINTS, image_points, camera, None, flags=cv2.SOLVEPNP_SQPNP
+            )
+            if not ok:
+                continue
+            rotation, _ = cv2.Rodrigues(rvec)
+            pitch, yaw, roll = angles_xyz(rotation)
+            centre = ((rect.left() + rect.right()) / 2, (rect.top() + rect.bottom()) / 2)
+            # In the tracker's frame (z towards the camera): pitch and yaw change sign.
+            faces.append((centre[0], centre[1], rect.width(), (-pitch, -yaw, roll)))
+        frames.append(faces)
+    return frames
+
+
+def tracker_rows(states_csv):
+    """{track: [(frame, tx, ty, (pitch, yaw, roll))]} of the rows being tracked."""
+    tracks = {}
+    with open(states_csv, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["status"] != "tracking":
+                continue
+            angles = tuple(float(row[f"{a}_deg"]) for a in AXES)
+            tracks.setdefault(int(row["track"]), []).append(
+                (int(row["frame"]), float(row["tx"]), float(row["ty"]), angles)
+            )
+    return tracks
+
+
+def compare(ours, theirs):
+    """r, sd ratio (ours / theirs) and mean |difference| after removing each series' mean."""
+    a, b = np.asarray(ours), np.asarray(theirs)
+    sd_a, sd_b = a.std(), b.std()
+    r = float(np.corrcoef(a, b)[0, 1]) if sd_a > 0 and sd_b > 0 else float("nan")
+    return {
+        "r": r,
+        "sd_ratio": float(sd_a / sd_b) if sd_b > 0 else float("nan"),
+        "tracker_sd_deg": float(sd_a),
+        "reference_sd_deg": float(sd_b),
+        "mean_abs_diff_deg": float(np.abs((a - a.mean()) - (b - b.mean())).mean()),
+    }
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("video")
+    parser.add_argument("states_csv")
+    parser.add_argument("--json", help="write the results here too")
+    parser.add_argument("--min-frames", type=int, default=30)
+    args = parser.parse_args()
+    reference = reference_poses(args.video)
+    results = {}
+    for track, rows in sorted(tracker_rows(args.states_csv).items()):
+        pairs = []
+        for frame, tx, ty, angles in rows:
+            if frame >= len(reference):
+                continue
+            near = [
+                f
+                for f in reference[frame]
+                if math.hypot(f[0] - tx, f[1] - ty) <= 0.25 * f[2]
+            ]
+            if len(near) == 1:
+                pairs.append((angles, near[0][3]))
+        if len(pairs) < args.min_frames:
+            continue
+        results[track] = {"frames": len(pairs)}
+        for k, axis in enumerate(AXES):
+            results[track][axis] = compare([p[0][k] for p in pairs], [p[1][k] for p in pairs])
+    if not results:
+        sys.exit(f"no track had {args.min_frames} frames paired with the reference")
+    for track, result in results.items():
+        print(f"track {track}: {result['frames']} frames paired with the reference")
+        for axis in AXES:
+            c = result[axis]
+            print(
+                f"  {axis:5}: r {c['r']:.2f}, sd {c['tracker_sd_deg']:.1f}° vs "
+                f"{c['reference_sd_deg']:.1f}° (ratio {c['sd_ratio']:.2f}), mean |difference| "
+                f"after offset {c['mean_abs_diff_deg']:.1f}°"
+            )
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(results, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()
