@@ -96,6 +96,25 @@ fn config(annealing: Annealing) -> BatchConfig {
     config
 }
 
+/// The CPU twin over the shared starting cloud.
+fn cpu_filter(config: &BatchConfig) -> BatchFilter<Systematic> {
+    BatchFilter::new(config, Systematic, start(config)).unwrap()
+}
+
+/// The GPU driver with the WGSL model over the same starting cloud.
+fn gpu_filter(ctx: &pf_gpu::GpuContext, config: &BatchConfig) -> ModelFilter<Observed, Constants> {
+    let states = start(config);
+    ModelFilter::new(
+        ctx,
+        config,
+        GpuResampler::Systematic,
+        &states,
+        MODEL,
+        &CONSTANTS,
+    )
+    .unwrap()
+}
+
 fn annealed() -> Annealing {
     Annealing::survival(8, 0.3, 0.7)
 }
@@ -127,7 +146,7 @@ fn cpu_error(annealing: Annealing) -> f32 {
 }
 
 fn cpu_error_with(config: BatchConfig) -> f32 {
-    let mut filter = BatchFilter::new(&config, Systematic, start(&config)).unwrap();
+    let mut filter = cpu_filter(&config);
     let errors: Vec<f32> = (1..=FRAMES)
         .map(|frame| {
             let report = filter.step_model(&Gaussian12, &observed(frame), &CONSTANTS);
@@ -142,15 +161,7 @@ fn gpu_error(ctx: &pf_gpu::GpuContext, annealing: Annealing) -> f32 {
 }
 
 fn gpu_error_with(ctx: &pf_gpu::GpuContext, config: BatchConfig) -> f32 {
-    let mut filter = ModelFilter::new(
-        ctx,
-        &config,
-        GpuResampler::Systematic,
-        &start(&config),
-        MODEL,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut filter = gpu_filter(ctx, &config);
     let errors: Vec<f32> = (1..=FRAMES)
         .map(|frame| {
             let report = filter.step(ctx, &observed(frame)).unwrap();
@@ -201,21 +212,13 @@ fn a_fixed_schedule_runs_its_betas() {
         tempering: pf_core::anneal::Tempering::Fixed(betas.clone()),
         sigma_decay: 0.5,
     });
-    let mut cpu = BatchFilter::new(&config, Systematic, start(&config)).unwrap();
+    let mut cpu = cpu_filter(&config);
     let report = cpu
         .step_model(&Gaussian12, &observed(1), &CONSTANTS)
         .unwrap();
     assert_eq!(report.beta, vec![0.5; TARGETS]);
     assert_eq!(report.resampled, vec![true; TARGETS]);
-    let mut gpu = ModelFilter::new(
-        &ctx,
-        &config,
-        GpuResampler::Systematic,
-        &start(&config),
-        MODEL,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut gpu = gpu_filter(&ctx, &config);
     let report = gpu.step(&ctx, &observed(1)).unwrap();
     assert!(
         report
@@ -296,16 +299,8 @@ fn annealed_step_matches_cpu() {
         return;
     };
     let config = config(Annealing::survival(4, 0.4, 0.7));
-    let mut cpu = BatchFilter::new(&config, Systematic, start(&config)).unwrap();
-    let mut gpu = ModelFilter::new(
-        &ctx,
-        &config,
-        GpuResampler::Systematic,
-        &start(&config),
-        MODEL,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut cpu = cpu_filter(&config);
+    let mut gpu = gpu_filter(&ctx, &config);
     for frame in 1..=2 {
         let a = cpu
             .step_model(&Gaussian12, &observed(frame), &CONSTANTS)
@@ -381,16 +376,8 @@ fn constant_velocity_matches_cpu_and_resets_with_its_target() {
         return;
     };
     let config = constant_velocity(Annealing::none());
-    let mut cpu = BatchFilter::new(&config, Systematic, start(&config)).unwrap();
-    let mut gpu = ModelFilter::new(
-        &ctx,
-        &config,
-        GpuResampler::Systematic,
-        &start(&config),
-        MODEL,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut cpu = cpu_filter(&config);
+    let mut gpu = gpu_filter(&ctx, &config);
     let compare = |frame: usize,
                    cpu: &mut BatchFilter<Systematic>,
                    gpu: &mut ModelFilter<Observed, Constants>| {
