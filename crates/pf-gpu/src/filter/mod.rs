@@ -1,8 +1,7 @@
 //! The GPU filter driver: a frame's whole step — resample → gather → diffuse → likelihood →
 //! normalise (once per annealing layer) → estimate — for T targets × M particles, recorded into
-//! one command submission. The
-//! host uploads nothing but the per-frame parameters (and what the likelihood needs) and reads
-//! back only the estimates and the per-target statistics.
+//! one command submission. The host uploads nothing but the per-frame parameters (and what the
+//! likelihood needs) and reads back only the estimates, spreads and per-target statistics.
 //!
 //! CPU twin: `pf_core::batch::BatchFilter` (same layout, same counter-based random numbers).
 
@@ -11,6 +10,7 @@ use pf_core::batch::{BatchConfig, BatchShape};
 
 mod likelihood;
 mod params;
+mod record;
 mod setup;
 
 pub use likelihood::{
@@ -202,143 +202,6 @@ impl GpuFilter {
             &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
             likelihood,
         );
-    }
-
-    /// Records the given stages, in the step's order: the selection, moving, measuring and
-    /// weighing stages once per annealing layer (each layer with the next step index), then the
-    /// estimate.
-    fn record_stages(
-        &mut self,
-        ctx: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
-        stages: &[GpuStage],
-        likelihood: &dyn GpuLikelihood,
-    ) {
-        let layers = self.annealing.layers;
-        let blocks: Vec<FrameParams> = (0..layers)
-            .map(|layer| {
-                self.params
-                    .for_layer(&self.annealing, layer, self.step + layer as u64)
-            })
-            .collect();
-        self.step += layers as u64;
-        ctx.queue
-            .write_buffer(&self.layer_params, 0, bytemuck::cast_slice(&blocks));
-        let block_bytes = std::mem::size_of::<FrameParams>() as u64;
-        for layer in 0..layers {
-            encoder.copy_buffer_to_buffer(
-                &self.layer_params,
-                layer as u64 * block_bytes,
-                &self.params_buffer,
-                0,
-                block_bytes,
-            );
-            self.record_layer(encoder, stages, likelihood, layer);
-        }
-
-        let per_target = [1, self.shape.targets as u32, 1];
-        if stages.contains(&GpuStage::Estimate) {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("estimate"),
-                timestamp_writes: None,
-            });
-            self.stages
-                .estimate
-                .record(&mut pass, &self.groups.estimate, per_target);
-            if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
-                k.record(&mut pass, g, per_target);
-            }
-            likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
-        }
-        // Only into sections the staging buffer was fitted with (`run_stages` fits it first; a
-        // bare `record_step` of a likelihood it was never fitted for copies nothing).
-        let fitted = likelihood
-            .readbacks()
-            .into_iter()
-            .zip(&self.likelihood_sections);
-        for (k, (source, &(name, bytes))) in fitted.enumerate() {
-            if source.name == name && source.bytes == bytes {
-                self.step_back
-                    .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
-            }
-        }
-        self.step_back.record_copy(
-            encoder,
-            STEP_BACK_ESTIMATES,
-            self.streams.estimates.buffer(),
-        );
-        self.step_back
-            .record_copy(encoder, STEP_BACK_STATS, self.streams.stats.buffer());
-        self.step_back.record_copy(
-            encoder,
-            STEP_BACK_BEST,
-            self.streams.best_estimates.buffer(),
-        );
-        self.step_back
-            .record_copy(encoder, STEP_BACK_SPREADS, self.streams.spreads.buffer());
-    }
-
-    /// One annealing layer's stages (the whole frame but the estimate without annealing): the
-    /// first layer moves particles with the likelihood's own dynamics when it has them, later
-    /// layers with the (scaled) random walk.
-    fn record_layer(
-        &self,
-        encoder: &mut wgpu::CommandEncoder,
-        stages: &[GpuStage],
-        likelihood: &dyn GpuLikelihood,
-        layer: usize,
-    ) {
-        let (t, m) = (self.shape.targets, self.shape.particles);
-        let per_particle = [groups_for(m, 64), t as u32, 1];
-        let per_target = [1, t as u32, 1];
-        let wants = |s: GpuStage| stages.contains(&s);
-        if wants(GpuStage::Resample) || wants(GpuStage::Gather) {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("select"),
-                timestamp_writes: None,
-            });
-            if wants(GpuStage::Resample) {
-                for step in &self.resample_steps {
-                    step.kernel.record(&mut pass, &step.group, step.groups);
-                }
-            }
-            if wants(GpuStage::Gather) {
-                self.stages
-                    .gather
-                    .record(&mut pass, &self.groups.gather, per_particle);
-            }
-        }
-        if wants(GpuStage::Gather) {
-            let bytes = (self.shape.state_len() * 4) as u64;
-            encoder.copy_buffer_to_buffer(
-                self.streams.selected.buffer(),
-                0,
-                self.streams.states.buffer(),
-                0,
-                bytes,
-            );
-        }
-        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-            label: Some("diffuse, measure, normalise"),
-            timestamp_writes: None,
-        });
-        if wants(GpuStage::Diffuse) {
-            if layer == 0 && likelihood.propagates() {
-                likelihood.record(LikelihoodPhase::Propagate, &mut pass);
-            } else {
-                self.stages
-                    .diffuse
-                    .record(&mut pass, &self.groups.diffuse, per_particle);
-            }
-        }
-        if wants(GpuStage::Likelihood) {
-            likelihood.record(LikelihoodPhase::Measure, &mut pass);
-        }
-        if wants(GpuStage::Normalise) {
-            self.stages
-                .normalise
-                .record(&mut pass, &self.groups.normalise, per_target);
-        }
     }
 
     /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.

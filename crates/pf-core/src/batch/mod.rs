@@ -2,19 +2,25 @@
 #![allow(clippy::needless_range_loop)]
 
 //! Batched filtering: T independent targets × M particles in one set of buffers, the layout of
-//! the GPU runtime. The functions here are the CPU twins of pf-gpu's stages (same inputs, same
-//! random numbers, f64 accumulation) and [`BatchFilter`] is the twin of its filter driver.
+//! the GPU runtime. [`BatchFilter`] is the twin of pf-gpu's filter driver; `stages.rs` holds the
+//! twins of its stages (same inputs, same random numbers, f64 accumulation).
 //!
 //! Layout: states `[(t·D + d)·M + m]`, per-particle values `[t·M + m]`.
 
 use rayon::prelude::*;
 
-use crate::anneal::{Annealing, Tempering, survival_beta, tempered};
+use crate::anneal::Annealing;
 use crate::error::PfError;
 use crate::plugin::CpuModel;
 use crate::random::{CounterUniforms, RandomStreams, Stage, counter_gaussian, key_words};
 use crate::resample::Resampler;
-use crate::weights;
+
+mod stages;
+
+pub use stages::{
+    LayerBeta, Normalised, add_drift, best_weighted_means, circular_spread, diffuse,
+    normalise_target, update_velocity, weighted_means, weighted_spreads,
+};
 
 /// A model's dynamics on one particle: `(previous state, standard Gaussian draws, next state)`.
 type Propagate<'a> = dyn Fn(&[f32], &[f32], &mut [f32]) + Sync + 'a;
@@ -83,218 +89,6 @@ pub fn stage_keys(seed: u64, targets: usize, stage: Stage) -> Vec<[u32; 2]> {
     (0..targets as u32)
         .map(|t| key_words(streams.key(t, stage)))
         .collect()
-}
-
-/// Twin of `diffuse.wgsl`: x += (σ_d·s)·n with n = counter_gaussian(key_t, m, d, step) and s the
-/// annealing layer's scale (1 for plain Condensation), then clamp and angle wrap.
-#[allow(clippy::too_many_arguments)]
-pub fn diffuse(
-    shape: &BatchShape,
-    states: &mut [f32],
-    sigma: &[f32],
-    sigma_scale: f32,
-    bounds: Option<(&[f32], &[f32])>,
-    angular: &[bool],
-    keys: &[[u32; 2]],
-    step: u64,
-) {
-    for t in 0..shape.targets {
-        for d in 0..shape.dims {
-            for m in 0..shape.particles {
-                let i = shape.state_index(t, d, m);
-                let z = counter_gaussian(keys[t], m as u32, d as u32, step);
-                let mut x = (f64::from(states[i]) + f64::from(sigma[d] * sigma_scale) * z) as f32;
-                if let Some((lo, hi)) = bounds {
-                    x = x.clamp(lo[d], hi[d]);
-                }
-                if angular[d] {
-                    x = wrap_angle_floor(x);
-                }
-                states[i] = x;
-            }
-        }
-    }
-}
-
-/// How one layer's exponent β is set (see [`crate::anneal`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum LayerBeta {
-    /// This β (1: the plain likelihood).
-    Fixed(f32),
-    /// The survival rule: ESS = `rate`·M, β at most `max_beta`.
-    Survival {
-        /// α.
-        rate: f32,
-        /// The cap on β.
-        max_beta: f32,
-    },
-}
-
-impl LayerBeta {
-    /// Layer `layer`'s rule under `annealing`.
-    pub fn of_layer(annealing: &Annealing, layer: usize) -> Self {
-        match &annealing.tempering {
-            Tempering::Fixed(betas) => Self::Fixed(betas.get(layer).copied().unwrap_or(1.0)),
-            Tempering::Survival { rate, max_beta } => Self::Survival {
-                rate: *rate,
-                max_beta: *max_beta,
-            },
-        }
-    }
-}
-
-/// One target's normalisation: its effective sample size and the β it weighed with.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Normalised {
-    /// 1 / Σw².
-    pub ess: f64,
-    /// The exponent applied to the log-likelihood.
-    pub beta: f32,
-}
-
-/// Twin of `normalise.wgsl` for one target: adds β·log-likelihood (β from `beta`), normalises
-/// (f64), writes the weights and returns the ESS and β; on a degenerate target it leaves uniform
-/// weights and returns the error. A NaN, +∞ or all-zero weight is one at every β > 0, so the
-/// failure does not depend on β.
-pub fn normalise_target(
-    log_weights: &mut [f32],
-    log_likelihood: &[f32],
-    weights_out: &mut [f64],
-    beta: LayerBeta,
-) -> Result<Normalised, PfError> {
-    let beta = match beta {
-        LayerBeta::Fixed(b) => b,
-        LayerBeta::Survival { rate, max_beta } => {
-            survival_beta(log_weights, log_likelihood, rate, max_beta)
-        }
-    };
-    for (lw, &ll) in log_weights.iter_mut().zip(log_likelihood) {
-        *lw = tempered(*lw, ll, beta);
-    }
-    match weights::normalise(log_weights, weights_out) {
-        Ok(lse) => {
-            for lw in log_weights.iter_mut() {
-                *lw = lse.normalised_log(*lw) as f32;
-            }
-            Ok(Normalised {
-                ess: weights::effective_sample_size(weights_out),
-                beta,
-            })
-        }
-        Err(err) => {
-            let n = log_weights.len();
-            log_weights.fill(-(n as f32).ln());
-            weights_out.fill(1.0 / n as f64);
-            Err(err)
-        }
-    }
-}
-
-/// Twin of the weighted-mean kernel: per target and dimension, angles on the circle.
-pub fn weighted_means(
-    shape: &BatchShape,
-    states: &[f32],
-    weights: &[f64],
-    angular: &[bool],
-) -> Vec<f32> {
-    let mut out = vec![0.0; shape.targets * shape.dims];
-    for t in 0..shape.targets {
-        let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-        for d in 0..shape.dims {
-            let xs =
-                &states[shape.state_index(t, d, 0)..shape.state_index(t, d, 0) + shape.particles];
-            let (mut a, mut b) = (0.0f64, 0.0f64);
-            for (&x, &wi) in xs.iter().zip(w) {
-                let x = f64::from(x);
-                if angular[d] {
-                    a += wi * x.sin();
-                    b += wi * x.cos();
-                } else {
-                    a += wi * x;
-                    b += wi;
-                }
-            }
-            out[t * shape.dims + d] = if angular[d] {
-                a.atan2(b) as f32
-            } else if b > 0.0 {
-                (a / b) as f32
-            } else {
-                0.0
-            };
-        }
-    }
-    out
-}
-
-/// Twin of the spread half of the weighted-mean kernel: per target and dimension, the posterior's
-/// spread about `means` (`[t·D + d]`, from [`weighted_means`]): the weighted standard deviation,
-/// or for an angle the circular standard deviation √(−2 ln R), R the length of the weighted mean
-/// unit vector (0 for one direction; it grows without bound as the directions fill the circle).
-pub fn weighted_spreads(
-    shape: &BatchShape,
-    states: &[f32],
-    weights: &[f64],
-    angular: &[bool],
-    means: &[f32],
-) -> Vec<f32> {
-    let mut out = vec![0.0; shape.targets * shape.dims];
-    for t in 0..shape.targets {
-        let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-        for d in 0..shape.dims {
-            let start = shape.state_index(t, d, 0);
-            let xs = &states[start..start + shape.particles];
-            let mean = f64::from(means[t * shape.dims + d]);
-            out[t * shape.dims + d] = if angular[d] {
-                let (s, c) = xs
-                    .iter()
-                    .zip(w)
-                    .fold((0.0f64, 0.0f64), |(s, c), (&x, &wi)| {
-                        (s + wi * f64::from(x).sin(), c + wi * f64::from(x).cos())
-                    });
-                circular_spread(s.hypot(c)) as f32
-            } else {
-                let (sq, total) = xs
-                    .iter()
-                    .zip(w)
-                    .fold((0.0f64, 0.0f64), |(sq, n), (&x, &wi)| {
-                        (sq + wi * (f64::from(x) - mean).powi(2), n + wi)
-                    });
-                if total > 0.0 {
-                    (sq / total).sqrt() as f32
-                } else {
-                    0.0
-                }
-            };
-        }
-    }
-    out
-}
-
-/// √(−2 ln R) of a mean resultant length R in (0, 1] (clamped), the circular standard deviation.
-pub fn circular_spread(r: f64) -> f64 {
-    (-2.0 * r.clamp(1e-30, 1.0).ln()).sqrt()
-}
-
-/// Twin of the best-M′ kernel: per target, the weighted mean of the `best` heaviest particles,
-/// ties to the lower index (the rule of [`crate::estimate::best_weighted_mean`]).
-pub fn best_weighted_means(
-    shape: &BatchShape,
-    states: &[f32],
-    weights: &[f64],
-    angular: &[bool],
-    best: usize,
-) -> Vec<f32> {
-    let m = shape.particles;
-    let best = best.clamp(1, m);
-    // Zero the weights of the particles left out, then take the plain weighted mean.
-    let mut selected = vec![0.0f64; weights.len()];
-    for t in 0..shape.targets {
-        let w = &weights[t * m..(t + 1) * m];
-        for i in crate::estimate::heaviest(w, best) {
-            selected[t * m + i] = w[i];
-        }
-    }
-    weighted_means(shape, states, &selected, angular)
 }
 
 /// What one batched step produced, per target.
@@ -794,45 +588,6 @@ impl<R: Resampler> BatchFilter<R> {
             status.push(result.map(|_| ()));
         }
         Ok((resampled, betas, status))
-    }
-}
-
-/// Twin of the drift in `diffuse.wgsl`: x += v_{t,d} (the constant-velocity prediction).
-pub fn add_drift(shape: &BatchShape, states: &mut [f32], velocity: &[f32]) {
-    for t in 0..shape.targets {
-        for d in 0..shape.dims {
-            let v = velocity[t * shape.dims + d];
-            let start = shape.state_index(t, d, 0);
-            for x in &mut states[start..start + shape.particles] {
-                *x += v;
-            }
-        }
-    }
-}
-
-/// Twin of the velocity update in `estimate.wgsl`: v = gain·(x̂ − x̂_previous) (angles wrapped),
-/// 0 where there is no previous estimate yet; then x̂ becomes the previous estimate. Nothing
-/// changes when `gain` is 0 (the random walk).
-pub fn update_velocity(
-    gain: f32,
-    angular: &[bool],
-    estimates: &[f32],
-    previous: &mut [f32],
-    velocity: &mut [f32],
-) {
-    if gain <= 0.0 {
-        return;
-    }
-    let dims = angular.len();
-    for (k, (&x, prev)) in estimates.iter().zip(previous.iter_mut()).enumerate() {
-        velocity[k] = if prev.is_nan() {
-            0.0
-        } else if angular[k % dims] {
-            gain * wrap_angle_floor(x - *prev)
-        } else {
-            gain * (x - *prev)
-        };
-        *prev = x;
     }
 }
 
