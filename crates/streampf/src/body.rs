@@ -13,6 +13,7 @@ use body_tracker::human::{BASE_CAPSULES, MAX_CAPSULES, human_skeleton, standing_
 use body_tracker::sequence::{
     FrameFormat, SequenceDir, joint_columns, joint_row, read_pose_csv, write_synthetic,
 };
+use body_tracker::skeleton::ROOT_DOFS;
 use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_error};
 use clap::{Args, Subcommand, ValueEnum};
@@ -491,6 +492,10 @@ struct BodyRun {
     /// Frames finished and written (tracked or skipped).
     frames: usize,
     errors: Vec<f32>,
+    /// Pose values (frames × values, with ground truth) whose true value lay within ±2 reported
+    /// standard deviations of the estimate, and how many were checked.
+    within_two_sd: usize,
+    values_checked: usize,
     skipped: SkipLog,
     points_seen: usize,
     tracking_time: f64,
@@ -501,6 +506,8 @@ impl BodyRun {
         Ok(Self {
             frames: 0,
             errors: Vec::new(),
+            within_two_sd: 0,
+            values_checked: 0,
             skipped: SkipLog::new(out)?,
             points_seen: 0,
             tracking_time: 0.0,
@@ -539,11 +546,25 @@ impl BodyRun {
             out.row(&csv_row(frame, &[error]))?;
             out.end_frame()?;
             self.errors.push(error);
+            self.count_coverage(&result.pose, &result.spread, &truth[frame]);
         }
         files.poses.end_frame()?;
         files.joints.end_frame()?;
         self.frames += 1;
         Ok(())
+    }
+
+    /// Counts the pose values whose truth lies within ±2 reported sd (the root's rotations, the
+    /// filter's angles, wrapped).
+    fn count_coverage(&mut self, pose: &[f32], spread: &[f32], truth: &[f32]) {
+        for (d, ((&estimate, &sd), &true_value)) in pose.iter().zip(spread).zip(truth).enumerate() {
+            let mut miss = estimate - true_value;
+            if (3..ROOT_DOFS).contains(&d) {
+                miss = pf_core::batch::wrap_angle_floor(miss);
+            }
+            self.within_two_sd += usize::from(miss.abs() <= 2.0 * sd);
+            self.values_checked += 1;
+        }
     }
 
     /// A frame that cannot be read: a warning and a row in skipped.csv; the filter is not
@@ -568,6 +589,10 @@ impl BodyRun {
             println!(
                 "mean joint position error: {mean:.4} m over {} frames",
                 self.errors.len()
+            );
+            println!(
+                "truth within ±2 reported sd: {:.0}% of the pose values (about 95% for an honest spread)",
+                100.0 * self.within_two_sd as f64 / self.values_checked.max(1) as f64
             );
         }
         println!(

@@ -100,6 +100,11 @@ fn track_synthetic_prints_the_joint_error_and_the_frame_rate() {
         "{text}"
     );
     assert!(text.contains("frames/s"), "{text}");
+    // The share of pose values whose truth lay within ±2 reported sd: a percentage.
+    let label = "truth within ±2 reported sd: ";
+    let after = &text[text.find(label).expect("the coverage line") + label.len()..];
+    let coverage: f64 = after.split('%').next().unwrap().parse().unwrap();
+    assert!((0.0..=100.0).contains(&coverage), "{text}");
     std::fs::remove_dir_all(&out).unwrap();
 }
 
