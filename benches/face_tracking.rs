@@ -5,8 +5,11 @@
 //! likelihood stage alone, one face, so the paper's per-face dispatch; for Fig. 7 the tracker's
 //! whole step, all faces weighed in one dispatch of the packed kernel; set
 //! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout).
-//! GPU times include the submission, the wait and the readback.
+//! GPU times include the submission, the wait and the readback. Fig. 6 also times the plain C
+//! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick.
 
+#[path = "baseline/mod.rs"]
+mod baseline;
 mod common;
 
 use common::context;
@@ -81,6 +84,16 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
         group.throughput(Throughput::Elements((m * template.len()) as u64));
         group.bench_function(BenchmarkId::new("cpu_one_thread", m), |b| {
             b.iter(|| std::hint::black_box(weigh_single_thread(&states, &template, &frame)))
+        });
+        // The yardstick of the one-thread reference: the same arithmetic as a plain C loop.
+        group.bench_function(BenchmarkId::new("plain_c_loop_one_thread", m), |b| {
+            b.iter(|| {
+                let errors: Vec<f64> = states
+                    .iter()
+                    .map(|s| baseline::face_residual_c(s, &template, &frame))
+                    .collect();
+                std::hint::black_box(errors)
+            })
         });
         group.bench_function(BenchmarkId::new("cpu_all_cores", m), |b| {
             b.iter(|| std::hint::black_box(weigh_parallel(&states, &template, &frame)))

@@ -7,7 +7,8 @@
 // face_tracker::likelihood::residual_error.
 //
 // Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty), I(p) bilinear, kappa =
-// (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1); a point outside the frame has rho = 1.
+// (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1), computed as d^2 / (d^2 + J^2) with d =
+// alpha I(p) - J (the same value, one division); a point outside the frame has rho = 1.
 // epsilon = mean rho over those points (1 when fewer than min_visible_share of the points face
 // the camera), log pi = -sharpness ln max(epsilon, floor).
 //
@@ -138,9 +139,9 @@ fn accumulate(t: u32, x: FacePose, first: u32, step: u32) -> vec2<f32> {
             if (intensity < 0.0) {
                 rho_sum = rho_sum + 1.0;
             } else {
-                let kappa = (x.alpha * intensity - pj.w) / pj.w;
-                let k2 = kappa * kappa;
-                rho_sum = rho_sum + k2 / (k2 + 1.0);
+                let d = x.alpha * intensity - pj.w;
+                let d2 = d * d;
+                rho_sum = rho_sum + d2 / (d2 + pj.w * pj.w);
             }
         }
     }

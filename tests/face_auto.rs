@@ -17,7 +17,7 @@ use common::media;
 use face_tracker::detect::Cascade;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{TX, TY};
-use face_tracker::synth::{FaceSynthConfig, face_state, render_frame};
+use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state};
 use face_tracker::{AutoConfig, AutoTracker, FaceBackend, FaceTrackerConfig, TrackStatus};
 
 const ENTER_EVERY: usize = 8;
@@ -81,10 +81,9 @@ fn run(backend: FaceBackend) {
     // Track → (face, frame it started).
     let mut owner: BTreeMap<usize, (usize, usize)> = BTreeMap::new();
     let mut last_frame_tracks = Vec::new();
+    let mut renderer = FaceVideoRenderer::new(&video, &model).unwrap();
     for frame in 0..FRAMES {
-        let out = tracker
-            .step(&render_frame(&video, &model, frame).unwrap())
-            .unwrap();
+        let out = tracker.step(&renderer.render(frame).unwrap()).unwrap();
         for (track, rect, seen) in &out.started {
             let (cx, cy) = rect.centre();
             let (face, distance) = nearest_face(&video, *seen, cx, cy);

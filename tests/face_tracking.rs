@@ -13,7 +13,9 @@ mod common;
 use face_tracker::extraction::FaceRect;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{SCALE, TX, TY};
-use face_tracker::synth::{FaceSynthConfig, HEIGHT_RATIO, face_state, initial_rect, render_frame};
+use face_tracker::synth::{
+    FaceSynthConfig, FaceVideoRenderer, HEIGHT_RATIO, face_state, initial_rect,
+};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, TrackStatus};
 
@@ -46,13 +48,14 @@ fn config() -> FaceTrackerConfig {
 /// (a lost track is reported once, at the frame it is lost).
 fn run(video: &FaceSynthConfig, backend: FaceBackend) -> (f32, f32, Vec<TrackStatus>) {
     let model = FaceModel::generic(129).unwrap();
-    let first = render_frame(video, &model, 0).unwrap();
+    let mut renderer = FaceVideoRenderer::new(video, &model).unwrap();
+    let first = renderer.render(0).unwrap();
     let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(video, k)).collect();
     let mut tracker = FaceTracker::new(&first, &rects, &model, config(), backend).unwrap();
     let (mut translation, mut rotation, mut count) = (0.0, 0.0, 0);
     let mut statuses = vec![TrackStatus::Tracking; video.faces];
     for frame in 0..video.frames {
-        let image = render_frame(video, &model, frame).unwrap();
+        let image = renderer.render(frame).unwrap();
         let estimates = tracker.step(&image).unwrap();
         for e in &estimates {
             // Tracks are numbered in the rectangles' order.
@@ -120,7 +123,8 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         ..video(30)
     };
     let model = FaceModel::generic(129).unwrap();
-    let first = render_frame(&video, &model, 0).unwrap();
+    let mut renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let first = renderer.render(0).unwrap();
     let mut tracker = FaceTracker::with_capacity(
         (video.width, video.height),
         1,
@@ -142,7 +146,7 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
     // Track 0's confidence per frame, until it is lost.
     let mut confidences = Vec::new();
     for frame in 0..video.frames {
-        let image = render_frame(&video, &model, frame).unwrap();
+        let image = renderer.render(frame).unwrap();
         let estimates = tracker.step(&image).unwrap();
         if lost_at.is_none() {
             assert_eq!(estimates.len(), 1);

@@ -69,13 +69,15 @@ impl<T: Level> Image<T> {
     }
 
     /// The bilinear interpolation at (x, y), or `None` outside [0, w−1] × [0, h−1].
+    #[inline]
     pub fn bilinear(&self, x: f32, y: f32) -> Option<f32> {
         if !self.contains(x, y) {
             return None;
         }
-        // The cell's corner is clamped so that the last row and column interpolate within it.
-        let x0 = (x.floor() as u32).min(self.width - 2);
-        let y0 = (y.floor() as u32).min(self.height - 2);
+        // The cell's corner is clamped so that the last row and column interpolate within it;
+        // x, y ≥ 0 here, so truncation is the floor (without a libm call).
+        let x0 = (x as u32).min(self.width - 2);
+        let y0 = (y as u32).min(self.height - 2);
         let (fx, fy) = (x - x0 as f32, y - y0 as f32);
         let top = self.at(x0, y0) * (1.0 - fx) + self.at(x0 + 1, y0) * fx;
         let bottom = self.at(x0, y0 + 1) * (1.0 - fx) + self.at(x0 + 1, y0 + 1) * fx;

@@ -23,7 +23,7 @@ use face_tracker::personal::Personaliser;
 use face_tracker::projection::{
     DIMS, RZ, STATE_NAMES, pitch_yaw_roll_degrees, rotation_quaternion,
 };
-use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
+use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{
     AutoConfig, AutoTracker, FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage,
@@ -250,8 +250,10 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
         truth.push_str(n);
     }
     truth.push('\n');
+    let mut renderer = FaceVideoRenderer::new(&config, &model)?;
     for frame in 0..config.frames {
-        render_frame(&config, &model, frame)?
+        renderer
+            .render(frame)?
             .save_png(&args.out.join(format!("frame_{frame:05}.png")))?;
         for k in 0..config.faces {
             let s = face_state(&config, k, frame);
@@ -483,8 +485,7 @@ fn open_input(args: &TrackArgs) -> anyhow::Result<Input> {
             })
             .collect();
         let source = Source::Synthetic {
-            config,
-            model: model()?,
+            renderer: Box::new(FaceVideoRenderer::new(&config, &model()?)?),
             next: 0,
         };
         return Ok((source, rects, Some(truth)));

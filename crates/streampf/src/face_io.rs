@@ -4,8 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
-use face_tracker::model::FaceModel;
-use face_tracker::synth::{FaceSynthConfig, render_frame};
+use face_tracker::synth::FaceVideoRenderer;
 use face_tracker::{FaceEstimate, GrayImage, Pose, Template, TrackStatus};
 use nalgebra::Vector3;
 
@@ -21,8 +20,7 @@ pub enum Source {
         next: usize,
     },
     Synthetic {
-        config: FaceSynthConfig,
-        model: FaceModel,
+        renderer: Box<FaceVideoRenderer>,
         next: usize,
     },
     Video(Box<VideoReader>),
@@ -68,7 +66,7 @@ impl Source {
     pub fn len(&self) -> Option<usize> {
         match self {
             Source::Images { files, .. } => Some(files.len()),
-            Source::Synthetic { config, .. } => Some(config.frames),
+            Source::Synthetic { renderer, .. } => Some(renderer.config().frames),
             Source::Video(reader) => reader.info.frames,
         }
     }
@@ -104,16 +102,12 @@ impl Source {
                     Err(e) => FrameRead::Unreadable(e.into()),
                 })
             }
-            Source::Synthetic {
-                config,
-                model,
-                next,
-            } => {
-                if *next >= config.frames {
+            Source::Synthetic { renderer, next } => {
+                if *next >= renderer.config().frames {
                     return Ok(FrameRead::End);
                 }
                 *next += 1;
-                Ok(FrameRead::Frame(render_frame(config, model, *next - 1)?))
+                Ok(FrameRead::Frame(renderer.render(*next - 1)?))
             }
             Source::Video(reader) => Ok(match reader.read()? {
                 VideoRead::Frame(image) => FrameRead::Frame(image),

@@ -9,7 +9,7 @@ use body_tracker::human::human_skeleton;
 use body_tracker::synth::{SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, TrackerConfig, Weighing};
 use face_tracker::model::FaceModel;
-use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
+use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect};
 use face_tracker::tracker::pose_errors;
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, TrackStatus};
 use pf_core::anneal::Annealing;
@@ -88,12 +88,13 @@ pub fn face(run: &mut Run) -> anyhow::Result<Figure> {
             },
             ..defaults
         };
-        let first = render_frame(&video, &model, 0)?;
+        let mut renderer = FaceVideoRenderer::new(&video, &model)?;
+        let first = renderer.render(0)?;
         let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(&video, k)).collect();
         let mut tracker = FaceTracker::new(&first, &rects, &model, config, face_backend(gpu)?)?;
         for frame in 0..video.frames {
             run.step(&format!("face accuracy ({label}): frame {frame}"));
-            let image = render_frame(&video, &model, frame)?;
+            let image = renderer.render(frame)?;
             for e in tracker.step(&image)? {
                 if e.status != TrackStatus::Tracking {
                     continue;
