@@ -102,6 +102,10 @@ fn bench_upload(c: &mut Criterion, ctx: &GpuContext) {
     group.bench_function(BenchmarkId::new("fast", i), |b| {
         b.iter(|| g.upload_rays(ctx, &rays).unwrap())
     });
+    // The host's share alone: the Morton order and the tile cones.
+    group.bench_function(BenchmarkId::new("host_preparation", i), |b| {
+        b.iter(|| std::hint::black_box(pf_gpu::capsules::prepare_rays(&rays)))
+    });
     group.finish();
 }
 

@@ -3,8 +3,7 @@
 //! which keeps what frames share, against rendering each frame from nothing.
 
 use face_tracker::likelihood::{
-    LANES, residual_error, residual_errors, residual_errors_of, weigh_parallel,
-    weigh_single_thread,
+    LANES, residual_error, residual_errors, residual_errors_of, weigh_parallel, weigh_single_thread,
 };
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
@@ -100,9 +99,6 @@ fn the_video_renderer_draws_what_each_frame_alone_draws_in_any_order() {
             "frame {frame}"
         );
     }
-    let bad = FaceSynthConfig {
-        faces: 0,
-        ..config
-    };
+    let bad = FaceSynthConfig { faces: 0, ..config };
     assert!(FaceVideoRenderer::new(&bad, &model).is_err());
 }
