@@ -31,7 +31,7 @@ use face_tracker::{
 };
 use std::sync::Arc;
 
-use crate::face_io::{Annotated, FrameRead, Source, overlay};
+use crate::face_io::{Annotated, FrameRead, ReadAhead, Source, overlay};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
@@ -600,8 +600,20 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         frames: 0,
     };
     let started = Instant::now();
-    let ended = run.track_frames(&mut runner, &mut source, first, limit, frames_known);
-    run.finish(&runner, &source, started.elapsed().as_secs_f64(), ended)
+    // The first frame was read above; the rest are read ahead on their own thread.
+    let mut frames = ReadAhead::start(source, limit.saturating_sub(1))?;
+    let mut ended = run.track_frames(&mut runner, &mut frames, first, limit, frames_known);
+    let elapsed = started.elapsed().as_secs_f64();
+    let source = match frames.finish() {
+        Ok(source) => Some(source),
+        Err(e) => {
+            if matches!(ended, LoopEnd::Done) {
+                ended = LoopEnd::Failed(e);
+            }
+            None
+        }
+    };
+    run.finish(&runner, source.as_ref(), elapsed, ended)
 }
 
 /// Why the frame loop ended.
@@ -636,7 +648,7 @@ impl FaceRun<'_> {
     fn track_frames(
         &mut self,
         runner: &mut Runner,
-        source: &mut Source,
+        source: &mut ReadAhead,
         first: GrayImage,
         limit: usize,
         frames_known: Option<usize>,
@@ -718,7 +730,7 @@ impl FaceRun<'_> {
     fn finish(
         mut self,
         runner: &Runner,
-        source: &Source,
+        source: Option<&Source>,
         elapsed: f64,
         end: LoopEnd,
     ) -> anyhow::Result<()> {
@@ -743,6 +755,10 @@ impl FaceRun<'_> {
             }
             LoopEnd::Done => closed?,
         }
+        // The reader ended normally when the loop did (a failed reader is a failed loop).
+        let Some(source) = source else {
+            return Ok(());
+        };
         let messages: Vec<&str> = source.decoder_messages().lines().collect();
         if !self.skipped.frames.is_empty() && !messages.is_empty() {
             eprintln!(

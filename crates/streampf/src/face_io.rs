@@ -274,3 +274,151 @@ impl Annotated {
         }
     }
 }
+
+/// Frames in flight on the reading side: a thread owns the source and decodes (or renders) up to
+/// [`ReadAhead::FRAMES`] frames ahead of the tracker, so that reading frame t+1 overlaps tracking
+/// frame t. The frames come in order and are the ones the source gives, so the results are those
+/// of reading one frame at a time.
+pub struct ReadAhead {
+    frames: std::sync::mpsc::Receiver<anyhow::Result<FrameRead>>,
+    reader: Option<std::thread::JoinHandle<Source>>,
+    /// The source, once its thread has ended.
+    source: Option<Source>,
+}
+
+impl ReadAhead {
+    /// Frames decoded ahead of the tracker.
+    pub const FRAMES: usize = 2;
+
+    /// Starts reading at most `limit` more frames of `source` on a thread of its own.
+    pub fn start(mut source: Source, limit: usize) -> anyhow::Result<Self> {
+        let (send, frames) = std::sync::mpsc::sync_channel(Self::FRAMES);
+        let reader = std::thread::Builder::new()
+            .name("frame-reader".into())
+            .spawn(move || {
+                for _ in 0..limit {
+                    let read = source.read_next();
+                    let last = matches!(read, Ok(FrameRead::End) | Err(_));
+                    // A closed channel: the tracker stopped (limit, interrupt, failure).
+                    if send.send(read).is_err() || last {
+                        break;
+                    }
+                }
+                source
+            })
+            .context("starting the frame reader thread")?;
+        Ok(Self {
+            frames,
+            reader: Some(reader),
+            source: None,
+        })
+    }
+
+    /// The next frame, in order; `End` after the limit.
+    pub fn read_next(&mut self) -> anyhow::Result<FrameRead> {
+        match self.frames.recv() {
+            Ok(read) => read,
+            // The reader has ended: at the limit (or after an error already returned), unless it
+            // panicked, which must not pass for the end of the video.
+            Err(_) => {
+                self.join()?;
+                Ok(FrameRead::End)
+            }
+        }
+    }
+
+    fn join(&mut self) -> anyhow::Result<()> {
+        if let Some(reader) = self.reader.take() {
+            let source = reader
+                .join()
+                .map_err(|_| anyhow::anyhow!("the frame reader thread panicked"))?;
+            self.source = Some(source);
+        }
+        Ok(())
+    }
+
+    /// Stops reading (a frame being decoded is finished first) and gives the source back, for
+    /// its decoder messages and its short-end check.
+    pub fn finish(mut self) -> anyhow::Result<Source> {
+        // Dropping the receiver makes the reader's next send fail, which ends its loop.
+        let (unused_send, unused_frames) = std::sync::mpsc::sync_channel(0);
+        drop(unused_send);
+        drop(std::mem::replace(&mut self.frames, unused_frames));
+        self.join()?;
+        self.source
+            .take()
+            .context("the frame reader gave no source back")
+    }
+}
+
+#[cfg(test)]
+mod read_ahead_tests {
+    use super::*;
+    use face_tracker::model::FaceModel;
+    use face_tracker::synth::FaceSynthConfig;
+
+    fn synthetic(frames: usize) -> (Source, FaceVideoRenderer) {
+        let config = FaceSynthConfig {
+            width: 160,
+            height: 120,
+            faces: 1,
+            half_width: 12.0,
+            ..FaceSynthConfig::paper(frames)
+        };
+        let model = FaceModel::generic(33).unwrap();
+        let renderer = FaceVideoRenderer::new(&config, &model).unwrap();
+        let source = Source::Synthetic {
+            renderer: Box::new(renderer.clone()),
+            next: 0,
+        };
+        (source, renderer)
+    }
+
+    fn frame(read: FrameRead) -> Option<GrayImage> {
+        match read {
+            FrameRead::Frame(image) => Some(image),
+            FrameRead::End => None,
+            FrameRead::Unreadable(e) => panic!("unreadable: {e}"),
+        }
+    }
+
+    #[test]
+    fn frames_come_in_order_up_to_the_end_or_the_limit() {
+        let (source, mut renderer) = synthetic(6);
+        let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
+        for k in 0..6 {
+            let image = frame(ahead.read_next().unwrap()).expect("a frame");
+            assert_eq!(image, renderer.render(k).unwrap(), "frame {k}");
+        }
+        assert!(frame(ahead.read_next().unwrap()).is_none());
+        assert!(frame(ahead.read_next().unwrap()).is_none());
+        let source = ahead.finish().unwrap();
+        assert_eq!(source.len(), Some(6));
+
+        // A limit of 3: three frames, then the end; the source has read exactly those.
+        let (source, _) = synthetic(6);
+        let mut ahead = ReadAhead::start(source, 3).unwrap();
+        for _ in 0..3 {
+            assert!(frame(ahead.read_next().unwrap()).is_some());
+        }
+        assert!(frame(ahead.read_next().unwrap()).is_none());
+        match ahead.finish().unwrap() {
+            Source::Synthetic { next, .. } => assert_eq!(next, 3),
+            _ => unreachable!(),
+        }
+    }
+
+    #[test]
+    fn stopping_early_gives_the_source_back() {
+        let (source, _) = synthetic(50);
+        let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
+        assert!(frame(ahead.read_next().unwrap()).is_some());
+        // The reader is at most FRAMES (+ the one being handed over) ahead, then stops.
+        match ahead.finish().unwrap() {
+            Source::Synthetic { next, .. } => {
+                assert!((1..=ReadAhead::FRAMES + 2).contains(&next), "read {next}")
+            }
+            _ => unreachable!(),
+        }
+    }
+}
