@@ -4,10 +4,12 @@
 //!
 //! The threshold. With 256 particles over the 38 pose values of the 19-capsule body and the
 //! tracker's default annealing (eight layers), the mean joint error over 20 frames measured
-//! 3.4 cm on the CPU, 3.9 cm on one lavapipe context and 4.4 cm split over two (the paths draw
-//! the same random numbers, but f32 sums on the GPU make their resampling part ways), against
-//! 17.5 cm for the flat filter; without annealing the same runs measured 7.6–8.8 cm. The test asks
-//! for at most 6 cm and for at most 35 % of the flat filter's error on the same frames.
+//! 4.4 cm on the CPU, 3.4 cm on one lavapipe context and 3.6 cm in two islands of 128 samples on
+//! two contexts (the paths draw the same random numbers, but f32 sums on the GPU make their
+//! resampling part ways; the islands draw their own), against 17.5 cm for the flat filter. The
+//! test asks for at most 6 cm and for at most 35 % of the flat filter's error on the same frames;
+//! the islands for at most 1.5 × one context's error plus 0.5 cm, and one island is exactly the
+//! one-GPU filter.
 
 mod common;
 
@@ -69,6 +71,57 @@ fn tracks_synthetic_walk_on_gpu() {
     check(
         || common::gpu_context("body tracking on the GPU").map(|c| Backend::Gpu(Box::new(c))),
         FRAMES,
+    );
+}
+
+/// The poses a tracker estimates over `frames` frames.
+fn poses(skeleton: &Skeleton, backend: Backend, frames: usize) -> Vec<Vec<f32>> {
+    let synth = SynthConfig::small(frames).unwrap();
+    let start = pose_at(skeleton, &synth, 0).unwrap();
+    let config = TrackerConfig {
+        particles: PARTICLES,
+        ..TrackerConfig::default()
+    };
+    let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend).unwrap();
+    (0..frames)
+        .map(|frame| {
+            let truth = pose_at(skeleton, &synth, frame).unwrap();
+            let points = render(skeleton, &truth, &synth, frame).unwrap().points;
+            tracker.step(&points).unwrap().pose
+        })
+        .collect()
+}
+
+#[test]
+fn one_island_is_the_one_gpu_filter_and_two_islands_track_as_well() {
+    let skeleton = human_skeleton(19).unwrap();
+    let context = || common::gpu_context("body tracking in islands");
+    let (Some(a), Some(b)) = (context(), context()) else {
+        return;
+    };
+    assert_eq!(
+        poses(&skeleton, Backend::SplitGpus(vec![a]), 4),
+        poses(&skeleton, Backend::Gpu(Box::new(b)), 4)
+    );
+    let (Some(one), Some(first), Some(second)) = (context(), context(), context()) else {
+        return;
+    };
+    let one = run(
+        &skeleton,
+        Backend::Gpu(Box::new(one)),
+        Weighing::Capsules,
+        FRAMES,
+    );
+    let islands = run(
+        &skeleton,
+        Backend::SplitGpus(vec![first, second]),
+        Weighing::Capsules,
+        FRAMES,
+    );
+    eprintln!("mean joint error: one context {one:.4} m, two islands {islands:.4} m");
+    assert!(
+        islands <= 1.5 * one + 0.005,
+        "two islands {islands} m against one context's {one} m"
     );
 }
 

@@ -15,13 +15,15 @@
 //! - [`benchmark_scene`]: the points and pose samples of the paper's speed figures;
 //! - [`synth`]: synthetic sequences (walking, arm waving) with noise, dropout, outliers and
 //!   self-occlusion;
-//! - [`tracker`]: the particle filter over θ on the CPU, one GPU, or several GPUs.
+//! - [`tracker`]: the particle filter over θ on the CPU, one GPU, or several GPUs ([`islands`]:
+//!   one island of the samples per GPU).
 
 pub mod benchmark_scene;
 pub mod camera;
 pub mod capsule;
 pub mod error;
 pub mod human;
+pub mod islands;
 pub mod likelihood;
 pub mod ply;
 pub mod sequence;

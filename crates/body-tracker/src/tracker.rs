@@ -6,8 +6,10 @@
 //! - [`Backend::Cpu`]: `pf_core::batch::BatchFilter`, the likelihood on all cores;
 //! - [`Backend::Gpu`]: the whole step on one GPU (`pf_gpu::GpuFilter` with forward kinematics and
 //!   the likelihood on the GPU): a frame uploads only its rays;
-//! - [`Backend::SplitGpus`]: the filter on the host, the likelihood's samples split over several
-//!   GPUs (`pf_gpu::body::SplitBodyLikelihood`).
+//! - [`Backend::SplitGpus`]: an island of the samples on each GPU, each island the whole step of
+//!   its own filter on its GPU, all islands stepping at once; only their estimates meet on the
+//!   host, where they are combined and, every few frames, the islands exchange particles
+//!   ([`crate::islands`]).
 //!
 //! Diffusion is a Gaussian random walk, clamped to the joint limits; the root's rotations are
 //! angles (wrapped, averaged on the circle). Each frame runs eight annealing layers by default
@@ -17,7 +19,7 @@
 use nalgebra::Vector3;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
-use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
+use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu};
 use pf_gpu::engine::FilterEngine;
 use pf_gpu::{GpuContext, NoLikelihood};
 use rayon::prelude::*;
@@ -30,6 +32,7 @@ use crate::skeleton::{ROOT_DOFS, Skeleton};
 pub enum Backend {
     Cpu,
     Gpu(Box<GpuContext>),
+    /// One island filter per GPU ([`crate::islands`]); the samples are split among them.
     SplitGpus(Vec<GpuContext>),
 }
 
@@ -39,7 +42,7 @@ impl Backend {
             Backend::Cpu => format!("CPU ({} threads)", rayon::current_num_threads()),
             Backend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
             Backend::SplitGpus(contexts) => format!(
-                "{} GPUs: {}",
+                "{} GPUs, an island of the samples on each: {}",
                 contexts.len(),
                 contexts
                     .iter()
@@ -85,6 +88,9 @@ pub struct TrackerConfig {
     pub annealing: Annealing,
     /// The dynamics' drift before the random walk (`pf_core::batch::Motion`).
     pub motion: Motion,
+    /// With islands ([`Backend::SplitGpus`]): every this many frames the islands exchange
+    /// particles ([`crate::islands::exchange`]); 0 never.
+    pub island_exchange_every: u64,
 }
 
 impl Default for TrackerConfig {
@@ -106,6 +112,7 @@ impl Default for TrackerConfig {
             // the mean joint error of 1 000 samples from 10.1 cm (one layer) to 3.5–4.2 cm.
             annealing: Annealing::survival(8, 0.5, 0.7),
             motion: Motion::RandomWalk,
+            island_exchange_every: crate::islands::DEFAULT_EXCHANGE_EVERY,
         }
     }
 }
@@ -126,6 +133,9 @@ pub struct FrameResult {
     pub confidence: f32,
     /// Points used (after thinning).
     pub points: usize,
+    /// With islands ([`Backend::SplitGpus`]): each island's weight in the estimate (they sum to
+    /// 1; [`crate::islands::combine`]). Empty with one filter.
+    pub island_weights: Vec<f64>,
 }
 
 /// How the particles are weighed, beside the filter's engine.
@@ -134,19 +144,79 @@ enum Measure {
     Host,
     /// On the GPU, in the engine's submission (the GPU engine).
     Gpu(Box<BodyLikelihoodGpu>),
-    /// The samples split over several GPUs, called from the CPU engine's measure.
-    Split {
-        contexts: Vec<GpuContext>,
-        likelihood: SplitBodyLikelihood,
-    },
 }
 
-/// The tracker: a filter over θ on one engine, and how it weighs.
+/// One particle filter over θ on one engine (the CPU, or one GPU), and how it weighs.
+struct Filter {
+    engine: FilterEngine,
+    measure: Measure,
+}
+
+/// What one filter's step gives (an island's, with several GPUs): its estimate, the spread
+/// about it and its effective sample size.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FilterStep {
+    pub pose: Vec<f32>,
+    pub spread: Vec<f32>,
+    pub ess: f64,
+}
+
+/// A frame as every filter weighs it.
+struct Frame<'a> {
+    rays: &'a Rays,
+    params: CapsuleLikelihoodParams,
+    /// σ scaled to the frame's number of points.
+    sigma: f32,
+    flat: bool,
+}
+
+impl Filter {
+    fn step(&mut self, skeleton: &Skeleton, frame: &Frame) -> Result<FilterStep, BodyError> {
+        let Self { engine, measure } = self;
+        if let (Measure::Gpu(likelihood), Some(ctx)) = (&mut *measure, engine.context()) {
+            likelihood.upload_rays(ctx, &frame.rays.gpu_layout())?;
+            likelihood.set_sigma(ctx, frame.sigma)?;
+        }
+        let on_gpu: &dyn pf_gpu::GpuLikelihood = match &*measure {
+            Measure::Gpu(likelihood) if !frame.flat => &**likelihood,
+            _ => &NoLikelihood,
+        };
+        let report = engine.step(
+            |_, poses, out| -> Result<(), BodyError> {
+                match measure {
+                    Measure::Host if !frame.flat => {
+                        host_log_likelihoods(skeleton, frame.rays, frame.params, poses, out)
+                    }
+                    // A flat likelihood; the GPU engine never measures on the host.
+                    _ => {
+                        out.fill(0.0);
+                        Ok(())
+                    }
+                }
+            },
+            on_gpu,
+        )?;
+        if let Some(Err(e)) = report.status.into_iter().next() {
+            return Err(e.into());
+        }
+        Ok(FilterStep {
+            pose: report.estimates,
+            spread: report.spreads,
+            ess: report.ess[0],
+        })
+    }
+}
+
+/// The tracker: a filter over θ on one engine, or one island filter per GPU.
 pub struct BodyTracker {
     skeleton: Skeleton,
     config: TrackerConfig,
-    engine: FilterEngine,
-    measure: Measure,
+    /// One filter, or the islands (one per GPU).
+    filters: Vec<Filter>,
+    /// Frames stepped.
+    frames: u64,
+    /// The islands' weights at the last frame (empty with one filter).
+    island_weights: Vec<f64>,
 }
 
 impl BodyTracker {
@@ -165,73 +235,33 @@ impl BodyTracker {
         }
         // Checks the pose's length and values.
         skeleton.capsules(initial_pose)?;
-        let dims = skeleton.dofs();
-        let shape = BatchShape::new(1, config.particles, dims)?;
-        let mut sigma = vec![config.joint_sigma; dims];
-        sigma[..3].fill(config.translation_sigma);
-        sigma[3..ROOT_DOFS].fill(config.rotation_sigma);
-        let mut angular = vec![false; dims];
-        angular[3..ROOT_DOFS].fill(true);
-        let (lower, upper) = skeleton.limits();
-        let mut start = initial_pose.to_vec();
-        for d in 0..dims {
-            start[d] = start[d].clamp(lower[d], upper[d]);
-        }
-        let batch = BatchConfig {
-            shape,
-            seed: config.seed,
-            sigma: sigma.clone(),
-            bounds: Some((lower.clone(), upper.clone())),
-            angular,
-            ess_threshold: f64::INFINITY,
-            best: 0,
-            annealing: config.annealing.clone(),
-            motion: config.motion,
-        };
-        batch.validate()?;
-        let mut states = gaussian_clouds(&shape, config.seed, &start, &sigma);
-        // The initial cloud respects the joint limits too.
-        for d in 0..dims {
-            for m in 0..config.particles {
-                let x = &mut states[shape.state_index(0, d, m)];
-                *x = x.clamp(lower[d], upper[d]);
-            }
-        }
-        let gpu_config = || BodyLikelihoodConfig {
-            bones: skeleton.gpu_bones(),
-            dims,
-            points: config.max_points,
-            origin: [0.0; 3],
-            tau: config.tau,
-            sigma: config.sigma_at_1000_points,
-        };
-        let (engine, measure) = match backend {
-            Backend::Cpu => (FilterEngine::cpu(&batch, states)?, Measure::Host),
+        let filters = match backend {
+            Backend::Cpu => vec![new_filter(&skeleton, &config, initial_pose, None, 0)?],
             Backend::Gpu(ctx) => {
-                let mut likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config(), config.particles)?;
-                let engine = FilterEngine::gpu(*ctx, &batch, &states)?;
-                if let Some((ctx, inputs)) = engine.likelihood_inputs() {
-                    pf_gpu::GpuLikelihood::prepare(&mut likelihood, ctx, &inputs)?;
-                }
-                (engine, Measure::Gpu(Box::new(likelihood)))
+                vec![new_filter(&skeleton, &config, initial_pose, Some(*ctx), 0)?]
             }
             Backend::SplitGpus(contexts) => {
-                let likelihood =
-                    SplitBodyLikelihood::new(&contexts, &gpu_config(), config.particles)?;
-                (
-                    FilterEngine::cpu(&batch, states)?,
-                    Measure::Split {
-                        contexts,
-                        likelihood,
-                    },
-                )
+                let sizes = crate::islands::island_sizes(config.particles, contexts.len())?;
+                contexts
+                    .into_iter()
+                    .zip(sizes)
+                    .enumerate()
+                    .map(|(island, (ctx, particles))| {
+                        let config = TrackerConfig {
+                            particles,
+                            ..config.clone()
+                        };
+                        new_filter(&skeleton, &config, initial_pose, Some(ctx), island)
+                    })
+                    .collect::<Result<_, _>>()?
             }
         };
         Ok(Self {
             skeleton,
             config,
-            engine,
-            measure,
+            filters,
+            frames: 0,
+            island_weights: Vec::new(),
         })
     }
 
@@ -240,15 +270,24 @@ impl BodyTracker {
     }
 
     /// The particles after the last step: the batch shape (1 × J × θ's length), the poses in the
-    /// batch layout `[d·J + j]` and the normalised log-weights. On the GPU this reads them back
+    /// batch layout `[d·J + j]` and the normalised log-weights (islands' particles one after
+    /// another, each island's weights times its island weight). On the GPU this reads them back
     /// (a wait), so call it only when needed.
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), BodyError> {
-        Ok(self.engine.particles()?)
+        if let [filter] = self.filters.as_slice() {
+            return Ok(filter.engine.particles()?);
+        }
+        let islands = self
+            .filters
+            .iter()
+            .map(|f| f.engine.particles())
+            .collect::<Result<Vec<_>, _>>()?;
+        crate::islands::joined_particles(&islands, &self.island_weights)
     }
 
-    /// The GPU the filter runs on (`None` on the CPU engine).
+    /// The GPU the filter runs on (the first island's with several; `None` on the CPU engine).
     pub fn gpu_context(&self) -> Option<&pf_gpu::GpuContext> {
-        self.engine.context()
+        self.filters.first().and_then(|f| f.engine.context())
     }
 
     /// Thins `points` to at most `max_points` by taking every k-th one.
@@ -269,72 +308,132 @@ impl BodyTracker {
     pub fn step(&mut self, points: &[Vector3<f32>]) -> Result<FrameResult, BodyError> {
         let points = self.thinned(points);
         let rays = Rays::through(Vector3::zeros(), &points)?;
-        let flat = self.config.weighing == Weighing::Flat;
         let sigma = self.config.sigma_at_1000_points * (points.len().max(1) as f32 / 1000.0).sqrt();
-        let params = CapsuleLikelihoodParams::new(self.config.tau, sigma)?;
-        let Self {
-            skeleton,
-            engine,
-            measure,
-            ..
-        } = self;
-        match measure {
-            Measure::Gpu(likelihood) => {
-                if let Some(ctx) = engine.context() {
-                    likelihood.upload_rays(ctx, &rays.gpu_layout())?;
-                    likelihood.set_sigma(ctx, sigma)?;
-                }
-            }
-            Measure::Split {
-                contexts,
-                likelihood,
-            } => likelihood.upload_rays(contexts, &rays.gpu_layout())?,
-            Measure::Host => {}
-        }
-        let measure = &*measure;
-        let on_gpu: &dyn pf_gpu::GpuLikelihood = match measure {
-            Measure::Gpu(likelihood) if !flat => &**likelihood,
-            _ => &NoLikelihood,
+        let frame = Frame {
+            rays: &rays,
+            params: CapsuleLikelihoodParams::new(self.config.tau, sigma)?,
+            sigma,
+            flat: self.config.weighing == Weighing::Flat,
         };
-        let report = engine.step(
-            |_, poses, out| -> Result<(), BodyError> {
-                if flat {
-                    out.fill(0.0);
-                    return Ok(());
-                }
-                match measure {
-                    Measure::Host => host_log_likelihoods(skeleton, &rays, params, poses, out),
-                    Measure::Split {
-                        contexts,
-                        likelihood,
-                    } => {
-                        let sums = likelihood.evaluate(contexts, poses)?;
-                        for (o, m) in out.iter_mut().zip(sums) {
-                            *o = params.log_likelihood(m) as f32;
-                        }
-                        Ok(())
-                    }
-                    // The GPU engine never measures on the host.
-                    Measure::Gpu(_) => Ok(()),
-                }
-            },
-            on_gpu,
-        )?;
-        if let Some(Err(e)) = report.status.into_iter().next() {
-            return Err(e.into());
-        }
-        let (pose, ess) = (report.estimates, report.ess[0]);
+        let skeleton = &self.skeleton;
+        let steps: Vec<FilterStep> = match self.filters.as_mut_slice() {
+            [filter] => vec![filter.step(skeleton, &frame)?],
+            // Every island steps at once, each on its own GPU.
+            islands => std::thread::scope(|scope| {
+                let running: Vec<_> = islands
+                    .iter_mut()
+                    .map(|island| scope.spawn(|| island.step(skeleton, &frame)))
+                    .collect();
+                running
+                    .into_iter()
+                    .map(|r| {
+                        r.join().map_err(|_| {
+                            BodyError::InvalidInput("an island's thread panicked".into())
+                        })?
+                    })
+                    .collect::<Result<Vec<_>, BodyError>>()
+            })?,
+        };
+        self.frames += 1;
         let tau = self.config.tau;
+        let (pose, spread, ess) = if let [one] = steps.as_slice() {
+            (one.pose.clone(), one.spread.clone(), one.ess)
+        } else {
+            let combined = crate::islands::combine(skeleton, &rays, frame.params, &steps)?;
+            self.island_weights = combined.weights.clone();
+            if crate::islands::exchange_due(self.config.island_exchange_every, self.frames) {
+                crate::islands::exchange(
+                    &mut self
+                        .filters
+                        .iter_mut()
+                        .map(|f| &mut f.engine)
+                        .collect::<Vec<_>>(),
+                    &combined.weights,
+                    self.config.seed ^ self.frames,
+                )?;
+            }
+            (combined.pose, combined.spread, combined.ess)
+        };
         let fit = culled_sum_of_squared_distances(&self.skeleton.capsules(&pose)?, &rays, tau);
         let confidence = 1.0 - fit / (rays.depths.len().max(1) as f64 * f64::from(tau * tau));
         Ok(FrameResult {
             pose,
-            spread: report.spreads,
+            spread,
             ess,
             confidence: confidence.clamp(0.0, 1.0) as f32,
             points: points.len(),
+            island_weights: self.island_weights.clone(),
         })
     }
+}
+
+/// One filter of `config.particles` samples around `initial_pose`, on the CPU (`ctx` `None`) or
+/// a GPU; island `island` draws its own random numbers (island 0 those of a lone filter).
+fn new_filter(
+    skeleton: &Skeleton,
+    config: &TrackerConfig,
+    initial_pose: &[f32],
+    ctx: Option<GpuContext>,
+    island: usize,
+) -> Result<Filter, BodyError> {
+    let dims = skeleton.dofs();
+    let seed = crate::islands::island_seed(config.seed, island);
+    let shape = BatchShape::new(1, config.particles, dims)?;
+    let mut sigma = vec![config.joint_sigma; dims];
+    sigma[..3].fill(config.translation_sigma);
+    sigma[3..ROOT_DOFS].fill(config.rotation_sigma);
+    let mut angular = vec![false; dims];
+    angular[3..ROOT_DOFS].fill(true);
+    let (lower, upper) = skeleton.limits();
+    let mut start = initial_pose.to_vec();
+    for d in 0..dims {
+        start[d] = start[d].clamp(lower[d], upper[d]);
+    }
+    let batch = BatchConfig {
+        shape,
+        seed,
+        sigma: sigma.clone(),
+        bounds: Some((lower.clone(), upper.clone())),
+        angular,
+        ess_threshold: f64::INFINITY,
+        best: 0,
+        annealing: config.annealing.clone(),
+        motion: config.motion,
+    };
+    batch.validate()?;
+    let mut states = gaussian_clouds(&shape, seed, &start, &sigma);
+    // The initial cloud respects the joint limits too.
+    for d in 0..dims {
+        for m in 0..config.particles {
+            let x = &mut states[shape.state_index(0, d, m)];
+            *x = x.clamp(lower[d], upper[d]);
+        }
+    }
+    Ok(match ctx {
+        None => Filter {
+            engine: FilterEngine::cpu(&batch, states)?,
+            measure: Measure::Host,
+        },
+        Some(ctx) => {
+            let gpu_config = BodyLikelihoodConfig {
+                bones: skeleton.gpu_bones(),
+                dims,
+                points: config.max_points,
+                origin: [0.0; 3],
+                tau: config.tau,
+                sigma: config.sigma_at_1000_points,
+            };
+            let mut likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config, config.particles)?;
+            let engine = FilterEngine::gpu(ctx, &batch, &states)?;
+            if let Some((ctx, inputs)) = engine.likelihood_inputs() {
+                pf_gpu::GpuLikelihood::prepare(&mut likelihood, ctx, &inputs)?;
+            }
+            Filter {
+                engine,
+                measure: Measure::Gpu(Box::new(likelihood)),
+            }
+        }
+    })
 }
 
 /// Sample `m` of a single-target batch (`[d·M + m]`).
