@@ -4,17 +4,22 @@
 //! likelihood on rayon). Frames are synthetic (48 capsules, walking and waving, noise, dropout,
 //! outliers); the camera's size sets the points: 160×120 gives about 1 000 points, 1024×768 about
 //! 43 000 (the paper's largest cloud). GPU times include the host's ray preparation (Morton sort,
-//! tile cones), the submission, the wait and the readback of the estimate.
+//! tile cones), the submission, the wait, the readback of the estimate and the host's check of
+//! the estimate (its confidence, timed alone as `host_confidence`). The step is the paper's: one
+//! weighing a frame (`Annealing::none()`); `gpu_annealed_default` times the tracker's default,
+//! eight annealing layers, on the GPU.
 
 mod common;
 
 use body_tracker::camera::Intrinsics;
 use body_tracker::human::human_skeleton;
+use body_tracker::likelihood::{Rays, culled_sum_of_squared_distances_parallel};
 use body_tracker::synth::{SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, TrackerConfig};
 use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::Vector3;
+use pf_core::anneal::Annealing;
 
 const K: usize = 48;
 
@@ -43,10 +48,17 @@ fn frame(width: u32, height: u32) -> (Vec<Vector3<f32>>, Vec<f32>) {
     (points, pose_at(&skeleton, &config, 9).unwrap())
 }
 
-fn tracker(particles: usize, points: usize, start: &[f32], backend: Backend) -> BodyTracker {
+fn tracker(
+    particles: usize,
+    points: usize,
+    start: &[f32],
+    backend: Backend,
+    annealing: Annealing,
+) -> BodyTracker {
     let config = TrackerConfig {
         particles,
         max_points: points,
+        annealing,
         ..TrackerConfig::default()
     };
     BodyTracker::new(human_skeleton(K).unwrap(), start, config, backend).unwrap()
@@ -70,12 +82,28 @@ fn bench(c: &mut Criterion) {
         let i = points.len();
         let label = format!("j{j}_i{i}");
         group.throughput(Throughput::Elements((j * i * K) as u64));
-        let mut gpu = tracker(j, i, &start, Backend::Gpu(Box::new(context())));
+        let gpu_tracker =
+            |annealing| tracker(j, i, &start, Backend::Gpu(Box::new(context())), annealing);
+        let mut gpu = gpu_tracker(Annealing::none());
         group.bench_function(BenchmarkId::new("gpu_whole_step", &label), |b| {
             b.iter(|| std::hint::black_box(gpu.step(&points).unwrap()))
         });
         drop(gpu);
-        let mut cpu = tracker(j, i, &start, Backend::Cpu);
+        let mut annealed = gpu_tracker(TrackerConfig::default().annealing);
+        group.bench_function(BenchmarkId::new("gpu_annealed_default", &label), |b| {
+            b.iter(|| std::hint::black_box(annealed.step(&points).unwrap()))
+        });
+        drop(annealed);
+        let rays = Rays::through(Vector3::zeros(), &points).unwrap();
+        let capsules = human_skeleton(K).unwrap().capsules(&start).unwrap();
+        group.bench_function(BenchmarkId::new("host_confidence", &label), |b| {
+            b.iter(|| {
+                std::hint::black_box(culled_sum_of_squared_distances_parallel(
+                    &capsules, &rays, 0.1,
+                ))
+            })
+        });
+        let mut cpu = tracker(j, i, &start, Backend::Cpu, Annealing::none());
         group.bench_function(BenchmarkId::new("cpu_all_cores", &label), |b| {
             b.iter(|| std::hint::black_box(cpu.step(&points).unwrap()))
         });

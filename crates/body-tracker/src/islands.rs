@@ -23,7 +23,7 @@ use pf_core::resample::{Resampler, Systematic};
 use pf_gpu::engine::FilterEngine;
 
 use crate::error::BodyError;
-use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances};
+use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances_parallel};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
 use crate::tracker::FilterStep;
 
@@ -87,8 +87,11 @@ pub fn combine(
     let log_likelihoods = steps
         .iter()
         .map(|s| {
-            let sum =
-                culled_sum_of_squared_distances(&skeleton.capsules(&s.pose)?, rays, params.tau);
+            let sum = culled_sum_of_squared_distances_parallel(
+                &skeleton.capsules(&s.pose)?,
+                rays,
+                params.tau,
+            );
             Ok(params.log_likelihood(sum))
         })
         .collect::<Result<Vec<f64>, BodyError>>()?;

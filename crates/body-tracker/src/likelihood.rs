@@ -156,22 +156,49 @@ fn sphere_may_matter(
 /// M for one sample, as [`sum_of_squared_distances`], but each capsule's bounding sphere is
 /// tested first (the CPU form of the fast GPU kernel's culling): the tracker's CPU path.
 pub fn culled_sum_of_squared_distances(capsules: &[Capsule], rays: &Rays, tau: f32) -> f64 {
+    culled_sum_over(capsules, &rays.origin, &rays.directions, &rays.depths, tau)
+}
+
+/// The culled M over some of a frame's rays.
+fn culled_sum_over(
+    capsules: &[Capsule],
+    origin: &Vector3<f32>,
+    directions: &[Vector3<f32>],
+    depths: &[f32],
+    tau: f32,
+) -> f64 {
     let spheres: Vec<_> = capsules.iter().map(bounding_sphere).collect();
     let mut sum = 0.0f64;
-    for (dir, &depth) in rays.directions.iter().zip(&rays.depths) {
+    for (dir, &depth) in directions.iter().zip(depths) {
         let mut best = tau;
         for (c, sphere) in capsules.iter().zip(&spheres) {
-            if sphere_may_matter(&rays.origin, dir, sphere, depth, tau) {
-                best = best.min(truncated_distance(
-                    ray_capsule(&rays.origin, dir, c),
-                    depth,
-                    tau,
-                ));
+            if sphere_may_matter(origin, dir, sphere, depth, tau) {
+                best = best.min(truncated_distance(ray_capsule(origin, dir, c), depth, tau));
             }
         }
         sum += f64::from(best) * f64::from(best);
     }
     sum
+}
+
+/// The same M over all cores, the rays in chunks (each chunk summed in order, then the chunks in
+/// order, so the result does not depend on the threads): one sample against a large frame, the
+/// tracker's check of its estimate (5.5 ms on one core for 42 000 rays).
+pub fn culled_sum_of_squared_distances_parallel(
+    capsules: &[Capsule],
+    rays: &Rays,
+    tau: f32,
+) -> f64 {
+    const CHUNK: usize = 2048;
+    let sums: Vec<f64> = rays
+        .directions
+        .par_chunks(CHUNK)
+        .zip(rays.depths.par_chunks(CHUNK))
+        .map(|(directions, depths)| {
+            culled_sum_over(capsules, &rays.origin, directions, depths, tau)
+        })
+        .collect();
+    sums.iter().sum()
 }
 
 /// min_k d_ik for one ray (the inner loops of Listing 1.2).

@@ -25,7 +25,10 @@ use pf_gpu::{GpuContext, NoLikelihood};
 use rayon::prelude::*;
 
 use crate::error::BodyError;
-use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances};
+use crate::likelihood::{
+    CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances,
+    culled_sum_of_squared_distances_parallel,
+};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
 
 /// Where the filter and the likelihood run.
@@ -354,7 +357,8 @@ impl BodyTracker {
             }
             (combined.pose, combined.spread, combined.ess)
         };
-        let fit = culled_sum_of_squared_distances(&self.skeleton.capsules(&pose)?, &rays, tau);
+        let fit =
+            culled_sum_of_squared_distances_parallel(&self.skeleton.capsules(&pose)?, &rays, tau);
         let confidence = 1.0 - fit / (rays.depths.len().max(1) as f64 * f64::from(tau * tau));
         Ok(FrameResult {
             pose,

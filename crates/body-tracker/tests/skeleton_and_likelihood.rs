@@ -3,8 +3,9 @@
 use body_tracker::capsule::ray_capsule;
 use body_tracker::human::{BASE_CAPSULES, human_skeleton, standing_pose};
 use body_tracker::likelihood::{
-    CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances, listing_1_2,
-    parallel_over_samples, sum_of_squared_distances,
+    CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances,
+    culled_sum_of_squared_distances_parallel, listing_1_2, parallel_over_samples,
+    sum_of_squared_distances,
 };
 use body_tracker::{BodyError, Skeleton, SkeletonSpec};
 use nalgebra::{Vector3, vector};
@@ -240,5 +241,24 @@ proptest! {
         let want = sum_of_squared_distances(&caps, &rays, tau);
         let got = culled_sum_of_squared_distances(&caps, &rays, tau);
         prop_assert!((got - want).abs() <= 1e-6 * (1.0 + want), "culled {} vs {}", got, want);
+    }
+
+    /// The all-cores form sums the same terms in chunks: the same M to f64 rounding, on frames
+    /// of several chunks (and of none).
+    #[test]
+    fn parallel_culled_sum_is_the_culled_sum(seed in any::<u64>(), copies in 0usize..40, tau in 0.005f32..0.5) {
+        let s = human_skeleton(48).unwrap();
+        let base = standing_pose(&s, 3.0);
+        let mut rng = pf_core::RandomStreams::new(seed).stream(0, pf_core::Stage::Model(0));
+        let surface = cast(&s.capsules(&base).unwrap(), 16);
+        let points: Vec<Vector3<f32>> = (0..copies)
+            .flat_map(|_| surface.clone())
+            .map(|p| p + 0.01 * vector![rng.gaussian_f32(), rng.gaussian_f32(), rng.gaussian_f32()])
+            .collect();
+        let rays = Rays::through(Vector3::zeros(), &points).unwrap();
+        let caps = s.capsules(&base).unwrap();
+        let want = culled_sum_of_squared_distances(&caps, &rays, tau);
+        let got = culled_sum_of_squared_distances_parallel(&caps, &rays, tau);
+        prop_assert!((got - want).abs() <= 1e-9 * (1.0 + want), "parallel {} vs {}", got, want);
     }
 }
