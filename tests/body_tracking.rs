@@ -14,6 +14,7 @@
 mod common;
 
 use body_tracker::human::human_skeleton;
+use body_tracker::likelihood::{Rays, culled_sum_of_squared_distances};
 use body_tracker::synth::{SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, Weighing, mean_joint_error};
 
@@ -123,6 +124,45 @@ fn one_island_is_the_one_gpu_filter_and_two_islands_track_as_well() {
         islands <= 1.5 * one + 0.005,
         "two islands {islands} m against one context's {one} m"
     );
+}
+
+/// The GPU weighs its own estimate in the step's submission (the confidence's M): the same as
+/// the host's culled sum over the frame, to the capsule likelihood's tolerance.
+#[test]
+fn the_gpu_checks_its_estimate_as_the_host_does() {
+    let Some(ctx) = common::gpu_context("the body estimate's check on the GPU") else {
+        return;
+    };
+    let skeleton = human_skeleton(19).unwrap();
+    let synth = SynthConfig::small(4).unwrap();
+    let start = pose_at(&skeleton, &synth, 0).unwrap();
+    let config = TrackerConfig {
+        particles: 64,
+        ..TrackerConfig::default()
+    };
+    let tau = config.tau;
+    let mut tracker = BodyTracker::new(
+        skeleton.clone(),
+        &start,
+        config,
+        Backend::Gpu(Box::new(ctx)),
+    )
+    .unwrap();
+    for frame in 0..4 {
+        let truth = pose_at(&skeleton, &synth, frame).unwrap();
+        let points = render(&skeleton, &truth, &synth, frame).unwrap().points;
+        let result = tracker.step(&points).unwrap();
+        let rays = Rays::through(nalgebra::Vector3::zeros(), &points).unwrap();
+        let host =
+            culled_sum_of_squared_distances(&skeleton.capsules(&result.pose).unwrap(), &rays, tau);
+        let host_confidence =
+            (1.0 - host / (points.len() as f64 * f64::from(tau * tau))).clamp(0.0, 1.0);
+        assert!(
+            (f64::from(result.confidence) - host_confidence).abs() <= 2e-3,
+            "frame {frame}: GPU confidence {} against the host's {host_confidence}",
+            result.confidence
+        );
+    }
 }
 
 #[test]

@@ -87,11 +87,16 @@ pub fn combine(
     let log_likelihoods = steps
         .iter()
         .map(|s| {
-            let sum = culled_sum_of_squared_distances_parallel(
-                &skeleton.capsules(&s.pose)?,
-                rays,
-                params.tau,
-            );
+            // The GPU's M of the island's estimate, else the host's.
+            let sum = if let Some(sum) = s.estimate_sum {
+                sum
+            } else {
+                culled_sum_of_squared_distances_parallel(
+                    &skeleton.capsules(&s.pose)?,
+                    rays,
+                    params.tau,
+                )
+            };
             Ok(params.log_likelihood(sum))
         })
         .collect::<Result<Vec<f64>, BodyError>>()?;

@@ -162,6 +162,9 @@ pub struct FilterStep {
     pub pose: Vec<f32>,
     pub spread: Vec<f32>,
     pub ess: f64,
+    /// M of the estimate (eq. 3's sum over the frame's points), when the GPU computed it in the
+    /// step's submission; the host computes it otherwise.
+    pub estimate_sum: Option<f64>,
 }
 
 /// A frame as every filter weighs it.
@@ -202,10 +205,18 @@ impl Filter {
         if let Some(Err(e)) = report.status.into_iter().next() {
             return Err(e.into());
         }
+        let estimate_sum = match &*measure {
+            Measure::Gpu(_) if !frame.flat => {
+                let sums: Vec<f32> = report.likelihood.get(BodyLikelihoodGpu::ESTIMATE_SUM)?;
+                sums.first().map(|&m| f64::from(m))
+            }
+            _ => None,
+        };
         Ok(FilterStep {
             pose: report.estimates,
             spread: report.spreads,
             ess: report.ess[0],
+            estimate_sum,
         })
     }
 }
@@ -339,8 +350,13 @@ impl BodyTracker {
         };
         self.frames += 1;
         let tau = self.config.tau;
-        let (pose, spread, ess) = if let [one] = steps.as_slice() {
-            (one.pose.clone(), one.spread.clone(), one.ess)
+        let (pose, spread, ess, fit) = if let [one] = steps.as_slice() {
+            (
+                one.pose.clone(),
+                one.spread.clone(),
+                one.ess,
+                one.estimate_sum,
+            )
         } else {
             let combined = crate::islands::combine(skeleton, &rays, frame.params, &steps)?;
             self.island_weights = combined.weights.clone();
@@ -355,10 +371,17 @@ impl BodyTracker {
                     self.config.seed ^ self.frames,
                 )?;
             }
-            (combined.pose, combined.spread, combined.ess)
+            // The combined pose is none of the islands' estimates: weighed on the host.
+            (combined.pose, combined.spread, combined.ess, None)
         };
-        let fit =
-            culled_sum_of_squared_distances_parallel(&self.skeleton.capsules(&pose)?, &rays, tau);
+        let fit = match fit {
+            Some(sum) => sum,
+            None => culled_sum_of_squared_distances_parallel(
+                &self.skeleton.capsules(&pose)?,
+                &rays,
+                tau,
+            ),
+        };
         let confidence = 1.0 - fit / (rays.depths.len().max(1) as f64 * f64::from(tau * tau));
         Ok(FrameResult {
             pose,

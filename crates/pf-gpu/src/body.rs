@@ -14,7 +14,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::capsules::{CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES};
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
 use crate::kernels::{Kernel, sources};
 use crate::stream::{DeviceStream, Readback};
 
@@ -121,10 +121,27 @@ pub struct BodyLikelihoodGpu {
     host_group: wgpu::BindGroup,
     /// Bound by [`GpuLikelihood::prepare`] to the filter's states and log-likelihoods.
     filter_groups: Option<(wgpu::BindGroup, wgpu::BindGroup)>,
+    /// M of the filter's estimate, in the step's submission (bound by `prepare`).
+    estimate_fit: Option<EstimateFit>,
     sums_back: Readback<f32>,
 }
 
+/// The tracker's check of its estimate on the GPU: forward kinematics of the step's estimate
+/// (one pose) and the capsule likelihood's sum M over the frame's rays, read back with the step
+/// ([`BodyLikelihoodGpu::ESTIMATE_SUM`]), so that the host does not weigh it.
+struct EstimateFit {
+    /// A one-sample likelihood over the same rays (uploaded with the frame's).
+    capsules: CapsuleLikelihoodGpu,
+    _params: wgpu::Buffer,
+    _frames: DeviceStream<[f32; 4]>,
+    kinematics: wgpu::BindGroup,
+}
+
 impl BodyLikelihoodGpu {
+    /// The readback section holding M of the step's estimate (one f32), once prepared for a
+    /// filter.
+    pub const ESTIMATE_SUM: &'static str = "body estimate sum";
+
     /// Builds the kinematics and likelihood kernels and every buffer for `config`.
     pub fn new(
         ctx: &GpuContext,
@@ -207,6 +224,7 @@ impl BodyLikelihoodGpu {
             host_poses,
             host_group,
             filter_groups: None,
+            estimate_fit: None,
         })
     }
 
@@ -234,7 +252,12 @@ impl BodyLikelihoodGpu {
         }
         let mut padded = rays.to_vec();
         padded.resize(self.config.points, [0.0, 0.0, 1.0, -1.0]);
-        self.capsules.upload_rays(ctx, &padded)
+        let (ordered, cones) = crate::capsules::prepare_rays(&padded);
+        self.capsules.upload_prepared_rays(ctx, &ordered, &cones)?;
+        if let Some(fit) = &self.estimate_fit {
+            fit.capsules.upload_prepared_rays(ctx, &ordered, &cones)?;
+        }
+        Ok(())
     }
 
     /// σ of eq. 3 from the next evaluation on.
@@ -346,6 +369,7 @@ impl GpuLikelihood for BodyLikelihoodGpu {
             ],
         )?;
         self.filter_groups = Some((kinematics, to_log_likelihood));
+        self.estimate_fit = Some(self.estimate_fit(ctx, inputs)?);
         Ok(())
     }
 
@@ -354,6 +378,12 @@ impl GpuLikelihood for BodyLikelihoodGpu {
     }
 
     fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
+        if phase == LikelihoodPhase::AfterEstimate
+            && let Some(fit) = &self.estimate_fit
+        {
+            self.kinematics.record(pass, &fit.kinematics, [1, 1, 1]);
+            fit.capsules.record_in(pass);
+        }
         if phase != LikelihoodPhase::Measure {
             return;
         }
@@ -364,6 +394,66 @@ impl GpuLikelihood for BodyLikelihoodGpu {
             self.to_log_likelihood
                 .record(pass, to_log_likelihood, groups);
         }
+    }
+
+    fn readbacks(&self) -> Vec<ReadbackSource<'_>> {
+        self.estimate_fit
+            .iter()
+            .map(|fit| ReadbackSource::of(Self::ESTIMATE_SUM, fit.capsules.sum_stream()))
+            .collect()
+    }
+}
+
+impl BodyLikelihoodGpu {
+    /// The one-pose likelihood over the filter's estimate (target 0's, `[d]` of the estimates:
+    /// the kinematics read it as one sample of one particle).
+    fn estimate_fit(
+        &self,
+        ctx: &GpuContext,
+        inputs: &LikelihoodInputs<'_>,
+    ) -> Result<EstimateFit, GpuError> {
+        let bones = self.config.bones.len();
+        let capsules = CapsuleLikelihoodGpu::new(
+            ctx,
+            CapsuleKernel::Fast,
+            1,
+            self.config.points,
+            bones,
+            self.config.origin,
+            self.config.tau,
+        )?;
+        let params_value = KinematicsParams {
+            samples: 1,
+            particles: 1,
+            ..self.params_value
+        };
+        let params = ctx.scoped("creating the estimate's kinematics parameters", || {
+            ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("estimate kinematics params"),
+                size: std::mem::size_of::<KinematicsParams>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            })
+        })?;
+        ctx.queue
+            .write_buffer(&params, 0, bytemuck::bytes_of(&params_value));
+        let frames = DeviceStream::zeroed(ctx, "estimate bone frames", bones * 4)?;
+        let kinematics = self.kinematics.bind(
+            ctx,
+            &[
+                (0, params.as_entire_binding()),
+                (1, self.bones.binding()),
+                (2, inputs.estimates.binding()),
+                (3, frames.binding()),
+                (4, capsules.capsule_stream().binding()),
+            ],
+        )?;
+        Ok(EstimateFit {
+            capsules,
+            _params: params,
+            _frames: frames,
+            kinematics,
+        })
     }
 }
 

@@ -271,8 +271,19 @@ impl CapsuleLikelihoodGpu {
             return self.rays.upload(ctx, rays);
         }
         let (ordered, cones) = prepare_rays(rays);
-        self.rays.upload(ctx, &ordered)?;
-        self.tile_cones.upload(ctx, &cones)
+        self.upload_prepared_rays(ctx, &ordered, &cones)
+    }
+
+    /// Rays already put in order with their tile cones by [`prepare_rays`] (one preparation for
+    /// several likelihoods over the same frame); for the fast kernel.
+    pub fn upload_prepared_rays(
+        &self,
+        ctx: &GpuContext,
+        ordered: &[[f32; 4]],
+        cones: &[[f32; 4]],
+    ) -> Result<(), GpuError> {
+        self.rays.upload(ctx, ordered)?;
+        self.tile_cones.upload(ctx, cones)
     }
 
     /// Every sample's capsules, `samples × capsules × 2` values.
