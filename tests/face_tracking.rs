@@ -99,6 +99,22 @@ fn tracks_two_faces_on_gpu() {
     });
 }
 
+/// Two faces split over two GPU contexts, one face each: they track to the same bounds; and the
+/// slots on one context through the several-GPU path are the one-GPU tracker exactly.
+#[test]
+fn tracks_two_faces_split_over_two_gpu_contexts() {
+    let context = || common::gpu_context("face tracking on two GPU contexts");
+    check(|| Some(FaceBackend::Gpus(vec![context()?, context()?])));
+    let (Some(a), Some(b)) = (context(), context()) else {
+        return;
+    };
+    let short = video(6);
+    assert_eq!(
+        run(&short, FaceBackend::Gpus(vec![a])),
+        run(&short, FaceBackend::Gpu(Box::new(b)))
+    );
+}
+
 #[test]
 fn a_face_leaving_the_frame_ends_its_track() {
     let video = FaceSynthConfig {

@@ -12,8 +12,8 @@
 //!   Fig. 6 baseline; and rayon); the GPU kernels are in `pf_gpu::faces`;
 //! - [`image`]: gray frames with bilinear sampling;
 //! - [`synth`]: synthetic videos of textured heads with ground truth;
-//! - [`tracker`]: several faces at once, each its own filter, on the CPU or the GPU, with
-//!   failure detection; slots free when a track is lost and take new faces;
+//! - [`tracker`]: several faces at once, each its own filter, on the CPU, a GPU or several GPUs
+//!   ([`shards`]), with failure detection; slots free when a track is lost and take new faces;
 //! - [`detect`]: Viola–Jones face detection with OpenCV's Haar cascades;
 //! - [`landmarks`]: dlib's 68-point shape predictor, read and run in Rust; [`personal`]: the
 //!   face model warped to a face's landmarks (the personalised model);
@@ -29,6 +29,7 @@ pub mod likelihood;
 pub mod model;
 pub mod personal;
 pub mod projection;
+pub mod shards;
 pub mod synth;
 pub mod template;
 pub mod tracker;

@@ -11,21 +11,17 @@
 
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
-use pf_gpu::engine::FilterEngine;
-use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
-use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood};
-use rayon::prelude::*;
+use pf_gpu::faces::FaceDispatch;
+use pf_gpu::{GpuContext, GpuTime};
 
 use crate::error::FaceError;
 use crate::extraction::{ExtractionConfig, FaceRect, extract_template};
 use crate::image::GrayImage;
 use crate::landmarks::Landmarks;
-use crate::likelihood::{
-    MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error, residual_errors_of,
-};
 use crate::model::FaceModel;
 use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
+use crate::shards::{Shard, joined_particles, shard_sizes, step_all};
 use crate::template::Template;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -37,6 +33,9 @@ pub const MAX_TURN: f32 = 1.222;
 pub enum FaceBackend {
     Cpu,
     Gpu(Box<GpuContext>),
+    /// The slots split over several GPUs, each running the whole step for its share
+    /// ([`crate::shards`]).
+    Gpus(Vec<GpuContext>),
 }
 
 /// The tracker's settings.
@@ -148,11 +147,9 @@ pub struct FaceTracker {
     next_track: usize,
     frame_size: (u32, u32),
     frame_index: usize,
-    /// The filter, on the CPU or the GPU.
-    engine: FilterEngine,
-    /// The GPU likelihood (the GPU engine only; the CPU engine weighs on the host).
-    gpu_likelihood: Option<Box<FaceLikelihoodGpu>>,
-    /// The last step's GPU time (GPU engine only).
+    /// The filters: one engine (the CPU or one GPU), or one per GPU with a share of the slots.
+    shards: Vec<Shard>,
+    /// The last step's GPU time (GPU engines only; the longest of the GPUs').
     last_time: Option<GpuTime>,
 }
 
@@ -235,29 +232,21 @@ impl FaceTracker {
             motion: config.motion,
         };
         batch.validate()?;
-        // Free slots hold a cloud at the origin until a face arrives; they are never reported.
-        let states = vec![0.0; shape.state_len()];
-        let (engine, gpu_likelihood) = match backend {
-            FaceBackend::Cpu => (FilterEngine::cpu(&batch, states)?, None),
-            FaceBackend::Gpu(ctx) => {
-                let mut likelihood = FaceLikelihoodGpu::new(
-                    &ctx,
-                    config.gpu_dispatch,
-                    capacity,
-                    config.extraction.max_points.max(1),
-                    frame_size.0,
-                    frame_size.1,
-                    config.sharpness,
-                    MIN_ERROR,
-                    MIN_VISIBLE_SHARE,
-                )?;
-                let engine = FilterEngine::gpu(*ctx, &batch, &states)?;
-                if let Some((ctx, inputs)) = engine.likelihood_inputs() {
-                    likelihood.prepare(ctx, &inputs)?;
-                }
-                (engine, Some(Box::new(likelihood)))
-            }
+        let contexts = match backend {
+            FaceBackend::Cpu => vec![None],
+            FaceBackend::Gpu(ctx) => vec![Some(*ctx)],
+            // At most one GPU per slot: more would idle.
+            FaceBackend::Gpus(contexts) => contexts.into_iter().take(capacity).map(Some).collect(),
         };
+        let sizes = shard_sizes(capacity, contexts.len())?;
+        let mut shards = Vec::with_capacity(sizes.len());
+        let mut first_slot = 0;
+        for (index, (ctx, slots)) in contexts.into_iter().zip(sizes).enumerate() {
+            shards.push(Shard::new(
+                &config, &batch, first_slot, slots, index, frame_size, ctx,
+            )?);
+            first_slot += slots;
+        }
         Ok(Self {
             model: model.clone(),
             personaliser: None,
@@ -267,8 +256,7 @@ impl FaceTracker {
             next_track: 0,
             frame_size,
             frame_index: 0,
-            engine,
-            gpu_likelihood,
+            shards,
             last_time: None,
             config,
         })
@@ -389,10 +377,9 @@ impl FaceTracker {
             &[cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0],
             &self.config.diffusion,
         );
-        self.engine.reset_target(slot, &cloud)?;
-        if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
-            likelihood.upload_template(ctx, slot, &template.gpu_layout())?;
-        }
+        let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
+            .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
+        shard.start(slot, &cloud, &template)?;
         self.slots[slot] = Some(Track {
             id: track,
             template,
@@ -427,12 +414,12 @@ impl FaceTracker {
     /// states in the batch layout `[(slot·7 + d)·M + m]` and the normalised log-weights
     /// `[slot·M + m]`. On the GPU this reads them back (a wait), so call it only when needed.
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
-        Ok(self.engine.particles()?)
+        joined_particles(&self.shards)
     }
 
-    /// The GPU the filter runs on (`None` on the CPU engine).
+    /// The GPU the filter runs on (the first one with several; `None` on the CPU engine).
     pub fn gpu_context(&self) -> Option<&pf_gpu::GpuContext> {
-        self.engine.context()
+        self.shards.first().and_then(|s| s.engine.context())
     }
 
     /// The GPU's time for the last step's submission (timestamps where the adapter has them),
@@ -461,75 +448,22 @@ impl FaceTracker {
         };
         // Each slot's estimate and its ε (the failure test's input); free slots are not weighed
         // on the CPU, and weigh the GPU's empty template there (ε = 1, a flat likelihood).
-        if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
-            likelihood.upload_frame(ctx, &frame.data)?;
+        let templates: Vec<Option<&Template>> = (self.slots.iter())
+            .map(|s| s.as_ref().map(|t| &t.template))
+            .collect();
+        let steps = step_all(&mut self.shards, frame, &templates, self.config.sharpness)?;
+        self.last_time = (steps.iter().filter_map(|s| s.gpu_time)).max_by_key(|t| t.duration());
+        let (mut estimates, mut spreads, mut ess, mut errors) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        for step in steps {
+            estimates.extend(step.estimates);
+            spreads.extend(step.spreads);
+            ess.extend(step.ess);
+            errors.extend(step.errors);
         }
-        let (tracks, sharpness) = (&self.slots, self.config.sharpness);
-        let on_gpu: &dyn GpuLikelihood = match &self.gpu_likelihood {
-            Some(likelihood) => &**likelihood,
-            None => &NoLikelihood,
-        };
-        let report = self.engine.step(
-            |shape, states, out| -> Result<(), FaceError> {
-                // Each face's particles in tasks of TASK (a particle is about a microsecond of
-                // work), weighed LANES at a time.
-                const TASK: usize = 64;
-                out.par_chunks_mut(shape.particles)
-                    .enumerate()
-                    .for_each(|(t, out)| {
-                        let Some(track) = &tracks[t] else {
-                            out.fill(0.0);
-                            return;
-                        };
-                        out.par_chunks_mut(TASK)
-                            .enumerate()
-                            .for_each(|(task, out)| {
-                                let first = task * TASK;
-                                let mut particles = [[0.0f32; DIMS]; TASK];
-                                for (k, s) in particles[..out.len()].iter_mut().enumerate() {
-                                    *s = std::array::from_fn(|d| {
-                                        states[shape.state_index(t, d, first + k)]
-                                    });
-                                }
-                                let mut errors = [0.0f64; TASK];
-                                residual_errors_of(
-                                    &particles[..out.len()],
-                                    &track.template,
-                                    frame,
-                                    &mut errors[..out.len()],
-                                );
-                                for (out, error) in out.iter_mut().zip(errors) {
-                                    *out = log_weight(error, sharpness);
-                                }
-                            });
-                    });
-                Ok(())
-            },
-            on_gpu,
-        )?;
-        self.last_time = report.gpu_time;
-        let estimates = report.point_estimates();
-        let spreads = &report.spreads;
-        let checked: Vec<([f32; DIMS], f64)> = match &self.gpu_likelihood {
-            // The GPU weighed the estimates in the step's submission.
-            Some(_) => {
-                let errors: Vec<f32> = report.likelihood.get(FaceLikelihoodGpu::ESTIMATE_ERRORS)?;
-                (0..slots)
-                    .map(|t| (state_of(estimates, t), f64::from(errors[t])))
-                    .collect()
-            }
-            // Faces in parallel (at 64 faces this is 15 000 points).
-            None => (0..slots)
-                .into_par_iter()
-                .map(|t| {
-                    let state = state_of(estimates, t);
-                    let error = self.slots[t]
-                        .as_ref()
-                        .map_or(1.0, |track| residual_error(&state, &track.template, frame));
-                    (state, error)
-                })
-                .collect(),
-        };
+        let checked: Vec<([f32; DIMS], f64)> = (0..slots)
+            .map(|t| (state_of(&estimates, t), errors[t]))
+            .collect();
         let mut out = Vec::new();
         for (slot, (state, error)) in checked.into_iter().enumerate() {
             let Some(track) = &mut self.slots[slot] else {
@@ -560,7 +494,7 @@ impl FaceTracker {
                 state,
                 error,
                 spread: std::array::from_fn(|d| spreads[slot * DIMS + d]),
-                ess: report.ess[slot],
+                ess: ess[slot],
                 confidence: confidence as f32,
                 status,
                 rect: FaceRect {

@@ -116,7 +116,7 @@ pub enum BackendArg {
     Cpu,
     /// The whole step on one GPU.
     Gpu,
-    /// The likelihood's samples split over every GPU.
+    /// An island of the samples on every GPU, each the whole filter step on its GPU.
     AllGpus,
 }
 

@@ -100,7 +100,10 @@ pub enum BackendArg {
     /// A hardware GPU when there is one, else the CPU.
     Auto,
     Cpu,
+    /// The whole step on one GPU.
     Gpu,
+    /// The faces' slots split over every GPU, each running the whole step for its share.
+    AllGpus,
 }
 
 #[derive(Debug, Clone, Args)]
@@ -374,6 +377,7 @@ fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
     Ok(match args.backend {
         BackendArg::Cpu => FaceBackend::Cpu,
         BackendArg::Gpu => FaceBackend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
+        BackendArg::AllGpus => FaceBackend::Gpus(crate::gpu::all(args.allow_software)?),
         BackendArg::Auto => match crate::gpu::preferred(args.allow_software, args.quiet) {
             Some(ctx) => FaceBackend::Gpu(Box::new(ctx)),
             None => FaceBackend::Cpu,
@@ -815,6 +819,13 @@ fn build_runner(
     let backend_name = match &backend {
         FaceBackend::Cpu => format!("CPU ({} threads)", rayon::current_num_threads()),
         FaceBackend::Gpu(ctx) => format!("GPU: {}", ctx.adapter().name),
+        FaceBackend::Gpus(contexts) => format!(
+            "{} GPUs, a share of the faces on each: {}",
+            contexts.len(),
+            (contexts.iter().map(|c| c.adapter().name.clone()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
     };
     let personaliser = load_personaliser(args)?;
     let mut runner = match cascade {
