@@ -4,7 +4,8 @@
 //! the best-M′ estimate. Variants: one CPU thread, all CPU cores, and the GPU (for Fig. 6 the
 //! likelihood stage alone, one face, so the paper's per-face dispatch; for Fig. 7 the tracker's
 //! whole step, all faces weighed in one dispatch of the packed kernel; set
-//! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout).
+//! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout). `face_step_over_gpus`:
+//! 64 and 256 faces split over every GPU against one GPU (where there are two or more).
 //! GPU times include the submission, the wait and the readback. Fig. 6 also times the plain C
 //! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick.
 
@@ -165,6 +166,58 @@ fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) 
     );
 }
 
+/// The whole step with the faces split over every hardware GPU (`FaceBackend::Gpus`) against
+/// one of them, at loads that fill one GPU. Runs only where there are at least two.
+fn over_gpus(c: &mut Criterion) {
+    let Ok(all) = GpuContext::all(&pf_gpu::ContextOptions::default()) else {
+        eprintln!("face_step_over_gpus: no hardware GPUs; skipped");
+        return;
+    };
+    if all.len() < 2 {
+        eprintln!("face_step_over_gpus: one GPU; skipped");
+        return;
+    }
+    let names: Vec<String> = all.iter().map(|c| c.adapter().name.clone()).collect();
+    eprintln!(
+        "face_step_over_gpus: {} GPUs: {}",
+        all.len(),
+        names.join(", ")
+    );
+    drop(all);
+    let mut group = c.benchmark_group("face_step_over_gpus");
+    group.sample_size(10);
+    let counts: &[usize] = if full_size() { &[64, 256] } else { &[2] };
+    let particles = if full_size() { 1000 } else { 50 };
+    for &faces in counts {
+        let (frame, rects, model, _) = scene(faces);
+        let config = FaceTrackerConfig {
+            particles,
+            best: particles / 10,
+            ..FaceTrackerConfig::default()
+        };
+        group.throughput(Throughput::Elements((faces * particles) as u64));
+        let mut one = FaceTracker::new(
+            &frame,
+            &rects,
+            &model,
+            config.clone(),
+            FaceBackend::Gpu(Box::new(context())),
+        )
+        .unwrap();
+        group.bench_function(BenchmarkId::new("one_gpu", faces), |b| {
+            b.iter(|| std::hint::black_box(one.step(&frame).unwrap()))
+        });
+        drop(one);
+        let contexts = GpuContext::all(&pf_gpu::ContextOptions::default()).unwrap();
+        let mut split =
+            FaceTracker::new(&frame, &rects, &model, config, FaceBackend::Gpus(contexts)).unwrap();
+        group.bench_function(BenchmarkId::new("all_gpus", faces), |b| {
+            b.iter(|| std::hint::black_box(split.step(&frame).unwrap()))
+        });
+    }
+    group.finish();
+}
+
 fn fig7(c: &mut Criterion) {
     let mut group = c.benchmark_group("face_step_vs_faces");
     group.sample_size(10);
@@ -260,6 +313,7 @@ fn bench(c: &mut Criterion) {
     fig6(c, &ctx);
     frame_upload(c, &ctx);
     fig7(c);
+    over_gpus(c);
 }
 
 criterion_group!(benches, bench);
