@@ -345,7 +345,7 @@ impl CapsuleLikelihoodGpu {
     }
 }
 
-/// Spreads the low 16 bits of `v` to the even bits of a u32.
+/// Spreads the low 16 bits of `v` to the even bits of a u32 (8 bits give a 16-bit Morton code).
 fn spread_bits(v: u32) -> u32 {
     let mut x = v & 0xffff;
     x = (x | (x << 8)) & 0x00ff_00ff;
@@ -362,65 +362,62 @@ pub fn prepare_rays(rays: &[[f32; 4]]) -> (Vec<[f32; 4]>, Vec<[f32; 4]>) {
     (ordered, cones)
 }
 
-/// The rays sorted by the Morton code of their direction's (azimuth, elevation), quantised to 16
-/// bits each over the rays' own range. On all cores: the angles (two libm calls a ray) were most
-/// of a frame's host time at 43 000 rays.
+/// The rays put in Morton (Z-curve) order of their direction, on a 256 × 256 grid over the
+/// directions' own range, by a counting sort (no comparison sort, and the order within a cell
+/// is the input's, so the result is deterministic). When every ray looks forward (z > 0, as
+/// from a depth camera) a direction's coordinates are (x/z, y/z), its point on the image plane,
+/// so that a depth image's pixels keep their neighbours; otherwise (azimuth, elevation).
 fn morton_ordered(rays: &[[f32; 4]]) -> Vec<[f32; 4]> {
-    let angles: Vec<(f32, f32)> = rays
+    const CELLS_PER_AXIS: f32 = 255.0;
+    let forward = rays.par_iter().all(|r| r[2] > 1e-3);
+    let coordinates: Vec<(f32, f32)> = rays
         .par_iter()
         .with_min_len(RAYS_PER_TASK)
-        .map(|r| (r[0].atan2(r[2]), r[1].clamp(-1.0, 1.0).asin()))
+        .map(|r| {
+            if forward {
+                (r[0] / r[2], r[1] / r[2])
+            } else {
+                (r[0].atan2(r[2]), r[1].clamp(-1.0, 1.0).asin())
+            }
+        })
         .collect();
-    let (lo, hi) = angles
-        .par_iter()
-        .with_min_len(RAYS_PER_TASK)
-        .fold(
-            || {
-                (
-                    (f32::INFINITY, f32::INFINITY),
-                    (f32::NEG_INFINITY, f32::NEG_INFINITY),
-                )
-            },
-            |(lo, hi), &(a, e)| ((lo.0.min(a), lo.1.min(e)), (hi.0.max(a), hi.1.max(e))),
-        )
-        .reduce(
-            || {
-                (
-                    (f32::INFINITY, f32::INFINITY),
-                    (f32::NEG_INFINITY, f32::NEG_INFINITY),
-                )
-            },
-            |(lo_a, hi_a), (lo_b, hi_b)| {
-                (
-                    (lo_a.0.min(lo_b.0), lo_a.1.min(lo_b.1)),
-                    (hi_a.0.max(hi_b.0), hi_a.1.max(hi_b.1)),
-                )
-            },
-        );
+    let (lo, hi) = coordinates.iter().fold(
+        (
+            (f32::INFINITY, f32::INFINITY),
+            (f32::NEG_INFINITY, f32::NEG_INFINITY),
+        ),
+        |(lo, hi), &(a, e)| ((lo.0.min(a), lo.1.min(e)), (hi.0.max(a), hi.1.max(e))),
+    );
     let quantise = |x: f32, lo: f32, hi: f32| {
         if hi > lo {
-            (((x - lo) / (hi - lo)) * 65535.0) as u32
+            (((x - lo) / (hi - lo)) * CELLS_PER_AXIS) as u32
         } else {
             0
         }
     };
-    // (key, index) pairs are distinct, so the unstable sort's order is the stable one.
-    let mut keyed: Vec<(u32, u32)> = angles
+    let cells: Vec<u16> = coordinates
         .par_iter()
         .with_min_len(RAYS_PER_TASK)
-        .enumerate()
-        .map(|(i, &(a, e))| {
-            let key =
-                spread_bits(quantise(a, lo.0, hi.0)) | (spread_bits(quantise(e, lo.1, hi.1)) << 1);
-            (key, i as u32)
+        .map(|&(a, e)| {
+            (spread_bits(quantise(a, lo.0, hi.0)) | (spread_bits(quantise(e, lo.1, hi.1)) << 1))
+                as u16
         })
         .collect();
-    keyed.par_sort_unstable();
-    keyed
-        .par_iter()
-        .with_min_len(RAYS_PER_TASK)
-        .map(|&(_, i)| rays[i as usize])
-        .collect()
+    // Counting sort by cell: each cell's first place, then every ray into its cell's next.
+    let mut next = vec![0usize; 1 << 16];
+    for &c in &cells {
+        next[usize::from(c)] += 1;
+    }
+    let mut place = 0;
+    for n in &mut next {
+        (*n, place) = (place, place + *n);
+    }
+    let mut ordered = vec![[0.0f32; 4]; rays.len()];
+    for (ray, &c) in rays.iter().zip(&cells) {
+        ordered[next[usize::from(c)]] = *ray;
+        next[usize::from(c)] += 1;
+    }
+    ordered
 }
 
 /// Rays per rayon task in the host's ray preparation.
