@@ -521,31 +521,42 @@ impl<R: Resampler> BatchFilter<R> {
             f64::INFINITY
         };
 
-        let mut resampled = vec![false; shape.targets];
-        for t in 0..shape.targets {
-            let range = t * m_count..(t + 1) * m_count;
-            let ancestors = &mut self.ancestors[range.clone()];
-            if self.ess[t] < ess_threshold * m_count as f64 {
-                resampled[t] = true;
-                let uniforms = CounterUniforms::new(self.resampling_keys[t], step);
-                self.resampler
-                    .resample(&self.weights[range.clone()], &uniforms, ancestors)?;
-                self.log_weights[range].fill(-(m_count as f32).ln());
-            } else {
-                for (k, a) in ancestors.iter_mut().enumerate() {
-                    *a = k as u32;
+        // Targets are independent: each stage below runs them (or their rows) on all cores,
+        // each value computed as on one core.
+        let (resampler, keys, ess) = (&self.resampler, &self.resampling_keys, &self.ess);
+        let resampled = (self.ancestors.par_chunks_mut(m_count))
+            .zip(self.log_weights.par_chunks_mut(m_count))
+            .zip(self.weights.par_chunks(m_count))
+            .enumerate()
+            .map(|(t, ((ancestors, log_weights), weights))| {
+                if ess[t] < ess_threshold * m_count as f64 {
+                    let uniforms = CounterUniforms::new(keys[t], step);
+                    resampler.resample(weights, &uniforms, ancestors)?;
+                    log_weights.fill(-(m_count as f32).ln());
+                    Ok(true)
+                } else {
+                    for (k, a) in ancestors.iter_mut().enumerate() {
+                        *a = k as u32;
+                    }
+                    Ok(false)
                 }
-            }
-        }
-        for t in 0..shape.targets {
-            for d in 0..dims {
-                for k in 0..m_count {
-                    let a = self.ancestors[t * m_count + k] as usize;
-                    self.scratch[shape.state_index(t, d, k)] =
-                        self.states[shape.state_index(t, d, a)];
+            })
+            .collect::<Result<Vec<bool>, PfError>>()?;
+        // Gather, one (target, dimension) row at a time.
+        let (states, ancestors) = (&self.states, &self.ancestors);
+        self.scratch
+            .par_chunks_mut(m_count)
+            .enumerate()
+            .for_each(|(row, values)| {
+                let t = row / dims;
+                let from = &states[row * m_count..(row + 1) * m_count];
+                for (value, &a) in values
+                    .iter_mut()
+                    .zip(&ancestors[t * m_count..(t + 1) * m_count])
+                {
+                    *value = from[a as usize];
                 }
-            }
-        }
+            });
         std::mem::swap(&mut self.states, &mut self.scratch);
 
         match propagate {
@@ -573,16 +584,16 @@ impl<R: Resampler> BatchFilter<R> {
 
         measure(&shape, &self.states, &mut self.log_likelihood)?;
         let rule = LayerBeta::of_layer(&self.annealing, layer);
+        let results: Vec<Result<Normalised, PfError>> = (self.log_weights.par_chunks_mut(m_count))
+            .zip(self.log_likelihood.par_chunks(m_count))
+            .zip(self.weights.par_chunks_mut(m_count))
+            .map(|((log_weights, log_likelihood), weights)| {
+                normalise_target(log_weights, log_likelihood, weights, rule)
+            })
+            .collect();
         let mut status = Vec::with_capacity(shape.targets);
         let mut betas = Vec::with_capacity(shape.targets);
-        for t in 0..shape.targets {
-            let range = t * m_count..(t + 1) * m_count;
-            let result = normalise_target(
-                &mut self.log_weights[range.clone()],
-                &self.log_likelihood[range.clone()],
-                &mut self.weights[range],
-                rule,
-            );
+        for (t, result) in results.into_iter().enumerate() {
             self.ess[t] = result.as_ref().map_or(m_count as f64, |n| n.ess);
             betas.push(result.as_ref().map_or(0.0, |n| n.beta));
             status.push(result.map(|_| ()));

@@ -6,6 +6,8 @@
 //! tempered normalisation (`normalise.wgsl`), the weighted means, spreads and velocity update
 //! (`estimate.wgsl`) and the best-M′ mean.
 
+use rayon::prelude::*;
+
 use super::{BatchShape, wrap_angle_floor};
 use crate::anneal::{Annealing, Tempering, survival_beta, tempered};
 use crate::error::PfError;
@@ -25,22 +27,25 @@ pub fn diffuse(
     keys: &[[u32; 2]],
     step: u64,
 ) {
-    for t in 0..shape.targets {
-        for d in 0..shape.dims {
-            for m in 0..shape.particles {
-                let i = shape.state_index(t, d, m);
+    // One task per (target, dimension) row of M values: each value is a pure function of its
+    // indices, so the rows run on all cores with the same result.
+    states
+        .par_chunks_mut(shape.particles)
+        .enumerate()
+        .for_each(|(row, values)| {
+            let (t, d) = (row / shape.dims, row % shape.dims);
+            for (m, value) in values.iter_mut().enumerate() {
                 let z = counter_gaussian(keys[t], m as u32, d as u32, step);
-                let mut x = (f64::from(states[i]) + f64::from(sigma[d] * sigma_scale) * z) as f32;
+                let mut x = (f64::from(*value) + f64::from(sigma[d] * sigma_scale) * z) as f32;
                 if let Some((lo, hi)) = bounds {
                     x = x.clamp(lo[d], hi[d]);
                 }
                 if angular[d] {
                     x = wrap_angle_floor(x);
                 }
-                states[i] = x;
+                *value = x;
             }
-        }
-    }
+        });
 }
 
 /// How one layer's exponent β is set (see [`crate::anneal`]).
