@@ -19,7 +19,9 @@ use face_tracker::extraction::FaceRect;
 use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, weigh_parallel, weigh_single_thread};
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
-use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
+use face_tracker::synth::{
+    FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect, render_frame,
+};
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
@@ -218,6 +220,25 @@ fn over_gpus(c: &mut Criterion) {
     group.finish();
 }
 
+/// The synthetic video's renderer (the README's main job renders every frame): frame after
+/// frame of the paper's 1024×768 four-face video, as `face track --synthetic` reads them.
+fn render(c: &mut Criterion) {
+    let mut group = c.benchmark_group("synthetic_face_video");
+    group.sample_size(10);
+    let frames = if full_size() { 100 } else { 3 };
+    let config = FaceSynthConfig::paper(frames);
+    let model = FaceModel::generic(129).unwrap();
+    let mut renderer = FaceVideoRenderer::new(&config, &model).unwrap();
+    let mut frame = 0;
+    group.bench_function("render_frame", |b| {
+        b.iter(|| {
+            frame = (frame + 1) % frames;
+            std::hint::black_box(renderer.render(frame).unwrap())
+        })
+    });
+    group.finish();
+}
+
 fn fig7(c: &mut Criterion) {
     let mut group = c.benchmark_group("face_step_vs_faces");
     group.sample_size(10);
@@ -314,6 +335,7 @@ fn bench(c: &mut Criterion) {
     frame_upload(c, &ctx);
     fig7(c);
     over_gpus(c);
+    render(c);
 }
 
 criterion_group!(benches, bench);

@@ -305,14 +305,25 @@ impl FaceVideoRenderer {
                 Some(surface) if surface.steps == steps => surface,
                 slot => slot.insert(head_surface(&self.model, steps, seed)),
             };
-            // Splats (pixel, depth, value) of every surface sample in parallel, then a
-            // sequential depth test.
-            for (idx, z, value) in splat_head(config, surface, &state) {
-                if z > depth[idx] {
-                    depth[idx] = z;
-                    data[idx] = value;
-                }
-            }
+            // Splats (pixel, depth, value) of every surface sample in parallel, sorted into
+            // bands of rows; then each band's depth test in parallel, its splats in sample order
+            // (so that ties resolve as one pass over the samples would).
+            let splats = splat_head(config, surface, &state);
+            let band_len = BAND_ROWS * w as usize;
+            data.par_chunks_mut(band_len)
+                .zip(depth.par_chunks_mut(band_len))
+                .enumerate()
+                .for_each(|(band, (data, depth))| {
+                    for chunk in &splats {
+                        for &(idx, z, value) in &chunk[band] {
+                            let local = idx - band * band_len;
+                            if z > depth[local] {
+                                depth[local] = z;
+                                data[local] = value;
+                            }
+                        }
+                    }
+                });
         }
         if config.occlusion && config.frames >= 3 {
             draw_occluder(config, frame, &mut data);
@@ -324,39 +335,46 @@ impl FaceVideoRenderer {
     }
 }
 
+/// Rows per band of the renderer's parallel depth test.
+const BAND_ROWS: usize = 16;
+
 /// Every surface sample of a head in pose `state` that faces the camera and lands in the frame:
-/// (pixel index, depth towards the camera, shaded albedo).
+/// (pixel index, depth towards the camera, shaded albedo), per chunk of samples (in order) and
+/// within it per band of [`BAND_ROWS`] rows.
 fn splat_head(
     config: &FaceSynthConfig,
     surface: &HeadSurface,
     state: &[f32; DIMS],
-) -> Vec<(usize, f32, f32)> {
+) -> Vec<Vec<Vec<(usize, f32, f32)>>> {
     let pose = Pose::new(state);
     let light = Vector3::new(0.3, -0.4, 1.0).normalize();
     let (hw, hh) = (config.half_width, config.half_width * HEIGHT_RATIO);
     let (w, h) = (config.width, config.height);
+    let bands = (h as usize).div_ceil(BAND_ROWS);
     surface
         .samples
         .par_chunks(4096)
-        .flat_map_iter(|chunk| {
-            chunk.iter().filter_map(move |s| {
+        .map(|chunk| {
+            let mut by_band = vec![Vec::new(); bands];
+            for s in chunk {
                 let n = pose.rotation * Vector3::from(s.normal);
                 if n.z < 0.0 {
-                    return None;
+                    continue;
                 }
                 let p = Vector3::new(s.u * hw, s.v * hh, s.height * hw);
                 let image_point = pose.project(&p);
                 let (px, py) = (image_point.x.round(), image_point.y.round());
                 if px < 0.0 || py < 0.0 || px >= w as f32 || py >= h as f32 {
-                    return None;
+                    continue;
                 }
                 let shade = 0.55 + 0.45 * n.dot(&light).max(0.0);
-                Some((
+                by_band[py as usize / BAND_ROWS].push((
                     (py as u32 * w + px as u32) as usize,
                     (pose.rotation * p).z,
                     s.albedo * shade,
-                ))
-            })
+                ));
+            }
+            by_band
         })
         .collect()
 }
