@@ -99,7 +99,10 @@ impl Cascade {
         config: &DetectConfig,
     ) -> Result<Vec<Detection>, FaceError> {
         config.validate()?;
-        let mut hits = Vec::new();
+        // The pyramid's levels first (cheap), then every level at once: each level's resize,
+        // integral images and scan are a task of their own (its rows in parallel too), and the
+        // hits come back in level order, so the grouping sees what one level after another gave.
+        let mut levels = Vec::new();
         let mut factor = 1.0f64;
         loop {
             let window = (
@@ -120,12 +123,18 @@ impl Cascade {
                 break;
             }
             if window.0 >= config.min_size && window.1 >= config.min_size {
-                let level = Level::new(&resize(frame, scaled.0, scaled.1));
-                let step = if factor > 2.0 { 1 } else { 2 };
-                hits.extend(self.scan(&level, step, factor, window));
+                levels.push((factor, scaled, window));
             }
             factor *= config.scale_factor;
         }
+        let hits: Vec<Detection> = levels
+            .into_par_iter()
+            .flat_map_iter(|(factor, scaled, window)| {
+                let level = Level::new(&resize(frame, scaled.0, scaled.1));
+                let step = if factor > 2.0 { 1 } else { 2 };
+                self.scan(&level, step, factor, window)
+            })
+            .collect();
         Ok(group(&hits, config.min_neighbors))
     }
 
