@@ -277,141 +277,62 @@ impl Annotated {
 
 /// Frames in flight on the reading side: a thread owns the source and decodes (or renders) up to
 /// [`ReadAhead::FRAMES`] frames ahead of the tracker, so that reading frame t+1 overlaps tracking
-/// frame t. A synthetic video, whose frames can be rendered in any order, is rendered by several
-/// threads at once on a machine with many cores (frame k by renderer k mod n), each with its own
-/// renderer. The frames come in order and are the ones the source gives, so the results are
-/// those of reading one frame at a time.
+/// frame t. The frames come in order and are the ones the source gives, so the results are those
+/// of reading one frame at a time.
 pub struct ReadAhead {
-    readers: Vec<Reader>,
-    /// Frames handed out so far: reader `handed mod n` has the next.
-    handed: usize,
-    /// The source, once the readers have ended.
+    frames: std::sync::mpsc::Receiver<anyhow::Result<FrameRead>>,
+    reader: Option<std::thread::JoinHandle<Source>>,
+    /// The source, once its thread has ended.
     source: Option<Source>,
 }
 
-/// One reading thread and the channel its frames come by.
-struct Reader {
-    frames: Option<std::sync::mpsc::Receiver<anyhow::Result<FrameRead>>>,
-    thread: Option<std::thread::JoinHandle<Source>>,
-}
-
 impl ReadAhead {
-    /// Frames decoded ahead of the tracker (per reader).
+    /// Frames decoded ahead of the tracker.
     pub const FRAMES: usize = 2;
 
-    /// Starts reading at most `limit` more frames of `source`: one reader thread, or for a
-    /// synthetic video one per four cores (at most four).
-    pub fn start(source: Source, limit: usize) -> anyhow::Result<Self> {
-        let renderers = match source {
-            Source::Synthetic { .. } => {
-                std::thread::available_parallelism().map_or(1, |n| (n.get() / 4).clamp(1, 4))
-            }
-            _ => 1,
-        };
-        Self::start_with(source, limit, renderers)
-    }
-
-    /// [`Self::start`] with `renderers` threads for a synthetic video (other sources read on
-    /// one).
-    pub fn start_with(source: Source, limit: usize, renderers: usize) -> anyhow::Result<Self> {
-        let spawn = |name: String, work: Box<dyn FnOnce(SyncSender) -> Source + Send>| {
-            let (send, frames) = std::sync::mpsc::sync_channel(Self::FRAMES);
-            let thread = std::thread::Builder::new()
-                .name(name)
-                .spawn(move || work(send))
-                .context("starting a frame reader thread")?;
-            anyhow::Ok(Reader {
-                frames: Some(frames),
-                thread: Some(thread),
-            })
-        };
-        let readers = match source {
-            Source::Synthetic { renderer, next } if renderers > 1 => {
-                let end = renderer.config().frames.min(next.saturating_add(limit));
-                (0..renderers)
-                    .map(|r| {
-                        let mut renderer = renderer.clone();
-                        let frames = (next + r..end).step_by(renderers);
-                        spawn(
-                            format!("frame-renderer-{r}"),
-                            Box::new(move |send| {
-                                let mut at = next;
-                                for k in frames {
-                                    at = k + 1;
-                                    let read = renderer
-                                        .render(k)
-                                        .map(FrameRead::Frame)
-                                        .map_err(anyhow::Error::from);
-                                    let failed = read.is_err();
-                                    if send.send(read).is_err() || failed {
-                                        break;
-                                    }
-                                }
-                                Source::Synthetic { renderer, next: at }
-                            }),
-                        )
-                    })
-                    .collect::<anyhow::Result<Vec<_>>>()?
-            }
-            mut source => vec![spawn(
-                "frame-reader".into(),
-                Box::new(move |send| {
-                    for _ in 0..limit {
-                        let read = source.read_next();
-                        let last = matches!(read, Ok(FrameRead::End) | Err(_));
-                        // A closed channel: the tracker stopped (limit, interrupt, failure).
-                        if send.send(read).is_err() || last {
-                            break;
-                        }
+    /// Starts reading at most `limit` more frames of `source` on a thread of its own.
+    pub fn start(mut source: Source, limit: usize) -> anyhow::Result<Self> {
+        let (send, frames) = std::sync::mpsc::sync_channel(Self::FRAMES);
+        let reader = std::thread::Builder::new()
+            .name("frame-reader".into())
+            .spawn(move || {
+                for _ in 0..limit {
+                    let read = source.read_next();
+                    let last = matches!(read, Ok(FrameRead::End) | Err(_));
+                    // A closed channel: the tracker stopped (limit, interrupt, failure).
+                    if send.send(read).is_err() || last {
+                        break;
                     }
-                    source
-                }),
-            )?],
-        };
+                }
+                source
+            })
+            .context("starting the frame reader thread")?;
         Ok(Self {
-            readers,
-            handed: 0,
+            frames,
+            reader: Some(reader),
             source: None,
         })
     }
 
     /// The next frame, in order; `End` after the limit.
     pub fn read_next(&mut self) -> anyhow::Result<FrameRead> {
-        let n = self.readers.len();
-        let next = self.readers[self.handed % n]
-            .frames
-            .as_ref()
-            .map(|frames| frames.recv());
-        match next {
-            Some(Ok(read)) => {
-                self.handed += 1;
-                read
-            }
-            // The readers have ended: at the limit (or after an error already returned), unless
-            // one panicked, which must not pass for the end of the video.
-            _ => {
+        match self.frames.recv() {
+            Ok(read) => read,
+            // The reader has ended: at the limit (or after an error already returned), unless it
+            // panicked, which must not pass for the end of the video.
+            Err(_) => {
                 self.join()?;
                 Ok(FrameRead::End)
             }
         }
     }
 
-    /// Stops every reader (closing its channel makes its next send fail) and waits for it.
     fn join(&mut self) -> anyhow::Result<()> {
-        let mut panicked = false;
-        for reader in &mut self.readers {
-            reader.frames = None;
-            if let Some(thread) = reader.thread.take() {
-                match thread.join() {
-                    Ok(source) => {
-                        self.source.get_or_insert(source);
-                    }
-                    Err(_) => panicked = true,
-                }
-            }
-        }
-        if panicked {
-            anyhow::bail!("a frame reader thread panicked");
+        if let Some(reader) = self.reader.take() {
+            let source = reader
+                .join()
+                .map_err(|_| anyhow::anyhow!("the frame reader thread panicked"))?;
+            self.source = Some(source);
         }
         Ok(())
     }
@@ -419,15 +340,16 @@ impl ReadAhead {
     /// Stops reading (a frame being decoded is finished first) and gives the source back, for
     /// its decoder messages and its short-end check.
     pub fn finish(mut self) -> anyhow::Result<Source> {
+        // Dropping the receiver makes the reader's next send fail, which ends its loop.
+        let (unused_send, unused_frames) = std::sync::mpsc::sync_channel(0);
+        drop(unused_send);
+        drop(std::mem::replace(&mut self.frames, unused_frames));
         self.join()?;
         self.source
             .take()
             .context("the frame reader gave no source back")
     }
 }
-
-/// The sending end of a reader's channel.
-type SyncSender = std::sync::mpsc::SyncSender<anyhow::Result<FrameRead>>;
 
 #[cfg(test)]
 mod read_ahead_tests {
@@ -463,7 +385,7 @@ mod read_ahead_tests {
     #[test]
     fn frames_come_in_order_up_to_the_end_or_the_limit() {
         let (source, mut renderer) = synthetic(6);
-        let mut ahead = ReadAhead::start_with(source, usize::MAX, 1).unwrap();
+        let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
         for k in 0..6 {
             let image = frame(ahead.read_next().unwrap()).expect("a frame");
             assert_eq!(image, renderer.render(k).unwrap(), "frame {k}");
@@ -475,7 +397,7 @@ mod read_ahead_tests {
 
         // A limit of 3: three frames, then the end; the source has read exactly those.
         let (source, _) = synthetic(6);
-        let mut ahead = ReadAhead::start_with(source, 3, 1).unwrap();
+        let mut ahead = ReadAhead::start(source, 3).unwrap();
         for _ in 0..3 {
             assert!(frame(ahead.read_next().unwrap()).is_some());
         }
@@ -487,34 +409,9 @@ mod read_ahead_tests {
     }
 
     #[test]
-    fn several_renderers_give_the_frames_in_order() {
-        for renderers in [2, 3] {
-            let (source, mut renderer) = synthetic(7);
-            let mut ahead = ReadAhead::start_with(source, usize::MAX, renderers).unwrap();
-            for k in 0..7 {
-                let image = frame(ahead.read_next().unwrap()).expect("a frame");
-                assert_eq!(image, renderer.render(k).unwrap(), "frame {k}");
-            }
-            assert!(frame(ahead.read_next().unwrap()).is_none());
-            assert!(ahead.finish().is_ok());
-            // A limit, and stopping early.
-            let (source, _) = synthetic(7);
-            let mut ahead = ReadAhead::start_with(source, 4, renderers).unwrap();
-            for _ in 0..4 {
-                assert!(frame(ahead.read_next().unwrap()).is_some());
-            }
-            assert!(frame(ahead.read_next().unwrap()).is_none());
-            let (source, _) = synthetic(50);
-            let mut ahead = ReadAhead::start_with(source, usize::MAX, renderers).unwrap();
-            assert!(frame(ahead.read_next().unwrap()).is_some());
-            assert!(ahead.finish().is_ok());
-        }
-    }
-
-    #[test]
     fn stopping_early_gives_the_source_back() {
         let (source, _) = synthetic(50);
-        let mut ahead = ReadAhead::start_with(source, usize::MAX, 1).unwrap();
+        let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
         assert!(frame(ahead.read_next().unwrap()).is_some());
         // The reader is at most FRAMES (+ the one being handed over) ahead, then stops.
         match ahead.finish().unwrap() {
