@@ -29,6 +29,23 @@ pub enum Motion {
     WalkWave,
 }
 
+impl Motion {
+    /// The name `FromStr` reads (the command line's spelling).
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Walk => "walk",
+            Self::Wave => "wave",
+            Self::WalkWave => "walk-wave",
+        }
+    }
+}
+
+impl std::fmt::Display for Motion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
 impl std::str::FromStr for Motion {
     type Err = BodyError;
     fn from_str(s: &str) -> Result<Self, BodyError> {

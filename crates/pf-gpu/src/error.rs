@@ -21,7 +21,7 @@ pub enum GpuError {
 
     /// Only software adapters matched, and the options did not allow one.
     #[error(
-        "only software adapters were found ({names}): they are far too slow to track with, so they are used only when allowed explicitly (ContextOptions::allow_software; `streampf demo --gpu --allow-software`) or named with WGPU_ADAPTER_NAME"
+        "only software adapters were found ({names}): they are far too slow to track with, so they are used only when allowed explicitly (add --allow-software to the streampf command; in Rust, ContextOptions::allow_software) or named with WGPU_ADAPTER_NAME"
     )]
     OnlySoftwareAdapters {
         /// The software adapters found.

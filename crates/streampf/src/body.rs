@@ -165,6 +165,9 @@ pub struct TrackArgs {
     #[arg(long)]
     pub strict: bool,
     /// Print only the summary.
+    /// Stop after this many frames.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_frames: Option<u32>,
     #[arg(long)]
     pub quiet: bool,
     #[command(flatten)]
@@ -185,10 +188,16 @@ pub(crate) fn progress_bar(frames: usize, quiet: bool) -> indicatif::ProgressBar
         return indicatif::ProgressBar::hidden();
     }
     let bar = indicatif::ProgressBar::new(frames as u64);
-    if let Ok(style) =
-        indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frames {per_sec} {msg}")
-    {
-        bar.set_style(style);
+    // The rate with one decimal (indicatif's own shows four) and the time left.
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} frames {rate} {eta} left {msg}",
+    ) {
+        bar.set_style(style.with_key(
+            "rate",
+            |state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                let _ = write!(w, "{:.1} frames/s", state.per_sec());
+            },
+        ));
     }
     bar
 }
@@ -204,10 +213,13 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     write_synthetic(&args.out, &skeleton, &config, format, |_| bar.inc(1))
         .with_context(|| format!("writing the sequence to {}", args.out.display()))?;
     bar.finish_and_clear();
+    let format_name = args
+        .format
+        .to_possible_value()
+        .map_or_else(String::new, |v| v.get_name().to_string());
     println!(
-        "wrote {} frames ({:?}, {} capsules, {:?}) with ground truth to {}",
+        "wrote {} frames ({format_name}, {} capsules, {}) with ground truth to {}",
         config.frames,
-        format,
         skeleton.capsule_count(),
         config.motion,
         args.out.display()
@@ -307,7 +319,9 @@ fn open_sequence(args: &TrackArgs) -> anyhow::Result<Sequence> {
 
 fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let (source, skeleton, truth) = open_sequence(args)?;
-    let frames = source.frames();
+    let frames = source
+        .frames()
+        .min(args.max_frames.map_or(usize::MAX, |n| n as usize));
     let first_points = source.points(&skeleton, 0)?;
     let start = match (&args.init_pose, &truth) {
         (Some(path), _) => read_pose_csv(path, skeleton.dofs())?

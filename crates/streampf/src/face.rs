@@ -1011,9 +1011,10 @@ impl TrackRecord {
         elapsed: f64,
         skipped: &SkipLog,
     ) {
+        let faces = self.tracks_seen.len();
         println!(
-            "tracked {} faces through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}{}",
-            self.tracks_seen.len(),
+            "tracked {faces} face{} through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}{}",
+            if faces == 1 { "" } else { "s" },
             frames as f64 / self.tracking_time.max(1e-9),
             frames as f64 / elapsed.max(1e-9),
             if args.overlay.as_deref().is_some() {
@@ -1026,8 +1027,9 @@ impl TrackRecord {
         let (personalised, missed) = runner.tracker().personalisation_counts();
         if personalised + missed > 0 {
             println!(
-                "face model personalised to the landmarks of {personalised} of {} templates{}",
+                "face model personalised to the landmarks of {personalised} of {} template{}{}",
                 personalised + missed,
+                if personalised + missed == 1 { "" } else { "s" },
                 if missed > 0 {
                     format!(" (the landmark fit missed {missed}: generic model)")
                 } else {

@@ -37,6 +37,11 @@ fn synth_then_track_a_directory_of_ply_and_of_depth_pngs() {
         args.extend(SMALL);
         let text = ok(&streampf(&args));
         assert!(text.contains("wrote 6 frames"), "{text}");
+        // The summary names the format and the motion as the command line spells them.
+        assert!(
+            text.contains(&format!("({format}, 19 capsules, walk-wave)")),
+            "{text}"
+        );
         let text = ok(&streampf(&[
             "body",
             "track",
@@ -253,4 +258,39 @@ fn track_synthetic_on_the_gpu() {
         "{text}"
     );
     std::fs::remove_dir_all(&out).unwrap();
+}
+
+#[test]
+fn max_frames_stops_a_body_run_early() {
+    let out = scratch("max-frames");
+    let o = out.to_str().unwrap();
+    let mut args = vec![
+        "body",
+        "track",
+        "--synthetic",
+        "--out",
+        o,
+        "--particles",
+        "100",
+        "--layers",
+        "1",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--max-frames",
+        "2",
+    ];
+    args.extend(SMALL);
+    let text = ok(&streampf(&args));
+    assert!(text.contains("over 2 frames"), "{text}");
+    // A header and the two frames tracked.
+    assert_eq!(lines(&out.join("poses.csv")).len(), 3);
+    let zero = failure(&streampf(&[
+        "body",
+        "track",
+        "--synthetic",
+        "--max-frames",
+        "0",
+    ]));
+    assert!(zero.contains("--max-frames"), "{zero}");
 }

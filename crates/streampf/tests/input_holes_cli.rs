@@ -53,7 +53,7 @@ fn face_inputs_are_taken_as_stated() {
         "--out",
         o,
     ]));
-    assert!(text.contains("tracked 1 faces through 4 frames"), "{text}");
+    assert!(text.contains("tracked 1 face through 4 frames"), "{text}");
     assert!(!out.join("errors.csv").exists());
     // More rectangles than --max-faces.
     let err = failure(&streampf(&[
