@@ -18,7 +18,7 @@
 //! Islands need nothing from each other within a frame.
 
 use pf_core::batch::{BatchShape, weighted_means, weighted_spreads};
-use pf_core::random::{CounterUniforms, splitmix64};
+use pf_core::random::{CounterUniforms, part_seed};
 use pf_core::resample::{Resampler, Systematic};
 use pf_gpu::engine::FilterEngine;
 
@@ -52,11 +52,7 @@ pub fn island_sizes(particles: usize, islands: usize) -> Result<Vec<usize>, Body
 
 /// Island `island`'s seed: island 0 keeps the tracker's (so one island is the one-GPU filter).
 pub fn island_seed(seed: u64, island: usize) -> u64 {
-    if island == 0 {
-        seed
-    } else {
-        splitmix64(seed ^ (island as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
-    }
+    part_seed(seed, island)
 }
 
 /// Which of a pose's values are angles (the root's rotations).

@@ -8,7 +8,7 @@
 //! numbers (shard 0 those of a one-engine tracker).
 
 use pf_core::batch::{BatchConfig, BatchShape};
-use pf_core::random::splitmix64;
+use pf_core::random::part_seed;
 use pf_gpu::engine::FilterEngine;
 use pf_gpu::faces::FaceLikelihoodGpu;
 use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood};
@@ -43,15 +43,6 @@ pub(crate) struct ShardStep {
     pub gpu_time: Option<GpuTime>,
 }
 
-/// Shard `shard`'s seed: shard 0 keeps the tracker's.
-fn shard_seed(seed: u64, shard: usize) -> u64 {
-    if shard == 0 {
-        seed
-    } else {
-        splitmix64(seed ^ (shard as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
-    }
-}
-
 /// The slots of each of `shards` shards: `capacity` split as evenly as possible, each at least 1.
 pub(crate) fn shard_sizes(capacity: usize, shards: usize) -> Result<Vec<usize>, FaceError> {
     if shards == 0 || capacity < shards {
@@ -79,7 +70,7 @@ impl Shard {
         let shape = BatchShape::new(slots, config.particles, DIMS)?;
         let batch = BatchConfig {
             shape,
-            seed: shard_seed(batch.seed, index),
+            seed: part_seed(batch.seed, index),
             ..batch.clone()
         };
         batch.validate()?;

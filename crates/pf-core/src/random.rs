@@ -51,6 +51,17 @@ pub fn splitmix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The seed of part `part` of a run split over several engines (islands, shards): part 0 keeps
+/// `seed`, so that a run of one part draws what an unsplit run draws; the others get seeds
+/// mixed from it.
+pub fn part_seed(seed: u64, part: usize) -> u64 {
+    if part == 0 {
+        seed
+    } else {
+        splitmix64(seed ^ (part as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+    }
+}
+
 /// The root of every random stream of a run: one seed, any number of (target, stage) streams.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RandomStreams {

@@ -105,6 +105,25 @@ impl BodyLikelihoodConfig {
     }
 }
 
+/// A uniform buffer holding `value`.
+fn kinematics_params(
+    ctx: &GpuContext,
+    label: &str,
+    value: &KinematicsParams,
+) -> Result<wgpu::Buffer, GpuError> {
+    let buffer = ctx.scoped(&format!("creating the {label}"), || {
+        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: std::mem::size_of::<KinematicsParams>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    })?;
+    ctx.queue
+        .write_buffer(&buffer, 0, bytemuck::bytes_of(value));
+    Ok(buffer)
+}
+
 /// Forward kinematics plus the fast capsule likelihood for `samples` pose samples on one GPU.
 pub struct BodyLikelihoodGpu {
     config: BodyLikelihoodConfig,
@@ -175,16 +194,7 @@ impl BodyLikelihoodGpu {
             log_scale: -1.0 / (2.0 * config.sigma * config.sigma),
             _pad: [0; 3],
         };
-        let params = ctx.scoped("creating the kinematics parameters", || {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("kinematics params"),
-                size: std::mem::size_of::<KinematicsParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        })?;
-        ctx.queue
-            .write_buffer(&params, 0, bytemuck::bytes_of(&params_value));
+        let params = kinematics_params(ctx, "kinematics params", &params_value)?;
         let bones = DeviceStream::from_slice(ctx, "bones", &config.bones)?;
         let frames = DeviceStream::zeroed(ctx, "bone frames", frames_len)?;
         let kinematics = Kernel::new(
@@ -427,16 +437,7 @@ impl BodyLikelihoodGpu {
             particles: 1,
             ..self.params_value
         };
-        let params = ctx.scoped("creating the estimate's kinematics parameters", || {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("estimate kinematics params"),
-                size: std::mem::size_of::<KinematicsParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        })?;
-        ctx.queue
-            .write_buffer(&params, 0, bytemuck::bytes_of(&params_value));
+        let params = kinematics_params(ctx, "estimate kinematics params", &params_value)?;
         let frames = DeviceStream::zeroed(ctx, "estimate bone frames", bones * 4)?;
         let kinematics = self.kinematics.bind(
             ctx,
