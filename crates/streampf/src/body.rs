@@ -382,46 +382,66 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let mut run = BodyRun::new(&args.out)?;
     let started = Instant::now();
     let mut end = LoopEnd::Done;
-    for frame in 0..frames {
-        let points = if frame == 0 {
-            Ok(first_points.clone())
-        } else {
-            source.points(&skeleton, frame)
-        };
-        let result = match points {
-            Ok(points) => {
-                let save = args
-                    .save_particles
-                    .as_deref()
-                    .filter(|_| frame >= resume_from);
-                run.track_one(
-                    save,
-                    &mut tracker,
-                    &skeleton,
-                    &mut files,
-                    frame,
-                    &points,
-                    truth.as_deref(),
-                )
+    // Frames in flight: the next frames are read (or rendered) on a thread of their own, up to
+    // two ahead of the tracker, in order.
+    std::thread::scope(|scope| {
+        let (send, frames_ahead) = std::sync::mpsc::sync_channel(2);
+        let (source, skeleton) = (&source, &skeleton);
+        scope.spawn(move || {
+            for frame in 1..frames {
+                // A closed channel: the loop below stopped early.
+                if send.send(source.points(skeleton, frame)).is_err() {
+                    break;
+                }
             }
-            Err(e) if args.strict => Err(e.context("unreadable frame (--strict)")),
-            // A generated frame that fails is a bug or a bad setting, not a frame to skip.
-            Err(e) if matches!(source, Source::Synthetic(_)) => Err(e),
-            Err(e) => run.skip_one(frame, e),
-        };
-        if let Err(e) = result {
-            end = LoopEnd::Failed(e.context(format!("frame {frame}")));
-            break;
+        });
+        for frame in 0..frames {
+            let points = if frame == 0 {
+                Ok(first_points.clone())
+            } else {
+                frames_ahead.recv().unwrap_or_else(|_| {
+                    Err(anyhow::anyhow!(
+                        "the frame reader thread stopped unexpectedly"
+                    ))
+                })
+            };
+            let result = match points {
+                Ok(points) => {
+                    let save = args
+                        .save_particles
+                        .as_deref()
+                        .filter(|_| frame >= resume_from);
+                    run.track_one(
+                        save,
+                        &mut tracker,
+                        skeleton,
+                        &mut files,
+                        frame,
+                        &points,
+                        truth.as_deref(),
+                    )
+                }
+                Err(e) if args.strict => Err(e.context("unreadable frame (--strict)")),
+                // A generated frame that fails is a bug or a bad setting, not a frame to skip.
+                Err(e) if matches!(source, Source::Synthetic(_)) => Err(e),
+                Err(e) => run.skip_one(frame, e),
+            };
+            if let Err(e) = result {
+                end = LoopEnd::Failed(e.context(format!("frame {frame}")));
+                break;
+            }
+            if let Some(error) = run.errors.last() {
+                bar.set_message(format!("joint error {:.1} cm", 100.0 * error));
+            }
+            bar.inc(1);
+            if run_output::stop_requested() {
+                end = LoopEnd::Interrupted;
+                break;
+            }
         }
-        if let Some(error) = run.errors.last() {
-            bar.set_message(format!("joint error {:.1} cm", 100.0 * error));
-        }
-        bar.inc(1);
-        if run_output::stop_requested() {
-            end = LoopEnd::Interrupted;
-            break;
-        }
-    }
+        // Dropping the receiver ends the reader at its next frame.
+        drop(frames_ahead);
+    });
     bar.finish_and_clear();
     run.summary(args, started.elapsed().as_secs_f64());
     match end {
