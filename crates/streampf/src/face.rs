@@ -594,7 +594,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     run_output::install_interrupt_handler()?;
     let mut run = FaceRun {
         args,
-        record: TrackRecord::create(&args.out, truth.is_some(), resume.as_ref())?,
+        record: TrackRecord::create(&args.out, truth.is_some(), resume.as_ref(), source.fps())?,
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
         truth,
         annotated,
@@ -879,7 +879,10 @@ fn announce(
             args.detect_every
         )
     } else {
-        format!("{rectangles} faces from their rectangles")
+        match rectangles {
+            1 => "1 face from its rectangle".to_string(),
+            n => format!("{n} faces from their rectangles"),
+        }
     };
     let length = frames.map_or("frames".to_string(), |n| format!("{n} frames"));
     println!(
@@ -890,6 +893,10 @@ fn announce(
 
 /// What a run has tracked: states.csv and (with ground truth) errors.csv, written as each frame
 /// is finished, the error sums and the time spent in the tracker.
+/// The columns of a states.csv row after `status`: the state, the residual, the spreads, the ESS,
+/// the confidence, three angles and a quaternion.
+const STATE_COLUMNS_AFTER_STATUS: usize = DIMS + 1 + DIMS + 2 + 3 + 4;
+
 struct TrackRecord {
     states: CsvStream,
     errors: Option<CsvStream>,
@@ -901,18 +908,26 @@ struct TrackRecord {
     within_two_sd: [usize; DIMS],
     tracks_seen: std::collections::BTreeSet<usize>,
     tracking_time: f64,
+    /// Frames per second of the input: a row's timestamp is its frame / this.
+    fps: f64,
 }
 
 impl TrackRecord {
-    /// The state, ε, then how sure the estimate is (the posterior's spread per dimension, the
-    /// ESS, the confidence) and the rotation as degrees and as a quaternion (docs/OUTPUT.md).
+    /// The frame, its timestamp, the track, whether it is tracked, its status, the state, ε (the
+    /// residual), then how sure the estimate is (the posterior's spread per dimension, the ESS,
+    /// the confidence) and the rotation as degrees and as a quaternion (docs/OUTPUT.md).
     fn states_header() -> String {
         let spreads: Vec<String> = STATE_NAMES.iter().map(|n| format!("sd_{n}")).collect();
         format!(
-            "frame,track,status,{},error,{},ess,confidence,pitch_deg,yaw_deg,roll_deg,qw,qx,qy,qz",
+            "frame,timestamp,track,success,status,{},residual,{},ess,confidence,pitch_deg,yaw_deg,roll_deg,qw,qx,qy,qz",
             STATE_NAMES.join(","),
             spreads.join(",")
         )
+    }
+
+    /// A frame's timestamp in seconds (frame / frames per second).
+    fn timestamp(&self, frame: usize) -> String {
+        format!("{:.6}", frame as f64 / self.fps)
     }
 
     /// The columns after the state and ε (see [`TrackRecord::states_header`]).
@@ -935,7 +950,12 @@ impl TrackRecord {
     }
 
     /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
-    fn create(out: &Path, with_truth: bool, resume: Option<&ResumePoint>) -> anyhow::Result<Self> {
+    fn create(
+        out: &Path,
+        with_truth: bool,
+        resume: Option<&ResumePoint>,
+        fps: f64,
+    ) -> anyhow::Result<Self> {
         let open = |name: &str, header: &str| match resume {
             Some(point) => CsvStream::resume(&out.join(name), header, point),
             None => CsvStream::create(&out.join(name), header),
@@ -951,6 +971,11 @@ impl TrackRecord {
             measured: 0,
             within_two_sd: [0; DIMS],
             tracks_seen: std::collections::BTreeSet::new(),
+            fps: if fps.is_finite() && fps > 0.0 {
+                fps
+            } else {
+                25.0
+            },
             tracking_time: 0.0,
         })
     }
@@ -964,6 +989,14 @@ impl TrackRecord {
         status: &str,
         truth: Option<&Vec<[f32; DIMS]>>,
     ) -> anyhow::Result<()> {
+        let timestamp = self.timestamp(frame);
+        if estimates.is_empty() {
+            // No face this frame: a row that says so, its estimate's columns empty.
+            let word = if status.is_empty() { "none" } else { status };
+            let empty = ",".repeat(STATE_COLUMNS_AFTER_STATUS);
+            self.states
+                .row(&format!("{frame},{timestamp},,0,{word}{empty}"))?;
+        }
         for e in estimates {
             self.tracks_seen.insert(e.track);
             let status = match e.status {
@@ -971,9 +1004,10 @@ impl TrackRecord {
                 TrackStatus::Tracking => "tracking".to_string(),
                 TrackStatus::Lost { frame } => format!("lost@{frame}"),
             };
+            let success = u8::from(status == "tracking");
             let values: Vec<String> = e.state.iter().map(|v| v.to_string()).collect();
             self.states.row(&format!(
-                "{frame},{},{status},{},{},{}",
+                "{frame},{timestamp},{},{success},{status},{},{},{}",
                 e.track,
                 values.join(","),
                 e.error,

@@ -37,7 +37,11 @@ fn synth_then_track_a_directory_with_overlays() {
     );
     let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
     assert_eq!(states.lines().count(), 1 + 8 * 2);
-    assert!(states.starts_with("frame,track,status,tx,ty,scale,rx,ry,rz,alpha,error"));
+    assert!(
+        states.starts_with(
+            "frame,timestamp,track,success,status,tx,ty,scale,rx,ry,rz,alpha,residual"
+        )
+    );
     let overlays = std::fs::read_dir(&overlay).unwrap().count();
     assert_eq!(overlays, 8);
     let frame = image::open(overlay.join("overlay_00003.png"))
@@ -65,7 +69,7 @@ fn synth_then_track_a_directory_with_overlays() {
         "cpu",
     ]));
     assert!(
-        text.contains("tracking 1 faces from their rectangles through 8 frames of 480x360"),
+        text.contains("tracking 1 face from its rectangle through 8 frames of 480x360"),
         "{text}"
     );
     for dir in [data, out, overlay] {
@@ -176,7 +180,9 @@ fn bad_face_inputs_are_clear_errors() {
     );
     let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
     assert!(
-        states.lines().any(|l| l.starts_with("3,0,skipped,")),
+        states
+            .lines()
+            .any(|l| l.starts_with("3,0.120000,0,0,skipped,")),
         "{states}"
     );
     let skipped = std::fs::read_to_string(out.join("skipped.csv")).unwrap();

@@ -224,21 +224,117 @@ fn finds_and_keeps_both_faces_of_the_first_shot_of_megamind() {
         .collect();
     let first_frame = |track: &str| {
         rows.iter()
-            .find(|r| r[1] == track)
+            .find(|r| r[2] == track)
             .map(|r| r[0].parse::<usize>().unwrap())
     };
     let last: Vec<&Vec<&str>> = rows.iter().filter(|r| r[0] == "59").collect();
     assert_eq!(last.len(), 2, "{states}");
     for row in &last {
-        assert_eq!(row[2], "tracking", "{row:?}");
-        assert!(first_frame(row[1]).unwrap() <= 20, "{row:?}");
+        assert_eq!(row[4], "tracking", "{row:?}");
+        assert!(first_frame(row[2]).unwrap() <= 20, "{row:?}");
     }
     // The woman's face is left of centre, the man's to the right of her (x ≈ 470-500).
-    let mut xs: Vec<f32> = last.iter().map(|r| r[3].parse().unwrap()).collect();
+    let mut xs: Vec<f32> = last.iter().map(|r| r[5].parse().unwrap()).collect();
     xs.sort_by(f32::total_cmp);
     assert!(
         (250.0..420.0).contains(&xs[0]) && (440.0..540.0).contains(&xs[1]),
         "{xs:?}"
     );
     std::fs::remove_dir_all(&out).unwrap();
+}
+
+/// A face that appears late: every frame has a row (no face yet: `success` 0, status `none`, the
+/// estimate's columns empty), the timestamps follow the frame rate (25 frames/s for a directory
+/// of images), and once the detector has found the face its rows are tracked with a confidence
+/// in [0, 1].
+#[test]
+fn a_face_that_appears_late_has_a_row_for_every_frame() {
+    if opted_out("a face that appears late") {
+        return;
+    }
+    const FRAMES: usize = 30;
+    const EMPTY: usize = 8;
+    let data = scratch("late-face");
+    let d = data.to_str().unwrap();
+    let frames = FRAMES.to_string();
+    ok(&streampf(&[
+        "face",
+        "synth",
+        "--out",
+        d,
+        "--frames",
+        &frames,
+        "--faces",
+        "2",
+        "--width",
+        "640",
+        "--height",
+        "480",
+        "--max-yaw",
+        "20",
+    ]));
+    // No face in the first frames; no rectangles, so the detector finds it.
+    for k in 0..EMPTY {
+        image::GrayImage::from_pixel(640, 480, image::Luma([128]))
+            .save(data.join(format!("frame_{k:05}.png")))
+            .unwrap();
+    }
+    std::fs::remove_file(data.join("faces.csv")).unwrap();
+    std::fs::remove_file(data.join("ground_truth.csv")).unwrap();
+    let out = scratch("late-face-out");
+    ok(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--out",
+        out.to_str().unwrap(),
+        "--generic-model",
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+        "--quiet",
+    ]));
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    let header: Vec<&str> = states.lines().next().unwrap().split(',').collect();
+    let column = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (frame, timestamp, success, status, confidence) = (
+        column("frame"),
+        column("timestamp"),
+        column("success"),
+        column("status"),
+        column("confidence"),
+    );
+    let rows: Vec<Vec<&str>> = states
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').collect())
+        .collect();
+    assert!(rows.iter().all(|r| r.len() == header.len()), "{states}");
+    let mut seen = [false; FRAMES];
+    let mut first_tracked = None;
+    for r in &rows {
+        let f: usize = r[frame].parse().unwrap();
+        seen[f] = true;
+        let t: f64 = r[timestamp].parse().unwrap();
+        assert!((t - f as f64 / 25.0).abs() < 1e-6, "frame {f} at {t} s");
+        if r[success] == "1" {
+            assert_eq!(r[status], "tracking");
+            let c: f64 = r[confidence].parse().unwrap();
+            assert!((0.0..=1.0).contains(&c), "confidence {c}");
+            first_tracked.get_or_insert(f);
+        } else {
+            assert_eq!(r[success], "0");
+        }
+        if f < EMPTY {
+            assert_eq!((r[success], r[status]), ("0", "none"), "{r:?}");
+            assert!(r[status + 1..].iter().all(|v| v.is_empty()), "{r:?}");
+        }
+    }
+    assert!(seen.iter().all(|&s| s), "a frame without a row:\n{states}");
+    let first = first_tracked.expect("the face was never tracked");
+    assert!(
+        (EMPTY..FRAMES - 5).contains(&first),
+        "first tracked at {first}"
+    );
 }

@@ -72,8 +72,8 @@ for f in range(4):
     for slot in np.flatnonzero(t >= 0):
         assert abs(np.logaddexp.reduce(w[slot])) < 1e-3, np.logaddexp.reduce(w[slot])
         mean = (np.exp(w[slot])[:, None] * p[slot]).sum(axis=0)
-        row = [r for r in rows if int(r[0]) == f and int(r[1]) == int(t[slot])][0]
-        assert np.hypot(*(mean[:2] - np.array(row[3:5], dtype=float))) < 10.0, (mean[:2], row[3:5])
+        row = [r for r in rows if int(r[0]) == f and r[2] != '' and int(r[2]) == int(t[slot])][0]
+        assert np.hypot(*(mean[:2] - np.array(row[5:7], dtype=float))) < 10.0, (mean[:2], row[5:7])
 ");
     std::fs::remove_dir_all(&out).unwrap();
 }
