@@ -291,3 +291,32 @@ pub fn weigh_parallel(states: &[[f32; DIMS]], template: &Template, frame: &GrayI
         .for_each(|(states, out)| residual_errors_of(states, template, frame, out));
     errors
 }
+
+#[cfg(test)]
+mod projector_tests {
+    use super::*;
+    use crate::projection::rotation;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The written-out rows are those of `projection::rotation` (the twin of the GPU
+        /// kernel's Rx·Ry·Rz), scaled for x and y, to rounding.
+        #[test]
+        fn projector_rows_are_the_rotation_s(
+            angles in prop::array::uniform3(-3.2f32..3.2),
+            scale in 0.2f32..5.0,
+            t in prop::array::uniform2(-100.0f32..2000.0),
+            alpha in 0.25f32..4.0,
+        ) {
+            let state = [t[0], t[1], scale, angles[0], angles[1], angles[2], alpha];
+            let x = Projector::new(&state);
+            let r = rotation(angles[0], angles[1], angles[2]);
+            for c in 0..3 {
+                prop_assert!((x.row_x[c] - scale * r[(0, c)]).abs() <= 1e-5 * scale);
+                prop_assert!((x.row_y[c] - scale * r[(1, c)]).abs() <= 1e-5 * scale);
+                prop_assert!((x.row_z[c] - r[(2, c)]).abs() <= 1e-5);
+            }
+            prop_assert_eq!((x.tx, x.ty, x.alpha), (t[0], t[1], alpha));
+        }
+    }
+}
