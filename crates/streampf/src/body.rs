@@ -164,12 +164,16 @@ pub struct TrackArgs {
     /// instead of skipping it with a warning.
     #[arg(long)]
     pub strict: bool,
-    /// Print only the summary.
     /// Stop after this many frames.
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_frames: Option<u32>,
+    /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
+    /// Read settings from a TOML file (its [body] table; keys are the long options' names,
+    /// `streampf config --print-default` writes every one); options on the command line win.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     #[command(flatten)]
     pub filter: crate::filter_args::FilterArgs,
     #[command(flatten)]

@@ -210,6 +210,10 @@ pub struct TrackArgs {
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
+    /// Read settings from a TOML file (its [face] table; keys are the long options' names,
+    /// `streampf config --print-default` writes every one); options on the command line win.
+    #[arg(long, value_name = "FILE")]
+    pub config: Option<PathBuf>,
     #[command(flatten)]
     pub filter: crate::filter_args::FilterArgs,
     #[command(flatten)]

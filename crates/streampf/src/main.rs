@@ -8,9 +8,10 @@ mod face_io;
 mod filter_args;
 mod gpu;
 mod run_output;
+mod settings;
 mod video;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -44,12 +45,32 @@ enum Command {
         #[command(subcommand)]
         command: body::BodyCommand,
     },
+    /// Settings files (`face track --config FILE`, `body track --config FILE`).
+    Config(ConfigArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct ConfigArgs {
+    /// Print a settings file with every setting of `face track` and `body track` at its
+    /// default.
+    #[arg(long, required = true)]
+    print_default: bool,
 }
 
 fn main() -> std::process::ExitCode {
     quiet_mesa_device_selection();
-    let cli = Cli::parse();
+    let cli = match parse_command_line() {
+        Ok(cli) => cli,
+        Err(e) => {
+            eprintln!("Error: {e:?}");
+            return std::process::ExitCode::FAILURE;
+        }
+    };
     let result = match cli.command {
+        Command::Config(_) => {
+            print!("{}", settings::default_settings(&Cli::command()));
+            Ok(())
+        }
         Command::Devices => devices::run(),
         Command::Demo(args) => demo::run(&args),
         Command::Body { command } => body::run(&command),
@@ -66,6 +87,25 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// The command line, with the settings of a `--config FILE` added where the command line does
+/// not give them. A mistake on the command line itself exits as clap does (usage, code 2).
+fn parse_command_line() -> anyhow::Result<Cli> {
+    let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let command = Cli::command();
+    let settings::WithSettings { argv, file } = settings::with_config_file(&command, argv)?;
+    let matches = match (command.try_get_matches_from(argv), file) {
+        (Ok(matches), _) => matches,
+        // A bad value in the file: clap's message names the option, this names the file.
+        (Err(e), Some(file)) if e.use_stderr() => anyhow::bail!(
+            "{}\n(the options above include the settings of {})",
+            e.render().to_string().trim_end(),
+            file.display()
+        ),
+        (Err(e), _) => e.exit(),
+    };
+    Ok(Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()))
 }
 
 /// Mesa's Vulkan device-selection layer prints "XDG_RUNTIME_DIR is invalid or not set" on a
