@@ -25,6 +25,7 @@ pub mod error;
 pub mod human;
 pub mod islands;
 pub mod likelihood;
+pub mod overlay;
 pub mod ply;
 pub mod sequence;
 pub mod skeleton;

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use body_tracker::camera::Intrinsics;
 use body_tracker::human::{BASE_CAPSULES, MAX_CAPSULES, human_skeleton, standing_pose};
 use body_tracker::sequence::{
     FrameFormat, SequenceDir, joint_columns, joint_row, read_pose_csv, write_synthetic,
@@ -19,6 +20,7 @@ use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_err
 use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
+use crate::annotated::Annotated;
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
@@ -26,7 +28,7 @@ pub enum BodyCommand {
     /// Render a synthetic sequence (frames, camera, skeleton, ground truth) into a directory.
     Synth(SynthArgs),
     /// Track a body through a directory of frames, or through a generated sequence.
-    Track(TrackArgs),
+    Track(Box<TrackArgs>),
 }
 
 /// The synthetic sequence's settings, shared by `synth` and `track --synthetic`.
@@ -132,6 +134,11 @@ pub struct TrackArgs {
     /// Where to write poses.csv, joints.csv and errors.csv.
     #[arg(long, default_value = "streampf-body-out")]
     pub out: PathBuf,
+    /// Also draw every frame: the points as the depth camera sees them (near bright), the
+    /// estimated skeleton's capsules filled in orange and the ground truth's outlined in green; a
+    /// directory (PNG frames) or a video file (.mp4, .mkv, .avi, .webm; encoded by FFmpeg).
+    #[arg(long)]
+    pub overlay: Option<PathBuf>,
     /// Pose samples (particles).
     #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub particles: u32,
@@ -231,6 +238,66 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--overlay`: each frame's depth view with the estimate's capsules and the truth's outlines.
+struct BodyOverlay {
+    camera: Intrinsics,
+    out: Annotated,
+    /// The last frame drawn, repeated in a video for a frame that could not be read.
+    last: Option<image::RgbImage>,
+}
+
+impl BodyOverlay {
+    /// A video's frame rate: the sequences carry none, and 30 frames/s is the depth cameras'.
+    const VIDEO_FPS: f64 = 30.0;
+
+    fn create(path: &Path, camera: Intrinsics) -> anyhow::Result<Self> {
+        let out = Annotated::create(path, camera.width, camera.height, Self::VIDEO_FPS)
+            .context("--overlay")?;
+        Ok(Self {
+            camera,
+            out,
+            last: None,
+        })
+    }
+
+    fn draw(
+        &mut self,
+        frame: usize,
+        skeleton: &Skeleton,
+        points: &[Vector3<f32>],
+        pose: &[f32],
+        truth: Option<&[f32]>,
+    ) -> anyhow::Result<()> {
+        let estimate = skeleton.capsules(pose)?;
+        let truth = truth.map(|t| skeleton.capsules(t)).transpose()?;
+        let image =
+            body_tracker::overlay::overlay(&self.camera, points, &estimate, truth.as_deref());
+        self.out.write(frame, &image).context("--overlay")?;
+        self.last = Some(image);
+        Ok(())
+    }
+
+    /// A frame that could not be read: a video repeats the last picture to keep its timing.
+    fn skip(&mut self, frame: usize) -> anyhow::Result<()> {
+        match (&mut self.out, &self.last) {
+            (Annotated::Video(_), Some(last)) => self.out.write(frame, last).context("--overlay"),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// The camera an overlay draws with: the sequence's, or (a PLY sequence without camera.json) a
+/// 640×480 camera with a 60° horizontal field of view.
+fn overlay_camera(source: &Source) -> anyhow::Result<Intrinsics> {
+    Ok(match source {
+        Source::Synthetic(config) => config.camera,
+        Source::Directory(dir) => match dir.camera {
+            Some(camera) => camera,
+            None => Intrinsics::with_fov(640, 480, 60.0)?,
+        },
+    })
+}
+
 /// Where the frames come from.
 enum Source {
     Directory(SequenceDir),
@@ -322,6 +389,15 @@ fn open_sequence(args: &TrackArgs) -> anyhow::Result<Sequence> {
 }
 
 fn track(args: &TrackArgs) -> anyhow::Result<()> {
+    if let Some(path) = &args.overlay {
+        Annotated::check_path(path).context("--overlay")?;
+        if args.resume && crate::video::is_video_path(path) {
+            bail!(
+                "--resume cannot continue an overlay video ({}); write the overlay as PNG frames (a directory) to resume",
+                path.display()
+            );
+        }
+    }
     let (source, skeleton, truth) = open_sequence(args)?;
     let frames = source
         .frames()
@@ -381,6 +457,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     let mut files = BodyFiles::create(&args.out, &skeleton, truth.is_some(), resume.as_ref())?;
     let resume_from = resume.map_or(0, |p| p.frame);
+    let mut overlay = args
+        .overlay
+        .as_deref()
+        .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
+        .transpose()?;
     run_output::install_interrupt_handler()?;
     let bar = progress_bar(frames, args.quiet);
     let mut run = BodyRun::new(&args.out)?;
@@ -415,8 +496,10 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                         .save_particles
                         .as_deref()
                         .filter(|_| frame >= resume_from);
+                    let overlay = overlay.as_mut().filter(|_| frame >= resume_from);
                     run.track_one(
                         save,
+                        overlay,
                         &mut tracker,
                         skeleton,
                         &mut files,
@@ -428,7 +511,12 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 Err(e) if args.strict => Err(e.context("unreadable frame (--strict)")),
                 // A generated frame that fails is a bug or a bad setting, not a frame to skip.
                 Err(e) if matches!(source, Source::Synthetic(_)) => Err(e),
-                Err(e) => run.skip_one(frame, e),
+                Err(e) => run
+                    .skip_one(frame, e)
+                    .and_then(|()| match overlay.as_mut() {
+                        Some(overlay) => overlay.skip(frame),
+                        None => Ok(()),
+                    }),
             };
             if let Err(e) = result {
                 end = LoopEnd::Failed(e.context(format!("frame {frame}")));
@@ -447,7 +535,12 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         drop(frames_ahead);
     });
     bar.finish_and_clear();
+    // The overlay video is finalised whatever ended the run, so that its frames are kept.
+    let closed = overlay.map_or(Ok(()), |overlay| overlay.out.finish());
     run.summary(args, started.elapsed().as_secs_f64());
+    if let (Err(e), LoopEnd::Done | LoopEnd::Interrupted) = (closed, &end) {
+        end = LoopEnd::Failed(e.context("finishing --overlay"));
+    }
     match end {
         LoopEnd::Done => Ok(()),
         LoopEnd::Interrupted => Err(Interrupted {
@@ -556,6 +649,7 @@ impl BodyRun {
     fn track_one(
         &mut self,
         save_particles: Option<&Path>,
+        overlay: Option<&mut BodyOverlay>,
         tracker: &mut BodyTracker,
         skeleton: &Skeleton,
         files: &mut BodyFiles,
@@ -585,6 +679,10 @@ impl BodyRun {
             out.end_frame()?;
             self.errors.push(error);
             self.count_coverage(&result.pose, &result.spread, &truth[frame]);
+        }
+        if let Some(overlay) = overlay {
+            let truth = truth.map(|t| t[frame].as_slice());
+            overlay.draw(frame, skeleton, points, &result.pose, truth)?;
         }
         files.poses.end_frame()?;
         files.joints.end_frame()?;
@@ -647,5 +745,8 @@ impl BodyRun {
             },
             args.out.display()
         );
+        if let Some(path) = &args.overlay {
+            println!("drew the frames to {}", path.display());
+        }
     }
 }

@@ -31,7 +31,8 @@ use face_tracker::{
 };
 use std::sync::Arc;
 
-use crate::face_io::{Annotated, FrameRead, ReadAhead, Source, overlay};
+use crate::annotated::Annotated;
+use crate::face_io::{FrameRead, ReadAhead, Source, overlay};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]

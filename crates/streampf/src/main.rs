@@ -1,5 +1,6 @@
 //! `streampf`: GPU particle filtering for visual tracking, from the command line.
 
+mod annotated;
 mod body;
 mod demo;
 mod devices;

@@ -294,3 +294,119 @@ fn max_frames_stops_a_body_run_early() {
     ]));
     assert!(zero.contains("--max-frames"), "{zero}");
 }
+
+/// Whether an overlay pixel was drawn on by the estimate (fill, edge or bone), as opposed to the
+/// gray depth view or the truth's green outline.
+fn estimate_colour(pixel: [u8; 3]) -> bool {
+    use body_tracker::overlay::{BONE, ESTIMATE_EDGE};
+    // The fill blends orange over gray: red clearly above blue.
+    pixel == BONE || pixel == ESTIMATE_EDGE || pixel[0] as i32 - pixel[2] as i32 > 60
+}
+
+#[test]
+fn an_overlay_frame_has_the_estimate_where_the_ground_truth_body_is() {
+    use body_tracker::sequence::SequenceDir;
+    let data = scratch("overlay-data");
+    let out = scratch("overlay-out");
+    let (d, o) = (data.to_str().unwrap(), out.to_str().unwrap());
+    let mut args = vec!["body", "synth", "--out", d];
+    args.extend([
+        "--frames",
+        "4",
+        "--capsules",
+        "19",
+        "--width",
+        "320",
+        "--height",
+        "240",
+    ]);
+    ok(&streampf(&args));
+    let overlay = out.join("frames");
+    let text = ok(&streampf(&[
+        "body",
+        "track",
+        d,
+        "--out",
+        o,
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--overlay",
+        overlay.to_str().unwrap(),
+    ]));
+    assert!(text.contains("drew the frames to"), "{text}");
+
+    let sequence = SequenceDir::open(&data).unwrap();
+    let camera = sequence.camera.expect("body synth writes camera.json");
+    let skeleton = sequence
+        .skeleton()
+        .unwrap()
+        .expect("body synth writes skeleton.json");
+    let truth = sequence.ground_truth(&skeleton).unwrap().unwrap();
+    for (frame, true_pose) in truth.iter().enumerate() {
+        let path = overlay.join(format!("overlay_{frame:05}.png"));
+        let image = image::open(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let image = image.to_rgb8();
+        assert_eq!(image.dimensions(), (320, 240));
+        // The middle of every true capsule's axis is covered by the estimate.
+        let capsules = skeleton.capsules(true_pose).unwrap();
+        let covered = capsules
+            .iter()
+            .filter(|c| {
+                let (u, v) = camera.project(&((c.a + c.b) / 2.0)).unwrap();
+                estimate_colour(image.get_pixel(u.round() as u32, v.round() as u32).0)
+            })
+            .count();
+        assert!(
+            covered * 10 >= capsules.len() * 9,
+            "frame {frame}: {covered} of {} true capsules under the estimate",
+            capsules.len()
+        );
+        // Away from the body the picture is the depth view: no estimate colour in the corners.
+        for (x, y) in [(0, 0), (319, 0), (0, 239), (319, 239)] {
+            assert!(
+                !estimate_colour(image.get_pixel(x, y).0),
+                "frame {frame} ({x},{y})"
+            );
+        }
+        // The truth's outline is drawn.
+        let green = body_tracker::overlay::TRUTH_EDGE;
+        assert!(
+            image.pixels().any(|p| p.0 == green),
+            "frame {frame}: no truth outline"
+        );
+    }
+    // A resumed run cannot continue a video, and a bad overlay path is refused before any work.
+    let err = failure(&streampf(&[
+        "body",
+        "track",
+        d,
+        "--out",
+        o,
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--resume",
+        "--overlay",
+        out.join("o.mp4").to_str().unwrap(),
+    ]));
+    assert!(
+        err.contains("--resume cannot continue an overlay video"),
+        "{err}"
+    );
+    let err = failure(&streampf(&[
+        "body",
+        "track",
+        d,
+        "--out",
+        o,
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--overlay",
+        out.join("o.txt").to_str().unwrap(),
+    ]));
+    assert!(err.contains("give a directory for PNG frames"), "{err}");
+}
