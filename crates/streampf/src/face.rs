@@ -32,7 +32,8 @@ use face_tracker::{
 use std::sync::Arc;
 
 use crate::annotated::Annotated;
-use crate::face_io::{FrameRead, ReadAhead, Source, overlay};
+use crate::face_io::{FrameRead, ReadAhead, Source};
+use crate::face_overlay::{ColourFrames, FaceOverlay};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
@@ -390,6 +391,25 @@ fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
     })
 }
 
+/// A frame's estimates and the detections that started or restarted tracks before it.
+type StepOutcome = (Vec<FaceEstimate>, Vec<(usize, FaceRect, bool)>);
+
+/// The overlay's colour frames: the image files again, or the video decoded a second time; none
+/// for a generated video or a camera (drawn in gray).
+fn colour_frames(
+    args: &TrackArgs,
+    source: &Source,
+    size: (u32, u32),
+) -> anyhow::Result<Option<ColourFrames>> {
+    Ok(match (source, args.input.as_deref()) {
+        (Source::Images { files, .. }, _) => Some(ColourFrames::images(files.clone())),
+        (Source::Video(_), Some(path)) if args.webcam.is_none() => {
+            Some(ColourFrames::video(path, size)?)
+        }
+        _ => None,
+    })
+}
+
 /// How tracks start: from rectangles given at the first frame, or from the detector thread.
 enum Runner {
     Fixed(Box<FaceTracker>),
@@ -397,10 +417,18 @@ enum Runner {
 }
 
 impl Runner {
-    fn step(&mut self, frame: &GrayImage) -> anyhow::Result<Vec<FaceEstimate>> {
+    /// The frame's estimates, and the tracks a detection started (`false`) or restarted
+    /// (`true`) before it, with the detection's rectangle.
+    fn step(&mut self, frame: &GrayImage) -> anyhow::Result<StepOutcome> {
         Ok(match self {
-            Runner::Fixed(tracker) => tracker.step(frame)?,
-            Runner::Auto(tracker) => tracker.step(frame)?.estimates,
+            Runner::Fixed(tracker) => (tracker.step(frame)?, Vec::new()),
+            Runner::Auto(tracker) => {
+                let stepped = tracker.step(frame)?;
+                let started = stepped.started.iter().map(|&(t, r, _)| (t, r, false));
+                let restarted = stepped.restarted.iter().map(|&(t, r, _)| (t, r, true));
+                let detections = started.chain(restarted).collect();
+                (stepped.estimates, detections)
+            }
         })
     }
 
@@ -580,8 +608,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
     }
-    let annotated = match &args.overlay {
-        Some(path) => Some(Annotated::create(path, size.0, size.1, source.fps())?),
+    let overlay = match &args.overlay {
+        Some(path) => Some(FaceOverlay::new(
+            Annotated::create(path, size.0, size.1, source.fps())?,
+            colour_frames(args, &source, size)?,
+        )),
         None => None,
     };
     let limit = args.max_frames.map_or(usize::MAX, |n| n as usize);
@@ -602,8 +633,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         record: TrackRecord::create(&args.out, truth.is_some(), resume.as_ref(), source.fps())?,
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
         truth,
-        annotated,
-        last_drawn: None,
+        overlay,
         last_estimates: Vec::new(),
         skipped: SkipLog::new(&args.out)?,
         frames: 0,
@@ -639,9 +669,7 @@ struct FaceRun<'a> {
     args: &'a TrackArgs,
     record: TrackRecord,
     truth: Option<Vec<Vec<[f32; DIMS]>>>,
-    annotated: Option<Annotated>,
-    /// The last frame drawn, drawn again for a skipped frame so that a video keeps its timing.
-    last_drawn: Option<image::RgbImage>,
+    overlay: Option<FaceOverlay>,
     /// The last tracked frame's estimates: a skipped frame's tracks coast on them.
     last_estimates: Vec<FaceEstimate>,
     skipped: SkipLog,
@@ -699,7 +727,7 @@ impl FaceRun<'_> {
     ) -> anyhow::Result<()> {
         run_output::maybe_simulate_gpu_fault(frame, runner.tracker().gpu_context());
         let step_started = Instant::now();
-        let estimates = runner.step(image)?;
+        let (estimates, detections) = runner.step(image)?;
         self.record.tracking_time += step_started.elapsed().as_secs_f64();
         let replayed = frame < self.resume_from;
         if let Some(dir) = self.args.save_particles.as_ref().filter(|_| !replayed) {
@@ -707,10 +735,9 @@ impl FaceRun<'_> {
         }
         let truth = self.truth.as_ref().and_then(|t| t.get(frame));
         self.record.add(frame, &estimates, "", truth)?;
-        if let Some(out) = self.annotated.as_mut().filter(|_| !replayed) {
-            let drawn = overlay(image, &runner.tracker().templates(), &estimates);
-            out.write(frame, &drawn)?;
-            self.last_drawn = Some(drawn);
+        if let Some(overlay) = self.overlay.as_mut() {
+            let templates = runner.tracker().templates();
+            overlay.draw(frame, image, &templates, &estimates, detections, !replayed)?;
         }
         self.last_estimates = estimates;
         Ok(())
@@ -728,8 +755,8 @@ impl FaceRun<'_> {
             .cloned()
             .collect();
         self.record.add(frame, &coasting, "skipped", None)?;
-        if let (Some(out), Some(drawn)) = (self.annotated.as_mut(), &self.last_drawn) {
-            out.write(frame, drawn)?;
+        if let Some(overlay) = self.overlay.as_mut() {
+            overlay.repeat_last(frame)?;
         }
         Ok(())
     }
@@ -743,7 +770,7 @@ impl FaceRun<'_> {
         elapsed: f64,
         end: LoopEnd,
     ) -> anyhow::Result<()> {
-        let closed = self.annotated.take().map_or(Ok(()), Annotated::finish);
+        let closed = self.overlay.take().map_or(Ok(()), FaceOverlay::finish);
         self.record
             .summary(self.args, runner, self.frames, elapsed, &self.skipped);
         match end {

@@ -4,9 +4,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, bail};
+use face_tracker::GrayImage;
 use face_tracker::synth::FaceVideoRenderer;
-use face_tracker::{FaceEstimate, GrayImage, Pose, Template, TrackStatus};
-use nalgebra::Vector3;
 
 use crate::video::{VideoRead, VideoReader, is_video_path};
 
@@ -142,81 +141,6 @@ pub enum FrameRead {
     /// This frame cannot be read; the next may be.
     Unreadable(anyhow::Error),
     End,
-}
-
-/// Colours of the tracks in overlays (by track number).
-const COLOURS: [[u8; 3]; 6] = [
-    [255, 60, 60],
-    [60, 220, 60],
-    [70, 130, 255],
-    [255, 200, 0],
-    [230, 80, 230],
-    [0, 220, 220],
-];
-
-fn put(img: &mut image::RgbImage, x: f32, y: f32, colour: [u8; 3]) {
-    if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
-        img.put_pixel(x as u32, y as u32, image::Rgb(colour));
-    }
-}
-
-fn line(img: &mut image::RgbImage, a: (f32, f32), b: (f32, f32), colour: [u8; 3]) {
-    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
-    for i in 0..=steps {
-        let t = i as f32 / steps as f32;
-        put(img, a.0 + (b.0 - a.0) * t, a.1 + (b.1 - a.1) * t, colour);
-    }
-}
-
-/// The frame with each running track drawn as in the paper's Fig. 1: its visible template points
-/// posed by the estimate (the 3D model's sparse points) in the track's colour, and the head's
-/// axes (x red, y green, z blue towards the camera).
-pub fn overlay(
-    frame: &GrayImage,
-    templates: &[(usize, &Template)],
-    estimates: &[FaceEstimate],
-) -> image::RgbImage {
-    let mut img = image::RgbImage::from_fn(frame.width, frame.height, |x, y| {
-        let v = frame.data[(y * frame.width + x) as usize];
-        image::Rgb([v, v, v])
-    });
-    for e in estimates {
-        if e.status != TrackStatus::Tracking {
-            continue;
-        }
-        let Some((_, template)) = templates.iter().find(|(id, _)| *id == e.track) else {
-            continue;
-        };
-        let colour = COLOURS[e.track % COLOURS.len()];
-        let pose = Pose::new(&e.state);
-        for q in &template.points {
-            if pose.faces_camera(&Vector3::from(q.normal)) {
-                let p = pose.project(&Vector3::from(q.position));
-                for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
-                    put(&mut img, p.x + dx, p.y + dy, colour);
-                }
-            }
-        }
-        // Axes half the face's width long (at S = 1).
-        let length = 0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
-        let origin = pose.project(&Vector3::zeros());
-        for (axis, c) in [
-            (Vector3::x(), [255, 0, 0]),
-            (Vector3::y(), [0, 255, 0]),
-            (Vector3::z(), [0, 0, 255]),
-        ] {
-            let end = pose.project(&(axis * length));
-            for offset in [-0.5f32, 0.0, 0.5] {
-                line(
-                    &mut img,
-                    (origin.x + offset, origin.y + offset),
-                    (end.x + offset, end.y + offset),
-                    c,
-                );
-            }
-        }
-    }
-    img
 }
 
 /// Frames in flight on the reading side: a thread owns the source and decodes (or renders) up to

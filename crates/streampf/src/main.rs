@@ -6,6 +6,7 @@ mod demo;
 mod devices;
 mod face;
 mod face_io;
+mod face_overlay;
 mod filter_args;
 mod gpu;
 mod run_output;

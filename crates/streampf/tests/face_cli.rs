@@ -17,6 +17,18 @@ fn synth_then_track_a_directory_with_overlays() {
     let mut args = vec!["face", "synth", "--out", d];
     args.extend(SMALL);
     assert!(ok(&streampf(&args)).contains("wrote 8 frames of 480x360 with 2 faces"));
+    // The frames in colour (a warm tint), so that the overlay has colour to keep.
+    for entry in std::fs::read_dir(&data).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "png") {
+            let gray = image::open(&path).unwrap().to_luma8();
+            let tinted = image::RgbImage::from_fn(gray.width(), gray.height(), |x, y| {
+                let v = f32::from(gray.get_pixel(x, y).0[0]);
+                image::Rgb([v as u8, (0.85 * v) as u8, (0.6 * v) as u8])
+            });
+            tinted.save(&path).unwrap();
+        }
+    }
     let text = ok(&streampf(&[
         "face",
         "track",
@@ -47,11 +59,21 @@ fn synth_then_track_a_directory_with_overlays() {
     let frame = image::open(overlay.join("overlay_00003.png"))
         .unwrap()
         .to_rgb8();
-    // The posed points are drawn in the faces' colours.
-    assert!(
-        frame.pixels().any(|p| p.0 == [255, 60, 60])
-            && frame.pixels().any(|p| p.0 == [60, 220, 60])
-    );
+    // The posed points and labels are drawn in the tracks' colours (track 0 yellow, track 1
+    // cyan: no axis's pure red, green or blue).
+    let count = |colour: [u8; 3]| frame.pixels().filter(|p| p.0 == colour).count();
+    assert!(count([255, 200, 0]) > 50 && count([0, 220, 220]) > 50);
+    // The picture keeps the input's colour: the background is warm, not gray.
+    let corner = frame.get_pixel(470, 350).0;
+    assert!(corner[0] > corner[2] + 10, "{corner:?}");
+    // The frame number is written top left: white ink on a black box.
+    let label = |x: u32, y: u32| frame.get_pixel(x, y).0;
+    let box_pixels: Vec<[u8; 3]> = (4..20)
+        .flat_map(|y| (4..120).map(move |x| (x, y)))
+        .map(|(x, y)| label(x, y))
+        .collect();
+    assert!(box_pixels.iter().any(|p| *p == [255, 255, 255]));
+    assert!(box_pixels.iter().any(|p| *p == [0, 0, 0]));
     // --face overrides faces.csv: one face only.
     let rects = std::fs::read_to_string(data.join("faces.csv")).unwrap();
     let first = rects.lines().nth(1).unwrap();

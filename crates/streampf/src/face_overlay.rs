@@ -1,0 +1,401 @@
+//! `face track --overlay`: every frame drawn with what the tracker knows.
+//!
+//! - the frame in colour when the input is colour (image files re-read in colour; a video decoded
+//!   a second time by FFmpeg as RGB — the tracker keeps FFmpeg's own gray, so its results do not
+//!   depend on the overlay), else in gray;
+//! - each running track: its visible template points posed by the estimate, the head's axes
+//!   (x red, y green, z blue towards the camera) and a label `#TRACK CONFIDENCE` in the track's
+//!   colour (a palette with no pure red, green or blue, so that tracks are not mistaken for axes);
+//! - a fresh detection that started or restarted a track: a white rectangle labelled `new #N`
+//!   or `re #N`;
+//! - a track lost in the last [`LOST_SHOWN`] frames: a dashed rectangle where it was last seen,
+//!   labelled `lost #N`;
+//! - the frame number in the top left corner.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdout, Command, Stdio};
+
+use anyhow::Context;
+use face_tracker::extraction::FaceRect;
+use face_tracker::{FaceEstimate, GrayImage, Pose, Template, TrackStatus};
+use image::{Rgb, RgbImage};
+use nalgebra::Vector3;
+
+use crate::annotated::Annotated;
+
+/// Colours of the tracks (by track number): none is an axis's pure red, green or blue.
+pub const TRACK_COLOURS: [[u8; 3]; 6] = [
+    [255, 200, 0],
+    [0, 220, 220],
+    [230, 80, 230],
+    [255, 140, 60],
+    [160, 255, 120],
+    [150, 150, 255],
+];
+/// Fresh detections.
+pub const DETECTION: [u8; 3] = [255, 255, 255];
+/// Tracks just lost.
+pub const LOST: [u8; 3] = [255, 60, 60];
+/// How many frames a lost track stays marked.
+pub const LOST_SHOWN: usize = 15;
+/// Pixels per font pixel of the labels (font8x8's 8×8 glyphs).
+const TEXT_SCALE: u32 = 2;
+
+/// What a frame's drawing needs besides the picture and the estimates.
+#[derive(Debug, Default, Clone)]
+pub struct Marks {
+    /// Tracks that a detection started (`false`) or restarted (`true`) before this frame.
+    pub detections: Vec<(usize, FaceRect, bool)>,
+    /// Tracks lost recently: (track, where it was last seen, the frame it was lost at).
+    pub lost: Vec<(usize, FaceRect, usize)>,
+}
+
+/// `picture` (the frame, in colour or gray) with the frame number, the tracks, the fresh
+/// detections and the recently lost tracks drawn on it.
+pub fn draw_faces(
+    mut picture: RgbImage,
+    frame: usize,
+    templates: &[(usize, &Template)],
+    estimates: &[FaceEstimate],
+    marks: &Marks,
+) -> RgbImage {
+    for e in estimates
+        .iter()
+        .filter(|e| e.status == TrackStatus::Tracking)
+    {
+        let Some((_, template)) = templates.iter().find(|(id, _)| *id == e.track) else {
+            continue;
+        };
+        draw_track(&mut picture, e, template);
+    }
+    for (track, rect, restarted) in &marks.detections {
+        rectangle(&mut picture, rect, DETECTION, false);
+        let label = format!("{} #{track}", if *restarted { "re" } else { "new" });
+        text(
+            &mut picture,
+            rect.x,
+            rect.y + rect.height + 2.0,
+            &label,
+            DETECTION,
+        );
+    }
+    for (track, rect, lost_at) in &marks.lost {
+        if frame < lost_at + LOST_SHOWN {
+            rectangle(&mut picture, rect, LOST, true);
+            text(
+                &mut picture,
+                rect.x,
+                rect.y + rect.height + 2.0,
+                &format!("lost #{track}"),
+                LOST,
+            );
+        }
+    }
+    text(
+        &mut picture,
+        4.0,
+        4.0,
+        &format!("frame {frame}"),
+        [255, 255, 255],
+    );
+    picture
+}
+
+/// One track: its visible template points posed by the estimate, the head's axes, its label.
+fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template) {
+    let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
+    let pose = Pose::new(&e.state);
+    for q in &template.points {
+        if pose.faces_camera(&Vector3::from(q.normal)) {
+            let p = pose.project(&Vector3::from(q.position));
+            for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
+                put(picture, p.x + dx, p.y + dy, colour);
+            }
+        }
+    }
+    // Axes half the face's width long (at S = 1).
+    let length = 0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
+    let origin = pose.project(&Vector3::zeros());
+    for (axis, c) in [
+        (Vector3::x(), [255, 0, 0]),
+        (Vector3::y(), [0, 255, 0]),
+        (Vector3::z(), [0, 0, 255]),
+    ] {
+        let end = pose.project(&(axis * length));
+        for offset in [-0.5f32, 0.0, 0.5] {
+            line(
+                picture,
+                (origin.x + offset, origin.y + offset),
+                (end.x + offset, end.y + offset),
+                c,
+            );
+        }
+    }
+    let label = format!("#{} {:.2}", e.track, e.confidence);
+    let above = e.rect.y - (8 * TEXT_SCALE) as f32 - 4.0;
+    text(picture, e.rect.x, above.max(0.0), &label, colour);
+}
+
+fn put(picture: &mut RgbImage, x: f32, y: f32, colour: [u8; 3]) {
+    if x >= 0.0 && y >= 0.0 && (x as u32) < picture.width() && (y as u32) < picture.height() {
+        picture.put_pixel(x as u32, y as u32, Rgb(colour));
+    }
+}
+
+fn line(picture: &mut RgbImage, a: (f32, f32), b: (f32, f32), colour: [u8; 3]) {
+    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+    for i in 0..=steps {
+        let t = i as f32 / steps as f32;
+        put(
+            picture,
+            a.0 + (b.0 - a.0) * t,
+            a.1 + (b.1 - a.1) * t,
+            colour,
+        );
+    }
+}
+
+/// A rectangle two pixels thick; `dashed`: 6 pixels on, 4 off.
+fn rectangle(picture: &mut RgbImage, rect: &FaceRect, colour: [u8; 3], dashed: bool) {
+    let (x0, y0) = (rect.x, rect.y);
+    let (x1, y1) = (rect.x + rect.width, rect.y + rect.height);
+    let on = |k: f32| !dashed || (k as u32 % 10) < 6;
+    for inset in [0.0, 1.0] {
+        let mut x = x0;
+        while x <= x1 {
+            if on(x - x0) {
+                put(picture, x, y0 + inset, colour);
+                put(picture, x, y1 - inset, colour);
+            }
+            x += 1.0;
+        }
+        let mut y = y0;
+        while y <= y1 {
+            if on(y - y0) {
+                put(picture, x0 + inset, y, colour);
+                put(picture, x1 - inset, y, colour);
+            }
+            y += 1.0;
+        }
+    }
+}
+
+/// `label` in font8x8's glyphs at (x, y) (its top left), on a black box so that it reads on
+/// any picture. Characters the font lacks are drawn as `?`.
+pub fn text(picture: &mut RgbImage, x: f32, y: f32, label: &str, colour: [u8; 3]) {
+    use font8x8::UnicodeFonts;
+    let (x, y) = (x.max(0.0) as u32, y.max(0.0) as u32);
+    let advance = 8 * TEXT_SCALE;
+    for (k, c) in label.chars().enumerate() {
+        let glyph = font8x8::BASIC_FONTS
+            .get(c)
+            .or_else(|| font8x8::BASIC_FONTS.get('?'))
+            .unwrap_or([0; 8]);
+        let left = x + k as u32 * advance;
+        for (row, bits) in glyph.iter().enumerate() {
+            for column in 0..8u32 {
+                let ink = bits >> column & 1 == 1;
+                for dy in 0..TEXT_SCALE {
+                    for dx in 0..TEXT_SCALE {
+                        let (px, py) = (
+                            left + column * TEXT_SCALE + dx,
+                            y + row as u32 * TEXT_SCALE + dy,
+                        );
+                        if px < picture.width() && py < picture.height() {
+                            let shade = if ink { colour } else { [0, 0, 0] };
+                            picture.put_pixel(px, py, Rgb(shade));
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The frames in colour, for the overlay, in the order the tracker reads them.
+pub enum ColourFrames {
+    /// Image files, re-read in colour by index.
+    Images(Vec<PathBuf>),
+    /// A second FFmpeg decoder of the video, as RGB: its k-th frame is the k-th frame the
+    /// tracker's gray decoder gave (both drop the same undecodable frames).
+    Video {
+        child: Child,
+        stdout: ChildStdout,
+        size: (u32, u32),
+    },
+}
+
+impl ColourFrames {
+    /// Colour frames of a directory's images (the files the tracker reads, in its order) or of
+    /// a video file.
+    pub fn images(files: Vec<PathBuf>) -> Self {
+        ColourFrames::Images(files)
+    }
+
+    pub fn video(path: &Path, size: (u32, u32)) -> anyhow::Result<Self> {
+        let mut child = Command::new("ffmpeg")
+            .args(["-nostdin", "-hide_banner", "-nostats", "-v", "error", "-i"])
+            .arg(path)
+            .args(["-map", "0:v:0", "-fps_mode", "passthrough"])
+            .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .context("starting FFmpeg to decode the overlay's colour frames")?;
+        let stdout = child.stdout.take().context("FFmpeg's output")?;
+        Ok(ColourFrames::Video {
+            child,
+            stdout,
+            size,
+        })
+    }
+
+    /// The colour of frame `index`, which the tracker read as `gray`; `None` when there is
+    /// none (the frame is then drawn in gray).
+    fn frame(&mut self, index: usize, gray: &GrayImage) -> Option<RgbImage> {
+        let picture = match self {
+            ColourFrames::Images(files) => image::open(files.get(index)?).ok()?.to_rgb8(),
+            ColourFrames::Video { stdout, size, .. } => {
+                use std::io::Read;
+                let mut bytes = vec![0u8; 3 * size.0 as usize * size.1 as usize];
+                stdout.read_exact(&mut bytes).ok()?;
+                RgbImage::from_raw(size.0, size.1, bytes)?
+            }
+        };
+        (picture.dimensions() == (gray.width, gray.height)).then_some(picture)
+    }
+}
+
+impl Drop for ColourFrames {
+    fn drop(&mut self) {
+        if let ColourFrames::Video { child, .. } = self {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+fn gray_picture(frame: &GrayImage) -> RgbImage {
+    RgbImage::from_fn(frame.width, frame.height, |x, y| {
+        let v = frame.data[(y * frame.width + x) as usize];
+        Rgb([v, v, v])
+    })
+}
+
+/// The overlay of a run: where it goes, the colour frames, the marks that last several frames.
+pub struct FaceOverlay {
+    out: Annotated,
+    colour: Option<ColourFrames>,
+    lost: Vec<(usize, FaceRect, usize)>,
+    /// The last frame drawn, repeated for a frame that could not be read.
+    last: Option<RgbImage>,
+}
+
+impl FaceOverlay {
+    pub fn new(out: Annotated, colour: Option<ColourFrames>) -> Self {
+        Self {
+            out,
+            colour,
+            lost: Vec::new(),
+            last: None,
+        }
+    }
+
+    /// Draws and writes frame `index`. `write`: false for a frame a resumed run only replays
+    /// (its colour frame is still consumed, to stay in step).
+    pub fn draw(
+        &mut self,
+        index: usize,
+        gray: &GrayImage,
+        templates: &[(usize, &Template)],
+        estimates: &[FaceEstimate],
+        detections: Vec<(usize, FaceRect, bool)>,
+        write: bool,
+    ) -> anyhow::Result<()> {
+        for e in estimates {
+            if let TrackStatus::Lost { frame } = e.status {
+                self.lost.push((e.track, e.rect, frame));
+            }
+        }
+        self.lost.retain(|(_, _, at)| index < at + LOST_SHOWN);
+        let colour = self.colour.as_mut().and_then(|c| c.frame(index, gray));
+        if !write {
+            return Ok(());
+        }
+        let picture = colour.unwrap_or_else(|| gray_picture(gray));
+        let marks = Marks {
+            detections,
+            lost: self.lost.clone(),
+        };
+        let drawn = draw_faces(picture, index, templates, estimates, &marks);
+        self.out.write(index, &drawn)?;
+        self.last = Some(drawn);
+        Ok(())
+    }
+
+    /// A frame that could not be read: the last picture again, keeping a video's timing.
+    pub fn repeat_last(&mut self, index: usize) -> anyhow::Result<()> {
+        match &self.last {
+            Some(last) => self.out.write(index, last),
+            None => Ok(()),
+        }
+    }
+
+    /// Closes the output (a video is finalised).
+    pub fn finish(self) -> anyhow::Result<()> {
+        let FaceOverlay { out, colour, .. } = self;
+        drop(colour);
+        out.finish()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rect(x: f32, y: f32) -> FaceRect {
+        FaceRect {
+            x,
+            y,
+            width: 40.0,
+            height: 40.0,
+        }
+    }
+
+    fn count(picture: &RgbImage, colour: [u8; 3]) -> usize {
+        picture.pixels().filter(|p| p.0 == colour).count()
+    }
+
+    #[test]
+    fn detections_and_recently_lost_tracks_are_marked() {
+        let blank = RgbImage::from_pixel(200, 160, Rgb([90, 90, 90]));
+        let marks = Marks {
+            detections: vec![(3, rect(20.0, 20.0), false)],
+            lost: vec![(1, rect(120.0, 60.0), 5)],
+        };
+        let drawn = draw_faces(blank.clone(), 10, &[], &[], &marks);
+        // The detection's rectangle (its corner) and its label below it.
+        assert_eq!(drawn.get_pixel(20, 20).0, DETECTION);
+        assert!((62..78).any(|y| (20..60).any(|x| drawn.get_pixel(x, y).0 == DETECTION)));
+        // The lost track's dashed rectangle: on at its corner, off 7 pixels along.
+        assert_eq!(drawn.get_pixel(120, 60).0, LOST);
+        assert_ne!(drawn.get_pixel(127, 60).0, LOST);
+        // LOST_SHOWN frames after it was lost the mark is gone; the detection stays (it is
+        // only passed for the frame it happened).
+        let later = draw_faces(blank.clone(), 5 + LOST_SHOWN, &[], &[], &marks);
+        assert_eq!(count(&later, LOST), 0);
+        // Away from every mark the picture is untouched.
+        assert_eq!(drawn.get_pixel(100, 150).0, [90, 90, 90]);
+    }
+
+    #[test]
+    fn text_draws_ink_on_a_black_box_and_clips_at_the_border() {
+        let mut picture = RgbImage::from_pixel(40, 20, Rgb([90, 90, 90]));
+        text(&mut picture, 30.0, 10.0, "#7 ü", [0, 255, 255]);
+        assert!(count(&picture, [0, 255, 255]) > 0);
+        assert!(count(&picture, [0, 0, 0]) > 0);
+        // Left of the label nothing changed.
+        assert!((0..30).all(|x| picture.get_pixel(x, 15).0 == [90, 90, 90]));
+    }
+}
