@@ -72,8 +72,8 @@ fn synth_then_track_a_directory_with_overlays() {
         .flat_map(|y| (4..120).map(move |x| (x, y)))
         .map(|(x, y)| label(x, y))
         .collect();
-    assert!(box_pixels.iter().any(|p| *p == [255, 255, 255]));
-    assert!(box_pixels.iter().any(|p| *p == [0, 0, 0]));
+    assert!(box_pixels.contains(&[255, 255, 255]));
+    assert!(box_pixels.contains(&[0, 0, 0]));
     // --face overrides faces.csv: one face only.
     let rects = std::fs::read_to_string(data.join("faces.csv")).unwrap();
     let first = rects.lines().nth(1).unwrap();
