@@ -133,7 +133,13 @@ pub fn draw_capsules(
     if let Some(truth) = truth {
         let truth = silhouette(&project(truth), width, height);
         for (i, pixel) in image.pixels_mut().enumerate() {
-            if truth[i] && on_edge(&truth, i, width, height) {
+            // Two pixels wide: the silhouette's last pixel inside and first outside.
+            let edge = if truth[i] {
+                on_edge(&truth, i, width, height)
+            } else {
+                touches(&truth, i, width, height)
+            };
+            if edge {
                 *pixel = Rgb(TRUTH_EDGE);
             }
         }
@@ -186,6 +192,16 @@ fn on_edge(mask: &[bool], i: usize, width: u32, height: u32) -> bool {
         || !mask[i + 1]
         || !mask[i - w]
         || !mask[i + w]
+}
+
+/// Whether pixel `i` has a 4-neighbour inside the mask.
+fn touches(mask: &[bool], i: usize, width: u32, height: u32) -> bool {
+    let (w, h) = (width as usize, height as usize);
+    let (x, y) = (i % w, i / w);
+    (x > 0 && mask[i - 1])
+        || (x + 1 < w && mask[i + 1])
+        || (y > 0 && mask[i - w])
+        || (y + 1 < h && mask[i + w])
 }
 
 /// A one-pixel line from `a` to `b`, clipped to the image.
