@@ -35,6 +35,11 @@ pub const MIN_GRAY: f32 = 1.0;
 #[derive(Debug, Clone, PartialEq)]
 pub struct Template {
     pub points: Vec<FeaturePoint>,
+    /// The face's 68 iBUG landmarks in the same frame as the points, on the model's surface,
+    /// when the template was built with a landmark model: the fitted landmarks on a
+    /// personalised template, the generic head's where the fit failed; posed by an estimate
+    /// they give the landmarks' pixels in a frame (`face track --landmarks-out`).
+    pub landmarks: Option<Vec<[f32; 3]>>,
 }
 
 impl Template {
@@ -60,7 +65,10 @@ impl Template {
                 )));
             }
         }
-        Ok(Self { points })
+        Ok(Self {
+            points,
+            landmarks: None,
+        })
     }
 
     pub fn len(&self) -> usize {

@@ -339,7 +339,24 @@ impl FaceTracker {
             fitted
         });
         let model = personal.as_ref().map_or(&self.model, |p| &p.model);
-        let template = extract_template(frame, rect, model, &self.config.extraction)?;
+        let mut template = extract_template(frame, rect, model, &self.config.extraction)?;
+        // The landmarks on the model's surface: the fitted ones, else the generic head's.
+        let (cx, cy) = rect.centre();
+        let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
+        let on_surface = |u: f32, v: f32| [u * hw, v * hh, model.sample(u, v).0 * hw];
+        template.landmarks = match (&personal, &self.personaliser) {
+            (Some(p), _) => Some(
+                (p.landmarks.iter())
+                    .map(|l| on_surface((l[0] - cx) / hw, (l[1] - cy) / hh))
+                    .collect(),
+            ),
+            (None, Some(personaliser)) => Some(
+                (personaliser.generic_landmarks().iter())
+                    .map(|l| on_surface(l[0], l[1]))
+                    .collect(),
+            ),
+            (None, None) => None,
+        };
         Ok((template, personal.map(|p| p.landmarks)))
     }
 

@@ -209,6 +209,12 @@ pub struct TrackArgs {
     /// of a non-zero exit).
     #[arg(long)]
     pub allow_short: bool,
+    /// Also write landmarks.csv: each tracked face's 68 iBUG landmarks in every frame it is
+    /// tracked, in pixels — the landmarks fitted when its template was built (the generic
+    /// head's where the fit failed), on the face model's surface, posed by the frame's estimate.
+    /// Needs the landmark model (--landmarks, or libdlib-data's file).
+    #[arg(long)]
+    pub landmarks_out: bool,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,
@@ -237,6 +243,7 @@ const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_front
 const TRUTH_FILE: &str = "ground_truth.csv";
 const STATES_FILE: &str = "states.csv";
 const ERRORS_FILE: &str = "errors.csv";
+const LANDMARKS_FILE: &str = "landmarks.csv";
 
 fn model() -> anyhow::Result<FaceModel> {
     Ok(FaceModel::generic(129)?)
@@ -602,7 +609,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
     if resume.is_none() {
-        clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE])?;
+        clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE, LANDMARKS_FILE])?;
     }
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
@@ -630,7 +637,12 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     run_output::install_interrupt_handler()?;
     let mut run = FaceRun {
         args,
-        record: TrackRecord::create(&args.out, truth.is_some(), resume.as_ref(), source.fps())?,
+        record: TrackRecord::create(
+            &args.out,
+            (truth.is_some(), args.landmarks_out),
+            resume.as_ref(),
+            source.fps(),
+        )?,
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
         truth,
         overlay,
@@ -735,6 +747,8 @@ impl FaceRun<'_> {
         }
         let truth = self.truth.as_ref().and_then(|t| t.get(frame));
         self.record.add(frame, &estimates, "", truth)?;
+        self.record
+            .add_landmarks(frame, &runner.tracker().templates(), &estimates)?;
         if let Some(overlay) = self.overlay.as_mut() {
             let templates = runner.tracker().templates();
             overlay.draw(frame, image, &templates, &estimates, detections, !replayed)?;
@@ -860,6 +874,12 @@ fn build_runner(
         ),
     };
     let personaliser = load_personaliser(args)?;
+    if args.landmarks_out && personaliser.is_none() {
+        bail!(
+            "--landmarks-out needs dlib's 68-landmark model: give --landmarks FILE, or install \
+             Debian's libdlib-data (not used by default with --generic-model or --synthetic)"
+        );
+    }
     let mut runner = match cascade {
         Some(cascade) => {
             let auto = AutoConfig {
@@ -932,6 +952,7 @@ const STATE_COLUMNS_AFTER_STATUS: usize = DIMS + 1 + DIMS + 2 + 3 + 4;
 struct TrackRecord {
     states: CsvStream,
     errors: Option<CsvStream>,
+    landmarks: Option<CsvStream>,
     translation: f64,
     rotation: f64,
     measured: usize,
@@ -955,6 +976,50 @@ impl TrackRecord {
             STATE_NAMES.join(","),
             spreads.join(",")
         )
+    }
+
+    /// The frame, its timestamp, the track, then x and y of each of the 68 iBUG landmarks.
+    fn landmarks_header() -> String {
+        let columns: Vec<String> = (0..68).map(|k| format!("x{k},y{k}")).collect();
+        format!("frame,timestamp,track,{}", columns.join(","))
+    }
+
+    /// A frame's landmark rows: each tracked face whose template has landmarks, posed by its
+    /// estimate.
+    fn add_landmarks(
+        &mut self,
+        frame: usize,
+        templates: &[(usize, &face_tracker::Template)],
+        estimates: &[FaceEstimate],
+    ) -> anyhow::Result<()> {
+        let timestamp = self.timestamp(frame);
+        let Some(file) = self.landmarks.as_mut() else {
+            return Ok(());
+        };
+        for e in estimates
+            .iter()
+            .filter(|e| e.status == TrackStatus::Tracking)
+        {
+            let landmarks = templates
+                .iter()
+                .find(|(track, _)| *track == e.track)
+                .and_then(|(_, t)| t.landmarks.as_ref());
+            let Some(landmarks) = landmarks else { continue };
+            let pose = face_tracker::Pose::new(&e.state);
+            let pixels: Vec<String> = landmarks
+                .iter()
+                .map(|&p| {
+                    let at = pose.project(&nalgebra::Vector3::from(p));
+                    format!("{},{}", at.x, at.y)
+                })
+                .collect();
+            file.row(&format!(
+                "{frame},{timestamp},{},{}",
+                e.track,
+                pixels.join(",")
+            ))?;
+        }
+        file.end_frame()
     }
 
     /// A frame's timestamp in seconds (frame / frames per second).
@@ -982,9 +1047,10 @@ impl TrackRecord {
     }
 
     /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
+    /// `(with_truth, with_landmarks)`: whether errors.csv and landmarks.csv are written.
     fn create(
         out: &Path,
-        with_truth: bool,
+        (with_truth, with_landmarks): (bool, bool),
         resume: Option<&ResumePoint>,
         fps: f64,
     ) -> anyhow::Result<Self> {
@@ -995,9 +1061,13 @@ impl TrackRecord {
         let errors = with_truth
             .then(|| open(ERRORS_FILE, "frame,face,translation_px,rotation_deg"))
             .transpose()?;
+        let landmarks = with_landmarks
+            .then(|| open(LANDMARKS_FILE, &Self::landmarks_header()))
+            .transpose()?;
         Ok(Self {
             states: open(STATES_FILE, &Self::states_header())?,
             errors,
+            landmarks,
             translation: 0.0,
             rotation: 0.0,
             measured: 0,
@@ -1121,9 +1191,14 @@ impl TrackRecord {
             );
         }
         println!(
-            "wrote states.csv{} to {}{}",
+            "wrote states.csv{}{} to {}{}",
             if self.errors.is_some() {
                 ", errors.csv"
+            } else {
+                ""
+            },
+            if self.landmarks.is_some() {
+                ", landmarks.csv"
             } else {
                 ""
             },

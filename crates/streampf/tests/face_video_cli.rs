@@ -338,3 +338,93 @@ fn a_face_that_appears_late_has_a_row_for_every_frame() {
         "first tracked at {first}"
     );
 }
+
+#[test]
+fn landmarks_out_writes_each_tracked_faces_68_landmarks_every_frame() {
+    if opted_out("face track --landmarks-out") {
+        return;
+    }
+    let model = "/usr/share/dlib/shape_predictor_68_face_landmarks.dat";
+    assert!(Path::new(model).is_file(), "{model} is missing; {HELP}");
+    let data = scratch("landmarks-data");
+    let out = scratch("landmarks-out");
+    let (d, o) = (data.to_str().unwrap(), out.to_str().unwrap());
+    ok(&streampf(&[
+        "face", "synth", "--out", d, "--frames", "3", "--faces", "2", "--width", "480", "--height",
+        "360",
+    ]));
+    let text = ok(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--landmarks",
+        model,
+        "--landmarks-out",
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        o,
+    ]));
+    assert!(text.contains("landmarks.csv"), "{text}");
+    let read = |name: &str| -> Vec<Vec<String>> {
+        let text = std::fs::read_to_string(out.join(name)).unwrap();
+        text.lines()
+            .map(|l| l.split(',').map(str::to_string).collect())
+            .collect()
+    };
+    let landmarks = read("landmarks.csv");
+    let states = read("states.csv");
+    assert_eq!(
+        &landmarks[0][..5],
+        ["frame", "timestamp", "track", "x0", "y0"]
+    );
+    assert_eq!(landmarks[0].last().unwrap(), "y67");
+    // One row per frame and tracked face, each with 68 finite points.
+    assert_eq!(landmarks.len(), 1 + 3 * 2);
+    for row in &landmarks[1..] {
+        assert_eq!(row.len(), 3 + 2 * 68, "{row:?}");
+        let values: Vec<f32> = row[3..].iter().map(|v| v.parse().unwrap()).collect();
+        assert!(values.iter().all(|v| v.is_finite()), "{row:?}");
+        // The points sit on that face: centred near its estimate (tx, ty in states.csv) and
+        // spread over a face's size (the heads are about 56 px wide here), not on one spot.
+        let state = states[1..]
+            .iter()
+            .find(|s| s[0] == row[0] && s[2] == row[2])
+            .expect("a states row for each landmarks row");
+        let (tx, ty): (f32, f32) = (state[5].parse().unwrap(), state[6].parse().unwrap());
+        let xs: Vec<f32> = values.iter().step_by(2).copied().collect();
+        let ys: Vec<f32> = values.iter().skip(1).step_by(2).copied().collect();
+        let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+        assert!((mean(&xs) - tx).abs() < 20.0, "x {} vs {tx}", mean(&xs));
+        assert!((mean(&ys) - ty).abs() < 25.0, "y {} vs {ty}", mean(&ys));
+        let width = xs.iter().copied().fold(f32::MIN, f32::max)
+            - xs.iter().copied().fold(f32::MAX, f32::min);
+        assert!((25.0..120.0).contains(&width), "landmarks {width} px wide");
+    }
+    // OUTPUT.md documents the file.
+    let doc =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../docs/OUTPUT.md"))
+            .unwrap();
+    assert!(doc.contains("`landmarks.csv`") && doc.contains("`x0`, `y0` … `x67`, `y67`"));
+    // Without a landmark model there is nothing to place: a clear error, nothing tracked.
+    let err = failure(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--generic-model",
+        "--landmarks-out",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        out.join("none").to_str().unwrap(),
+    ]));
+    assert!(
+        err.contains("--landmarks-out needs dlib's 68-landmark model"),
+        "{err}"
+    );
+    std::fs::remove_dir_all(&data).unwrap();
+}
