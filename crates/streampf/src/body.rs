@@ -21,6 +21,7 @@ use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
 use crate::annotated::Annotated;
+use crate::recording::{BodyFrame, Recording};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
@@ -157,6 +158,12 @@ pub struct TrackArgs {
     /// Seed of the filter's random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Also record the run for the rerun viewer (a .rrd file; built with `--features rerun`):
+    /// the points, the estimated and true capsules, the samples' root positions, and the ESS,
+    /// confidence and joint error as time series. On a GPU this reads the samples back every
+    /// frame.
+    #[arg(long, value_name = "FILE.rrd")]
+    pub rerun: Option<PathBuf>,
     /// Write every frame's pose samples and log-weights here as numpy files:
     /// particles_FRAME.npy (1, J, pose values; float32, named as in poses.csv) and
     /// log_weights_FRAME.npy (1, J). On a GPU this reads the cloud back every frame.
@@ -398,6 +405,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             );
         }
     }
+    let recording = args
+        .rerun
+        .as_deref()
+        .map(|path| Recording::create(path, "streampf body track"))
+        .transpose()?;
     let (source, skeleton, truth) = open_sequence(args)?;
     let frames = source
         .frames()
@@ -499,7 +511,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                     let overlay = overlay.as_mut().filter(|_| frame >= resume_from);
                     run.track_one(
                         save,
-                        overlay,
+                        (overlay, recording.as_ref()),
                         &mut tracker,
                         skeleton,
                         &mut files,
@@ -537,9 +549,10 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     bar.finish_and_clear();
     // The overlay video is finalised whatever ended the run, so that its frames are kept.
     let closed = overlay.map_or(Ok(()), |overlay| overlay.out.finish());
+    let closed = closed.and(recording.map_or(Ok(()), Recording::finish));
     run.summary(args, started.elapsed().as_secs_f64());
     if let (Err(e), LoopEnd::Done | LoopEnd::Interrupted) = (closed, &end) {
-        end = LoopEnd::Failed(e.context("finishing --overlay"));
+        end = LoopEnd::Failed(e.context("finishing --overlay or --rerun"));
     }
     match end {
         LoopEnd::Done => Ok(()),
@@ -649,7 +662,7 @@ impl BodyRun {
     fn track_one(
         &mut self,
         save_particles: Option<&Path>,
-        overlay: Option<&mut BodyOverlay>,
+        (overlay, recording): (Option<&mut BodyOverlay>, Option<&Recording>),
         tracker: &mut BodyTracker,
         skeleton: &Skeleton,
         files: &mut BodyFiles,
@@ -673,12 +686,28 @@ impl BodyRun {
         files.poses.row(&csv_row(frame, &pose_row))?;
         let joints = joint_row(&skeleton.tracked_joint_positions(&result.pose)?);
         files.joints.row(&csv_row(frame, &joints))?;
+        let mut joint_error = None;
         if let (Some(truth), Some(out)) = (truth, files.errors.as_mut()) {
             let error = mean_joint_error(skeleton, &result.pose, &truth[frame])?;
+            joint_error = Some(error);
             out.row(&csv_row(frame, &[error]))?;
             out.end_frame()?;
             self.errors.push(error);
             self.count_coverage(&result.pose, &result.spread, &truth[frame]);
+        }
+        if let Some(recording) = recording {
+            let (shape, states, _) = tracker.particles()?;
+            let shown = BodyFrame {
+                frame,
+                points,
+                pose: &result.pose,
+                truth: truth.map(|t| t[frame].as_slice()),
+                ess: result.ess,
+                confidence: result.confidence,
+                joint_error,
+                samples: Some((&states, shape.particles)),
+            };
+            recording.body_frame(skeleton, shown).context("--rerun")?;
         }
         if let Some(overlay) = overlay {
             let truth = truth.map(|t| t[frame].as_slice());

@@ -34,6 +34,7 @@ use std::sync::Arc;
 use crate::annotated::Annotated;
 use crate::face_io::{FrameRead, ReadAhead, Source};
 use crate::face_overlay::{ColourFrames, FaceOverlay};
+use crate::recording::{FaceClouds, Recording};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
@@ -154,6 +155,12 @@ pub struct TrackArgs {
     /// frames) or a video file (.mp4, .mkv, .avi, .webm; encoded by FFmpeg).
     #[arg(long)]
     pub overlay: Option<PathBuf>,
+    /// Also record the run for the rerun viewer (a .rrd file; built with `--features rerun`):
+    /// the frames, each track's points, axes, box and particles, and its ESS, confidence,
+    /// residual (and errors against the truth) as time series. On a GPU this reads the clouds
+    /// back every frame.
+    #[arg(long, value_name = "FILE.rrd")]
+    pub rerun: Option<PathBuf>,
     /// Write every frame's particles and log-weights here as numpy files:
     /// particles_FRAME.npy (slots, particles, 7; float32, the state columns of states.csv),
     /// log_weights_FRAME.npy (slots, particles) and tracks_FRAME.npy (the track in each slot,
@@ -398,6 +405,43 @@ fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
     })
 }
 
+/// Logs a tracked frame to the rerun recording: the frame, the tracks, their particle clouds
+/// (read back from the filter) and, with the ground truth, their errors.
+fn record_face_frame(
+    recording: &Recording,
+    frame: usize,
+    seconds: f64,
+    image: &GrayImage,
+    runner: &Runner,
+    estimates: &[FaceEstimate],
+    truth: Option<&Vec<[f32; DIMS]>>,
+) -> anyhow::Result<()> {
+    let tracker = runner.tracker();
+    let (shape, states, _) = tracker.particles()?;
+    let clouds = FaceClouds {
+        states: &states,
+        particles: shape.particles,
+    };
+    let errors: Vec<(usize, f32, f32)> = estimates
+        .iter()
+        .filter(|e| e.status == TrackStatus::Tracking)
+        .filter_map(|e| {
+            let t = truth?.get(e.track)?;
+            let (translation, rotation) = pose_errors(&e.state, t);
+            Some((e.track, translation, rotation))
+        })
+        .collect();
+    recording.face_frame(
+        frame,
+        seconds,
+        image,
+        &tracker.templates(),
+        estimates,
+        Some(clouds),
+        &errors,
+    )
+}
+
 /// A frame's estimates and the detections that started or restarted tracks before it.
 type StepOutcome = (Vec<FaceEstimate>, Vec<(usize, FaceRect, bool)>);
 
@@ -580,6 +624,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             );
         }
     }
+    let recording = args
+        .rerun
+        .as_deref()
+        .map(|path| Recording::create(path, "streampf face track"))
+        .transpose()?;
     let resume = args
         .resume
         .then(|| ResumePoint::of(&args.out.join(STATES_FILE), &TrackRecord::states_header()))
@@ -646,6 +695,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
         truth,
         overlay,
+        recording,
         last_estimates: Vec::new(),
         skipped: SkipLog::new(&args.out)?,
         frames: 0,
@@ -682,6 +732,8 @@ struct FaceRun<'a> {
     record: TrackRecord,
     truth: Option<Vec<Vec<[f32; DIMS]>>>,
     overlay: Option<FaceOverlay>,
+    /// `--rerun`: every frame, replayed ones included, so the recording covers the whole run.
+    recording: Option<Recording>,
     /// The last tracked frame's estimates: a skipped frame's tracks coast on them.
     last_estimates: Vec<FaceEstimate>,
     skipped: SkipLog,
@@ -749,6 +801,18 @@ impl FaceRun<'_> {
         self.record.add(frame, &estimates, "", truth)?;
         self.record
             .add_landmarks(frame, &runner.tracker().templates(), &estimates)?;
+        if let Some(recording) = &self.recording {
+            record_face_frame(
+                recording,
+                frame,
+                self.record.seconds(frame),
+                image,
+                runner,
+                &estimates,
+                truth,
+            )
+            .context("--rerun")?;
+        }
         if let Some(overlay) = self.overlay.as_mut() {
             let templates = runner.tracker().templates();
             overlay.draw(frame, image, &templates, &estimates, detections, !replayed)?;
@@ -785,6 +849,8 @@ impl FaceRun<'_> {
         end: LoopEnd,
     ) -> anyhow::Result<()> {
         let closed = self.overlay.take().map_or(Ok(()), FaceOverlay::finish);
+        // Flushed whatever ended the run: the recording keeps every frame it had.
+        let closed = closed.and(self.recording.take().map_or(Ok(()), Recording::finish));
         self.record
             .summary(self.args, runner, self.frames, elapsed, &self.skipped);
         match end {
@@ -1024,7 +1090,11 @@ impl TrackRecord {
 
     /// A frame's timestamp in seconds (frame / frames per second).
     fn timestamp(&self, frame: usize) -> String {
-        format!("{:.6}", frame as f64 / self.fps)
+        format!("{:.6}", self.seconds(frame))
+    }
+
+    fn seconds(&self, frame: usize) -> f64 {
+        frame as f64 / self.fps
     }
 
     /// The columns after the state and ε (see [`TrackRecord::states_header`]).

@@ -9,6 +9,7 @@ mod face_io;
 mod face_overlay;
 mod filter_args;
 mod gpu;
+mod recording;
 mod run_output;
 mod settings;
 mod video;

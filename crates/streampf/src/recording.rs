@@ -1,0 +1,294 @@
+//! `--rerun FILE.rrd`: a recording of a run for the rerun viewer (`rerun FILE.rrd`), built with
+//! the `rerun` cargo feature. The entity paths are documented in docs/OUTPUT.md.
+//!
+//! Faces (2D, over the frame): `video/frame` (the gray frame), per track
+//! `video/faces/TRACK/{points,axes,box,particles}` (the posed template points, the head's axes,
+//! the rectangle labelled with the track and confidence, the particles' centres), cleared when
+//! the track is lost; time series `metrics/faces/TRACK/{ess,confidence,residual}` and, with the
+//! ground truth, `translation_error_px` and `rotation_error_deg`.
+//!
+//! Body (3D, the camera frame: x right, y up, z forward): `world/points` (the frame's points),
+//! `world/estimate` and `world/truth` (the skeletons' capsules), `world/particles` (each sample's
+//! root position); time series `metrics/{ess,confidence,joint_error_m}`.
+//!
+//! Both put every frame on a `frame` sequence timeline and a `time` timeline in seconds.
+
+use std::path::Path;
+
+use body_tracker::Skeleton;
+use face_tracker::{FaceEstimate, GrayImage, Template};
+use nalgebra::Vector3;
+
+/// One face frame's particle clouds: the batch's states (targets × dims × particles,
+/// dimension-major per target) and the particles per target.
+#[cfg_attr(not(feature = "rerun"), allow(dead_code))]
+pub struct FaceClouds<'a> {
+    pub states: &'a [f32],
+    pub particles: usize,
+}
+
+/// What a body frame shows.
+#[cfg_attr(not(feature = "rerun"), allow(dead_code))]
+pub struct BodyFrame<'a> {
+    pub frame: usize,
+    pub points: &'a [Vector3<f32>],
+    pub pose: &'a [f32],
+    pub truth: Option<&'a [f32]>,
+    pub ess: f64,
+    pub confidence: f32,
+    pub joint_error: Option<f32>,
+    /// The samples' poses: dims × samples, dimension-major (the root's tx, ty, tz first).
+    pub samples: Option<(&'a [f32], usize)>,
+}
+
+#[cfg(feature = "rerun")]
+pub use enabled::Recording;
+
+#[cfg(not(feature = "rerun"))]
+pub use disabled::Recording;
+
+#[cfg(not(feature = "rerun"))]
+mod disabled {
+    use super::*;
+
+    /// Without the `rerun` feature: `--rerun` is refused before anything runs.
+    pub struct Recording(std::convert::Infallible);
+
+    impl Recording {
+        pub fn create(_path: &Path, _application: &'static str) -> anyhow::Result<Self> {
+            anyhow::bail!(
+                "--rerun needs streampf built with the rerun feature: cargo build --release -p \
+                 streampf --features rerun"
+            )
+        }
+
+        pub fn face_frame(
+            &self,
+            _frame: usize,
+            _seconds: f64,
+            _image: &GrayImage,
+            _templates: &[(usize, &Template)],
+            _estimates: &[FaceEstimate],
+            _clouds: Option<FaceClouds<'_>>,
+            _errors: &[(usize, f32, f32)],
+        ) -> anyhow::Result<()> {
+            match self.0 {}
+        }
+
+        pub fn body_frame(
+            &self,
+            _skeleton: &Skeleton,
+            _frame: BodyFrame<'_>,
+        ) -> anyhow::Result<()> {
+            match self.0 {}
+        }
+
+        pub fn finish(self) -> anyhow::Result<()> {
+            match self.0 {}
+        }
+    }
+}
+
+#[cfg(feature = "rerun")]
+mod enabled {
+    use super::*;
+    use anyhow::Context;
+    use face_tracker::{Pose, TrackStatus};
+
+    /// The tracks' colours, as the overlay draws them.
+    use crate::face_overlay::TRACK_COLOURS;
+
+    pub struct Recording {
+        stream: rerun::RecordingStream,
+    }
+
+    impl Recording {
+        /// A recording written to `path` as the run goes.
+        pub fn create(path: &Path, application: &'static str) -> anyhow::Result<Self> {
+            if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+                std::fs::create_dir_all(parent)
+                    .with_context(|| format!("--rerun: creating {}", parent.display()))?;
+            }
+            let stream = rerun::RecordingStreamBuilder::new(application)
+                .save(path)
+                .with_context(|| format!("--rerun: cannot write {}", path.display()))?;
+            Ok(Self { stream })
+        }
+
+        fn at(&self, frame: usize, seconds: f64) {
+            self.stream.set_time_sequence("frame", frame as i64);
+            self.stream.set_duration_secs("time", seconds);
+        }
+
+        fn scalar(&self, path: &str, value: f64) -> anyhow::Result<()> {
+            Ok(self.stream.log(path, &rerun::Scalars::single(value))?)
+        }
+
+        /// One face frame: the frame, each running track's points, axes, box and particles,
+        /// the time series; `errors`: (track, translation px, rotation °) against the truth.
+        #[allow(clippy::too_many_arguments)]
+        pub fn face_frame(
+            &self,
+            frame: usize,
+            seconds: f64,
+            image: &GrayImage,
+            templates: &[(usize, &Template)],
+            estimates: &[FaceEstimate],
+            clouds: Option<FaceClouds<'_>>,
+            errors: &[(usize, f32, f32)],
+        ) -> anyhow::Result<()> {
+            self.at(frame, seconds);
+            self.stream.log(
+                "video/frame",
+                &rerun::Image::from_l8(image.data.clone(), [image.width, image.height]),
+            )?;
+            for e in estimates {
+                let base = format!("video/faces/{}", e.track);
+                if let TrackStatus::Lost { .. } = e.status {
+                    self.stream.log(base.as_str(), &rerun::Clear::recursive())?;
+                    continue;
+                }
+                let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
+                let colour = rerun::Color::from_rgb(colour[0], colour[1], colour[2]);
+                let pose = Pose::new(&e.state);
+                if let Some((_, template)) = templates.iter().find(|(t, _)| *t == e.track) {
+                    let visible: Vec<[f32; 2]> = (template.points.iter())
+                        .filter(|q| pose.faces_camera(&Vector3::from(q.normal)))
+                        .map(|q| {
+                            let p = pose.project(&Vector3::from(q.position));
+                            [p.x, p.y]
+                        })
+                        .collect();
+                    self.stream.log(
+                        format!("{base}/points"),
+                        &rerun::Points2D::new(visible)
+                            .with_colors([colour])
+                            .with_radii([1.0]),
+                    )?;
+                }
+                let length =
+                    0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
+                let origin = pose.project(&Vector3::zeros());
+                let strips: Vec<Vec<[f32; 2]>> = [Vector3::x(), Vector3::y(), Vector3::z()]
+                    .iter()
+                    .map(|axis| {
+                        let end = pose.project(&(axis * length));
+                        vec![[origin.x, origin.y], [end.x, end.y]]
+                    })
+                    .collect();
+                self.stream.log(
+                    format!("{base}/axes"),
+                    &rerun::LineStrips2D::new(strips).with_colors([
+                        rerun::Color::from_rgb(255, 0, 0),
+                        rerun::Color::from_rgb(0, 255, 0),
+                        rerun::Color::from_rgb(0, 0, 255),
+                    ]),
+                )?;
+                self.stream.log(
+                    format!("{base}/box"),
+                    &rerun::Boxes2D::from_mins_and_sizes(
+                        [(e.rect.x, e.rect.y)],
+                        [(e.rect.width, e.rect.height)],
+                    )
+                    .with_colors([colour])
+                    .with_labels([format!("#{} {:.2}", e.track, e.confidence)]),
+                )?;
+                if let Some(clouds) = &clouds {
+                    let m = clouds.particles;
+                    let start = e.slot * face_tracker::projection::DIMS * m;
+                    if let Some(target) = clouds.states.get(start..start + 2 * m) {
+                        let centres: Vec<[f32; 2]> =
+                            (0..m).map(|k| [target[k], target[m + k]]).collect();
+                        self.stream.log(
+                            format!("{base}/particles"),
+                            &rerun::Points2D::new(centres)
+                                .with_colors([colour])
+                                .with_radii([0.5]),
+                        )?;
+                    }
+                }
+                let metrics = format!("metrics/faces/{}", e.track);
+                self.scalar(&format!("{metrics}/ess"), e.ess)?;
+                self.scalar(&format!("{metrics}/confidence"), f64::from(e.confidence))?;
+                self.scalar(&format!("{metrics}/residual"), e.error)?;
+            }
+            for &(track, translation, rotation) in errors {
+                let metrics = format!("metrics/faces/{track}");
+                self.scalar(
+                    &format!("{metrics}/translation_error_px"),
+                    f64::from(translation),
+                )?;
+                self.scalar(
+                    &format!("{metrics}/rotation_error_deg"),
+                    f64::from(rotation),
+                )?;
+            }
+            Ok(())
+        }
+
+        /// One body frame: points, the estimated (and true) capsules, the samples' roots, the
+        /// time series.
+        pub fn body_frame(&self, skeleton: &Skeleton, f: BodyFrame<'_>) -> anyhow::Result<()> {
+            if f.frame == 0 {
+                self.stream
+                    .log_static("world", &rerun::ViewCoordinates::RUF())?;
+            }
+            // The body sequences carry no frame rate: 30 frames/s, a depth camera's.
+            self.at(f.frame, f.frame as f64 / 30.0);
+            let points: Vec<[f32; 3]> = f.points.iter().map(|p| [p.x, p.y, p.z]).collect();
+            self.stream.log(
+                "world/points",
+                &rerun::Points3D::new(points)
+                    .with_radii([0.004])
+                    .with_colors([rerun::Color::from_rgb(170, 170, 170)]),
+            )?;
+            self.stream.log(
+                "world/estimate",
+                &capsules(&skeleton.capsules(f.pose)?, [255, 140, 0]),
+            )?;
+            if let Some(truth) = f.truth {
+                self.stream.log(
+                    "world/truth",
+                    &capsules(&skeleton.capsules(truth)?, [0, 230, 80]),
+                )?;
+            }
+            if let Some((states, samples)) = f.samples {
+                let roots: Vec<[f32; 3]> = (0..samples)
+                    .filter_map(|k| {
+                        Some([
+                            *states.get(k)?,
+                            *states.get(samples + k)?,
+                            *states.get(2 * samples + k)?,
+                        ])
+                    })
+                    .collect();
+                self.stream.log(
+                    "world/particles",
+                    &rerun::Points3D::new(roots)
+                        .with_radii([0.006])
+                        .with_colors([rerun::Color::from_rgb(80, 160, 255)]),
+                )?;
+            }
+            self.scalar("metrics/ess", f.ess)?;
+            self.scalar("metrics/confidence", f64::from(f.confidence))?;
+            if let Some(error) = f.joint_error {
+                self.scalar("metrics/joint_error_m", f64::from(error))?;
+            }
+            Ok(())
+        }
+
+        /// Flushes the file: everything logged is on disk.
+        pub fn finish(self) -> anyhow::Result<()> {
+            self.stream
+                .flush_blocking()
+                .context("--rerun: writing the recording")
+        }
+    }
+
+    fn capsules(capsules: &[body_tracker::capsule::Capsule], colour: [u8; 3]) -> rerun::Capsules3D {
+        let starts: Vec<[f32; 3]> = capsules.iter().map(|c| [c.a.x, c.a.y, c.a.z]).collect();
+        let ends: Vec<[f32; 3]> = capsules.iter().map(|c| [c.b.x, c.b.y, c.b.z]).collect();
+        rerun::Capsules3D::from_endpoints_and_radii(starts, ends, capsules.iter().map(|c| c.radius))
+            .with_colors([rerun::Color::from_rgb(colour[0], colour[1], colour[2])])
+    }
+}
