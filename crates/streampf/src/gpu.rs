@@ -1,7 +1,7 @@
 //! Opening the GPU for the trackers' `--backend` options.
 
 use anyhow::Context;
-use pf_gpu::{ContextOptions, GpuContext};
+use pf_gpu::{ContextOptions, GpuContext, GpuError};
 
 fn options(allow_software: bool) -> ContextOptions {
     ContextOptions {
@@ -10,20 +10,45 @@ fn options(allow_software: bool) -> ContextOptions {
     }
 }
 
+/// The library's error in the command line's words: a software adapter is taken with
+/// `--allow-software`.
+fn in_cli_words(err: GpuError) -> anyhow::Error {
+    match err {
+        GpuError::OnlySoftwareAdapters { names } => anyhow::anyhow!(
+            "only software adapters were found ({names}): they are far too slow to track with; \
+             add --allow-software to use one anyway"
+        ),
+        other => other.into(),
+    }
+}
+
 /// `--backend gpu`: the GPU, or an error that says how to find one.
 pub fn required(allow_software: bool) -> anyhow::Result<GpuContext> {
-    GpuContext::new(&options(allow_software)).context("opening the GPU (see `streampf devices`)")
+    GpuContext::new(&options(allow_software))
+        .map_err(in_cli_words)
+        .context("opening the GPU (see `streampf devices`)")
 }
 
 /// `--backend all-gpus`: every adapter.
 pub fn all(allow_software: bool) -> anyhow::Result<Vec<GpuContext>> {
-    GpuContext::all(&options(allow_software)).context("opening the GPUs (see `streampf devices`)")
+    GpuContext::all(&options(allow_software))
+        .map_err(in_cli_words)
+        .context("opening the GPUs (see `streampf devices`)")
 }
 
 /// `--backend auto`: the GPU when there is one, else `None` (the CPU), said unless `quiet`.
 pub fn preferred(allow_software: bool, quiet: bool) -> Option<GpuContext> {
     match GpuContext::new(&options(allow_software)) {
         Ok(ctx) => Some(ctx),
+        Err(GpuError::OnlySoftwareAdapters { names }) => {
+            if !quiet {
+                eprintln!(
+                    "no hardware GPU, only software adapters ({names}); tracking on the CPU \
+                     (--backend gpu --allow-software tracks on a software adapter)"
+                );
+            }
+            None
+        }
         Err(err) => {
             if !quiet {
                 eprintln!("no hardware GPU ({err}); tracking on the CPU");

@@ -340,3 +340,49 @@ fn track_with_user_face_maps() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// On a machine whose only adapters are software ones (Mesa's lavapipe, as in CI), the trackers
+/// say in the command line's words how to use one anyway; with a hardware GPU the same runs
+/// track on it.
+#[test]
+fn software_only_adapters_are_explained_in_the_command_lines_words() {
+    let devices = ok(&streampf(&["devices"]));
+    let software_only = devices.contains("only software adapters");
+    let out = scratch("software-note");
+    let o = out.to_str().unwrap();
+    let run = |backend: &str| {
+        streampf(&[
+            "face",
+            "track",
+            "--synthetic",
+            "--faces",
+            "1",
+            "--frames",
+            "1",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--backend",
+            backend,
+            "--out",
+            o,
+        ])
+    };
+    let gpu = run("gpu");
+    let auto = run("auto");
+    if software_only {
+        let err = failure(&gpu);
+        assert!(err.contains("add --allow-software"), "{err}");
+        assert!(!err.contains("ContextOptions"), "{err}");
+        let note = String::from_utf8_lossy(&auto.stderr);
+        assert!(auto.status.success(), "{note}");
+        assert!(
+            note.contains("tracking on the CPU") && note.contains("--backend gpu --allow-software"),
+            "{note}"
+        );
+    } else {
+        ok(&gpu);
+        assert!(ok(&auto).contains("tracked 1 face"));
+    }
+}
