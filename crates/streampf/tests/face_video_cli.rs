@@ -428,3 +428,66 @@ fn landmarks_out_writes_each_tracked_faces_68_landmarks_every_frame() {
     );
     std::fs::remove_dir_all(&data).unwrap();
 }
+
+#[test]
+fn a_colour_video_is_drawn_in_colour_and_tracked_as_without_the_overlay() {
+    if opted_out("the overlay of a colour video") {
+        return;
+    }
+    let data = scratch("colour-video");
+    let d = data.to_str().unwrap();
+    ok(&streampf(&[
+        "face", "synth", "--out", d, "--frames", "6", "--faces", "1", "--width", "320", "--height",
+        "240",
+    ]));
+    // A blue tint: FFmpeg's gray of it is what the tracker reads, with or without the overlay.
+    let video = data.join("blue.mp4");
+    let pattern = data.join("frame_%05d.png");
+    ffmpeg(&[
+        "-framerate",
+        "25",
+        "-i",
+        pattern.to_str().unwrap(),
+        "-vf",
+        "colorchannelmixer=rr=0.5:gg=0.7:bb=1.0",
+        "-c:v",
+        "libx264",
+        "-pix_fmt",
+        "yuv420p",
+        video.to_str().unwrap(),
+    ]);
+    let rects = std::fs::read_to_string(data.join("faces.csv")).unwrap();
+    let rect = rects.lines().nth(1).unwrap().to_string();
+    let track = |out: &str, extra: &[&str]| {
+        let out = data.join(out);
+        let mut args = vec![
+            "face",
+            "track",
+            video.to_str().unwrap(),
+            "--face",
+            &rect,
+            "--generic-model",
+            "--particles",
+            "100",
+            "--backend",
+            "cpu",
+            "--quiet",
+            "--out",
+        ];
+        args.push(out.to_str().unwrap());
+        args.extend_from_slice(extra);
+        ok(&streampf(&args));
+        std::fs::read_to_string(out.join("states.csv")).unwrap()
+    };
+    let drawn = data.join("drawn");
+    let with = track("with", &["--overlay", drawn.to_str().unwrap()]);
+    let without = track("without", &[]);
+    assert_eq!(with, without, "the overlay changed the tracking");
+    let frame = image::open(drawn.join("overlay_00005.png"))
+        .unwrap()
+        .to_rgb8();
+    // The background keeps the video's blue.
+    let corner = frame.get_pixel(310, 230).0;
+    assert!(corner[2] > corner[0] + 15, "{corner:?}");
+    std::fs::remove_dir_all(&data).unwrap();
+}
