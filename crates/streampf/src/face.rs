@@ -34,7 +34,7 @@ use std::sync::Arc;
 use crate::annotated::Annotated;
 use crate::face_io::{FrameRead, ReadAhead, Source};
 use crate::face_overlay::{ColourFrames, FaceOverlay};
-use crate::recording::{FaceClouds, Recording};
+use crate::recording::{FaceClouds, FaceFrame, Recording};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
 
 #[derive(Debug, Subcommand)]
@@ -431,15 +431,15 @@ fn record_face_frame(
             Some((e.track, translation, rotation))
         })
         .collect();
-    recording.face_frame(
+    recording.face_frame(FaceFrame {
         frame,
         seconds,
         image,
-        &tracker.templates(),
+        templates: &tracker.templates(),
         estimates,
-        Some(clouds),
-        &errors,
-    )
+        clouds: Some(clouds),
+        errors: &errors,
+    })
 }
 
 /// A frame's estimates and the detections that started or restarted tracks before it.

@@ -27,6 +27,20 @@ pub struct FaceClouds<'a> {
     pub particles: usize,
 }
 
+/// What a face frame shows.
+#[cfg_attr(not(feature = "rerun"), allow(dead_code))]
+pub struct FaceFrame<'a> {
+    pub frame: usize,
+    /// The frame's time, seconds.
+    pub seconds: f64,
+    pub image: &'a GrayImage,
+    pub templates: &'a [(usize, &'a Template)],
+    pub estimates: &'a [FaceEstimate],
+    pub clouds: Option<FaceClouds<'a>>,
+    /// (track, translation error in pixels, rotation error in degrees) against the truth.
+    pub errors: &'a [(usize, f32, f32)],
+}
+
 /// What a body frame shows.
 #[cfg_attr(not(feature = "rerun"), allow(dead_code))]
 pub struct BodyFrame<'a> {
@@ -62,16 +76,7 @@ mod disabled {
             )
         }
 
-        pub fn face_frame(
-            &self,
-            _frame: usize,
-            _seconds: f64,
-            _image: &GrayImage,
-            _templates: &[(usize, &Template)],
-            _estimates: &[FaceEstimate],
-            _clouds: Option<FaceClouds<'_>>,
-            _errors: &[(usize, f32, f32)],
-        ) -> anyhow::Result<()> {
+        pub fn face_frame(&self, _frame: FaceFrame<'_>) -> anyhow::Result<()> {
             match self.0 {}
         }
 
@@ -125,18 +130,17 @@ mod enabled {
         }
 
         /// One face frame: the frame, each running track's points, axes, box and particles,
-        /// the time series; `errors`: (track, translation px, rotation °) against the truth.
-        #[allow(clippy::too_many_arguments)]
-        pub fn face_frame(
-            &self,
-            frame: usize,
-            seconds: f64,
-            image: &GrayImage,
-            templates: &[(usize, &Template)],
-            estimates: &[FaceEstimate],
-            clouds: Option<FaceClouds<'_>>,
-            errors: &[(usize, f32, f32)],
-        ) -> anyhow::Result<()> {
+        /// the time series.
+        pub fn face_frame(&self, f: FaceFrame<'_>) -> anyhow::Result<()> {
+            let FaceFrame {
+                frame,
+                seconds,
+                image,
+                templates,
+                estimates,
+                clouds,
+                errors,
+            } = f;
             self.at(frame, seconds);
             self.stream.log(
                 "video/frame",

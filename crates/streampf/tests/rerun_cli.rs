@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{ok, scratch, streampf};
+use common::{scratch, streampf};
 
 #[cfg(not(feature = "rerun"))]
 #[test]
@@ -27,6 +27,7 @@ fn without_the_feature_rerun_is_a_clear_error_before_any_work() {
 #[cfg(feature = "rerun")]
 mod recording {
     use super::*;
+    use common::ok;
     use serde_json::Value;
     use std::path::Path;
 
