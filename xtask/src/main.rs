@@ -155,8 +155,10 @@ fn test(args: &[String]) -> anyhow::Result<()> {
     run(&mut cargo, "cargo test")?;
     // Doc tests are not part of --all-targets.
     let mut doc = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    // With the same features as above, so that it reuses that build instead of another.
     doc.current_dir(workspace_root())
-        .args(["test", "--workspace", "--doc"]);
+        .args(["test", "--workspace", "--doc"])
+        .args(["--features", "streampf/rerun"]);
     run(&mut doc, "cargo test --doc")
 }
 
