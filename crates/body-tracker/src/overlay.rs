@@ -75,7 +75,7 @@ impl ImageCapsule {
 /// near white, far dark gray), the rest black.
 pub fn depth_view(camera: &Intrinsics, points: &[Vector3<f32>]) -> RgbImage {
     let (width, height) = (camera.width, camera.height);
-    let mut nearest = vec![f32::INFINITY; (width * height) as usize];
+    let mut nearest = vec![f32::INFINITY; width as usize * height as usize];
     for p in points {
         if let Some((u, v)) = camera.project(p) {
             let (u, v) = (u.round(), v.round());
@@ -160,7 +160,7 @@ pub fn overlay(
 
 /// Which pixels lie inside any of the capsules (row-major, `width × height`), rows in parallel.
 fn silhouette(capsules: &[ImageCapsule], width: u32, height: u32) -> Vec<bool> {
-    let mut mask = vec![false; (width * height) as usize];
+    let mut mask = vec![false; width as usize * height as usize];
     let boxes: Vec<_> = capsules
         .iter()
         .filter_map(|c| Some((c, c.bounds(width, height)?)))

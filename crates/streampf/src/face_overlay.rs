@@ -155,22 +155,28 @@ fn line(picture: &mut RgbImage, a: (f32, f32), b: (f32, f32), colour: [u8; 3]) {
     }
 }
 
-/// A rectangle two pixels thick; `dashed`: 6 pixels on, 4 off.
+/// A rectangle two pixels thick; `dashed`: 6 pixels on, 4 off. Only the part inside the picture
+/// is walked, so a rectangle of a diverged estimate costs no more than one that fits.
 fn rectangle(picture: &mut RgbImage, rect: &FaceRect, colour: [u8; 3], dashed: bool) {
     let (x0, y0) = (rect.x, rect.y);
     let (x1, y1) = (rect.x + rect.width, rect.y + rect.height);
+    if !(x0.is_finite() && y0.is_finite() && x1.is_finite() && y1.is_finite()) {
+        return;
+    }
     let on = |k: f32| !dashed || (k as u32 % 10) < 6;
+    let (width, height) = (picture.width() as f32, picture.height() as f32);
     for inset in [0.0, 1.0] {
-        let mut x = x0;
-        while x <= x1 {
+        // Whole steps past the left edge, so that the dashes keep their phase.
+        let mut x = x0 + (-x0).max(0.0).floor();
+        while x <= x1.min(width) {
             if on(x - x0) {
                 put(picture, x, y0 + inset, colour);
                 put(picture, x, y1 - inset, colour);
             }
             x += 1.0;
         }
-        let mut y = y0;
-        while y <= y1 {
+        let mut y = y0 + (-y0).max(0.0).floor();
+        while y <= y1.min(height) {
             if on(y - y0) {
                 put(picture, x0 + inset, y, colour);
                 put(picture, x1 - inset, y, colour);
@@ -191,15 +197,15 @@ pub fn text(picture: &mut RgbImage, x: f32, y: f32, label: &str, colour: [u8; 3]
             .get(c)
             .or_else(|| font8x8::BASIC_FONTS.get('?'))
             .unwrap_or([0; 8]);
-        let left = x + k as u32 * advance;
+        let left = x.saturating_add((k as u32).saturating_mul(advance));
         for (row, bits) in glyph.iter().enumerate() {
             for column in 0..8u32 {
                 let ink = bits >> column & 1 == 1;
                 for dy in 0..TEXT_SCALE {
                     for dx in 0..TEXT_SCALE {
                         let (px, py) = (
-                            left + column * TEXT_SCALE + dx,
-                            y + row as u32 * TEXT_SCALE + dy,
+                            left.saturating_add(column * TEXT_SCALE + dx),
+                            y.saturating_add(row as u32 * TEXT_SCALE + dy),
                         );
                         if px < picture.width() && py < picture.height() {
                             let shade = if ink { colour } else { [0, 0, 0] };
@@ -397,5 +403,29 @@ mod tests {
         assert!(count(&picture, [0, 0, 0]) > 0);
         // Left of the label nothing changed.
         assert!((0..30).all(|x| picture.get_pixel(x, 15).0 == [90, 90, 90]));
+    }
+}
+
+#[cfg(test)]
+mod far_off_marks {
+    use super::*;
+
+    #[test]
+    fn marks_far_outside_the_picture_are_clipped_not_walked() {
+        let blank = RgbImage::from_pixel(64, 48, Rgb([90, 90, 90]));
+        let far = FaceRect {
+            x: -1.0e9,
+            y: 3.0e9,
+            width: 4.0e9,
+            height: 4.0e9,
+        };
+        let marks = Marks {
+            detections: vec![(usize::MAX, far, false)],
+            lost: vec![(1, far, 0)],
+        };
+        // Returns (quickly) with the out-of-picture marks drawn nowhere.
+        let drawn = draw_faces(blank, 1, &[], &[], &marks);
+        assert_eq!(drawn.get_pixel(40, 30).0, [90, 90, 90]);
+        assert!(!drawn.pixels().any(|p| p.0 == LOST));
     }
 }
