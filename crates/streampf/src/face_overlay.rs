@@ -104,29 +104,18 @@ pub fn draw_faces(
 /// One track: its visible template points posed by the estimate, the head's axes, its label.
 fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template) {
     let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
-    let pose = Pose::new(&e.state);
-    for q in &template.points {
-        if pose.faces_camera(&Vector3::from(q.normal)) {
-            let p = pose.project(&Vector3::from(q.position));
-            for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
-                put(picture, p.x + dx, p.y + dy, colour);
-            }
+    for (x, y) in posed_points(e, template) {
+        for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
+            put(picture, x + dx, y + dy, colour);
         }
     }
-    // Axes half the face's width long (at S = 1).
-    let length = 0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
-    let origin = pose.project(&Vector3::zeros());
-    for (axis, c) in [
-        (Vector3::x(), [255, 0, 0]),
-        (Vector3::y(), [0, 255, 0]),
-        (Vector3::z(), [0, 0, 255]),
-    ] {
-        let end = pose.project(&(axis * length));
+    let (origin, ends) = head_axes(e);
+    for (end, c) in ends.into_iter().zip(AXIS_COLOURS) {
         for offset in [-0.5f32, 0.0, 0.5] {
             line(
                 picture,
-                (origin.x + offset, origin.y + offset),
-                (end.x + offset, end.y + offset),
+                (origin.0 + offset, origin.1 + offset),
+                (end.0 + offset, end.1 + offset),
                 c,
             );
         }
@@ -134,6 +123,34 @@ fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template) {
     let label = format!("#{} {:.2}", e.track, e.confidence);
     let above = e.rect.y - (8 * TEXT_SCALE) as f32 - 4.0;
     text(picture, e.rect.x, above.max(0.0), &label, colour);
+}
+
+/// The head's axes' colours: x red, y green, z blue.
+pub const AXIS_COLOURS: [[u8; 3]; 3] = [[255, 0, 0], [0, 255, 0], [0, 0, 255]];
+
+/// A track's template points that face the camera, posed by its estimate, in pixels.
+pub fn posed_points(e: &FaceEstimate, template: &Template) -> Vec<(f32, f32)> {
+    let pose = Pose::new(&e.state);
+    (template.points.iter())
+        .filter(|q| pose.faces_camera(&Vector3::from(q.normal)))
+        .map(|q| {
+            let p = pose.project(&Vector3::from(q.position));
+            (p.x, p.y)
+        })
+        .collect()
+}
+
+/// The head's origin and the ends of its x, y and z axes in pixels, each axis half the face's
+/// width long (at S = 1).
+pub fn head_axes(e: &FaceEstimate) -> ((f32, f32), [(f32, f32); 3]) {
+    let pose = Pose::new(&e.state);
+    let length = 0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
+    let origin = pose.project(&Vector3::zeros());
+    let ends = [Vector3::x(), Vector3::y(), Vector3::z()].map(|axis| {
+        let end = pose.project(&(axis * length));
+        (end.x, end.y)
+    });
+    ((origin.x, origin.y), ends)
 }
 
 fn put(picture: &mut RgbImage, x: f32, y: f32, colour: [u8; 3]) {

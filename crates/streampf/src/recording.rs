@@ -98,10 +98,10 @@ mod disabled {
 mod enabled {
     use super::*;
     use anyhow::Context;
-    use face_tracker::{Pose, TrackStatus};
+    use face_tracker::TrackStatus;
 
-    /// The tracks' colours, as the overlay draws them.
-    use crate::face_overlay::TRACK_COLOURS;
+    /// The tracks' colours, points and axes, as the overlay draws them.
+    use crate::face_overlay::{AXIS_COLOURS, TRACK_COLOURS, head_axes, posed_points};
 
     pub struct Recording {
         stream: rerun::RecordingStream,
@@ -154,14 +154,9 @@ mod enabled {
                 }
                 let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
                 let colour = rerun::Color::from_rgb(colour[0], colour[1], colour[2]);
-                let pose = Pose::new(&e.state);
                 if let Some((_, template)) = templates.iter().find(|(t, _)| *t == e.track) {
-                    let visible: Vec<[f32; 2]> = (template.points.iter())
-                        .filter(|q| pose.faces_camera(&Vector3::from(q.normal)))
-                        .map(|q| {
-                            let p = pose.project(&Vector3::from(q.position));
-                            [p.x, p.y]
-                        })
+                    let visible: Vec<[f32; 2]> = (posed_points(e, template).into_iter())
+                        .map(|(x, y)| [x, y])
                         .collect();
                     self.stream.log(
                         format!("{base}/points"),
@@ -170,23 +165,15 @@ mod enabled {
                             .with_radii([1.0]),
                     )?;
                 }
-                let length =
-                    0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
-                let origin = pose.project(&Vector3::zeros());
-                let strips: Vec<Vec<[f32; 2]>> = [Vector3::x(), Vector3::y(), Vector3::z()]
+                let (origin, ends) = head_axes(e);
+                let strips: Vec<Vec<[f32; 2]>> = ends
                     .iter()
-                    .map(|axis| {
-                        let end = pose.project(&(axis * length));
-                        vec![[origin.x, origin.y], [end.x, end.y]]
-                    })
+                    .map(|end| vec![[origin.0, origin.1], [end.0, end.1]])
                     .collect();
+                let axis_colours = AXIS_COLOURS.map(|[r, g, b]| rerun::Color::from_rgb(r, g, b));
                 self.stream.log(
                     format!("{base}/axes"),
-                    &rerun::LineStrips2D::new(strips).with_colors([
-                        rerun::Color::from_rgb(255, 0, 0),
-                        rerun::Color::from_rgb(0, 255, 0),
-                        rerun::Color::from_rgb(0, 0, 255),
-                    ]),
+                    &rerun::LineStrips2D::new(strips).with_colors(axis_colours),
                 )?;
                 self.stream.log(
                     format!("{base}/box"),
