@@ -13,10 +13,28 @@ use anyhow::{Context, bail};
 pub const INTERRUPTED_EXIT: i32 = 130;
 
 static STOP_REQUESTED: AtomicBool = AtomicBool::new(false);
+/// Set once a run is started by an embedding program (`crate::run_embedded`).
+static EMBEDDED: AtomicBool = AtomicBool::new(false);
+
+/// Marks the process as an embedding program's and clears an earlier run's stop request.
+pub fn start_embedded_run() {
+    EMBEDDED.store(true, Ordering::SeqCst);
+    STOP_REQUESTED.store(false, Ordering::SeqCst);
+}
+
+/// Asks the run to stop after its current frame, as a first Ctrl-C does.
+pub fn request_stop() {
+    STOP_REQUESTED.store(true, Ordering::SeqCst);
+}
 
 /// Installs the handler: the first Ctrl-C or SIGTERM asks the run to stop after the current frame
 /// (it then closes its files and says how many frames it wrote); a second stops at once.
+/// Inside an embedding program ([`start_embedded_run`]) it installs nothing: that program keeps
+/// its own signal handling and calls [`request_stop`].
 pub fn install_interrupt_handler() -> anyhow::Result<()> {
+    if EMBEDDED.load(Ordering::SeqCst) {
+        return Ok(());
+    }
     ctrlc::set_handler(|| {
         if STOP_REQUESTED.swap(true, Ordering::SeqCst) {
             eprintln!("\nstopped at once (second interrupt)");

@@ -182,8 +182,44 @@ fn has_function(module: &naga::Module, name: &str) -> bool {
         .any(|(_, f)| f.name.as_deref() == Some(name))
 }
 
-/// Checks that the WGSL struct `name` has the layout of the Rust type (size and array stride).
-fn check_layout<T>(module: &naga::Module, model: &str, name: &str) -> Result<(), GpuError> {
+/// What the host side of a struct is: its size in bytes and how to name it in an error.
+#[derive(Debug, Clone)]
+struct HostLayout {
+    bytes: usize,
+    /// "in Rust (my_crate::Ranges); make the Rust type ..." or "as given (3 float32 values)".
+    described: String,
+}
+
+impl HostLayout {
+    fn of<T>() -> Self {
+        Self {
+            bytes: std::mem::size_of::<T>(),
+            described: format!(
+                "in Rust ({}); make the Rust type #[repr(C)] with the same fields, padded to the \
+                 stride",
+                std::any::type_name::<T>()
+            ),
+        }
+    }
+
+    fn float32_values(values: usize) -> Self {
+        Self {
+            bytes: values * 4,
+            described: format!(
+                "as given ({values} float32 values); give as many 32-bit values as the WGSL \
+                 struct holds, its padding included"
+            ),
+        }
+    }
+}
+
+/// Checks that the WGSL struct `name` has the host's layout (size and array stride).
+fn check_layout(
+    module: &naga::Module,
+    model: &str,
+    name: &str,
+    host: &HostLayout,
+) -> Result<(), GpuError> {
     let handle = find_type(module, name).ok_or_else(|| {
         GpuError::InvalidConfig(format!(
             "model {model}: the WGSL must declare `struct {name}`"
@@ -194,15 +230,13 @@ fn check_layout<T>(module: &naga::Module, model: &str, name: &str) -> Result<(),
         .update(module.to_ctx())
         .map_err(|e| shader_error(model, format!("laying out {name}: {e}")))?;
     let layout = layouter[handle];
-    let rust = std::mem::size_of::<T>();
-    if layout.size as usize != rust || layout.to_stride() as usize != rust {
+    if layout.size as usize != host.bytes || layout.to_stride() as usize != host.bytes {
         return Err(GpuError::InvalidConfig(format!(
-            "model {model}: struct {name} is {} bytes in WGSL (array stride {}) but {rust} bytes \
-             in Rust ({}); make the Rust type #[repr(C)] with the same fields, padded to the \
-             stride",
+            "model {model}: struct {name} is {} bytes in WGSL (array stride {}) but {} bytes {}",
             layout.size,
             layout.to_stride(),
-            std::any::type_name::<T>()
+            host.bytes,
+            host.described
         )));
     }
     Ok(())
@@ -214,30 +248,51 @@ struct Bound {
     groups: [u32; 3],
 }
 
-/// A model given as WGSL, with its observations `O` (one per target) and constants `C` on the
-/// device. Implements [`GpuLikelihood`]; [`ModelFilter`] owns one with its filter.
-pub struct WgslModel<O: Pod, C: Pod> {
+/// A model given as WGSL whose `Observation` and `Constants` sizes are known only at run time
+/// (raw bytes on the host: a binding from another language, numpy arrays). [`WgslModel`] is the
+/// typed form; both compile, check and run the same way.
+pub struct RawWgslModel {
     name: String,
     source: String,
     targets: usize,
     dims: usize,
+    observation_bytes: usize,
+    constant_bytes: usize,
     measure: Kernel,
     propagate: Option<Kernel>,
-    observations: DeviceStream<O>,
-    constants: DeviceStream<C>,
+    observations: DeviceStream<u32>,
+    constants: DeviceStream<u32>,
     bound: Option<Bound>,
-    _types: PhantomData<(O, C)>,
 }
 
-impl<O: Pod, C: Pod> WgslModel<O, C> {
-    /// Compiles the model for `shape` (T targets × M particles × D dimensions). Errors: WGSL that
-    /// does not compile (with the user's line), a missing `log_likelihood` or struct, and
-    /// `Observation` or `Constants` whose WGSL layout differs from `O` or `C`.
+impl RawWgslModel {
+    /// Compiles a model whose `Observation` is `observation_values` and whose `Constants` are
+    /// `constants.len()` 32-bit values (f32 here; reinterpret other 32-bit types on the WGSL
+    /// side with `bitcast`). The errors of [`WgslModel::new`].
     pub fn new(
         ctx: &GpuContext,
         model: ModelSource<'_>,
         shape: &BatchShape,
-        constants: &C,
+        observation_values: usize,
+        constants: &[f32],
+    ) -> Result<Self, GpuError> {
+        Self::compile_with(
+            ctx,
+            model,
+            shape,
+            HostLayout::float32_values(observation_values),
+            HostLayout::float32_values(constants.len()),
+            bytemuck::cast_slice(constants),
+        )
+    }
+
+    fn compile_with(
+        ctx: &GpuContext,
+        model: ModelSource<'_>,
+        shape: &BatchShape,
+        observation: HostLayout,
+        constant: HostLayout,
+        constant_bytes: &[u8],
     ) -> Result<Self, GpuError> {
         let name = model.name;
         let user_lines = model.wgsl.lines().count();
@@ -258,8 +313,8 @@ impl<O: Pod, C: Pod> WgslModel<O, C> {
                  c: Constants) -> f32"
             )));
         }
-        check_layout::<O>(&module, name, "Observation")?;
-        check_layout::<C>(&module, name, "Constants")?;
+        check_layout(&module, name, "Observation", &observation)?;
+        check_layout(&module, name, "Constants", &constant)?;
         let propagates = has_function(&module, "propagate");
         let source = generate(model.wgsl, shape.dims, propagates);
         compile(name, &source, user_lines)?;
@@ -274,43 +329,68 @@ impl<O: Pod, C: Pod> WgslModel<O, C> {
         } else {
             None
         };
-        Ok(Self {
+        // WGSL structs are whole 32-bit words, which the layout checks above made the host's.
+        let words = |bytes: usize| bytes / 4;
+        let model = Self {
             name: name.to_string(),
             source,
             targets: shape.targets,
             dims: shape.dims,
+            observation_bytes: observation.bytes,
+            constant_bytes: constant.bytes,
             measure,
             propagate,
             observations: DeviceStream::zeroed(
                 ctx,
                 &format!("{name} observations"),
-                shape.targets,
+                shape.targets * words(observation.bytes),
             )?,
-            constants: DeviceStream::from_slice(
+            constants: DeviceStream::zeroed(
                 ctx,
                 &format!("{name} constants"),
-                std::slice::from_ref(constants),
+                words(constant.bytes),
             )?,
             bound: None,
-            _types: PhantomData,
-        })
+        };
+        model.set_constant_bytes(ctx, constant_bytes)?;
+        Ok(model)
     }
 
-    /// This frame's observations, one per target; they land before the next submission.
-    pub fn set_observations(&self, ctx: &GpuContext, observations: &[O]) -> Result<(), GpuError> {
-        if observations.len() != self.targets {
+    /// This frame's observations: one `Observation` per target, `[t·K + k]` for K values each;
+    /// they land before the next submission.
+    pub fn set_observations(&self, ctx: &GpuContext, observations: &[f32]) -> Result<(), GpuError> {
+        self.set_observation_bytes(ctx, bytemuck::cast_slice(observations))
+    }
+
+    /// Replaces the constants (as many values as the model was built with).
+    pub fn set_constants(&self, ctx: &GpuContext, constants: &[f32]) -> Result<(), GpuError> {
+        self.set_constant_bytes(ctx, bytemuck::cast_slice(constants))
+    }
+
+    fn set_observation_bytes(&self, ctx: &GpuContext, bytes: &[u8]) -> Result<(), GpuError> {
+        let expected = self.targets * self.observation_bytes;
+        if bytes.len() != expected {
             return Err(GpuError::LengthMismatch {
-                what: format!("{} observations (one per target)", self.name),
-                expected: self.targets,
-                got: observations.len(),
+                what: format!(
+                    "{} observations (one per target, {} bytes each)",
+                    self.name, self.observation_bytes
+                ),
+                expected,
+                got: bytes.len(),
             });
         }
-        self.observations.upload(ctx, observations)
+        self.observations.upload_bytes_at(ctx, 0, bytes)
     }
 
-    /// Replaces the constants; they land before the next submission.
-    pub fn set_constants(&self, ctx: &GpuContext, constants: &C) -> Result<(), GpuError> {
-        self.constants.upload(ctx, std::slice::from_ref(constants))
+    fn set_constant_bytes(&self, ctx: &GpuContext, bytes: &[u8]) -> Result<(), GpuError> {
+        if bytes.len() != self.constant_bytes {
+            return Err(GpuError::LengthMismatch {
+                what: format!("{} constants (bytes)", self.name),
+                expected: self.constant_bytes,
+                got: bytes.len(),
+            });
+        }
+        self.constants.upload_bytes_at(ctx, 0, bytes)
     }
 
     /// Whether the WGSL defines `propagate` (else the filter's Gaussian random walk runs).
@@ -324,7 +404,86 @@ impl<O: Pod, C: Pod> WgslModel<O, C> {
     }
 }
 
+/// A model given as WGSL, with its observations `O` (one per target) and constants `C` on the
+/// device. Implements [`GpuLikelihood`]; [`ModelFilter`] owns one with its filter.
+pub struct WgslModel<O: Pod, C: Pod> {
+    raw: RawWgslModel,
+    _types: PhantomData<(O, C)>,
+}
+
+impl<O: Pod, C: Pod> WgslModel<O, C> {
+    /// Compiles the model for `shape` (T targets × M particles × D dimensions). Errors: WGSL that
+    /// does not compile (with the user's line), a missing `log_likelihood` or struct, and
+    /// `Observation` or `Constants` whose WGSL layout differs from `O` or `C`.
+    pub fn new(
+        ctx: &GpuContext,
+        model: ModelSource<'_>,
+        shape: &BatchShape,
+        constants: &C,
+    ) -> Result<Self, GpuError> {
+        let raw = RawWgslModel::compile_with(
+            ctx,
+            model,
+            shape,
+            HostLayout::of::<O>(),
+            HostLayout::of::<C>(),
+            bytemuck::bytes_of(constants),
+        )?;
+        Ok(Self {
+            raw,
+            _types: PhantomData,
+        })
+    }
+
+    /// This frame's observations, one per target; they land before the next submission.
+    pub fn set_observations(&self, ctx: &GpuContext, observations: &[O]) -> Result<(), GpuError> {
+        if observations.len() != self.raw.targets {
+            return Err(GpuError::LengthMismatch {
+                what: format!("{} observations (one per target)", self.raw.name),
+                expected: self.raw.targets,
+                got: observations.len(),
+            });
+        }
+        self.raw
+            .set_observation_bytes(ctx, bytemuck::cast_slice(observations))
+    }
+
+    /// Replaces the constants; they land before the next submission.
+    pub fn set_constants(&self, ctx: &GpuContext, constants: &C) -> Result<(), GpuError> {
+        self.raw
+            .set_constant_bytes(ctx, bytemuck::bytes_of(constants))
+    }
+
+    /// Whether the WGSL defines `propagate` (else the filter's Gaussian random walk runs).
+    pub fn propagates(&self) -> bool {
+        self.raw.propagates()
+    }
+
+    /// The generated WGSL, for reading and debugging.
+    pub fn generated_source(&self) -> &str {
+        self.raw.generated_source()
+    }
+}
+
 impl<O: Pod, C: Pod> GpuLikelihood for WgslModel<O, C> {
+    fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError> {
+        self.raw.prepare(ctx, inputs)
+    }
+
+    fn is_prepared(&self) -> bool {
+        self.raw.is_prepared()
+    }
+
+    fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
+        self.raw.record(phase, pass)
+    }
+
+    fn propagates(&self) -> bool {
+        self.raw.propagates()
+    }
+}
+
+impl GpuLikelihood for RawWgslModel {
     fn prepare(&mut self, ctx: &GpuContext, inputs: &LikelihoodInputs<'_>) -> Result<(), GpuError> {
         if inputs.shape.targets != self.targets || inputs.shape.dims != self.dims {
             return Err(GpuError::InvalidConfig(format!(
@@ -436,6 +595,52 @@ impl<O: Pod, C: Pod> ModelFilter<O, C> {
 
     /// The model (observations, constants, generated source).
     pub fn model(&self) -> &WgslModel<O, C> {
+        &self.model
+    }
+}
+
+/// [`ModelFilter`] for a [`RawWgslModel`]: observations and constants as f32 values.
+pub struct RawModelFilter {
+    filter: GpuFilter,
+    model: RawWgslModel,
+}
+
+impl RawModelFilter {
+    /// `initial_states` in the batch layout (`[(t·D + d)·M + m]`); `observation_values` 32-bit
+    /// values make one target's `Observation`.
+    pub fn new(
+        ctx: &GpuContext,
+        config: &BatchConfig,
+        resampler: GpuResampler,
+        initial_states: &[f32],
+        model: ModelSource<'_>,
+        observation_values: usize,
+        constants: &[f32],
+    ) -> Result<Self, GpuError> {
+        let filter = GpuFilter::new(ctx, config, resampler, initial_states)?;
+        let mut model =
+            RawWgslModel::new(ctx, model, &config.shape, observation_values, constants)?;
+        model.prepare(ctx, &filter.likelihood_inputs())?;
+        Ok(Self { filter, model })
+    }
+
+    /// One frame against `observations` (`[t·K + k]`), one submission.
+    pub fn step(
+        &mut self,
+        ctx: &GpuContext,
+        observations: &[f32],
+    ) -> Result<GpuStepReport, GpuError> {
+        self.model.set_observations(ctx, observations)?;
+        self.filter.step(ctx, &self.model)
+    }
+
+    /// The filter (states, weights, downloads).
+    pub fn filter(&self) -> &GpuFilter {
+        &self.filter
+    }
+
+    /// The model (constants, generated source).
+    pub fn model(&self) -> &RawWgslModel {
         &self.model
     }
 }

@@ -1,0 +1,383 @@
+//! `streampf.FaceTracker`: the face tracker on numpy frames, with or without the detector.
+
+use std::sync::Mutex;
+
+use face_tracker::detect::{Cascade, DetectConfig};
+use face_tracker::extraction::FaceRect;
+use face_tracker::model::FaceModel;
+use face_tracker::projection::{pitch_yaw_roll_degrees, rotation_quaternion};
+use face_tracker::{
+    AutoConfig, AutoTracker, DIMS, FaceEstimate, FaceTrackerConfig, GrayImage, TrackStatus,
+};
+use pf_core::anneal::Annealing;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+use crate::arrays::{ChannelOrder, gray_frame, to_numpy};
+use crate::backend::{Choice, face_backend, open};
+use crate::errors::{face, runtime_error, value_error};
+
+/// Debian's opencv-data puts OpenCV's cascades here (the command line's default too).
+const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
+
+/// The tracker behind the Python object: faces from the caller's rectangles only, or from the
+/// detector as well.
+enum Engine {
+    Fixed(Box<face_tracker::FaceTracker>),
+    Detecting(Box<AutoTracker>),
+}
+
+impl Engine {
+    fn tracker(&self) -> &face_tracker::FaceTracker {
+        match self {
+            Engine::Fixed(t) => t,
+            Engine::Detecting(a) => a.tracker(),
+        }
+    }
+}
+
+struct Inner {
+    engine: Engine,
+    /// Frames stepped.
+    frames: usize,
+}
+
+/// What a step found, as the Python dict's arrays are built from it.
+struct StepOut {
+    estimates: Vec<FaceEstimate>,
+    started: Vec<usize>,
+    restarted: Vec<usize>,
+}
+
+/// Tracks faces in frames given as numpy arrays (`uint8`, H×W gray or H×W×3 colour).
+#[pyclass(module = "streampf._streampf")]
+pub struct FaceTracker {
+    /// Locked only with the GIL released (a thread waiting for it must not hold the GIL that
+    /// the thread holding it needs to return).
+    inner: Mutex<Inner>,
+    /// The last frame's pixels, kept so that a frame's conversion does not allocate; locked
+    /// only with the GIL held, never across a release.
+    buffer: Mutex<Vec<u8>>,
+    size: (u32, u32),
+    order: ChannelOrder,
+    device: String,
+}
+
+fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTrackerConfig> {
+    if particles == 0 {
+        return Err(value_error("particles must be at least 1"));
+    }
+    let defaults = FaceTrackerConfig::default();
+    let annealing = match layers {
+        None => defaults.annealing.clone(),
+        Some(0) => return Err(value_error("layers must be at least 1")),
+        Some(1) => Annealing::none(),
+        Some(n) => Annealing {
+            layers: n,
+            ..defaults.annealing.clone()
+        },
+    };
+    Ok(FaceTrackerConfig {
+        particles,
+        best: (particles / 10).max(1),
+        seed,
+        annealing,
+        ..defaults
+    })
+}
+
+fn rect_from(rect: (f32, f32, f32, f32)) -> PyResult<FaceRect> {
+    let (x, y, width, height) = rect;
+    if ![x, y, width, height].iter().all(|v| v.is_finite()) || width <= 0.0 || height <= 0.0 {
+        return Err(value_error(format!(
+            "a face rectangle is (x, y, width, height) with finite values and a positive size, \
+             got {rect:?}"
+        )));
+    }
+    Ok(FaceRect {
+        x,
+        y,
+        width,
+        height,
+    })
+}
+
+#[pymethods]
+impl FaceTracker {
+    /// See the Python stub (`streampf/__init__.pyi`) for the arguments.
+    #[new]
+    #[pyo3(signature = (
+        width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
+        detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
+        layers = None, channel_order = "rgb"
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        width: u32,
+        height: u32,
+        max_faces: usize,
+        particles: usize,
+        detect: bool,
+        cascade: Option<std::path::PathBuf>,
+        detect_every: usize,
+        min_face: u32,
+        backend: &str,
+        allow_software: bool,
+        seed: u64,
+        layers: Option<usize>,
+        channel_order: &str,
+    ) -> PyResult<Self> {
+        if width < 16 || height < 16 {
+            return Err(value_error(format!(
+                "frames must be at least 16x16 pixels, got {width}x{height}"
+            )));
+        }
+        let order = ChannelOrder::parse(channel_order)?;
+        let choice = Choice::parse(backend)?;
+        let config = config(particles, seed, layers)?;
+        let cascade = match (detect, cascade) {
+            (false, None) => None,
+            (false, Some(_)) => {
+                return Err(value_error("cascade is given but detect is False"));
+            }
+            (true, path) => {
+                let path = path.unwrap_or_else(|| DEFAULT_CASCADE.into());
+                if !path.exists() {
+                    return Err(pyo3::exceptions::PyFileNotFoundError::new_err(format!(
+                        "the face detector's cascade {} is missing: install Debian's \
+                         opencv-data, pass cascade=PATH to an OpenCV Haar cascade XML, or \
+                         track from rectangles (detect=False, add_face)",
+                        path.display()
+                    )));
+                }
+                Some(Cascade::load(&path).map_err(face)?)
+            }
+        };
+        let contexts = open(py, choice, allow_software)?;
+        let backend = face_backend(contexts, choice);
+        let device = match &backend {
+            face_tracker::FaceBackend::Cpu => "CPU".to_string(),
+            face_tracker::FaceBackend::Gpu(ctx) => ctx.adapter().name.clone(),
+            face_tracker::FaceBackend::Gpus(all) => all
+                .iter()
+                .map(|c| c.adapter().name.clone())
+                .collect::<Vec<_>>()
+                .join(", "),
+        };
+        let size = (width, height);
+        let engine = py
+            .detach(|| -> Result<Engine, face_tracker::FaceError> {
+                let model = FaceModel::generic(129)?;
+                Ok(match cascade {
+                    None => Engine::Fixed(Box::new(face_tracker::FaceTracker::with_capacity(
+                        size, max_faces, &model, config, backend,
+                    )?)),
+                    Some(cascade) => {
+                        let auto = AutoConfig {
+                            detect_every,
+                            detect: DetectConfig {
+                                min_size: min_face,
+                                ..DetectConfig::default()
+                            },
+                            max_faces,
+                            // Frames from an array play as a file does: the detector's answer
+                            // is used before the next is due, so a run is repeatable.
+                            max_detection_lag: Some(1),
+                            tracker: config,
+                            ..AutoConfig::default()
+                        };
+                        Engine::Detecting(Box::new(AutoTracker::new(
+                            size, cascade, &model, auto, backend,
+                        )?))
+                    }
+                })
+            })
+            .map_err(face)?;
+        Ok(Self {
+            inner: Mutex::new(Inner { engine, frames: 0 }),
+            buffer: Mutex::new(Vec::new()),
+            size,
+            order,
+            device,
+        })
+    }
+
+    /// What the filters run on: "CPU" or the GPUs' names.
+    #[getter]
+    fn device(&self) -> &str {
+        &self.device
+    }
+
+    /// Frames stepped so far.
+    #[getter]
+    fn frames(&self, py: Python<'_>) -> PyResult<usize> {
+        py.detach(|| Ok(self.lock()?.frames))
+    }
+
+    /// Starts a track on the face in `rect` = (x, y, width, height) of `frame` (its template
+    /// is extracted there); returns the track's number. Call it before `step` on that frame.
+    fn add_face(
+        &self,
+        py: Python<'_>,
+        frame: &Bound<'_, PyAny>,
+        rect: (f32, f32, f32, f32),
+    ) -> PyResult<usize> {
+        let rect = rect_from(rect)?;
+        let image = gray_frame(frame, self.size, self.order, Vec::new())?;
+        py.detach(|| {
+            let mut inner = self.lock()?;
+            match &mut inner.engine {
+                Engine::Fixed(t) => t.add_face(&image, &rect),
+                Engine::Detecting(a) => a.add_face(&image, &rect),
+            }
+            .map_err(face)
+        })
+    }
+
+    /// Tracks one frame; returns a dict of numpy arrays, one row per track reported (see the
+    /// stub for the keys).
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        frame: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let buffer = std::mem::take(&mut *self.buffer.lock().unwrap_or_else(|e| e.into_inner()));
+        let image = gray_frame(frame, self.size, self.order, buffer)?;
+        let (out, image) = py.detach(|| {
+            let out = self.lock().and_then(|mut inner| {
+                let out = step_engine(&mut inner.engine, &image).map_err(face)?;
+                inner.frames += 1;
+                Ok(out)
+            });
+            (out, image)
+        });
+        *self.buffer.lock().unwrap_or_else(|e| e.into_inner()) = image.data;
+        step_dict(py, out?)
+    }
+
+    /// The particles after the last step: `(states, log_weights)` with shapes
+    /// (slots, particles, 7) and (slots, particles); a track's slot is the step's `slot`.
+    fn particles<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let (shape, states, log_weights) = py.detach(|| {
+            let inner = self.lock()?;
+            inner.engine.tracker().particles().map_err(face)
+        })?;
+        let (t, m, d) = (shape.targets, shape.particles, shape.dims);
+        // The batch layout is [(t·D + d)·M + m]: reorder to (t, m, d).
+        let mut ordered = vec![0.0f32; states.len()];
+        for target in 0..t {
+            for dim in 0..d {
+                for particle in 0..m {
+                    ordered[(target * m + particle) * d + dim] =
+                        states[(target * d + dim) * m + particle];
+                }
+            }
+        }
+        Ok((
+            to_numpy(py, ordered, &[t, m, d])?,
+            to_numpy(py, log_weights, &[t, m])?,
+        ))
+    }
+}
+
+impl FaceTracker {
+    fn lock(&self) -> PyResult<std::sync::MutexGuard<'_, Inner>> {
+        self.inner
+            .lock()
+            .map_err(|_| runtime_error("the tracker failed in another thread and cannot go on"))
+    }
+}
+
+fn step_engine(engine: &mut Engine, image: &GrayImage) -> Result<StepOut, face_tracker::FaceError> {
+    Ok(match engine {
+        Engine::Fixed(t) => StepOut {
+            estimates: t.step(image)?,
+            started: Vec::new(),
+            restarted: Vec::new(),
+        },
+        Engine::Detecting(a) => {
+            let frame = a.step(image)?;
+            StepOut {
+                estimates: frame.estimates,
+                started: frame.started.iter().map(|s| s.0).collect(),
+                restarted: frame.restarted.iter().map(|s| s.0).collect(),
+            }
+        }
+    })
+}
+
+fn step_dict(py: Python<'_>, out: StepOut) -> PyResult<Bound<'_, PyDict>> {
+    let n = out.estimates.len();
+    let e = &out.estimates;
+    let flat =
+        |f: &dyn Fn(&FaceEstimate) -> Vec<f32>| -> Vec<f32> { e.iter().flat_map(f).collect() };
+    let d = PyDict::new(py);
+    d.set_item(
+        "track",
+        to_numpy(py, e.iter().map(|e| e.track as i64).collect(), &[n])?,
+    )?;
+    d.set_item(
+        "slot",
+        to_numpy(py, e.iter().map(|e| e.slot as i64).collect(), &[n])?,
+    )?;
+    d.set_item(
+        "state",
+        to_numpy(py, flat(&|e| e.state.to_vec()), &[n, DIMS])?,
+    )?;
+    d.set_item(
+        "spread",
+        to_numpy(py, flat(&|e| e.spread.to_vec()), &[n, DIMS])?,
+    )?;
+    d.set_item(
+        "pitch_yaw_roll_deg",
+        to_numpy(
+            py,
+            flat(&|e| pitch_yaw_roll_degrees(&e.state).to_vec()),
+            &[n, 3],
+        )?,
+    )?;
+    d.set_item(
+        "quaternion",
+        to_numpy(
+            py,
+            flat(&|e| rotation_quaternion(&e.state).to_vec()),
+            &[n, 4],
+        )?,
+    )?;
+    d.set_item(
+        "rect",
+        to_numpy(
+            py,
+            flat(&|e| vec![e.rect.x, e.rect.y, e.rect.width, e.rect.height]),
+            &[n, 4],
+        )?,
+    )?;
+    d.set_item(
+        "ess",
+        to_numpy(py, e.iter().map(|e| e.ess).collect(), &[n])?,
+    )?;
+    d.set_item(
+        "error",
+        to_numpy(py, e.iter().map(|e| e.error).collect(), &[n])?,
+    )?;
+    d.set_item(
+        "confidence",
+        to_numpy(py, e.iter().map(|e| e.confidence).collect(), &[n])?,
+    )?;
+    d.set_item(
+        "lost",
+        to_numpy(
+            py,
+            e.iter()
+                .map(|e| matches!(e.status, TrackStatus::Lost { .. }))
+                .collect(),
+            &[n],
+        )?,
+    )?;
+    let ids = |v: Vec<usize>| v.into_iter().map(|t| t as i64).collect::<Vec<_>>();
+    let (started, restarted) = (out.started.len(), out.restarted.len());
+    d.set_item("started", to_numpy(py, ids(out.started), &[started])?)?;
+    d.set_item("restarted", to_numpy(py, ids(out.restarted), &[restarted])?)?;
+    Ok(d)
+}

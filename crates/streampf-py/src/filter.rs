@@ -1,0 +1,390 @@
+//! `streampf.ParticleFilter`: the generic engine for T targets × M particles × D dimensions,
+//! with the model as WGSL on the GPU (the plug-in of `pf_gpu::model`) or as a vectorised
+//! Python callable on the CPU (`pf_core::batch::BatchFilter`).
+
+use std::sync::{Mutex, TryLockError};
+
+use numpy::PyUntypedArrayMethods;
+use pf_core::anneal::Annealing;
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
+use pf_core::resample::Metropolis;
+use pf_core::{PfError, Resampler, ResamplerKind};
+use pf_gpu::model::{ModelSource, RawModelFilter};
+use pf_gpu::{GpuContext, GpuResampler};
+use pyo3::prelude::*;
+use pyo3::types::{PyDict, PyTuple};
+
+use crate::arrays::{check_finite, contiguous, finite_f32, to_numpy};
+use crate::backend::{Choice, open};
+use crate::errors::{gpu, pf, runtime_error, value_error};
+
+enum Engine {
+    /// The model's WGSL, the whole step on the GPU.
+    Gpu {
+        ctx: Box<GpuContext>,
+        filter: Box<RawModelFilter>,
+        observation_values: usize,
+    },
+    /// A Python callable weighs the particles; the rest of the step runs in Rust.
+    Cpu {
+        filter: Box<BatchFilter<Box<dyn Resampler>>>,
+        likelihood: Py<PyAny>,
+    },
+}
+
+/// A particle filter whose model you supply: see the stub for the arguments.
+#[pyclass(module = "streampf._streampf")]
+pub struct ParticleFilter {
+    engine: Mutex<Engine>,
+    shape: BatchShape,
+    device: String,
+}
+
+/// (T, M, D) row-major → the batch layout `[(t·D + d)·M + m]`.
+fn to_batch_layout(values: &[f32], shape: &BatchShape) -> Vec<f32> {
+    let (t, m, d) = (shape.targets, shape.particles, shape.dims);
+    let mut out = vec![0.0; values.len()];
+    for target in 0..t {
+        for particle in 0..m {
+            for dim in 0..d {
+                out[(target * d + dim) * m + particle] = values[(target * m + particle) * d + dim];
+            }
+        }
+    }
+    out
+}
+
+/// The batch layout → (T, M, D) row-major.
+fn from_batch_layout(values: &[f32], shape: &BatchShape) -> Vec<f32> {
+    let (t, m, d) = (shape.targets, shape.particles, shape.dims);
+    let mut out = vec![0.0; values.len()];
+    for target in 0..t {
+        for dim in 0..d {
+            for particle in 0..m {
+                out[(target * m + particle) * d + dim] = values[(target * d + dim) * m + particle];
+            }
+        }
+    }
+    out
+}
+
+fn gpu_resampler(name: &str) -> PyResult<GpuResampler> {
+    match name {
+        "systematic" => Ok(GpuResampler::Systematic),
+        "stratified" => Ok(GpuResampler::Stratified),
+        "metropolis" => Ok(GpuResampler::Metropolis(Metropolis::DEFAULT_STEPS)),
+        other => Err(value_error(format!(
+            "the GPU resamples with \"systematic\", \"stratified\" or \"metropolis\", not {other:?} \
+             (the CPU path also has multinomial, residual and rejection)"
+        ))),
+    }
+}
+
+#[pymethods]
+impl ParticleFilter {
+    #[new]
+    #[pyo3(signature = (
+        initial, *, sigma, wgsl = None, likelihood = None, observation_size = None,
+        constants = None, name = "model", angular = None, bounds = None,
+        resampler = "systematic", layers = 1, seed = 1, backend = "auto",
+        allow_software = false
+    ))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        initial: &Bound<'_, PyAny>,
+        sigma: Vec<f32>,
+        wgsl: Option<String>,
+        likelihood: Option<Py<PyAny>>,
+        observation_size: Option<usize>,
+        constants: Option<&Bound<'_, PyAny>>,
+        name: &str,
+        angular: Option<Vec<bool>>,
+        bounds: Option<(Vec<f32>, Vec<f32>)>,
+        resampler: &str,
+        layers: usize,
+        seed: u64,
+        backend: &str,
+        allow_software: bool,
+    ) -> PyResult<Self> {
+        let (dims, values) = finite_f32(initial, &[None, None, None], "initial")?;
+        let shape = BatchShape::new(dims[0], dims[1], dims[2]).map_err(pf)?;
+        let mut config = BatchConfig::new(shape, seed, sigma);
+        if let Some(angular) = angular {
+            config.angular = angular;
+        }
+        config.bounds = bounds;
+        config.annealing = match layers {
+            0 => return Err(value_error("layers must be at least 1")),
+            1 => Annealing::none(),
+            n => Annealing::survival(n, 0.5, 0.7),
+        };
+        config.validate().map_err(pf)?;
+        let states = to_batch_layout(&values, &shape);
+        let choice = Choice::parse(backend)?;
+        let (engine, device) = match (wgsl, likelihood) {
+            (Some(_), Some(_)) | (None, None) => {
+                return Err(value_error(
+                    "give the model either as wgsl= (GPU) or as likelihood= (a Python callable, CPU)",
+                ));
+            }
+            (Some(source), None) => {
+                let observation_values = observation_size.ok_or_else(|| {
+                    value_error(
+                        "a WGSL model needs observation_size: the 32-bit values of one Observation",
+                    )
+                })?;
+                let constants = match constants {
+                    Some(c) => finite_f32(c, &[None], "constants")?.1,
+                    None => Vec::new(),
+                };
+                if choice == Choice::Cpu {
+                    return Err(value_error(
+                        "a WGSL model runs on the GPU: use backend=\"gpu\" (or \"auto\"), or give \
+                         likelihood= for the CPU",
+                    ));
+                }
+                let resampler = gpu_resampler(resampler)?;
+                let mut contexts = open(py, Choice::Gpu, allow_software)?;
+                let ctx = contexts.remove(0);
+                let device = ctx.adapter().name.clone();
+                let filter = py
+                    .detach(|| {
+                        RawModelFilter::new(
+                            &ctx,
+                            &config,
+                            resampler,
+                            &states,
+                            ModelSource {
+                                name,
+                                wgsl: &source,
+                            },
+                            observation_values,
+                            &constants,
+                        )
+                    })
+                    .map_err(gpu)?;
+                (
+                    Engine::Gpu {
+                        ctx: Box::new(ctx),
+                        filter: Box::new(filter),
+                        observation_values,
+                    },
+                    device,
+                )
+            }
+            (None, Some(likelihood)) => {
+                if !likelihood.bind(py).is_callable() {
+                    return Err(value_error("likelihood must be callable"));
+                }
+                if matches!(choice, Choice::Gpu | Choice::AllGpus) {
+                    return Err(value_error(
+                        "a Python likelihood runs on the CPU: give wgsl= for the GPU",
+                    ));
+                }
+                let kind: ResamplerKind = resampler.parse().map_err(pf)?;
+                let filter = BatchFilter::new(&config, kind.build(), states).map_err(pf)?;
+                (
+                    Engine::Cpu {
+                        filter: Box::new(filter),
+                        likelihood,
+                    },
+                    "CPU".to_string(),
+                )
+            }
+        };
+        Ok(Self {
+            engine: Mutex::new(engine),
+            shape,
+            device,
+        })
+    }
+
+    /// What the filter runs on.
+    #[getter]
+    fn device(&self) -> &str {
+        &self.device
+    }
+
+    /// (targets, particles, dimensions).
+    #[getter]
+    fn shape(&self) -> (usize, usize, usize) {
+        (self.shape.targets, self.shape.particles, self.shape.dims)
+    }
+
+    /// One step against this frame's observations; returns a dict (see the stub).
+    fn step<'py>(
+        &self,
+        py: Python<'py>,
+        observations: &Bound<'py, PyAny>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let shape = self.shape;
+        let is_gpu = matches!(&*self.try_lock()?, Engine::Gpu { .. });
+        let (estimates, spreads, ess, resampled) =
+            if is_gpu {
+                let (_, values) =
+                    finite_f32(observations, &[Some(shape.targets), None], "observations")?;
+                py.detach(|| {
+                let mut engine = self.engine.lock().map_err(|_| poisoned())?;
+                let Engine::Gpu {
+                    ctx,
+                    filter,
+                    observation_values,
+                } = &mut *engine
+                else {
+                    return Err(runtime_error("the filter's engine changed"));
+                };
+                if values.len() != shape.targets * *observation_values {
+                    return Err(value_error(format!(
+                        "observations must have shape ({}, {observation_values}), one Observation \
+                         per target",
+                        shape.targets
+                    )));
+                }
+                let report = filter.step(ctx, &values).map_err(gpu)?;
+                check_statuses(report.stats.iter().map(|s| (s.status, s.bad_particle)))?;
+                Ok((
+                    report.estimates,
+                    report.spreads,
+                    report.stats.iter().map(|s| f64::from(s.ess)).collect::<Vec<_>>(),
+                    report.stats.iter().map(|s| s.resampled != 0).collect::<Vec<_>>(),
+                ))
+            })?
+            } else {
+                let mut engine = self.try_lock()?;
+                let Engine::Cpu { filter, likelihood } = &mut *engine else {
+                    return Err(runtime_error("the filter's engine changed"));
+                };
+                let callable = likelihood.bind(py);
+                let mut raised: Option<PyErr> = None;
+                let report = filter.step_batched(|shape, states, out| {
+                    match call_likelihood(py, callable, shape, states, observations, out) {
+                        Ok(()) => Ok(()),
+                        Err(e) => {
+                            raised = Some(e);
+                            Err(PfError::InvalidConfig("the likelihood raised".into()))
+                        }
+                    }
+                });
+                if let Some(e) = raised {
+                    return Err(e);
+                }
+                let report = report.map_err(pf)?;
+                for status in &report.status {
+                    status.clone().map_err(pf)?;
+                }
+                (
+                    report.estimates,
+                    report.spreads,
+                    report.ess,
+                    report.resampled,
+                )
+            };
+        let (t, d) = (shape.targets, shape.dims);
+        let out = PyDict::new(py);
+        out.set_item("estimate", to_numpy(py, estimates, &[t, d])?)?;
+        out.set_item("spread", to_numpy(py, spreads, &[t, d])?)?;
+        out.set_item("ess", to_numpy(py, ess, &[t])?)?;
+        out.set_item("resampled", to_numpy(py, resampled, &[t])?)?;
+        Ok(out)
+    }
+
+    /// The particles after the last step: `(states, log_weights)`, shapes (T, M, D) and (T, M).
+    fn particles<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let shape = self.shape;
+        let (states, log_weights) = {
+            let engine = self.try_lock()?;
+            match &*engine {
+                Engine::Cpu { filter, .. } => (filter.states.clone(), filter.log_weights.clone()),
+                Engine::Gpu { ctx, filter, .. } => py
+                    .detach(|| -> Result<_, pf_gpu::GpuError> {
+                        let f = filter.filter();
+                        Ok((f.download_states(ctx)?, f.download_log_weights(ctx)?))
+                    })
+                    .map_err(gpu)?,
+            }
+        };
+        let (t, m, d) = (shape.targets, shape.particles, shape.dims);
+        Ok((
+            to_numpy(py, from_batch_layout(&states, &shape), &[t, m, d])?,
+            to_numpy(py, log_weights, &[t, m])?,
+        ))
+    }
+}
+
+fn poisoned() -> PyErr {
+    runtime_error("the filter failed in another thread and cannot go on")
+}
+
+impl ParticleFilter {
+    /// The engine, or an error when another thread is stepping this filter (waiting here while
+    /// holding the GIL could deadlock with a Python likelihood that needs it).
+    fn try_lock(&self) -> PyResult<std::sync::MutexGuard<'_, Engine>> {
+        match self.engine.try_lock() {
+            Ok(guard) => Ok(guard),
+            Err(TryLockError::WouldBlock) => Err(runtime_error(
+                "this ParticleFilter is being stepped by another thread; give each thread its own",
+            )),
+            Err(TryLockError::Poisoned(_)) => Err(poisoned()),
+        }
+    }
+}
+
+/// The GPU's per-target status: 0 is fine; the others name what went wrong with the weights.
+fn check_statuses(statuses: impl Iterator<Item = (u32, u32)>) -> PyResult<()> {
+    for (target, (status, particle)) in statuses.enumerate() {
+        let what = match status {
+            0 => continue,
+            1 => "every particle's likelihood is zero",
+            2 => "a log-likelihood is NaN",
+            _ => "a log-likelihood is +infinity",
+        };
+        return Err(runtime_error(format!(
+            "target {target}: {what} (particle {particle}); its weights were left uniform"
+        )));
+    }
+    Ok(())
+}
+
+/// Calls the Python likelihood with the particles as a (T, M, D) array and the observations,
+/// and copies its (T, M) log-likelihoods into `out`.
+fn call_likelihood(
+    py: Python<'_>,
+    callable: &Bound<'_, PyAny>,
+    shape: &BatchShape,
+    states: &[f32],
+    observations: &Bound<'_, PyAny>,
+    out: &mut [f32],
+) -> PyResult<()> {
+    let (t, m, d) = (shape.targets, shape.particles, shape.dims);
+    let particles = to_numpy(py, from_batch_layout(states, shape), &[t, m, d])?;
+    let result = callable.call1(PyTuple::new(py, [particles, observations.clone()])?)?;
+    let numpy = py.import("numpy")?;
+    let kwargs = PyDict::new(py);
+    kwargs.set_item("dtype", "float32")?;
+    let array = numpy
+        .call_method("ascontiguousarray", (result,), Some(&kwargs))
+        .map_err(|e| {
+            value_error(format!(
+                "the likelihood must return a (T, M) array of numbers: {e}"
+            ))
+        })?;
+    let array = contiguous::<f32>(&array, "the likelihood's result", "float32")?;
+    crate::arrays::check_shape(
+        array.shape(),
+        &[Some(t), Some(m)],
+        "the likelihood's result",
+    )?;
+    let values = array
+        .as_slice()
+        .map_err(|e| value_error(format!("the likelihood's result: {e}")))?;
+    // −∞ is a zero likelihood; NaN and +∞ are the callable's mistakes.
+    if let Some(i) = values
+        .iter()
+        .position(|v| v.is_nan() || *v == f32::INFINITY)
+    {
+        check_finite(&values[i..=i], "the likelihood's result")?;
+    }
+    out.copy_from_slice(values);
+    Ok(())
+}

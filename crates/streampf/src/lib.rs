@@ -1,0 +1,172 @@
+//! `streampf`: GPU particle filtering for visual tracking, from the command line. The binary
+//! (`main.rs`) calls [`cli_main`]; [`run_embedded`] runs the same commands inside another
+//! program (the Python package's `track_video`), without touching its signal handlers.
+
+mod annotated;
+mod body;
+mod demo;
+mod devices;
+mod face;
+mod face_io;
+mod face_overlay;
+mod filter_args;
+mod gpu;
+mod recording;
+mod run_output;
+mod settings;
+mod video;
+
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "streampf",
+    version,
+    about = "GPU particle filtering (Condensation) for visual tracking",
+    long_about = "GPU particle filtering (Condensation) for visual tracking.\n\n\
+                  `streampf face track VIDEO` finds and tracks the faces in a video; `streampf face track --synthetic` tracks four synthetic faces; \
+                  `streampf body track --synthetic` tracks a synthetic walking body; \
+                  `streampf demo` tracks synthetic 7-D pose targets; \
+                  `streampf devices` lists the GPU adapters wgpu can use."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// List the GPU adapters (name, type, backend); honours WGPU_BACKEND and WGPU_ADAPTER_NAME.
+    Devices,
+    /// Track a synthetic target and print the per-step error and a summary.
+    Demo(demo::DemoArgs),
+    /// Multi-face tracking: `face track VIDEO|DIR`, `face track --synthetic`, `face synth`.
+    Face {
+        #[command(subcommand)]
+        command: face::FaceCommand,
+    },
+    /// Stereo articulated body tracking: `body track DIR`, `body track --synthetic`, `body synth`.
+    Body {
+        #[command(subcommand)]
+        command: body::BodyCommand,
+    },
+    /// Settings files (`face track --config FILE`, `body track --config FILE`).
+    Config(ConfigArgs),
+}
+
+#[derive(Debug, clap::Args)]
+struct ConfigArgs {
+    /// Print a settings file with every setting of `face track` and `body track` at its
+    /// default.
+    #[arg(long, required = true)]
+    print_default: bool,
+}
+
+/// The `streampf` binary: parses the process's command line, runs the command, and turns the
+/// result into the exit status (130 for an interrupted run).
+pub fn cli_main() -> std::process::ExitCode {
+    quiet_mesa_device_selection();
+    let cli = match parse_command_line() {
+        Ok(cli) => cli,
+        Err(e) => {
+            eprintln!("Error: {e:?}");
+            return std::process::ExitCode::FAILURE;
+        }
+    };
+    match run(cli) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            if let Some(interrupted) = e.downcast_ref::<run_output::Interrupted>() {
+                eprintln!("{interrupted}");
+                return std::process::ExitCode::from(run_output::INTERRUPTED_EXIT as u8);
+            }
+            eprintln!("Error: {e:?}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Config(_) => {
+            print!("{}", settings::default_settings(&Cli::command()));
+            Ok(())
+        }
+        Command::Devices => devices::run(),
+        Command::Demo(args) => demo::run(&args),
+        Command::Body { command } => body::run(&command),
+        Command::Face { command } => face::run(&command),
+    }
+}
+
+pub use run_output::Interrupted;
+
+/// A command line that [`run_embedded`] refused (clap's message, with usage).
+#[derive(Debug, thiserror::Error)]
+#[error("{0}")]
+pub struct UsageError(pub String);
+
+/// Runs `streampf ARGS…` in this process (`args` without the program's name), for a program that
+/// embeds streampf: a bad command line is an error (clap's message) instead of an exit, and no
+/// Ctrl-C handler is installed — the embedding program calls [`request_stop`] instead, and the
+/// run then ends after its current frame with an [`Interrupted`] error, every finished frame
+/// written. Progress and summaries go to stderr and stdout as the binary's do.
+pub fn run_embedded<I, S>(args: I) -> anyhow::Result<()>
+where
+    I: IntoIterator<Item = S>,
+    S: Into<std::ffi::OsString>,
+{
+    run_output::start_embedded_run();
+    let argv: Vec<std::ffi::OsString> = std::iter::once("streampf".into())
+        .chain(args.into_iter().map(Into::into))
+        .collect();
+    let command = Cli::command();
+    let settings::WithSettings { argv, file } = settings::with_config_file(&command, argv)?;
+    let matches = command.try_get_matches_from(argv).map_err(|e| {
+        let message = e.render().to_string();
+        UsageError(match file {
+            Some(file) => format!(
+                "{}\n(the options above include the settings of {})",
+                message.trim_end(),
+                file.display()
+            ),
+            None => message.trim_end().to_string(),
+        })
+    })?;
+    run(Cli::from_arg_matches(&matches)?)
+}
+
+/// Asks a run started by [`run_embedded`] to stop after its current frame.
+pub fn request_stop() {
+    run_output::request_stop();
+}
+
+/// The command line, with the settings of a `--config FILE` added where the command line does
+/// not give them. A mistake on the command line itself exits as clap does (usage, code 2).
+fn parse_command_line() -> anyhow::Result<Cli> {
+    let argv: Vec<std::ffi::OsString> = std::env::args_os().collect();
+    let command = Cli::command();
+    let settings::WithSettings { argv, file } = settings::with_config_file(&command, argv)?;
+    let matches = match (command.try_get_matches_from(argv), file) {
+        (Ok(matches), _) => matches,
+        // A bad value in the file: clap's message names the option, this names the file.
+        (Err(e), Some(file)) if e.use_stderr() => anyhow::bail!(
+            "{}\n(the options above include the settings of {})",
+            e.render().to_string().trim_end(),
+            file.display()
+        ),
+        (Err(e), _) => e.exit(),
+    };
+    Ok(Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()))
+}
+
+/// Mesa's Vulkan device-selection layer prints "XDG_RUNTIME_DIR is invalid or not set" on a
+/// headless machine before any output of ours, and selects nothing wgpu does not choose itself:
+/// keep it off unless the user set it.
+fn quiet_mesa_device_selection() {
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: the first thing main does, before any thread exists that could read the
+        // environment.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
