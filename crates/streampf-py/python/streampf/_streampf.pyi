@@ -1,0 +1,217 @@
+"""Type stubs of the extension module (the Rust side of ``streampf``)."""
+
+from os import PathLike
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+Rect = Tuple[float, float, float, float]
+
+def devices() -> List[Dict[str, Any]]:
+    """The GPU adapters wgpu can use, best first, as dicts with ``name``, ``device_type``,
+    ``backend``, ``driver``, ``driver_info`` and ``software`` (True for Mesa's lavapipe); an
+    empty list when there is none."""
+
+class FaceTracker:
+    """Tracks faces in frames given as numpy ``uint8`` arrays, H×W (gray) or H×W×3 (colour,
+    converted to gray with the ITU-R BT.601 luma Y = 0.299 R + 0.587 G + 0.114 B, rounded; the
+    channel order is ``channel_order``: "rgb", or "bgr" for OpenCV's frames).
+
+    Each face is a particle filter over the 7-D pose (tx, ty, scale, rx, ry, rz, alpha; pixels,
+    radians with R = Rx·Ry·Rz: rx pitch, ry yaw, rz roll; alpha the template's contrast gain)
+    with ``particles`` particles, weighed by the face's sparse template. Faces start from
+    rectangles you give (``add_face``) and, with ``detect=True``, from the Viola–Jones detector
+    (OpenCV's Haar cascade, every ``detect_every`` frames; its results are used before the next
+    frame is due, so a run is repeatable). ``backend``: "auto" (a hardware GPU when there is
+    one, else the CPU), "cpu", "gpu" or "all-gpus" (the faces split over every GPU);
+    ``allow_software`` accepts a software GPU (lavapipe). ``layers``: annealing layers per frame
+    (default 5; 1 is plain Condensation).
+
+    Thread-safe; ``step`` releases the GIL, so trackers in different threads run at once.
+    """
+
+    def __init__(
+        self,
+        width: int,
+        height: int,
+        *,
+        max_faces: int = 8,
+        particles: int = 1000,
+        detect: bool = False,
+        cascade: Optional[Union[str, PathLike[str]]] = None,
+        detect_every: int = 5,
+        min_face: int = 40,
+        backend: str = "auto",
+        allow_software: bool = False,
+        seed: int = 1,
+        layers: Optional[int] = None,
+        channel_order: str = "rgb",
+    ) -> None: ...
+    @property
+    def device(self) -> str:
+        """"CPU", or the GPUs' names."""
+    @property
+    def frames(self) -> int:
+        """Frames stepped so far."""
+    def add_face(self, frame: npt.NDArray[np.uint8], rect: Rect) -> int:
+        """Starts a track on the face in ``rect`` = (x, y, width, height) of ``frame`` (its
+        template is extracted there; call it before ``step`` on that frame). Returns the track's
+        number: 0, 1, … in order, never reused. ValueError when no slot is free or the
+        rectangle is bad."""
+    def step(self, frame: npt.NDArray[np.uint8]) -> Dict[str, np.ndarray]:
+        """Tracks one frame. One row per track reported (running tracks, and a track lost at
+        this frame, once):
+
+        - ``track`` (n,) int64, ``slot`` (n,) int64 (the filter slot: ``particles()``' row);
+        - ``state`` (n, 7) float32 and ``spread`` (n, 7) float32: the estimate and the
+          posterior's weighted standard deviation (circular for the roll);
+        - ``pitch_yaw_roll_deg`` (n, 3) float32 and ``quaternion`` (n, 4) float32 (w, x, y, z;
+          w ≥ 0): the rotation in other forms;
+        - ``rect`` (n, 4) float32: the face's rectangle at the estimate;
+        - ``ess`` (n,) float64, ``error`` (n,) float64 (ε, the template's robust residual),
+          ``confidence`` (n,) float32 in [0, 1] (1 − ε / failure threshold);
+        - ``lost`` (n,) bool: the track ended at this frame;
+        - ``started``, ``restarted`` (int64): tracks the detector started or restarted before
+          this frame's step.
+
+        ValueError for a frame of the wrong dtype, shape or memory order (the tracker is left as
+        it was)."""
+    def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """``(states, log_weights)`` after the last step: (slots, particles, 7) and
+        (slots, particles); normalised log-weights. On a GPU this reads them back."""
+
+class BodyTracker:
+    """Tracks one articulated body (the default human of ``capsules`` capsules, or a skeleton
+    JSON file) in depth data: ``step`` takes N×3 ``float32`` points in the camera frame (x
+    right, y up, z forward, metres), ``step_depth`` a 16-bit depth image and its intrinsics.
+    ``initial_pose`` (float32, one value per ``pose_names``) defaults to standing 3 m in front
+    of the camera. ``backend`` as FaceTracker's ("all-gpus": an island of the samples per GPU);
+    ``layers``: annealing layers per frame (default 8). Thread-safe; steps release the GIL."""
+
+    def __init__(
+        self,
+        initial_pose: Optional[npt.NDArray[np.float32]] = None,
+        *,
+        capsules: int = 19,
+        skeleton: Optional[Union[str, PathLike[str]]] = None,
+        particles: int = 1500,
+        backend: str = "auto",
+        allow_software: bool = False,
+        seed: int = 1,
+        layers: Optional[int] = None,
+    ) -> None: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def pose_names(self) -> List[str]:
+        """The pose's values: the root's translation (m) and rotation (rad), then every joint
+        angle (rad)."""
+    @property
+    def joint_names(self) -> List[str]:
+        """The tracked joints (the root and every bone with an angle), in ``joints``' order."""
+    def joints(self, pose: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
+        """The tracked joints' positions (J, 3) for a pose (metres, camera frame)."""
+    def step(self, points: npt.NDArray[np.float32]) -> Dict[str, Any]:
+        """Tracks one frame of points (N, 3). Returns ``pose`` (P,) float32, ``spread`` (P,)
+        float32, ``joints`` (J, 3) float32, ``ess`` (float), ``confidence`` (float in [0, 1]:
+        the share of the points the estimate explains) and ``points`` (the points used, after
+        thinning). ValueError for a bad array (dtype, shape, order, NaN or infinity)."""
+    def step_depth(
+        self,
+        depth: npt.NDArray[np.uint16],
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        depth_scale: float = 0.001,
+    ) -> Dict[str, Any]:
+        """Tracks one depth image (H, W): z in units of ``depth_scale`` metres, 0 for no
+        measurement; pinhole intrinsics in pixels (image y down)."""
+    def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """``(poses, log_weights)``: (J, P) and (J,) after the last step."""
+
+class ParticleFilter:
+    """The generic engine for T targets × M particles × D dimensions (``initial``: float32
+    (T, M, D)), resampling every step, diffusing with the Gaussian random walk ``sigma`` (D
+    values; ``angular`` marks angle dimensions, wrapped and averaged on the circle;
+    ``bounds`` = (lower, upper) clamps), then weighing with your model:
+
+    - ``wgsl``: WGSL source declaring ``struct Observation``, ``struct Constants`` and
+      ``fn log_likelihood(x: State, z: Observation, c: Constants) -> f32`` (optionally ``fn
+      propagate(x: State, noise: State, c: Constants) -> State``, replacing the random walk);
+      the whole step runs on the GPU. ``observation_size``: the 32-bit values of one
+      Observation; ``constants``: float32 values of Constants. See docs/EXTENDING.md.
+    - ``likelihood``: a Python callable ``f(particles, observations) -> log_likelihoods`` taking
+      the (T, M, D) float32 particles and whatever ``step`` was given, returning (T, M) numbers
+      (−inf: zero likelihood); the rest of the step runs in Rust on the CPU.
+
+    ``resampler``: "systematic", "stratified", "metropolis" (GPU and CPU), "multinomial",
+    "residual", "rejection" (CPU). ``layers`` > 1 anneals (survival rate 0.5, noise ×0.7 a
+    layer). The GPU and CPU paths draw the same random numbers.
+    """
+
+    def __init__(
+        self,
+        initial: npt.NDArray[np.float32],
+        *,
+        sigma: Sequence[float],
+        wgsl: Optional[str] = None,
+        likelihood: Optional[Callable[[npt.NDArray[np.float32], Any], npt.ArrayLike]] = None,
+        observation_size: Optional[int] = None,
+        constants: Optional[npt.NDArray[np.float32]] = None,
+        name: str = "model",
+        angular: Optional[Sequence[bool]] = None,
+        bounds: Optional[Tuple[Sequence[float], Sequence[float]]] = None,
+        resampler: str = "systematic",
+        layers: int = 1,
+        seed: int = 1,
+        backend: str = "auto",
+        allow_software: bool = False,
+    ) -> None: ...
+    @property
+    def device(self) -> str: ...
+    @property
+    def shape(self) -> Tuple[int, int, int]:
+        """(targets, particles, dimensions)."""
+    def step(self, observations: Any) -> Dict[str, np.ndarray]:
+        """One step. For a WGSL model ``observations`` is float32 (T, observation_size); for a
+        Python likelihood anything it accepts. Returns ``estimate`` (T, D) float32 (the weighted
+        mean), ``spread`` (T, D) float32, ``ess`` (T,) float64 and ``resampled`` (T,) bool."""
+    def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
+        """``(states, log_weights)``: (T, M, D) and (T, M), normalised log-weights."""
+
+def synthetic_faces(
+    frames: int = 30,
+    *,
+    width: int = 640,
+    height: int = 480,
+    faces: int = 2,
+    half_width: float = 50.0,
+    max_yaw_deg: float = 50.0,
+    occlusion: bool = False,
+    seed: int = 11,
+) -> Dict[str, np.ndarray]:
+    """A synthetic video of textured heads: ``frames`` (F, H, W) uint8, ``truth`` (F, K, 7)
+    float32 (each face's state), ``rects`` (K, 4) float32 (the first frame's rectangles)."""
+
+def synthetic_body(
+    frames: int = 20,
+    *,
+    width: int = 160,
+    height: int = 120,
+    motion: str = "walk-wave",
+    capsules: int = 19,
+    seed: int = 7,
+) -> Dict[str, Any]:
+    """A synthetic depth sequence of the default human: ``points`` (list of (N, 3) float32),
+    ``depth`` (F, H, W) uint16 (mm), ``truth`` (F, P) float32, ``joints`` (F, J, 3) float32,
+    ``intrinsics`` (fx, fy, cx, cy, depth_scale) and ``pose_names``. ``motion``: "walk",
+    "wave" or "walk-wave"."""
+
+def run_command(args: List[str]) -> None:
+    """Runs ``streampf ARGS…`` in this process (what ``track_video`` calls): ValueError for a
+    bad command line, RuntimeError for a failed run, KeyboardInterrupt after Ctrl-C (the run
+    closes its files first)."""

@@ -1,0 +1,161 @@
+"""FaceTracker on synthetic frames: accuracy against the ground truth (the Rust tests' bounds),
+colour frames, threads, and the arrays it refuses."""
+
+import threading
+
+import numpy as np
+import pytest
+
+import streampf
+
+# The bounds of tests/face_tracking.rs (mean over the video and the faces).
+MAX_TRANSLATION_PX = 3.0
+MAX_ROTATION_DEG = 4.5
+
+
+def rotation_error_deg(estimate, truth):
+    """The angle of R_estimate^T R_truth in degrees (both R = Rx·Ry·Rz)."""
+
+    def rotation(rx, ry, rz):
+        cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+        x = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        y = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        z = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        return x @ y @ z
+
+    r = rotation(*estimate[3:6]).T @ rotation(*truth[3:6])
+    return np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+
+
+def track(video, frames=None, **options):
+    """States per frame (F, K, 7) of a tracker started on the video's rectangles."""
+    frames = video["frames"] if frames is None else frames
+    height, width = video["frames"].shape[1:3]
+    tracker = streampf.FaceTracker(width, height, max_faces=len(video["rects"]), **options)
+    for rect in video["rects"]:
+        tracker.add_face(frames[0], tuple(float(v) for v in rect))
+    states = []
+    for frame in frames:
+        result = tracker.step(frame)
+        assert not result["lost"].any()
+        assert list(result["track"]) == list(range(len(video["rects"])))
+        states.append(result["state"])
+    return np.stack(states), result
+
+
+def check_accuracy(video, states):
+    truth = video["truth"]
+    translation = np.linalg.norm(states[..., :2] - truth[..., :2], axis=-1).mean()
+    rotation = np.mean(
+        [rotation_error_deg(e, t) for e, t in zip(states.reshape(-1, 7), truth.reshape(-1, 7))]
+    )
+    assert translation <= MAX_TRANSLATION_PX, translation
+    assert rotation <= MAX_ROTATION_DEG, rotation
+
+
+def test_tracks_two_faces_on_the_cpu(two_face_video):
+    states, last = track(two_face_video, particles=256, backend="cpu")
+    check_accuracy(two_face_video, states)
+    # Every output has one row per track, finite, in its documented range.
+    assert last["spread"].shape == (2, 7) and np.all(last["spread"] >= 0)
+    assert np.all((last["confidence"] >= 0) & (last["confidence"] <= 1))
+    assert np.all((last["ess"] >= 1) & (last["ess"] <= 256 + 1e-3))
+    np.testing.assert_allclose(np.linalg.norm(last["quaternion"], axis=1), 1, atol=1e-5)
+    np.testing.assert_allclose(last["pitch_yaw_roll_deg"], np.degrees(last["state"][:, 3:6]), rtol=1e-5)
+
+
+def test_tracks_two_faces_on_the_gpu(two_face_video, gpu_backend):
+    states, _ = track(two_face_video, particles=256, **gpu_backend)
+    check_accuracy(two_face_video, states)
+
+
+def test_colour_frames_are_tracked_as_their_bt601_luma(two_face_video):
+    gray = two_face_video["frames"][:4]
+    # A tinted colour video, against its BT.601 luma computed here.
+    rgb = np.stack([gray, gray, gray], axis=-1).astype(np.int32)
+    rgb[..., 0] = np.clip(rgb[..., 0] + 20, 0, 255)
+    rgb[..., 2] = np.clip(rgb[..., 2] - 20, 0, 255)
+    rgb = rgb.astype(np.uint8)
+    r, g, b = (rgb[..., c].astype(np.int64) for c in range(3))
+    luma = ((299 * r + 587 * g + 114 * b + 500) // 1000).astype(np.uint8)
+    assert not np.array_equal(luma, gray)
+    video = dict(two_face_video)
+    from_rgb, _ = track(video, frames=rgb, particles=64, backend="cpu")
+    from_luma, _ = track(video, frames=luma, particles=64, backend="cpu")
+    np.testing.assert_array_equal(from_rgb, from_luma)
+    bgr = np.ascontiguousarray(rgb[..., ::-1])
+    from_bgr, _ = track(video, frames=bgr, particles=64, backend="cpu", channel_order="bgr")
+    np.testing.assert_array_equal(from_bgr, from_luma)
+
+
+def test_two_threads_at_once_give_what_one_after_the_other_gives(two_face_video):
+    frames = two_face_video["frames"][:6]
+    alone = [track(two_face_video, frames=frames, particles=128, backend="cpu", seed=s)[0] for s in (1, 2)]
+    results = [None, None]
+
+    def run(i):
+        results[i] = track(two_face_video, frames=frames, particles=128, backend="cpu", seed=i + 1)[0]
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    for together, one in zip(results, alone):
+        np.testing.assert_array_equal(together, one)
+
+
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        (lambda f: f.astype(np.float32), "dtype uint8"),
+        (lambda f: f[:, :-1].copy(), "shape"),
+        (lambda f: np.stack([f, f], axis=-1), "shape"),
+        (lambda f: np.asfortranarray(f), "C-contiguous"),
+        (lambda f: f.tolist(), "numpy array"),
+    ],
+)
+def test_bad_frames_are_value_errors_and_change_nothing(two_face_video, bad, message):
+    frames = two_face_video["frames"][:3]
+    expected, _ = track(two_face_video, frames=frames, particles=64, backend="cpu")
+    tracker = streampf.FaceTracker(320, 240, max_faces=2, particles=64, backend="cpu")
+    for rect in two_face_video["rects"]:
+        tracker.add_face(frames[0], tuple(float(v) for v in rect))
+    states = []
+    for frame in frames:
+        with pytest.raises(ValueError, match=message):
+            tracker.step(bad(frame))
+        states.append(tracker.step(frame)["state"])
+    assert tracker.frames == 3
+    np.testing.assert_array_equal(np.stack(states), expected)
+
+
+def test_bad_settings_and_rectangles_are_value_errors(two_face_video):
+    frame = two_face_video["frames"][0]
+    with pytest.raises(ValueError, match="backend"):
+        streampf.FaceTracker(320, 240, backend="tpu")
+    with pytest.raises(ValueError, match="particles"):
+        streampf.FaceTracker(320, 240, particles=0)
+    with pytest.raises(ValueError, match="channel_order"):
+        streampf.FaceTracker(320, 240, channel_order="yuv")
+    tracker = streampf.FaceTracker(320, 240, max_faces=1, particles=64, backend="cpu")
+    with pytest.raises(ValueError, match="rectangle"):
+        tracker.add_face(frame, (10.0, 10.0, float("nan"), 40.0))
+    with pytest.raises(ValueError):
+        tracker.add_face(frame, (300.0, 200.0, 100.0, 100.0))  # outside the frame
+    with pytest.raises(FileNotFoundError, match="cascade"):
+        streampf.FaceTracker(320, 240, detect=True, cascade="/nonexistent/cascade.xml")
+
+
+def test_particles_come_back_per_slot(two_face_video):
+    tracker = streampf.FaceTracker(320, 240, max_faces=2, particles=50, backend="cpu")
+    frame = two_face_video["frames"][0]
+    for rect in two_face_video["rects"]:
+        tracker.add_face(frame, tuple(float(v) for v in rect))
+    result = tracker.step(frame)
+    states, log_weights = tracker.particles()
+    assert states.shape == (2, 50, 7) and log_weights.shape == (2, 50)
+    np.testing.assert_allclose(np.exp(log_weights).sum(axis=1), 1, rtol=1e-4)
+    # The estimate lies within the cloud.
+    for slot in result["slot"]:
+        assert states[slot, :, 0].min() <= result["state"][slot, 0] <= states[slot, :, 0].max()

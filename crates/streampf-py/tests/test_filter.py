@@ -1,0 +1,137 @@
+"""ParticleFilter with your own model: a Python likelihood on the CPU and the same model in WGSL
+on the GPU, on a toy problem with a known answer, and the mistakes it reports."""
+
+import numpy as np
+import pytest
+
+import streampf
+
+TARGETS, PARTICLES = 4, 512
+NOISE = 0.2  # the observation's standard deviation
+
+WGSL = """
+struct Observation { x: f32, y: f32 }
+struct Constants { inverse_variance: f32 }
+
+fn log_likelihood(x: State, z: Observation, c: Constants) -> f32 {
+    let dx = x[0] - z.x;
+    let dy = x[1] - z.y;
+    return -0.5 * (dx * dx + dy * dy) * c.inverse_variance;
+}
+"""
+
+
+def python_likelihood(particles, observations):
+    d = particles[..., :2] - observations[:, None, :]
+    return -0.5 * (d**2).sum(axis=-1) / NOISE**2
+
+
+def scenario(steps=15, seed=3):
+    """Targets moving on circles, observed in position with Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(steps)[:, None]
+    phase = np.arange(TARGETS)[None, :]
+    truth = np.stack([np.cos(0.1 * t + phase), np.sin(0.1 * t + phase)], axis=-1).astype(np.float32)
+    observations = (truth + rng.normal(0, NOISE, truth.shape)).astype(np.float32)
+    initial = (truth[0][:, None, :] + rng.normal(0, 0.5, (TARGETS, PARTICLES, 2))).astype(np.float32)
+    return truth, observations, initial
+
+
+def run(filter_, observations):
+    return np.stack([filter_.step(z)["estimate"] for z in observations])
+
+
+def test_a_python_likelihood_tracks_the_targets():
+    truth, observations, initial = scenario()
+    pf = streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=python_likelihood, backend="cpu")
+    estimates = run(pf, observations)
+    error = np.linalg.norm(estimates - truth, axis=-1)[3:].mean()
+    raw = np.linalg.norm(observations - truth, axis=-1)[3:].mean()
+    assert error < 0.8 * raw, (error, raw)
+    states, log_weights = pf.particles()
+    assert states.shape == (TARGETS, PARTICLES, 2) and log_weights.shape == (TARGETS, PARTICLES)
+
+
+@pytest.mark.parametrize("resampler", ["multinomial", "stratified", "systematic", "residual", "metropolis", "rejection"])
+def test_every_resampler_by_name(resampler):
+    truth, observations, initial = scenario(steps=6)
+    pf = streampf.ParticleFilter(
+        initial, sigma=[0.1, 0.1], likelihood=python_likelihood, resampler=resampler, backend="cpu"
+    )
+    estimates = run(pf, observations)
+    assert np.linalg.norm(estimates - truth, axis=-1).mean() < 0.3
+
+
+def test_the_wgsl_model_on_the_gpu_agrees_with_the_python_twin(gpu_backend):
+    truth, observations, initial = scenario()
+    gpu = streampf.ParticleFilter(
+        initial, sigma=[0.1, 0.1], wgsl=WGSL, observation_size=2,
+        constants=np.array([1 / NOISE**2], np.float32), **gpu_backend,
+    )
+    cpu = streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=python_likelihood, backend="cpu")
+    # The same random numbers: the first step's estimates agree to f32 rounding.
+    first_gpu, first_cpu = gpu.step(observations[0]), cpu.step(observations[0])
+    np.testing.assert_allclose(first_gpu["estimate"], first_cpu["estimate"], atol=1e-4)
+    np.testing.assert_allclose(first_gpu["ess"], first_cpu["ess"], rtol=1e-3)
+    later = run(gpu, observations[1:])
+    error = np.linalg.norm(later - truth[1:], axis=-1)[2:].mean()
+    raw = np.linalg.norm(observations[1:] - truth[1:], axis=-1)[2:].mean()
+    assert error < 0.8 * raw, (error, raw)
+
+
+def test_model_mistakes_are_reported(gpu_backend):
+    _, observations, initial = scenario(steps=2)
+    constants = np.array([1.0], np.float32)
+    with pytest.raises(ValueError, match="Observation"):
+        streampf.ParticleFilter(initial, sigma=[0.1, 0.1], wgsl=WGSL, observation_size=3, constants=constants, **gpu_backend)
+    with pytest.raises(ValueError, match=r"model:\d+"):
+        streampf.ParticleFilter(
+            initial, sigma=[0.1, 0.1], wgsl=WGSL.replace("dx * dx", "dx * undefined_name"),
+            observation_size=2, constants=constants, **gpu_backend,
+        )
+    pf = streampf.ParticleFilter(initial, sigma=[0.1, 0.1], wgsl=WGSL, observation_size=2, constants=constants, **gpu_backend)
+    with pytest.raises(ValueError, match="shape"):
+        pf.step(observations[0][:, :1].copy())
+    bad = observations[0].copy()
+    bad[1, 0] = np.nan
+    with pytest.raises(ValueError, match="non-finite"):
+        pf.step(bad)
+
+
+def test_python_likelihood_mistakes_are_reported():
+    _, observations, initial = scenario(steps=2)
+
+    def make(likelihood):
+        return streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=likelihood, backend="cpu")
+
+    class Oops(Exception):
+        pass
+
+    def raises(p, z):
+        raise Oops("from the model")
+
+    with pytest.raises(Oops):
+        make(raises).step(observations[0])
+    with pytest.raises(ValueError, match="shape"):
+        make(lambda p, z: np.zeros(PARTICLES)).step(observations[0])
+    with pytest.raises(ValueError, match="non-finite"):
+        make(lambda p, z: np.full((TARGETS, PARTICLES), np.nan)).step(observations[0])
+    # −∞ everywhere is a zero likelihood: the filter says so.
+    with pytest.raises(RuntimeError, match="zero"):
+        make(lambda p, z: np.full((TARGETS, PARTICLES), -np.inf)).step(observations[0])
+
+
+def test_bad_construction_is_a_value_error():
+    _, _, initial = scenario(steps=1)
+    with pytest.raises(ValueError, match="either"):
+        streampf.ParticleFilter(initial, sigma=[0.1, 0.1])
+    with pytest.raises(ValueError, match="sigma"):
+        streampf.ParticleFilter(initial, sigma=[0.1], likelihood=python_likelihood)
+    with pytest.raises(ValueError, match="shape"):
+        streampf.ParticleFilter(initial[0], sigma=[0.1, 0.1], likelihood=python_likelihood)
+    with pytest.raises(ValueError, match="dtype float32"):
+        streampf.ParticleFilter(initial.astype(np.float64), sigma=[0.1, 0.1], likelihood=python_likelihood)
+    with pytest.raises(ValueError, match="resampler"):
+        streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=python_likelihood, resampler="best")
+    with pytest.raises(ValueError, match="WGSL model runs on the GPU"):
+        streampf.ParticleFilter(initial, sigma=[0.1, 0.1], wgsl=WGSL, observation_size=2, backend="cpu")
