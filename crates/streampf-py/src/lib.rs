@@ -10,6 +10,7 @@
 
 mod arrays;
 mod backend;
+mod bench;
 mod body;
 mod errors;
 mod face;
@@ -28,6 +29,7 @@ fn _streampf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synthetic::synthetic_faces, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::synthetic_body, m)?)?;
     m.add_function(wrap_pyfunction!(video::run_command, m)?)?;
+    m.add_function(wrap_pyfunction!(bench::_rust_face_step_times, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())
 }

@@ -215,3 +215,15 @@ def run_command(args: List[str]) -> None:
     """Runs ``streampf ARGS…`` in this process (what ``track_video`` calls): ValueError for a
     bad command line, RuntimeError for a failed run, KeyboardInterrupt after Ctrl-C (the run
     closes its files first)."""
+
+def _rust_face_step_times(
+    frames: npt.NDArray[np.uint8],
+    rects: Sequence[Rect],
+    *,
+    particles: int = 1000,
+    backend: str = "auto",
+    allow_software: bool = False,
+    seed: int = 1,
+) -> npt.NDArray[np.float64]:
+    """The yardstick of bench/face_overhead.py: the same tracking through the Rust API alone,
+    each step's wall time in seconds (frames made images before the clock starts)."""
