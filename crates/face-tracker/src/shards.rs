@@ -55,6 +55,48 @@ pub(crate) fn shard_sizes(capacity: usize, shards: usize) -> Result<Vec<usize>, 
         .collect())
 }
 
+/// A frame as a step takes it: an image, or borrowed 8-bit pixels (row-major, a binding's
+/// array) that a GPU uploads as they are; the CPU's weighing copies them into an image first.
+#[derive(Debug, Clone, Copy)]
+pub enum FrameRef<'a> {
+    Image(&'a GrayImage),
+    Pixels {
+        width: u32,
+        height: u32,
+        data: &'a [u8],
+    },
+}
+
+impl<'a> FrameRef<'a> {
+    /// (width, height).
+    pub fn size(&self) -> (u32, u32) {
+        match self {
+            FrameRef::Image(image) => (image.width, image.height),
+            FrameRef::Pixels { width, height, .. } => (*width, *height),
+        }
+    }
+
+    /// The pixels, row-major.
+    pub fn pixels(&self) -> &'a [u8] {
+        match self {
+            FrameRef::Image(image) => &image.data,
+            FrameRef::Pixels { data, .. } => data,
+        }
+    }
+
+    /// The frame as an image (borrowed, or copied from the pixels; checks their count).
+    pub fn image(&self) -> Result<std::borrow::Cow<'a, GrayImage>, FaceError> {
+        Ok(match self {
+            FrameRef::Image(image) => std::borrow::Cow::Borrowed(*image),
+            FrameRef::Pixels {
+                width,
+                height,
+                data,
+            } => std::borrow::Cow::Owned(GrayImage::new(*width, *height, data.to_vec())?),
+        })
+    }
+}
+
 impl Shard {
     /// `slots` slots from `first_slot` on, on the CPU (`ctx` `None`) or a GPU, for frames of
     /// `frame_size`.
@@ -129,20 +171,27 @@ impl Shard {
     /// (`None`: free).
     pub fn step(
         &mut self,
-        frame: &GrayImage,
+        frame: FrameRef<'_>,
         templates: &[Option<&Template>],
         sharpness: f32,
     ) -> Result<ShardStep, FaceError> {
         if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
-            likelihood.upload_frame(ctx, &frame.data)?;
+            likelihood.upload_frame(ctx, frame.pixels())?;
         }
+        // The CPU weighs an image; a GPU only needs the pixels it uploaded.
+        let image = match &self.gpu_likelihood {
+            Some(_) => None,
+            None => Some(frame.image()?),
+        };
         let on_gpu: &dyn GpuLikelihood = match &self.gpu_likelihood {
             Some(likelihood) => &**likelihood,
             None => &NoLikelihood,
         };
         let report = self.engine.step(
             |shape, states, out| -> Result<(), FaceError> {
-                host_log_weights(shape, states, templates, frame, sharpness, out);
+                if let Some(image) = &image {
+                    host_log_weights(shape, states, templates, image, sharpness, out);
+                }
                 Ok(())
             },
             on_gpu,
@@ -157,14 +206,20 @@ impl Shard {
                 .map(f64::from)
                 .collect(),
             // Faces in parallel (at 64 faces this is 15 000 points); a free slot's ε is 1.
-            None => templates
-                .par_iter()
-                .enumerate()
-                .map(|(t, template)| {
-                    let state: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
-                    template.map_or(1.0, |template| residual_error(&state, template, frame))
-                })
-                .collect(),
+            None => {
+                let image = match &image {
+                    Some(image) => image,
+                    None => unreachable!("the CPU engine has its image"),
+                };
+                templates
+                    .par_iter()
+                    .enumerate()
+                    .map(|(t, template)| {
+                        let state: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
+                        template.map_or(1.0, |template| residual_error(&state, template, image))
+                    })
+                    .collect()
+            }
         };
         Ok(ShardStep {
             estimates,
@@ -219,7 +274,7 @@ fn host_log_weights(
 /// Every shard's step at once (each on its own thread when there are several), in shard order.
 pub(crate) fn step_all(
     shards: &mut [Shard],
-    frame: &GrayImage,
+    frame: FrameRef<'_>,
     templates: &[Option<&Template>],
     sharpness: f32,
 ) -> Result<Vec<ShardStep>, FaceError> {

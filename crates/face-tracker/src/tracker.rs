@@ -21,7 +21,7 @@ use crate::landmarks::Landmarks;
 use crate::model::FaceModel;
 use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
-use crate::shards::{Shard, joined_particles, shard_sizes, step_all};
+use crate::shards::{FrameRef, Shard, joined_particles, shard_sizes, step_all};
 use crate::template::Template;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -326,7 +326,7 @@ impl FaceTracker {
         frame: &GrayImage,
         rect: &FaceRect,
     ) -> Result<(Template, Option<Landmarks>), FaceError> {
-        self.check_size(frame)?;
+        self.check_size((frame.width, frame.height))?;
         rect.validate(frame)?;
         let personal = self.personaliser.as_ref().and_then(|p| {
             let fitted = p.personalise(frame, rect, &self.model).ok();
@@ -445,11 +445,11 @@ impl FaceTracker {
         self.last_time
     }
 
-    fn check_size(&self, frame: &GrayImage) -> Result<(), FaceError> {
-        if (frame.width, frame.height) != self.frame_size {
+    fn check_size(&self, (width, height): (u32, u32)) -> Result<(), FaceError> {
+        if (width, height) != self.frame_size {
             return Err(FaceError::InvalidInput(format!(
-                "frame {} is {}x{}; the video started at {}x{}",
-                self.frame_index, frame.width, frame.height, self.frame_size.0, self.frame_size.1
+                "frame {} is {width}x{height}; the video started at {}x{}",
+                self.frame_index, self.frame_size.0, self.frame_size.1
             )));
         }
         Ok(())
@@ -458,7 +458,34 @@ impl FaceTracker {
     /// One frame for every running track, in slot order. A track that fails here is reported
     /// as `Lost` and its slot freed.
     pub fn step(&mut self, frame: &GrayImage) -> Result<Vec<FaceEstimate>, FaceError> {
-        self.check_size(frame)?;
+        self.step_frame(FrameRef::Image(frame))
+    }
+
+    /// [`FaceTracker::step`] on borrowed 8-bit pixels (`width × height`, row-major): a GPU
+    /// uploads them with no copy of the frame on the host (a binding's arrays).
+    pub fn step_pixels(
+        &mut self,
+        width: u32,
+        height: u32,
+        pixels: &[u8],
+    ) -> Result<Vec<FaceEstimate>, FaceError> {
+        if pixels.len() != width as usize * height as usize {
+            return Err(FaceError::InvalidInput(format!(
+                "a {width}x{height} frame has {} pixels, got {}",
+                width as usize * height as usize,
+                pixels.len()
+            )));
+        }
+        self.step_frame(FrameRef::Pixels {
+            width,
+            height,
+            data: pixels,
+        })
+    }
+
+    fn step_frame(&mut self, frame: FrameRef<'_>) -> Result<Vec<FaceEstimate>, FaceError> {
+        self.check_size(frame.size())?;
+        let (frame_width, frame_height) = frame.size();
         let slots = self.slots.len();
         let state_of = |estimates: &[f32], t: usize| -> [f32; DIMS] {
             std::array::from_fn(|d| estimates[t * DIMS + d])
@@ -491,8 +518,8 @@ impl FaceTracker {
             } else {
                 0
             };
-            let outside = !(0.0..frame.width as f32).contains(&state[TX])
-                || !(0.0..frame.height as f32).contains(&state[TY]);
+            let outside = !(0.0..frame_width as f32).contains(&state[TX])
+                || !(0.0..frame_height as f32).contains(&state[TY]);
             let status = if outside || track.bad_frames >= self.config.failure_frames {
                 TrackStatus::Lost {
                     frame: self.frame_index,

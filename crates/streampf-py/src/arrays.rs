@@ -3,8 +3,8 @@
 
 use face_tracker::GrayImage;
 use numpy::{
-    Element, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArray,
-    PyUntypedArrayMethods, dtype,
+    Element, IntoPyArray, PyArrayDescrMethods, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn,
+    PyUntypedArray, PyUntypedArrayMethods, dtype,
 };
 use pyo3::prelude::*;
 
@@ -163,6 +163,8 @@ pub fn to_numpy<'py, T: Element>(
     data: Vec<T>,
     shape: &[usize],
 ) -> PyResult<Bound<'py, PyAny>> {
-    let flat = numpy::PyArray1::from_vec(py, data);
-    Ok(flat.reshape(shape.to_vec())?.into_any())
+    // One numpy array that takes over the Vec (no copy, one C-API call).
+    let array = numpy::ndarray::ArrayD::from_shape_vec(numpy::ndarray::IxDyn(shape), data)
+        .map_err(|e| value_error(format!("an output of shape {shape:?}: {e}")))?;
+    Ok(array.into_pyarray(py).into_any())
 }

@@ -9,11 +9,12 @@ use face_tracker::projection::{pitch_yaw_roll_degrees, rotation_quaternion};
 use face_tracker::{
     AutoConfig, AutoTracker, DIMS, FaceEstimate, FaceTrackerConfig, GrayImage, TrackStatus,
 };
+use numpy::PyUntypedArrayMethods;
 use pf_core::anneal::Annealing;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use crate::arrays::{ChannelOrder, gray_frame, to_numpy};
+use crate::arrays::{ChannelOrder, contiguous, gray_frame, to_numpy};
 use crate::backend::{Choice, face_backend, open};
 use crate::errors::{face, runtime_error, value_error};
 
@@ -61,6 +62,8 @@ pub struct FaceTracker {
     size: (u32, u32),
     order: ChannelOrder,
     device: String,
+    /// Whether the detector runs (its thread needs frames of its own: no borrowed pixels).
+    detecting: bool,
 }
 
 fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTrackerConfig> {
@@ -200,6 +203,7 @@ impl FaceTracker {
             size,
             order,
             device,
+            detecting: detect,
         })
     }
 
@@ -242,6 +246,30 @@ impl FaceTracker {
         py: Python<'py>,
         frame: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        let (width, height) = self.size;
+        let array = contiguous::<u8>(frame, "frame", "uint8")?;
+        if !self.detecting && array.shape() == [height as usize, width as usize] {
+            // A gray frame goes to the tracker as it lies in numpy's memory: a GPU uploads it
+            // with no copy on the host (the binding's cost per frame, bench/face_overhead.py).
+            let pixels = array
+                .as_slice()
+                .map_err(|e| value_error(format!("frame: {e}")))?;
+            let out = py.detach(|| {
+                let mut inner = self.lock()?;
+                let Engine::Fixed(tracker) = &mut inner.engine else {
+                    return Err(runtime_error("the tracker's engine changed"));
+                };
+                let estimates = tracker.step_pixels(width, height, pixels).map_err(face)?;
+                inner.frames += 1;
+                Ok(StepOut {
+                    estimates,
+                    started: Vec::new(),
+                    restarted: Vec::new(),
+                })
+            })?;
+            return step_dict(py, out);
+        }
+        drop(array);
         let buffer = std::mem::take(&mut *self.buffer.lock().unwrap_or_else(|e| e.into_inner()));
         let image = gray_frame(frame, self.size, self.order, buffer)?;
         let (out, image) = py.detach(|| {

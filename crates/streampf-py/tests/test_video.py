@@ -52,3 +52,15 @@ def test_a_failed_run_is_a_runtime_error_with_the_command_lines_message(tmp_path
     not_a_video.write_bytes(b"\0" * 1000)
     with pytest.raises(RuntimeError, match="noise.mp4"):
         streampf.track_video(not_a_video, tmp_path / "out", backend="cpu", faces=[(1, 1, 40, 50)], progress=False)
+
+
+def test_a_gpu_fault_is_a_runtime_error_and_keeps_the_frames_before_it(
+    video, two_face_video, tmp_path, gpu_backend, monkeypatch
+):
+    # The command line's fault injection: the device is lost before frame 3.
+    monkeypatch.setenv("STREAMPF_SIMULATE_GPU_FAULT_AT", "3")
+    rects = [tuple(float(v) for v in r) for r in two_face_video["rects"]]
+    with pytest.raises(RuntimeError, match="(?i)lost"):
+        streampf.track_video(video, tmp_path / "out", faces=rects, particles=64, progress=False, **gpu_backend)
+    states = streampf.read_csv(tmp_path / "out" / "states.csv")
+    assert sorted(set(states["frame"])) == [0.0, 1.0, 2.0]
