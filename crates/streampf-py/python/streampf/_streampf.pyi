@@ -78,7 +78,8 @@ class FaceTracker:
           this frame's step.
 
         ValueError for a frame of the wrong dtype, shape or memory order (the tracker is left as
-        it was)."""
+        it was). A gray frame is read in place with the GIL released: do not write to it from
+        another thread while this runs."""
     def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """``(states, log_weights)`` after the last step: (slots, particles, 7) and
         (slots, particles); normalised log-weights. On a GPU this reads them back."""
