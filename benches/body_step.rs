@@ -111,5 +111,50 @@ fn bench(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench);
+/// One GPU against every GPU (one island of the samples on each, `Backend::SplitGpus`) on the
+/// tracker's default eight layers, at 1024×768 with all of its points: the split's own speed,
+/// without the synthetic renderer that shares the host's cores in `body track --synthetic`.
+/// Skipped, saying so, on a machine with fewer than two hardware GPUs.
+fn over_gpus(c: &mut Criterion) {
+    let count = pf_gpu::GpuContext::all(&pf_gpu::ContextOptions::default())
+        .map(|all| all.len())
+        .unwrap_or(0);
+    if count < 2 {
+        eprintln!("body_step_over_gpus: {count} hardware GPU(s); skipped");
+        return;
+    }
+    let (samples, (width, height)): (&[usize], _) = if full_size() {
+        (&[7000, 14000], (1024, 768))
+    } else {
+        (&[40], (48, 36))
+    };
+    let (points, start) = frame(width, height);
+    let i = points.len();
+    let mut group = c.benchmark_group("body_step_over_gpus");
+    group.sample_size(10);
+    for &j in samples {
+        let label = format!("j{j}_i{i}");
+        group.throughput(Throughput::Elements((j * i * K) as u64));
+        let annealing = TrackerConfig::default().annealing;
+        let mut one = tracker(
+            j,
+            i,
+            &start,
+            Backend::Gpu(Box::new(context())),
+            annealing.clone(),
+        );
+        group.bench_function(BenchmarkId::new("one_gpu", &label), |b| {
+            b.iter(|| std::hint::black_box(one.step(&points).unwrap()))
+        });
+        drop(one);
+        let all = pf_gpu::GpuContext::all(&pf_gpu::ContextOptions::default()).unwrap();
+        let mut split = tracker(j, i, &start, Backend::SplitGpus(all), annealing);
+        group.bench_function(BenchmarkId::new("all_gpus", &label), |b| {
+            b.iter(|| std::hint::black_box(split.step(&points).unwrap()))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench, over_gpus);
 criterion_main!(benches);
