@@ -33,6 +33,11 @@ pub fn _rust_face_step_times<'py>(
             "frames must be (F, H, W), got {shape:?}"
         )));
     };
+    if count == 0 || width == 0 || height == 0 {
+        return Err(value_error(format!(
+            "frames must hold at least one non-empty frame, got {shape:?}"
+        )));
+    }
     let pixels = array
         .as_slice()
         .map_err(|e| value_error(format!("frames: {e}")))?;

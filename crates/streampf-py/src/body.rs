@@ -7,7 +7,6 @@ use body_tracker::human::{human_skeleton, standing_pose};
 use body_tracker::{FrameResult, Skeleton, TrackerConfig};
 use nalgebra::Vector3;
 use numpy::PyUntypedArrayMethods;
-use pf_core::anneal::Annealing;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -34,19 +33,8 @@ fn load_skeleton(capsules: usize, skeleton: Option<std::path::PathBuf>) -> PyRes
 }
 
 fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<TrackerConfig> {
-    if particles == 0 {
-        return Err(value_error("particles must be at least 1"));
-    }
     let defaults = TrackerConfig::default();
-    let annealing = match layers {
-        None => defaults.annealing.clone(),
-        Some(0) => return Err(value_error("layers must be at least 1")),
-        Some(1) => Annealing::none(),
-        Some(n) => Annealing {
-            layers: n,
-            ..defaults.annealing.clone()
-        },
-    };
+    let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
     Ok(TrackerConfig {
         particles,
         seed,

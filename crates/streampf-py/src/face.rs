@@ -10,7 +10,6 @@ use face_tracker::{
     AutoConfig, AutoTracker, DIMS, FaceEstimate, FaceTrackerConfig, GrayImage, TrackStatus,
 };
 use numpy::PyUntypedArrayMethods;
-use pf_core::anneal::Annealing;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -67,19 +66,8 @@ pub struct FaceTracker {
 }
 
 fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTrackerConfig> {
-    if particles == 0 {
-        return Err(value_error("particles must be at least 1"));
-    }
     let defaults = FaceTrackerConfig::default();
-    let annealing = match layers {
-        None => defaults.annealing.clone(),
-        Some(0) => return Err(value_error("layers must be at least 1")),
-        Some(1) => Annealing::none(),
-        Some(n) => Annealing {
-            layers: n,
-            ..defaults.annealing.clone()
-        },
-    };
+    let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
     Ok(FaceTrackerConfig {
         particles,
         best: (particles / 10).max(1),

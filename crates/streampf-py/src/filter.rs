@@ -38,6 +38,8 @@ pub struct ParticleFilter {
     engine: Mutex<Engine>,
     shape: BatchShape,
     device: String,
+    /// Whether the model is WGSL on the GPU (else a Python likelihood on the CPU).
+    on_gpu: bool,
 }
 
 /// (T, M, D) row-major → the batch layout `[(t·D + d)·M + m]`.
@@ -193,7 +195,9 @@ impl ParticleFilter {
                 )
             }
         };
+        let on_gpu = matches!(engine, Engine::Gpu { .. });
         Ok(Self {
+            on_gpu,
             engine: Mutex::new(engine),
             shape,
             device,
@@ -219,9 +223,8 @@ impl ParticleFilter {
         observations: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let shape = self.shape;
-        let is_gpu = matches!(&*self.try_lock()?, Engine::Gpu { .. });
         let (estimates, spreads, ess, resampled) =
-            if is_gpu {
+            if self.on_gpu {
                 let (_, values) =
                     finite_f32(observations, &[Some(shape.targets), None], "observations")?;
                 py.detach(|| {

@@ -15,6 +15,7 @@ mod body;
 mod errors;
 mod face;
 mod filter;
+mod settings;
 mod synthetic;
 mod video;
 

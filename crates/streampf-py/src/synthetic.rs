@@ -46,7 +46,17 @@ pub fn synthetic_faces(
         .detach(|| -> Result<Vec<u8>, face_tracker::FaceError> {
             let model = FaceModel::generic(129)?;
             let mut renderer = FaceVideoRenderer::new(&config, &model)?;
-            let mut pixels = Vec::with_capacity(frames * (width * height) as usize);
+            let mut pixels = Vec::new();
+            let bytes = (width as usize)
+                .checked_mul(height as usize)
+                .and_then(|p| p.checked_mul(frames));
+            bytes
+                .and_then(|b| pixels.try_reserve_exact(b).ok())
+                .ok_or_else(|| {
+                    face_tracker::FaceError::InvalidInput(format!(
+                        "{frames} frames of {width}x{height} do not fit in memory"
+                    ))
+                })?;
             for frame in 0..frames {
                 pixels.extend_from_slice(&renderer.render(frame)?.data);
             }
