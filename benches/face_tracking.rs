@@ -228,12 +228,23 @@ fn render(c: &mut Criterion) {
     let frames = if full_size() { 100 } else { 3 };
     let config = FaceSynthConfig::paper(frames);
     let model = FaceModel::generic(129).unwrap();
-    let mut renderer = FaceVideoRenderer::new(&config, &model).unwrap();
+    let renderer = FaceVideoRenderer::new(&config, &model).unwrap();
     let mut frame = 0;
     group.bench_function("render_frame", |b| {
         b.iter(|| {
             frame = (frame + 1) % frames;
             std::hint::black_box(renderer.render(frame).unwrap())
+        })
+    });
+    // As `face track --synthetic` reads them: a frame per core at once. Criterion's time is
+    // per batch; its throughput line gives frames per second.
+    let batch = rayon::current_num_threads().min(frames);
+    group.throughput(Throughput::Elements(batch as u64));
+    let mut first = 0;
+    group.bench_function(format!("render_{batch}_frames_at_once"), |b| {
+        b.iter(|| {
+            first = (first + batch) % (frames - batch + 1);
+            std::hint::black_box(renderer.render_frames(first..first + batch))
         })
     });
     group.finish();

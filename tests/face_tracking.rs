@@ -48,7 +48,7 @@ fn config() -> FaceTrackerConfig {
 /// (a lost track is reported once, at the frame it is lost).
 fn run(video: &FaceSynthConfig, backend: FaceBackend) -> (f32, f32, Vec<TrackStatus>) {
     let model = FaceModel::generic(129).unwrap();
-    let mut renderer = FaceVideoRenderer::new(video, &model).unwrap();
+    let renderer = FaceVideoRenderer::new(video, &model).unwrap();
     let first = renderer.render(0).unwrap();
     let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(video, k)).collect();
     let mut tracker = FaceTracker::new(&first, &rects, &model, config(), backend).unwrap();
@@ -139,7 +139,7 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         ..video(30)
     };
     let model = FaceModel::generic(129).unwrap();
-    let mut renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
     let first = renderer.render(0).unwrap();
     let mut tracker = FaceTracker::with_capacity(
         (video.width, video.height),

@@ -6,11 +6,16 @@
 //! track frees its slot, so the face can be found again. Detections whose template shows too
 //! little contrast to be a face (dark or flat regions) are ignored.
 //!
-//! The detector never holds up tracking unless `max_detection_lag` says so: its results are
-//! taken when they are ready, and a new frame is handed to it only when it is idle.
+//! Live (no `detection_delay`), the detector never holds up tracking: its results are taken when
+//! they are ready, and a new frame is handed to it only when it is idle. With a delay of d frames
+//! (a file), the detection of frame t is used at frame t + d exactly, waiting for it if it is
+//! late, so that a run's results do not depend on timing; the frames handed over in between are
+//! detected at the same time on threads of their own, so a delay of a few detection periods lets
+//! the detector keep up with the tracker instead of holding it up.
 
-use std::sync::Arc;
+use std::collections::VecDeque;
 use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 
 use crate::detect::{Cascade, DetectConfig, Detection};
@@ -30,9 +35,11 @@ pub struct AutoConfig {
     pub detect: DetectConfig,
     /// Faces tracked at once (the filter batch's slots).
     pub max_faces: usize,
-    /// At most this many frames between handing the detector a frame and using its result; the
-    /// tracking thread waits when the detector is slower. `None`: never wait (live video).
-    pub max_detection_lag: Option<usize>,
+    /// Use the detection of frame t at frame t + d exactly (0: before tracking frame t itself),
+    /// waiting for it when the detector is slower; up to d / `detect_every` + 1 frames are
+    /// detected at once. Runs repeat exactly. `None`: never wait (live video), one frame at a
+    /// time.
+    pub detection_delay: Option<usize>,
     /// The face rectangle's width as a share of the detector's square (a frontal Haar square
     /// spans brow to chin and a little beyond the cheeks).
     pub rect_width_share: f32,
@@ -53,7 +60,7 @@ impl Default for AutoConfig {
             detect_every: 5,
             detect: DetectConfig::default(),
             max_faces: 8,
-            max_detection_lag: None,
+            detection_delay: None,
             rect_width_share: 0.8,
             min_template_contrast: 40.0,
             confirmations: 2,
@@ -123,41 +130,69 @@ struct DetectionResult {
     faces: Result<Vec<Detection>, FaceError>,
 }
 
-/// The initialisation thread: takes frames, sends back detections.
-struct DetectorThread {
+/// The initialisation threads: take frames, send back detections.
+struct Detectors {
     jobs: Option<Sender<(usize, Arc<GrayImage>)>>,
     results: Receiver<DetectionResult>,
-    /// The frame index the detector is working on.
-    busy_with: Option<usize>,
-    handle: Option<JoinHandle<()>>,
+    /// The frames handed over whose detections have not been used, oldest first.
+    in_flight: VecDeque<usize>,
+    /// Detections that came back before they were due.
+    early: Vec<DetectionResult>,
+    handles: Vec<JoinHandle<()>>,
 }
 
-impl DetectorThread {
-    fn spawn(cascade: Cascade, config: DetectConfig) -> Result<Self, FaceError> {
+impl Detectors {
+    fn spawn(cascade: Cascade, config: DetectConfig, threads: usize) -> Result<Self, FaceError> {
         let (jobs, job_queue) = channel::<(usize, Arc<GrayImage>)>();
+        let job_queue = Arc::new(Mutex::new(job_queue));
+        let cascade = Arc::new(cascade);
         let (result_sender, results) = channel();
-        let handle = std::thread::Builder::new()
-            .name("face-detector".into())
-            .spawn(move || {
-                for (frame_index, frame) in job_queue {
-                    let faces = cascade.detect(&frame, &config);
-                    let result = DetectionResult {
-                        frame_index,
-                        frame,
-                        faces,
-                    };
-                    if result_sender.send(result).is_err() {
-                        break;
+        let mut handles = Vec::with_capacity(threads);
+        for k in 0..threads.max(1) {
+            let (job_queue, cascade, config, result_sender) = (
+                Arc::clone(&job_queue),
+                Arc::clone(&cascade),
+                config.clone(),
+                result_sender.clone(),
+            );
+            let handle = std::thread::Builder::new()
+                .name(format!("face-detector-{k}"))
+                .spawn(move || {
+                    loop {
+                        // One thread at a time waits on the queue; the lock is let go before
+                        // the detection runs.
+                        let job = job_queue
+                            .lock()
+                            .unwrap_or_else(PoisonError::into_inner)
+                            .recv();
+                        let Ok((frame_index, frame)) = job else {
+                            break;
+                        };
+                        let faces = cascade.detect(&frame, &config);
+                        let result = DetectionResult {
+                            frame_index,
+                            frame,
+                            faces,
+                        };
+                        if result_sender.send(result).is_err() {
+                            break;
+                        }
                     }
-                }
-            })
-            .map_err(|e| FaceError::InvalidInput(format!("cannot start the detector: {e}")))?;
+                })
+                .map_err(|e| FaceError::InvalidInput(format!("cannot start the detector: {e}")))?;
+            handles.push(handle);
+        }
         Ok(Self {
             jobs: Some(jobs),
             results,
-            busy_with: None,
-            handle: Some(handle),
+            in_flight: VecDeque::new(),
+            early: Vec::new(),
+            handles,
         })
+    }
+
+    fn idle(&self) -> bool {
+        self.in_flight.is_empty()
     }
 
     fn send(&mut self, frame_index: usize, frame: Arc<GrayImage>) -> Result<(), FaceError> {
@@ -165,36 +200,52 @@ impl DetectorThread {
             .as_ref()
             .and_then(|jobs| jobs.send((frame_index, frame)).ok())
             .ok_or_else(|| FaceError::InvalidInput("the detector thread has stopped".into()))?;
-        self.busy_with = Some(frame_index);
+        self.in_flight.push_back(frame_index);
         Ok(())
     }
 
-    /// The finished detection, if any; waits for it when `wait`.
-    fn take(&mut self, wait: bool) -> Result<Option<DetectionResult>, FaceError> {
-        if self.busy_with.is_none() {
+    fn stopped() -> FaceError {
+        FaceError::InvalidInput("the detector thread stopped".into())
+    }
+
+    /// A finished detection if one is ready (live: one frame in flight at most).
+    fn take_ready(&mut self) -> Result<Option<DetectionResult>, FaceError> {
+        if self.idle() {
             return Ok(None);
         }
-        let result = if wait {
-            self.results.recv().ok()
-        } else {
-            match self.results.try_recv() {
-                Ok(r) => Some(r),
-                Err(TryRecvError::Empty) => return Ok(None),
-                Err(TryRecvError::Disconnected) => None,
-            }
+        let result = match self.results.try_recv() {
+            Ok(r) => r,
+            Err(TryRecvError::Empty) => return Ok(None),
+            Err(TryRecvError::Disconnected) => return Err(Self::stopped()),
         };
-        let result =
-            result.ok_or_else(|| FaceError::InvalidInput("the detector thread stopped".into()))?;
-        self.busy_with = None;
+        self.in_flight.retain(|&f| f != result.frame_index);
         Ok(Some(result))
+    }
+
+    /// The detection of `frame_index` if that frame was handed over, waiting for it.
+    fn take_frame(&mut self, frame_index: usize) -> Result<Option<DetectionResult>, FaceError> {
+        if !self.in_flight.contains(&frame_index) {
+            return Ok(None);
+        }
+        self.in_flight.retain(|&f| f != frame_index);
+        if let Some(i) = self.early.iter().position(|r| r.frame_index == frame_index) {
+            return Ok(Some(self.early.swap_remove(i)));
+        }
+        loop {
+            let result = self.results.recv().map_err(|_| Self::stopped())?;
+            if result.frame_index == frame_index {
+                return Ok(Some(result));
+            }
+            self.early.push(result);
+        }
     }
 }
 
-impl Drop for DetectorThread {
+impl Drop for Detectors {
     fn drop(&mut self) {
-        // Closing the job channel ends the thread's loop.
+        // Closing the job channel ends the threads' loops.
         self.jobs = None;
-        if let Some(handle) = self.handle.take() {
+        for handle in self.handles.drain(..) {
             let _ = handle.join();
         }
     }
@@ -220,7 +271,7 @@ pub struct AutoFrame {
 pub struct AutoTracker {
     config: AutoConfig,
     tracker: FaceTracker,
-    detector: DetectorThread,
+    detector: Detectors,
     frame_index: usize,
     /// The running tracks after the last step: number, rectangle, ε.
     tracked: Vec<(usize, FaceRect, f64)>,
@@ -244,7 +295,11 @@ impl AutoTracker {
             config.tracker.clone(),
             backend,
         )?;
-        let detector = DetectorThread::spawn(cascade, config.detect.clone())?;
+        // With a delay, every frame handed over before a detection is due runs at once.
+        let threads = config
+            .detection_delay
+            .map_or(1, |delay| delay / config.detect_every + 1);
+        let detector = Detectors::spawn(cascade, config.detect.clone(), threads)?;
         Ok(Self {
             config,
             tracker,
@@ -333,8 +388,9 @@ impl AutoTracker {
         (high - low >= self.config.min_template_contrast).then_some(template)
     }
 
-    /// One frame: take a finished detection (new faces start tracks), hand the detector a copy
-    /// of this frame when it is idle and the period says so, then track.
+    /// One frame: hand the detector a copy of this frame when the period says so (live: when it
+    /// is idle), take the detection that is due (live: one that is ready; new faces start
+    /// tracks), then track.
     pub fn step(&mut self, frame: &GrayImage) -> Result<AutoFrame, FaceError> {
         let mut out = AutoFrame {
             estimates: Vec::new(),
@@ -342,18 +398,28 @@ impl AutoTracker {
             restarted: Vec::new(),
             ignored: 0,
         };
-        let overdue = match (self.detector.busy_with, self.config.max_detection_lag) {
-            (Some(sent), Some(lag)) => self.frame_index >= sent + lag,
-            _ => false,
-        };
-        if let Some(result) = self.detector.take(overdue)? {
-            self.use_detection(result, &mut out)?;
-        }
-        if self.detector.busy_with.is_none()
-            && self.frame_index.is_multiple_of(self.config.detect_every)
-        {
-            self.detector
-                .send(self.frame_index, Arc::new(frame.clone()))?;
+        let period = self.frame_index.is_multiple_of(self.config.detect_every);
+        match self.config.detection_delay {
+            None => {
+                if let Some(result) = self.detector.take_ready()? {
+                    self.use_detection(result, &mut out)?;
+                }
+                if period && self.detector.idle() {
+                    self.detector
+                        .send(self.frame_index, Arc::new(frame.clone()))?;
+                }
+            }
+            Some(delay) => {
+                if period {
+                    self.detector
+                        .send(self.frame_index, Arc::new(frame.clone()))?;
+                }
+                if let Some(due) = self.frame_index.checked_sub(delay)
+                    && let Some(result) = self.detector.take_frame(due)?
+                {
+                    self.use_detection(result, &mut out)?;
+                }
+            }
         }
         out.estimates = self.tracker.step(frame)?;
         self.tracked = out

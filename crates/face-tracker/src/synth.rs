@@ -7,6 +7,8 @@
 //! position; α = 1/g for a light gain g (the tracker's α·I ≈ J undoes it).
 
 use std::f32::consts::PI;
+use std::ops::Range;
+use std::sync::{Arc, Mutex, PoisonError};
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -261,12 +263,29 @@ fn head_surface(model: &FaceModel, steps: i32, seed: u64) -> HeadSurface {
 /// step). A frame is then the background, the heads splatted from their samples with a depth
 /// buffer, the occluder and the light: the same pixels as [`render_frame`], several times
 /// faster, so that the synthetic run shows the tracker's speed rather than the renderer's.
-#[derive(Debug, Clone)]
+///
+/// Frames are independent of each other: [`FaceVideoRenderer::render_frames`] renders several
+/// at once, one per core, which scales far better than the parallel passes inside one frame
+/// (each of those is a short pass over a frame, with a barrier after it).
+#[derive(Debug)]
 pub struct FaceVideoRenderer {
     config: FaceSynthConfig,
     model: FaceModel,
     background: Vec<f32>,
-    surfaces: Vec<Option<HeadSurface>>,
+    /// Each head's surface for the density its latest frame asked for, shared by the frames
+    /// being rendered at once (neighbouring frames almost always ask for the same density).
+    surfaces: Mutex<Vec<Option<Arc<HeadSurface>>>>,
+}
+
+impl Clone for FaceVideoRenderer {
+    fn clone(&self) -> Self {
+        Self {
+            config: self.config.clone(),
+            model: self.model.clone(),
+            background: self.background.clone(),
+            surfaces: Mutex::new(self.cached_surfaces().clone()),
+        }
+    }
 }
 
 impl FaceVideoRenderer {
@@ -281,8 +300,31 @@ impl FaceVideoRenderer {
             config: config.clone(),
             model: model.clone(),
             background,
-            surfaces: vec![None; config.faces],
+            surfaces: Mutex::new(vec![None; config.faces]),
         })
+    }
+
+    fn cached_surfaces(&self) -> std::sync::MutexGuard<'_, Vec<Option<Arc<HeadSurface>>>> {
+        // A panic elsewhere cannot leave the cache half-written (a slot is replaced whole).
+        self.surfaces.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Head `k`'s surface at `steps` samples per unit: the cached one, or made (outside the
+    /// lock, so that other frames go on) and cached.
+    fn surface(&self, k: usize, steps: i32, seed: u64) -> Arc<HeadSurface> {
+        if let Some(surface) = &self.cached_surfaces()[k]
+            && surface.steps == steps
+        {
+            return Arc::clone(surface);
+        }
+        let surface = Arc::new(head_surface(&self.model, steps, seed));
+        self.cached_surfaces()[k] = Some(Arc::clone(&surface));
+        surface
+    }
+
+    /// Frames `frames` of the video, rendered at once (one per core), in order.
+    pub fn render_frames(&self, frames: Range<usize>) -> Vec<Result<GrayImage, FaceError>> {
+        frames.into_par_iter().map(|f| self.render(f)).collect()
     }
 
     pub fn config(&self) -> &FaceSynthConfig {
@@ -290,7 +332,7 @@ impl FaceVideoRenderer {
     }
 
     /// Frame `frame` of the video (any order; frames past the last continue the motion).
-    pub fn render(&mut self, frame: usize) -> Result<GrayImage, FaceError> {
+    pub fn render(&self, frame: usize) -> Result<GrayImage, FaceError> {
         let config = &self.config;
         let (w, h) = (config.width, config.height);
         let mut data = self.background.clone();
@@ -301,14 +343,11 @@ impl FaceVideoRenderer {
             // Samples every ≤ 0.4 px in the image.
             let steps = (2.5 * hh * state[SCALE]).ceil() as i32;
             let seed = config.seed.wrapping_add(k as u64 * 1000);
-            let surface = match &mut self.surfaces[k] {
-                Some(surface) if surface.steps == steps => surface,
-                slot => slot.insert(head_surface(&self.model, steps, seed)),
-            };
+            let surface = self.surface(k, steps, seed);
             // Splats (pixel, depth, value) of every surface sample in parallel, sorted into
             // bands of rows; then each band's depth test in parallel, its splats in sample order
             // (so that ties resolve as one pass over the samples would).
-            let splats = splat_head(config, surface, &state);
+            let splats = splat_head(config, &surface, &state);
             let band_len = BAND_ROWS * w as usize;
             data.par_chunks_mut(band_len)
                 .zip(depth.par_chunks_mut(band_len))

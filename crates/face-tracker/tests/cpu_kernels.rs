@@ -89,7 +89,7 @@ fn the_video_renderer_draws_what_each_frame_alone_draws_in_any_order() {
         ..FaceSynthConfig::paper(30)
     };
     let model = FaceModel::generic(65).unwrap();
-    let mut renderer = FaceVideoRenderer::new(&config, &model).unwrap();
+    let renderer = FaceVideoRenderer::new(&config, &model).unwrap();
     // Forwards, backwards and jumping: the kept surfaces must follow the heads' scales. Frames
     // 10 to 19 carry the occluder.
     for frame in [0, 1, 2, 29, 15, 3, 12, 0, 28] {
@@ -98,6 +98,17 @@ fn the_video_renderer_draws_what_each_frame_alone_draws_in_any_order() {
             render_frame(&config, &model, frame).unwrap(),
             "frame {frame}"
         );
+    }
+    // Many frames at once (a frame per core, sharing the cached surfaces while the heads'
+    // scales change under them), from a fresh renderer and from this one: the same frames.
+    for renderer in [FaceVideoRenderer::new(&config, &model).unwrap(), renderer] {
+        for (frame, image) in (0..30).zip(renderer.render_frames(0..30)) {
+            assert_eq!(
+                image.unwrap(),
+                render_frame(&config, &model, frame).unwrap(),
+                "frame {frame} of a batch"
+            );
+        }
     }
     let bad = FaceSynthConfig { faces: 0, ..config };
     assert!(FaceVideoRenderer::new(&bad, &model).is_err());

@@ -174,7 +174,7 @@ impl FaceTracker {
                             max_faces,
                             // Frames from an array play as a file does: the detector's answer
                             // is used before the next is due, so a run is repeatable.
-                            max_detection_lag: Some(1),
+                            detection_delay: Some(1),
                             tracker: config,
                             ..AutoConfig::default()
                         };

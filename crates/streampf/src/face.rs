@@ -135,9 +135,21 @@ pub struct TrackArgs {
     /// The Haar cascade of the face detector (OpenCV's XML).
     #[arg(long, default_value = DEFAULT_CASCADE)]
     pub cascade: PathBuf,
-    /// Hand the detector every n-th frame (it skips frames while busy).
+    /// Hand the detector every n-th frame (with --webcam it skips frames while busy).
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub detect_every: u32,
+    /// For a file: use each detection this many frames after the frame the detector saw (0: at
+    /// that frame), waiting for it when it is late, so that runs repeat exactly. Frames handed
+    /// over in the meantime are detected at the same time, so a delay of a few --detect-every
+    /// periods keeps the detector from holding up the tracker, while new faces start tracks
+    /// that much later, from where they were then. Not with --webcam (a camera never waits).
+    #[arg(
+        long,
+        default_value_t = 1,
+        conflicts_with = "webcam",
+        value_parser = clap::value_parser!(u32).range(0..=10_000)
+    )]
+    pub detection_delay: u32,
     /// The smallest face the detector looks for, in pixels.
     #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub min_face: u32,
@@ -273,7 +285,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
         truth.push_str(n);
     }
     truth.push('\n');
-    let mut renderer = FaceVideoRenderer::new(&config, &model)?;
+    let renderer = FaceVideoRenderer::new(&config, &model)?;
     for frame in 0..config.frames {
         renderer
             .render(frame)?
@@ -955,9 +967,12 @@ fn build_runner(
                     ..DetectConfig::default()
                 },
                 max_faces: (args.max_faces.unwrap_or(DEFAULT_MAX_FACES) as usize).max(rects.len()),
-                // A file plays as if live: the detector's answer is used before the next one is
-                // due (a camera never waits for it).
-                max_detection_lag: args.webcam.is_none().then_some(1),
+                // A file waits for each detection at its fixed delay (runs repeat); a camera
+                // never waits for it.
+                detection_delay: args
+                    .webcam
+                    .is_none()
+                    .then_some(args.detection_delay as usize),
                 tracker: config,
                 ..AutoConfig::default()
             };

@@ -118,6 +118,28 @@ impl Source {
         }
     }
 
+    /// The next reads, at most `max` (at least one): a synthetic video renders a frame per core
+    /// at once (its frames are independent of each other); other sources read one frame.
+    pub fn read_batch(&mut self, max: usize) -> Vec<anyhow::Result<FrameRead>> {
+        match self {
+            Source::Synthetic { renderer, next } => {
+                let count = max.clamp(1, rayon::current_num_threads().max(1));
+                let end = (*next + count).min(renderer.config().frames);
+                if *next >= end {
+                    return vec![Ok(FrameRead::End)];
+                }
+                let reads = renderer
+                    .render_frames(*next..end)
+                    .into_iter()
+                    .map(|frame| Ok(FrameRead::Frame(frame?)))
+                    .collect();
+                *next = end;
+                reads
+            }
+            _ => vec![self.read_next()],
+        }
+    }
+
     /// After the last frame: the decoder's error messages (empty when none, or not a video).
     pub fn decoder_messages(&self) -> &str {
         match self {
@@ -143,10 +165,11 @@ pub enum FrameRead {
     End,
 }
 
-/// Frames in flight on the reading side: a thread owns the source and decodes (or renders) up to
-/// [`ReadAhead::FRAMES`] frames ahead of the tracker, so that reading frame t+1 overlaps tracking
-/// frame t. The frames come in order and are the ones the source gives, so the results are those
-/// of reading one frame at a time.
+/// Frames in flight on the reading side: a thread owns the source and decodes up to
+/// [`ReadAhead::FRAMES`] frames ahead of the tracker (a synthetic video: a batch of a frame per
+/// core, see [`Source::read_batch`]), so that reading frame t+1 overlaps tracking frame t. The
+/// frames come in order and are the ones the source gives, so the results are those of reading
+/// one frame at a time.
 pub struct ReadAhead {
     frames: std::sync::mpsc::Receiver<anyhow::Result<FrameRead>>,
     reader: Option<std::thread::JoinHandle<Source>>,
@@ -164,12 +187,15 @@ impl ReadAhead {
         let reader = std::thread::Builder::new()
             .name("frame-reader".into())
             .spawn(move || {
-                for _ in 0..limit {
-                    let read = source.read_next();
-                    let last = matches!(read, Ok(FrameRead::End) | Err(_));
-                    // A closed channel: the tracker stopped (limit, interrupt, failure).
-                    if send.send(read).is_err() || last {
-                        break;
+                let mut left = limit;
+                'reading: while left > 0 {
+                    for read in source.read_batch(left) {
+                        left -= 1;
+                        let last = matches!(read, Ok(FrameRead::End) | Err(_));
+                        // A closed channel: the tracker stopped (limit, interrupt, failure).
+                        if send.send(read).is_err() || last {
+                            break 'reading;
+                        }
                     }
                 }
                 source
@@ -252,7 +278,7 @@ mod read_ahead_tests {
 
     #[test]
     fn frames_come_in_order_up_to_the_end_or_the_limit() {
-        let (source, mut renderer) = synthetic(6);
+        let (source, renderer) = synthetic(6);
         let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
         for k in 0..6 {
             let image = frame(ahead.read_next().unwrap()).expect("a frame");
@@ -281,10 +307,12 @@ mod read_ahead_tests {
         let (source, _) = synthetic(50);
         let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
         assert!(frame(ahead.read_next().unwrap()).is_some());
-        // The reader is at most FRAMES (+ the one being handed over) ahead, then stops.
+        // The reader is at most FRAMES (+ the one being handed over) ahead, then stops; a
+        // synthetic source renders a batch of a frame per core at once.
+        let most = ReadAhead::FRAMES + 2 + rayon::current_num_threads();
         match ahead.finish().unwrap() {
             Source::Synthetic { next, .. } => {
-                assert!((1..=ReadAhead::FRAMES + 2).contains(&next), "read {next}")
+                assert!((1..=most).contains(&next), "read {next}")
             }
             _ => unreachable!(),
         }

@@ -88,7 +88,7 @@ pub fn face(run: &mut Run) -> anyhow::Result<Figure> {
             },
             ..defaults
         };
-        let mut renderer = FaceVideoRenderer::new(&video, &model)?;
+        let renderer = FaceVideoRenderer::new(&video, &model)?;
         let first = renderer.render(0)?;
         let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(&video, k)).collect();
         let mut tracker = FaceTracker::new(&first, &rects, &model, config, face_backend(gpu)?)?;
