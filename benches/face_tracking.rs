@@ -188,8 +188,15 @@ fn over_gpus(c: &mut Criterion) {
     drop(all);
     let mut group = c.benchmark_group("face_step_over_gpus");
     group.sample_size(10);
-    let counts: &[usize] = if full_size() { &[64, 256] } else { &[2] };
+    let counts: &[usize] = if full_size() { &[64, 256, 1024] } else { &[2] };
     let particles = if full_size() { 1000 } else { 50 };
+    // The GPU's own time for a step (timestamps, the slowest GPU's), beside criterion's wall
+    // time: what part of a step is the GPUs' work, which splits, and what is the round trip.
+    let gpu_ms = |t: Option<pf_gpu::GpuTime>| {
+        t.map_or("-".to_string(), |t| {
+            format!("{:.3} ms ({t:?})", t.duration().as_secs_f64() * 1e3)
+        })
+    };
     for &faces in counts {
         let (frame, rects, model, _) = scene(faces);
         let config = FaceTrackerConfig {
@@ -209,6 +216,10 @@ fn over_gpus(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("one_gpu", faces), |b| {
             b.iter(|| std::hint::black_box(one.step(&frame).unwrap()))
         });
+        eprintln!(
+            "face_step_over_gpus/{faces}: one GPU's own time for the last step: {}",
+            gpu_ms(one.last_gpu_time())
+        );
         drop(one);
         let contexts = GpuContext::all(&pf_gpu::ContextOptions::default()).unwrap();
         let mut split =
@@ -216,6 +227,10 @@ fn over_gpus(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("all_gpus", faces), |b| {
             b.iter(|| std::hint::black_box(split.step(&frame).unwrap()))
         });
+        eprintln!(
+            "face_step_over_gpus/{faces}: the slowest GPU's own time for the last step: {}",
+            gpu_ms(split.last_gpu_time())
+        );
     }
     group.finish();
 }
