@@ -117,6 +117,23 @@ impl GrayImage {
         Self::new(width, height, data)
     }
 
+    /// [`Image::from_levels`] on the calling thread alone (for work already spread over the
+    /// cores a frame at a time).
+    pub fn from_levels_on_this_thread(
+        width: u32,
+        height: u32,
+        levels: &[f32],
+    ) -> Result<Self, FaceError> {
+        check_size(width, height, levels.len())?;
+        if let Some(i) = levels.iter().position(|v| !v.is_finite()) {
+            return Err(FaceError::InvalidInput(format!(
+                "pixel {i} is {}",
+                levels[i]
+            )));
+        }
+        Self::new(width, height, levels.iter().map(|&v| to_level(v)).collect())
+    }
+
     /// A constant frame.
     pub fn filled(width: u32, height: u32, level: u8) -> Result<Self, FaceError> {
         Self::new(width, height, vec![level; width as usize * height as usize])

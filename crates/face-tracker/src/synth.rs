@@ -322,9 +322,62 @@ impl FaceVideoRenderer {
         surface
     }
 
-    /// Frames `frames` of the video, rendered at once (one per core), in order.
+    /// Frames `frames` of the video, rendered at once (each on one core), in order; the same
+    /// pixels as [`FaceVideoRenderer::render`].
     pub fn render_frames(&self, frames: Range<usize>) -> Vec<Result<GrayImage, FaceError>> {
-        frames.into_par_iter().map(|f| self.render(f)).collect()
+        frames
+            .into_par_iter()
+            .map(|f| self.render_on_this_thread(f))
+            .collect()
+    }
+
+    /// Head `k`'s pose at `frame` and its surface samples for that pose's scale.
+    fn posed_head(&self, k: usize, frame: usize) -> ([f32; DIMS], Arc<HeadSurface>) {
+        let config = &self.config;
+        let state = face_state(config, k, frame);
+        let hh = config.half_width * HEIGHT_RATIO;
+        // Samples every ≤ 0.4 px in the image.
+        let steps = (2.5 * hh * state[SCALE]).ceil() as i32;
+        let seed = config.seed.wrapping_add(k as u64 * 1000);
+        (state, self.surface(k, steps, seed))
+    }
+
+    /// Frame `frame` on the calling thread alone, in buffers that the thread keeps from frame
+    /// to frame (a fresh 3 MB buffer per frame costs page faults, which serialise threads): the
+    /// splats in sample order with one depth test each, as the banded pass resolves them.
+    fn render_on_this_thread(&self, frame: usize) -> Result<GrayImage, FaceError> {
+        thread_local! {
+            static SCRATCH: std::cell::RefCell<(Vec<f32>, Vec<f32>)> =
+                const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
+        }
+        let config = &self.config;
+        // Made before the scratch is borrowed: a new surface is made on all cores, and this
+        // thread may take another frame's task while it waits.
+        let heads: Vec<_> = (0..config.faces)
+            .filter(|&k| config.present(k, frame))
+            .map(|k| self.posed_head(k, frame))
+            .collect();
+        SCRATCH.with_borrow_mut(|(data, depth)| {
+            data.clear();
+            data.extend_from_slice(&self.background);
+            depth.clear();
+            depth.resize(data.len(), f32::NEG_INFINITY);
+            for (state, surface) in &heads {
+                let splatter = Splatter::new(config, state);
+                for (idx, z, value) in surface.samples.iter().filter_map(|s| splatter.splat(s)) {
+                    if z > depth[idx] {
+                        depth[idx] = z;
+                        data[idx] = value;
+                    }
+                }
+            }
+            if config.occlusion && config.frames >= 3 {
+                draw_occluder(config, frame, data);
+            }
+            let gain = light_gain(frame);
+            data.iter_mut().for_each(|v| *v *= gain);
+            GrayImage::from_levels_on_this_thread(config.width, config.height, data)
+        })
     }
 
     pub fn config(&self) -> &FaceSynthConfig {
@@ -338,12 +391,7 @@ impl FaceVideoRenderer {
         let mut data = self.background.clone();
         let mut depth = vec![f32::NEG_INFINITY; data.len()];
         for k in (0..config.faces).filter(|&k| config.present(k, frame)) {
-            let state = face_state(config, k, frame);
-            let hh = config.half_width * HEIGHT_RATIO;
-            // Samples every ≤ 0.4 px in the image.
-            let steps = (2.5 * hh * state[SCALE]).ceil() as i32;
-            let seed = config.seed.wrapping_add(k as u64 * 1000);
-            let surface = self.surface(k, steps, seed);
+            let (state, surface) = self.posed_head(k, frame);
             // Splats (pixel, depth, value) of every surface sample in parallel, sorted into
             // bands of rows; then each band's depth test in parallel, its splats in sample order
             // (so that ties resolve as one pass over the samples would).
@@ -377,6 +425,54 @@ impl FaceVideoRenderer {
 /// Rows per band of the renderer's parallel depth test.
 const BAND_ROWS: usize = 16;
 
+/// Where a head's surface samples land in a frame, for one pose.
+struct Splatter {
+    pose: Pose,
+    light: Vector3<f32>,
+    half_width: f32,
+    half_height: f32,
+    width: u32,
+    height: u32,
+}
+
+impl Splatter {
+    fn new(config: &FaceSynthConfig, state: &[f32; DIMS]) -> Self {
+        Self {
+            pose: Pose::new(state),
+            light: Vector3::new(0.3, -0.4, 1.0).normalize(),
+            half_width: config.half_width,
+            half_height: config.half_width * HEIGHT_RATIO,
+            width: config.width,
+            height: config.height,
+        }
+    }
+
+    /// (pixel index, depth towards the camera, shaded albedo) of a sample that faces the camera
+    /// and lands in the frame.
+    fn splat(&self, s: &SurfaceSample) -> Option<(usize, f32, f32)> {
+        let n = self.pose.rotation * Vector3::from(s.normal);
+        if n.z < 0.0 {
+            return None;
+        }
+        let p = Vector3::new(
+            s.u * self.half_width,
+            s.v * self.half_height,
+            s.height * self.half_width,
+        );
+        let image_point = self.pose.project(&p);
+        let (px, py) = (image_point.x.round(), image_point.y.round());
+        if px < 0.0 || py < 0.0 || px >= self.width as f32 || py >= self.height as f32 {
+            return None;
+        }
+        let shade = 0.55 + 0.45 * n.dot(&self.light).max(0.0);
+        Some((
+            (py as u32 * self.width + px as u32) as usize,
+            (self.pose.rotation * p).z,
+            s.albedo * shade,
+        ))
+    }
+}
+
 /// Every surface sample of a head in pose `state` that faces the camera and lands in the frame:
 /// (pixel index, depth towards the camera, shaded albedo), per chunk of samples (in order) and
 /// within it per band of [`BAND_ROWS`] rows.
@@ -385,33 +481,16 @@ fn splat_head(
     surface: &HeadSurface,
     state: &[f32; DIMS],
 ) -> Vec<Vec<Vec<(usize, f32, f32)>>> {
-    let pose = Pose::new(state);
-    let light = Vector3::new(0.3, -0.4, 1.0).normalize();
-    let (hw, hh) = (config.half_width, config.half_width * HEIGHT_RATIO);
-    let (w, h) = (config.width, config.height);
-    let bands = (h as usize).div_ceil(BAND_ROWS);
+    let splatter = Splatter::new(config, state);
+    let bands = (config.height as usize).div_ceil(BAND_ROWS);
+    let row_len = config.width as usize;
     surface
         .samples
         .par_chunks(4096)
         .map(|chunk| {
             let mut by_band = vec![Vec::new(); bands];
-            for s in chunk {
-                let n = pose.rotation * Vector3::from(s.normal);
-                if n.z < 0.0 {
-                    continue;
-                }
-                let p = Vector3::new(s.u * hw, s.v * hh, s.height * hw);
-                let image_point = pose.project(&p);
-                let (px, py) = (image_point.x.round(), image_point.y.round());
-                if px < 0.0 || py < 0.0 || px >= w as f32 || py >= h as f32 {
-                    continue;
-                }
-                let shade = 0.55 + 0.45 * n.dot(&light).max(0.0);
-                by_band[py as usize / BAND_ROWS].push((
-                    (py as u32 * w + px as u32) as usize,
-                    (pose.rotation * p).z,
-                    s.albedo * shade,
-                ));
+            for splat in chunk.iter().filter_map(|s| splatter.splat(s)) {
+                by_band[splat.0 / row_len / BAND_ROWS].push(splat);
             }
             by_band
         })

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, bail};
 use face_tracker::GrayImage;
 use face_tracker::synth::FaceVideoRenderer;
+use rayon::prelude::*;
 
 use crate::video::{VideoRead, VideoReader, is_video_path};
 
@@ -26,6 +27,9 @@ pub enum Source {
 }
 
 impl Source {
+    /// The most frames [`Source::read_batch`] reads at once.
+    pub const BATCH: usize = 16;
+
     /// A video file or a directory of image files (name order).
     pub fn open(path: &Path) -> anyhow::Result<Self> {
         if path.is_dir() {
@@ -96,10 +100,7 @@ impl Source {
                     return Ok(FrameRead::End);
                 };
                 *next += 1;
-                Ok(match GrayImage::load(path) {
-                    Ok(image) => FrameRead::Frame(image),
-                    Err(e) => FrameRead::Unreadable(e.into()),
-                })
+                Ok(FrameRead::load(path))
             }
             Source::Synthetic { renderer, next } => {
                 if *next >= renderer.config().frames {
@@ -118,12 +119,26 @@ impl Source {
         }
     }
 
-    /// The next reads, at most `max` (at least one): a synthetic video renders a frame per core
-    /// at once (its frames are independent of each other); other sources read one frame.
+    /// The next reads, at most `max` (at least one), in order: a directory's images are decoded
+    /// and a synthetic video's frames rendered a frame per core at once (up to
+    /// [`Source::BATCH`]; the frames are independent of each other); a video file (FFmpeg
+    /// decodes on its own threads) and a camera give one frame.
     pub fn read_batch(&mut self, max: usize) -> Vec<anyhow::Result<FrameRead>> {
+        let count = max.clamp(1, rayon::current_num_threads().clamp(1, Self::BATCH));
         match self {
+            Source::Images { files, next } => {
+                let end = (*next + count).min(files.len());
+                if *next >= end {
+                    return vec![Ok(FrameRead::End)];
+                }
+                let reads = files[*next..end]
+                    .par_iter()
+                    .map(|path| Ok(FrameRead::load(path)))
+                    .collect();
+                *next = end;
+                reads
+            }
             Source::Synthetic { renderer, next } => {
-                let count = max.clamp(1, rayon::current_num_threads().max(1));
                 let end = (*next + count).min(renderer.config().frames);
                 if *next >= end {
                     return vec![Ok(FrameRead::End)];
@@ -163,6 +178,16 @@ pub enum FrameRead {
     /// This frame cannot be read; the next may be.
     Unreadable(anyhow::Error),
     End,
+}
+
+impl FrameRead {
+    /// An image file: a frame, or unreadable (truncated, not an image).
+    fn load(path: &Path) -> Self {
+        match GrayImage::load(path) {
+            Ok(image) => FrameRead::Frame(image),
+            Err(e) => FrameRead::Unreadable(e.into()),
+        }
+    }
 }
 
 /// Frames in flight on the reading side: a thread owns the source and decodes up to
@@ -309,7 +334,7 @@ mod read_ahead_tests {
         assert!(frame(ahead.read_next().unwrap()).is_some());
         // The reader is at most FRAMES (+ the one being handed over) ahead, then stops; a
         // synthetic source renders a batch of a frame per core at once.
-        let most = ReadAhead::FRAMES + 2 + rayon::current_num_threads();
+        let most = ReadAhead::FRAMES + 2 + Source::BATCH;
         match ahead.finish().unwrap() {
             Source::Synthetic { next, .. } => {
                 assert!((1..=most).contains(&next), "read {next}")
