@@ -272,10 +272,14 @@ pub struct FaceVideoRenderer {
     config: FaceSynthConfig,
     model: FaceModel,
     background: Vec<f32>,
-    /// Each head's surface for the density its latest frame asked for, shared by the frames
-    /// being rendered at once (neighbouring frames almost always ask for the same density).
-    surfaces: Mutex<Vec<Option<Arc<HeadSurface>>>>,
+    /// Each head's surfaces for the densities its latest frames asked for, newest last, shared
+    /// by the frames being rendered at once. A head's density steps with its scale every few
+    /// frames, so a batch of frames asks for several; making one costs more than splatting it.
+    surfaces: Mutex<Vec<Vec<Arc<HeadSurface>>>>,
 }
+
+/// Densities kept per head (a batch of 16 frames spans a few).
+const SURFACES_KEPT: usize = 8;
 
 impl Clone for FaceVideoRenderer {
     fn clone(&self) -> Self {
@@ -300,11 +304,11 @@ impl FaceVideoRenderer {
             config: config.clone(),
             model: model.clone(),
             background,
-            surfaces: Mutex::new(vec![None; config.faces]),
+            surfaces: Mutex::new(vec![Vec::new(); config.faces]),
         })
     }
 
-    fn cached_surfaces(&self) -> std::sync::MutexGuard<'_, Vec<Option<Arc<HeadSurface>>>> {
+    fn cached_surfaces(&self) -> std::sync::MutexGuard<'_, Vec<Vec<Arc<HeadSurface>>>> {
         // A panic elsewhere cannot leave the cache half-written (a slot is replaced whole).
         self.surfaces.lock().unwrap_or_else(PoisonError::into_inner)
     }
@@ -312,13 +316,21 @@ impl FaceVideoRenderer {
     /// Head `k`'s surface at `steps` samples per unit: the cached one, or made (outside the
     /// lock, so that other frames go on) and cached.
     fn surface(&self, k: usize, steps: i32, seed: u64) -> Arc<HeadSurface> {
-        if let Some(surface) = &self.cached_surfaces()[k]
-            && surface.steps == steps
+        if let Some(surface) = self.cached_surfaces()[k]
+            .iter()
+            .find(|surface| surface.steps == steps)
         {
             return Arc::clone(surface);
         }
         let surface = Arc::new(head_surface(&self.model, steps, seed));
-        self.cached_surfaces()[k] = Some(Arc::clone(&surface));
+        let mut cache = self.cached_surfaces();
+        let kept = &mut cache[k];
+        if !kept.iter().any(|s| s.steps == steps) {
+            if kept.len() == SURFACES_KEPT {
+                kept.remove(0);
+            }
+            kept.push(Arc::clone(&surface));
+        }
         surface
     }
 
