@@ -209,12 +209,19 @@ impl ReadAhead {
     /// Starts reading at most `limit` more frames of `source` on a thread of its own.
     pub fn start(mut source: Source, limit: usize) -> anyhow::Result<Self> {
         let (send, frames) = std::sync::mpsc::sync_channel(Self::FRAMES);
+        // The batches decode (or render) on threads of their own: in the shared pool they would
+        // queue behind the detector's work and hold up the tracker.
+        let decoders = rayon::ThreadPoolBuilder::new()
+            .num_threads(rayon::current_num_threads().clamp(1, Source::BATCH))
+            .thread_name(|k| format!("frame-decoder-{k}"))
+            .build()
+            .context("starting the frame decoder threads")?;
         let reader = std::thread::Builder::new()
             .name("frame-reader".into())
             .spawn(move || {
                 let mut left = limit;
                 'reading: while left > 0 {
-                    for read in source.read_batch(left) {
+                    for read in decoders.install(|| source.read_batch(left)) {
                         left -= 1;
                         let last = matches!(read, Ok(FrameRead::End) | Err(_));
                         // A closed channel: the tracker stopped (limit, interrupt, failure).

@@ -10,10 +10,12 @@
 //! is dropped.
 
 pub mod cascade;
+mod compiled;
 
 use rayon::prelude::*;
 
 pub use cascade::Cascade;
+use compiled::{CompiledCascade, LevelFeatures};
 
 use crate::error::FaceError;
 use crate::image::GrayImage;
@@ -127,13 +129,14 @@ impl Cascade {
             }
             factor *= config.scale_factor;
         }
+        let compiled = CompiledCascade::new(self);
         let hits: Vec<Detection> = levels
             .into_par_iter()
             .flat_map_iter(|(factor, scaled, window)| {
                 let level = Level::new(&resize(frame, scaled.0, scaled.1));
                 let features = LevelFeatures::new(&self.features, level.width + 1);
                 let step = if factor > 2.0 { 1 } else { 2 };
-                self.scan(&level, &features, step, factor, window)
+                self.scan(&level, &compiled, &features, step, factor, window)
             })
             .collect();
         Ok(group(&hits, config.min_neighbors))
@@ -143,6 +146,7 @@ impl Cascade {
     fn scan(
         &self,
         level: &Level,
+        compiled: &CompiledCascade,
         features: &LevelFeatures,
         step: usize,
         factor: f64,
@@ -155,7 +159,7 @@ impl Cascade {
                 let mut found = Vec::new();
                 let mut x = 0;
                 while x < level.width - w {
-                    match self.run_at(level, features, x, y) {
+                    match self.run_at(level, compiled, features, x, y) {
                         Verdict::Face => found.push(Detection {
                             x: (x as f64 * factor).round_ties_even() as i32,
                             y: (y as f64 * factor).round_ties_even() as i32,
@@ -174,7 +178,14 @@ impl Cascade {
             .collect()
     }
 
-    fn run_at(&self, level: &Level, features: &LevelFeatures, x: usize, y: usize) -> Verdict {
+    fn run_at(
+        &self,
+        level: &Level,
+        compiled: &CompiledCascade,
+        features: &LevelFeatures,
+        x: usize,
+        y: usize,
+    ) -> Verdict {
         let (w, h) = (self.width as usize, self.height as usize);
         // The variance over the window less a one-pixel border.
         let area = ((w - 2) * (h - 2)) as f64;
@@ -189,33 +200,12 @@ impl Cascade {
             return Verdict::Flat;
         }
         let origin = y * (level.width + 1) + x;
-        for (s, stage) in self.stages.iter().enumerate() {
-            let mut total = 0.0f64;
-            for weak in &stage.classifiers {
-                let mut index = 0i32;
-                loop {
-                    let node = &weak.nodes[index as usize];
-                    let value = features.value(node.feature, &level.integral, origin) * norm;
-                    index = if value < f64::from(node.threshold) {
-                        node.left
-                    } else {
-                        node.right
-                    };
-                    if index <= 0 {
-                        break;
-                    }
-                }
-                total += f64::from(weak.leaves[index.unsigned_abs() as usize]);
-            }
-            if total < f64::from(stage.threshold) {
-                return if s == 0 {
-                    Verdict::FirstStage
-                } else {
-                    Verdict::Later
-                };
-            }
+        let feature = |f: usize| features.value(f, &level.integral, origin) * norm;
+        match compiled.first_failing_stage(feature) {
+            None => Verdict::Face,
+            Some(0) => Verdict::FirstStage,
+            Some(_) => Verdict::Later,
         }
-        Verdict::Face
     }
 }
 
@@ -225,53 +215,6 @@ enum Verdict {
     Later,
     /// Too little contrast to evaluate.
     Flat,
-}
-
-/// The cascade's features for one pyramid level: each rectangle's four corners as offsets into
-/// the level's integral image from a window's corner, so that a rectangle's sum is four loads
-/// (the same sums, weights and order as summing by coordinates: the same detections).
-struct LevelFeatures {
-    /// (top-left, top-right, bottom-left, bottom-right) offsets and the weight, per rectangle.
-    rects: Vec<([usize; 4], f64)>,
-    /// Feature f's rectangles are `rects[starts[f]..starts[f + 1]]`.
-    starts: Vec<usize>,
-}
-
-impl LevelFeatures {
-    fn new(features: &[Vec<cascade::WeightedRect>], stride: usize) -> Self {
-        let mut rects = Vec::new();
-        let mut starts = vec![0];
-        for feature in features {
-            for r in feature {
-                let (x, y, w, h) = (
-                    r.x as usize,
-                    r.y as usize,
-                    r.width as usize,
-                    r.height as usize,
-                );
-                let corners = [
-                    y * stride + x,
-                    y * stride + x + w,
-                    (y + h) * stride + x,
-                    (y + h) * stride + x + w,
-                ];
-                rects.push((corners, f64::from(r.weight)));
-            }
-            starts.push(rects.len());
-        }
-        Self { rects, starts }
-    }
-
-    /// Feature `f`'s weighted sum for the window whose corner is at `origin` in `integral`.
-    fn value(&self, f: usize, integral: &[i64], origin: usize) -> f64 {
-        self.rects[self.starts[f]..self.starts[f + 1]]
-            .iter()
-            .map(|&([tl, tr, bl, br], weight)| {
-                let at = |corner: usize| integral[origin + corner];
-                weight * (at(br) - at(tr) - at(bl) + at(tl)) as f64
-            })
-            .sum::<f64>()
-    }
 }
 
 /// A pyramid level's integral and squared-integral images, `(width + 1) × (height + 1)`.
