@@ -30,6 +30,8 @@ pub mod sources {
     pub const BODY_KINEMATICS: &str = include_str!("../../../shaders/body_kinematics.wgsl");
     /// The face likelihood.
     pub const FACE_LIKELIHOOD: &str = include_str!("../../../shaders/face_likelihood.wgsl");
+    /// The Viola–Jones detector (its launcher is `face_tracker::detect::gpu`).
+    pub const HAAR_CASCADE: &str = include_str!("../../../shaders/haar_cascade.wgsl");
 
     /// Every stage file, by name, for the validation tests.
     pub const STAGES: [(&str, &str); 7] = [
@@ -224,6 +226,9 @@ mod tests {
         if let Err(message) = validate_wgsl(sources::BODY_KINEMATICS) {
             panic!("body_kinematics.wgsl:\n{message}");
         }
+        if let Err(message) = validate_wgsl(sources::HAAR_CASCADE) {
+            panic!("haar_cascade.wgsl:\n{message}");
+        }
     }
 
     #[test]
@@ -245,6 +250,7 @@ mod tests {
                 "random.wgsl",
                 "capsule_likelihood.wgsl",
                 "body_kinematics.wgsl",
+                "haar_cascade.wgsl",
             ]
             .map(String::from),
         );
@@ -264,6 +270,7 @@ mod tests {
             sources::CAPSULE_LIKELIHOOD.into(),
         ));
         modules.push(("body_kinematics.wgsl", sources::BODY_KINEMATICS.into()));
+        modules.push(("haar_cascade.wgsl", sources::HAAR_CASCADE.into()));
         modules
     }
 

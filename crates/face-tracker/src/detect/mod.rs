@@ -11,11 +11,13 @@
 
 pub mod cascade;
 mod compiled;
+pub mod gpu;
 
 use rayon::prelude::*;
 
 pub use cascade::Cascade;
 use compiled::{CompiledCascade, LevelFeatures};
+pub use gpu::GpuCascade;
 
 use crate::error::FaceError;
 use crate::image::GrayImage;
@@ -93,6 +95,35 @@ impl DetectConfig {
 /// Grouping tolerance (OpenCV's `groupRectangles` eps).
 const GROUP_EPS: f64 = 0.2;
 
+/// One level of the detector's pyramid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct PyramidLevel {
+    /// How much the frame is shrunk.
+    pub factor: f64,
+    /// The shrunk frame's size.
+    pub scaled: (u32, u32),
+    /// The cascade's window in frame pixels.
+    pub window: (u32, u32),
+}
+
+impl PyramidLevel {
+    /// The window's step on this level: 2, or 1 once the frame is shrunk more than twice.
+    pub fn step(&self) -> usize {
+        if self.factor > 2.0 { 1 } else { 2 }
+    }
+
+    /// A window found at (x, y) of this level, in frame pixels.
+    pub fn detection(&self, x: usize, y: usize) -> Detection {
+        Detection {
+            x: (x as f64 * self.factor).round_ties_even() as i32,
+            y: (y as f64 * self.factor).round_ties_even() as i32,
+            width: self.window.0 as i32,
+            height: self.window.1 as i32,
+            neighbors: 1,
+        }
+    }
+}
+
 impl Cascade {
     /// The faces in `frame`.
     pub fn detect(
@@ -100,10 +131,37 @@ impl Cascade {
         frame: &GrayImage,
         config: &DetectConfig,
     ) -> Result<Vec<Detection>, FaceError> {
+        Ok(group(
+            &self.window_hits(frame, config)?,
+            config.min_neighbors,
+        ))
+    }
+
+    /// Every window that passes the cascade, ungrouped: level by level (finest first), row by
+    /// row, left to right.
+    pub fn window_hits(
+        &self,
+        frame: &GrayImage,
+        config: &DetectConfig,
+    ) -> Result<Vec<Detection>, FaceError> {
         config.validate()?;
-        // The pyramid's levels first (cheap), then every level at once: each level's resize,
-        // integral images and scan are a task of their own (its rows in parallel too), and the
-        // hits come back in level order, so the grouping sees what one level after another gave.
+        // Each level's resize, integral images and scan are a task of their own (its rows in
+        // parallel too), and the hits come back in level order.
+        let compiled = CompiledCascade::new(self);
+        Ok(self
+            .pyramid((frame.width, frame.height), config)
+            .into_par_iter()
+            .flat_map_iter(|level| {
+                let image = Level::new(&resize(frame, level.scaled.0, level.scaled.1));
+                let features = LevelFeatures::new(&self.features, image.width + 1);
+                self.scan(&image, &compiled, &features, &level)
+            })
+            .collect())
+    }
+
+    /// The pyramid's levels for a frame of `size` (finest first): those whose window is at least
+    /// `min_size` and at most `max_size`, while the shrunk frame is larger than the window.
+    pub(crate) fn pyramid(&self, size: (u32, u32), config: &DetectConfig) -> Vec<PyramidLevel> {
         let mut levels = Vec::new();
         let mut factor = 1.0f64;
         loop {
@@ -112,8 +170,8 @@ impl Cascade {
                 (f64::from(self.height) * factor).round_ties_even() as u32,
             );
             let scaled = (
-                (f64::from(frame.width) / factor).round_ties_even() as u32,
-                (f64::from(frame.height) / factor).round_ties_even() as u32,
+                (f64::from(size.0) / factor).round_ties_even() as u32,
+                (f64::from(size.1) / factor).round_ties_even() as u32,
             );
             if scaled.0 <= self.width || scaled.1 <= self.height {
                 break;
@@ -125,21 +183,15 @@ impl Cascade {
                 break;
             }
             if window.0 >= config.min_size && window.1 >= config.min_size {
-                levels.push((factor, scaled, window));
+                levels.push(PyramidLevel {
+                    factor,
+                    scaled,
+                    window,
+                });
             }
             factor *= config.scale_factor;
         }
-        let compiled = CompiledCascade::new(self);
-        let hits: Vec<Detection> = levels
-            .into_par_iter()
-            .flat_map_iter(|(factor, scaled, window)| {
-                let level = Level::new(&resize(frame, scaled.0, scaled.1));
-                let features = LevelFeatures::new(&self.features, level.width + 1);
-                let step = if factor > 2.0 { 1 } else { 2 };
-                self.scan(&level, &compiled, &features, step, factor, window)
-            })
-            .collect();
-        Ok(group(&hits, config.min_neighbors))
+        levels
     }
 
     /// Every window of one pyramid level that passes the cascade, in frame pixels.
@@ -148,11 +200,10 @@ impl Cascade {
         level: &Level,
         compiled: &CompiledCascade,
         features: &LevelFeatures,
-        step: usize,
-        factor: f64,
-        window: (u32, u32),
+        pyramid_level: &PyramidLevel,
     ) -> Vec<Detection> {
         let (w, h) = (self.width as usize, self.height as usize);
+        let step = pyramid_level.step();
         let rows: Vec<usize> = (0..level.height - h).step_by(step).collect();
         rows.par_iter()
             .flat_map_iter(|&y| {
@@ -160,13 +211,7 @@ impl Cascade {
                 let mut x = 0;
                 while x < level.width - w {
                     match self.run_at(level, compiled, features, x, y) {
-                        Verdict::Face => found.push(Detection {
-                            x: (x as f64 * factor).round_ties_even() as i32,
-                            y: (y as f64 * factor).round_ties_even() as i32,
-                            width: window.0 as i32,
-                            height: window.1 as i32,
-                            neighbors: 1,
-                        }),
+                        Verdict::Face => found.push(pyramid_level.detection(x, y)),
                         // Rejected by the first stage: the next window is skipped too.
                         Verdict::FirstStage => x += step,
                         Verdict::Later | Verdict::Flat => {}
@@ -265,7 +310,7 @@ impl Level {
 
 /// Bilinear resize with pixel centres aligned (OpenCV's `INTER_LINEAR` convention), rounded to
 /// 8 bits.
-fn resize(image: &GrayImage, width: u32, height: u32) -> GrayImage {
+pub(crate) fn resize(image: &GrayImage, width: u32, height: u32) -> GrayImage {
     if (width, height) == (image.width, image.height) {
         return image.clone();
     }
