@@ -1,14 +1,17 @@
 //! Viola–Jones detection time per frame (opencv-data's frontal alt2 cascade, OpenCV's default
 //! settings: scale factor 1.1, three neighbours), on the synthetic four-face frame at the paper's
 //! 1024×768 and at 640×480, and on scikit-image's astronaut photograph (512×512) when
-//! `cargo xtask fetch-media` has fetched it. One detection runs on one thread: this is the
-//! initialisation thread's cost per frame it is handed.
+//! `cargo xtask fetch-media` has fetched it: on the CPU (one detection spreads over all cores:
+//! its levels and rows run in parallel) and on the GPU (`GpuCascade`: the host resizes the
+//! pyramid on all cores, one submission does the rest). This is the detector's cost per frame it
+//! is handed.
 
 use std::path::{Path, PathBuf};
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use face_tracker::GrayImage;
-use face_tracker::detect::{Cascade, DetectConfig};
+use face_tracker::detect::{Cascade, DetectConfig, GpuCascade};
+use pf_gpu::{ContextOptions, GpuContext};
 use face_tracker::model::FaceModel;
 use face_tracker::synth::{FaceSynthConfig, render_frame};
 
@@ -56,6 +59,12 @@ fn bench(c: &mut Criterion) {
             astronaut.display()
         );
     }
+    let gpu = GpuContext::new(&ContextOptions::default())
+        .or_else(|_| GpuContext::new(&ContextOptions::for_tests()))
+        .unwrap_or_else(|e| panic!("the detection bench times the GPU too and needs one: {e}"));
+    let a = gpu.adapter();
+    eprintln!("GPU adapter: {} ({}, {})", a.name, a.device_type, a.backend);
+    let gpu = GpuCascade::new(gpu, cascade.clone()).unwrap();
     let mut group = c.benchmark_group("face_detection");
     group.sample_size(10);
     for min_size in [30u32, 60] {
@@ -64,12 +73,22 @@ fn bench(c: &mut Criterion) {
             ..DetectConfig::default()
         };
         for (name, frame) in &frames {
-            let found = cascade.detect(frame, &config).unwrap().len();
-            eprintln!("{name}, smallest face {min_size} px: {found} faces");
+            let found = cascade.detect(frame, &config).unwrap();
+            let found_on_gpu = gpu.detect(frame, &config).unwrap();
+            eprintln!(
+                "{name}, smallest face {min_size} px: {} faces on the CPU, {} on the GPU",
+                found.len(),
+                found_on_gpu.len()
+            );
             group.bench_with_input(
                 BenchmarkId::new(format!("min_{min_size}px"), name),
                 frame,
                 |b, frame| b.iter(|| cascade.detect(frame, &config).unwrap()),
+            );
+            group.bench_with_input(
+                BenchmarkId::new(format!("gpu_min_{min_size}px"), name),
+                frame,
+                |b, frame| b.iter(|| gpu.detect(frame, &config).unwrap()),
             );
         }
     }

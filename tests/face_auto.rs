@@ -14,7 +14,7 @@ mod common;
 use std::collections::BTreeMap;
 
 use common::media;
-use face_tracker::detect::Cascade;
+use face_tracker::detect::{Cascade, FaceDetector, GpuCascade};
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{TX, TY};
 use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state};
@@ -68,15 +68,18 @@ fn nearest_face(video: &FaceSynthConfig, frame: usize, x: f32, y: f32) -> (usize
         .expect("a face in the frame")
 }
 
+fn cascade() -> Cascade {
+    Cascade::load(&media::cascade_path("haarcascade_frontalface_alt2.xml")).unwrap()
+}
+
 /// Tracks the video with detections used `delay` frames after the frame they saw; returns what
 /// happened at every frame.
-fn run(backend: FaceBackend, delay: usize) -> Vec<AutoFrame> {
+fn run(backend: FaceBackend, detector: FaceDetector, delay: usize) -> Vec<AutoFrame> {
     let video = video();
     let model = FaceModel::generic(129).unwrap();
-    let cascade = Cascade::load(&media::cascade_path("haarcascade_frontalface_alt2.xml")).unwrap();
     let mut tracker = AutoTracker::new(
         (video.width, video.height),
-        cascade,
+        detector,
         &model,
         auto_config(delay),
         backend,
@@ -155,7 +158,7 @@ fn four_entering_faces_are_each_found_once_on_cpu() {
     if media::opted_out("automatic tracking with opencv-data's cascade") {
         return;
     }
-    run(FaceBackend::Cpu, 2);
+    run(FaceBackend::Cpu, cascade().into(), 2);
 }
 
 /// A delay of three detection periods: four frames are in the detector threads at once, their
@@ -166,18 +169,24 @@ fn detections_in_flight_are_used_at_their_delay_and_runs_repeat() {
     if media::opted_out("automatic tracking with opencv-data's cascade") {
         return;
     }
-    let first = run(FaceBackend::Cpu, 6);
-    let second = run(FaceBackend::Cpu, 6);
+    let first = run(FaceBackend::Cpu, cascade().into(), 6);
+    let second = run(FaceBackend::Cpu, cascade().into(), 6);
     assert_eq!(first, second);
 }
 
+/// The tracker and the detector both on the GPU (each a device of its own, as `face track`
+/// opens them).
 #[test]
 fn four_entering_faces_are_each_found_once_on_gpu() {
     if media::opted_out("automatic tracking with opencv-data's cascade") {
         return;
     }
-    let Some(ctx) = common::gpu_context("automatic face tracking on the GPU") else {
+    let test = "automatic face tracking on the GPU";
+    let (Some(tracker_ctx), Some(detector_ctx)) =
+        (common::gpu_context(test), common::gpu_context(test))
+    else {
         return;
     };
-    run(FaceBackend::Gpu(Box::new(ctx)), 2);
+    let detector = GpuCascade::new(detector_ctx, cascade()).unwrap();
+    run(FaceBackend::Gpu(Box::new(tracker_ctx)), detector.into(), 2);
 }

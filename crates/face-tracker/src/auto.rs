@@ -18,7 +18,7 @@ use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
 use std::sync::{Arc, Mutex, PoisonError};
 use std::thread::JoinHandle;
 
-use crate::detect::{Cascade, DetectConfig, Detection};
+use crate::detect::{DetectConfig, Detection, FaceDetector};
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
@@ -142,16 +142,20 @@ struct Detectors {
 }
 
 impl Detectors {
-    fn spawn(cascade: Cascade, config: DetectConfig, threads: usize) -> Result<Self, FaceError> {
+    fn spawn(
+        detector: FaceDetector,
+        config: DetectConfig,
+        threads: usize,
+    ) -> Result<Self, FaceError> {
         let (jobs, job_queue) = channel::<(usize, Arc<GrayImage>)>();
         let job_queue = Arc::new(Mutex::new(job_queue));
-        let cascade = Arc::new(cascade);
+        let detector = Arc::new(detector);
         let (result_sender, results) = channel();
         let mut handles = Vec::with_capacity(threads);
         for k in 0..threads.max(1) {
-            let (job_queue, cascade, config, result_sender) = (
+            let (job_queue, detector, config, result_sender) = (
                 Arc::clone(&job_queue),
-                Arc::clone(&cascade),
+                Arc::clone(&detector),
                 config.clone(),
                 result_sender.clone(),
             );
@@ -168,7 +172,7 @@ impl Detectors {
                         let Ok((frame_index, frame)) = job else {
                             break;
                         };
-                        let faces = cascade.detect(&frame, &config);
+                        let faces = detector.detect(&frame, &config);
                         let result = DetectionResult {
                             frame_index,
                             frame,
@@ -280,9 +284,11 @@ pub struct AutoTracker {
 }
 
 impl AutoTracker {
+    /// `detector`: a [`crate::detect::Cascade`] (on the CPU) or a
+    /// [`crate::detect::GpuCascade`].
     pub fn new(
         frame_size: (u32, u32),
-        cascade: Cascade,
+        detector: impl Into<FaceDetector>,
         model: &FaceModel,
         config: AutoConfig,
         backend: FaceBackend,
@@ -299,7 +305,7 @@ impl AutoTracker {
         let threads = config
             .detection_delay
             .map_or(1, |delay| delay / config.detect_every + 1);
-        let detector = Detectors::spawn(cascade, config.detect.clone(), threads)?;
+        let detector = Detectors::spawn(detector.into(), config.detect.clone(), threads)?;
         Ok(Self {
             config,
             tracker,

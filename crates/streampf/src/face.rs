@@ -15,7 +15,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
-use face_tracker::detect::{Cascade, DetectConfig};
+use face_tracker::detect::{Cascade, DetectConfig, FaceDetector, GpuCascade};
 use face_tracker::extraction::FaceRect;
 use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::model::FaceModel;
@@ -109,6 +109,16 @@ pub enum BackendArg {
     AllGpus,
 }
 
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum DetectorArg {
+    /// On a GPU when the tracker runs on one, else on the CPU.
+    Auto,
+    /// On all the CPU's cores.
+    Cpu,
+    /// On a GPU (a device of its own on the best adapter).
+    Gpu,
+}
+
 #[derive(Debug, Clone, Args)]
 pub struct TrackArgs {
     /// A video file (mp4, avi, webm, …; decoded by FFmpeg) or a directory of image frames (name
@@ -150,6 +160,12 @@ pub struct TrackArgs {
         value_parser = clap::value_parser!(u32).range(0..=10_000)
     )]
     pub detection_delay: u32,
+    /// Where the detector runs: `auto` on a GPU when the tracker runs on one, else on the CPU's
+    /// cores. On the GPU a detection sums its features in f32 (the CPU in f64, as OpenCV): the
+    /// same faces, with a raw hit now and then different where a sum lies within rounding of a
+    /// threshold.
+    #[arg(long, value_enum, default_value_t = DetectorArg::Auto)]
+    pub detector: DetectorArg,
     /// The smallest face the detector looks for, in pixels.
     #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub min_face: u32,
@@ -538,6 +554,26 @@ fn load_personaliser(args: &TrackArgs) -> anyhow::Result<Option<Arc<Personaliser
     };
     let predictor = ShapePredictor::load(&path)?;
     Ok(Some(Arc::new(Personaliser::new(Arc::new(predictor))?)))
+}
+
+/// The detector where `--detector` says: `auto` follows the tracker's backend.
+fn open_detector(
+    args: &TrackArgs,
+    cascade: Cascade,
+    backend: &FaceBackend,
+) -> anyhow::Result<FaceDetector> {
+    let on_gpu = match args.detector {
+        DetectorArg::Cpu => false,
+        DetectorArg::Gpu => true,
+        DetectorArg::Auto => !matches!(backend, FaceBackend::Cpu),
+    };
+    if !on_gpu {
+        return Ok(FaceDetector::Cpu(cascade));
+    }
+    let ctx = crate::gpu::required(args.allow_software)?;
+    Ok(GpuCascade::new(ctx, cascade)
+        .context("building the face detector on the GPU")?
+        .into())
 }
 
 fn load_cascade(path: &Path) -> anyhow::Result<Cascade> {
@@ -958,8 +994,16 @@ fn build_runner(
              Debian's libdlib-data (not used by default with --generic-model or --synthetic)"
         );
     }
-    let mut runner = match cascade {
-        Some(cascade) => {
+    let detector = match cascade {
+        Some(cascade) => Some(open_detector(args, cascade, &backend)?),
+        None => None,
+    };
+    let backend_name = match &detector {
+        Some(detector) => format!("{backend_name}, the detector on {}", detector.device_name()),
+        None => backend_name,
+    };
+    let mut runner = match detector {
+        Some(detector) => {
             let auto = AutoConfig {
                 detect_every: args.detect_every as usize,
                 detect: DetectConfig {
@@ -978,7 +1022,7 @@ fn build_runner(
             };
             Runner::Auto(Box::new(AutoTracker::new(
                 size,
-                cascade,
+                detector,
                 &face_model,
                 auto,
                 backend,

@@ -92,6 +92,47 @@ impl DetectConfig {
     }
 }
 
+/// The detector a tracker runs: the cascade on the CPU's cores, or on a GPU.
+#[derive(Debug)]
+pub enum FaceDetector {
+    Cpu(Cascade),
+    Gpu(Box<GpuCascade>),
+}
+
+impl FaceDetector {
+    /// The faces in `frame`.
+    pub fn detect(
+        &self,
+        frame: &GrayImage,
+        config: &DetectConfig,
+    ) -> Result<Vec<Detection>, FaceError> {
+        match self {
+            Self::Cpu(cascade) => cascade.detect(frame, config),
+            Self::Gpu(gpu) => gpu.detect(frame, config),
+        }
+    }
+
+    /// Where it runs, in words ("CPU" or the GPU's name).
+    pub fn device_name(&self) -> String {
+        match self {
+            Self::Cpu(_) => "CPU".into(),
+            Self::Gpu(gpu) => format!("GPU: {}", gpu.context().adapter().name),
+        }
+    }
+}
+
+impl From<Cascade> for FaceDetector {
+    fn from(cascade: Cascade) -> Self {
+        Self::Cpu(cascade)
+    }
+}
+
+impl From<GpuCascade> for FaceDetector {
+    fn from(gpu: GpuCascade) -> Self {
+        Self::Gpu(Box::new(gpu))
+    }
+}
+
 /// Grouping tolerance (OpenCV's `groupRectangles` eps).
 const GROUP_EPS: f64 = 0.2;
 
