@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use face_tracker::GrayImage;
 use face_tracker::detect::{Cascade, DetectConfig, GpuCascade};
-use pf_gpu::{ContextOptions, GpuContext};
 use face_tracker::model::FaceModel;
 use face_tracker::synth::{FaceSynthConfig, render_frame};
+use pf_gpu::{ContextOptions, GpuContext};
 
 /// Where the cascades are: $STREAMPF_CASCADES, else opencv-data's directory.
 fn cascade_path() -> PathBuf {
