@@ -278,6 +278,13 @@ pub struct FaceVideoRenderer {
     surfaces: Mutex<Vec<Vec<Arc<HeadSurface>>>>,
 }
 
+/// A head at one frame: which head, its pose, and its surface's density (samples per unit).
+struct HeadPose {
+    head: usize,
+    state: [f32; DIMS],
+    steps: i32,
+}
+
 /// Densities kept per head (a batch of 16 frames spans a few).
 const SURFACES_KEPT: usize = 8;
 
@@ -315,13 +322,14 @@ impl FaceVideoRenderer {
 
     /// Head `k`'s surface at `steps` samples per unit: the cached one, or made (outside the
     /// lock, so that other frames go on) and cached.
-    fn surface(&self, k: usize, steps: i32, seed: u64) -> Arc<HeadSurface> {
+    fn surface(&self, k: usize, steps: i32) -> Arc<HeadSurface> {
         if let Some(surface) = self.cached_surfaces()[k]
             .iter()
             .find(|surface| surface.steps == steps)
         {
             return Arc::clone(surface);
         }
+        let seed = self.config.seed.wrapping_add(k as u64 * 1000);
         let surface = Arc::new(head_surface(&self.model, steps, seed));
         let mut cache = self.cached_surfaces();
         let kept = &mut cache[k];
@@ -335,46 +343,79 @@ impl FaceVideoRenderer {
     }
 
     /// Frames `frames` of the video, rendered at once (each on one core), in order; the same
-    /// pixels as [`FaceVideoRenderer::render`].
+    /// pixels as [`FaceVideoRenderer::render`]. The heads' surfaces the batch needs are made
+    /// first, each once: frames rendered side by side ask for the same new densities at the
+    /// same time, and each would make its own.
     pub fn render_frames(&self, frames: Range<usize>) -> Vec<Result<GrayImage, FaceError>> {
-        frames
+        let poses: Vec<Vec<HeadPose>> = frames.clone().map(|f| self.head_poses(f)).collect();
+        let mut needed: Vec<(usize, i32)> =
+            poses.iter().flatten().map(|p| (p.head, p.steps)).collect();
+        needed.sort_unstable();
+        needed.dedup();
+        let surfaces: Vec<((usize, i32), Arc<HeadSurface>)> = needed
             .into_par_iter()
-            .map(|f| self.render_on_this_thread(f))
+            .map(|(k, steps)| ((k, steps), self.surface(k, steps)))
+            .collect();
+        let surface_of = |pose: &HeadPose| {
+            match surfaces.binary_search_by_key(&(pose.head, pose.steps), |s| s.0) {
+                Ok(i) => Arc::clone(&surfaces[i].1),
+                // Not reached: every pose's surface was made above.
+                Err(_) => self.surface(pose.head, pose.steps),
+            }
+        };
+        frames
+            .zip(poses)
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|(f, poses)| {
+                let heads: Vec<_> = poses.iter().map(|p| (p.state, surface_of(p))).collect();
+                self.render_on_this_thread(f, &heads)
+            })
+            .collect()
+    }
+
+    /// The heads present at `frame`: each one's pose and the density its scale asks for.
+    fn head_poses(&self, frame: usize) -> Vec<HeadPose> {
+        let config = &self.config;
+        let hh = config.half_width * HEIGHT_RATIO;
+        (0..config.faces)
+            .filter(|&k| config.present(k, frame))
+            .map(|k| {
+                let state = face_state(config, k, frame);
+                HeadPose {
+                    head: k,
+                    state,
+                    // Samples every ≤ 0.4 px in the image.
+                    steps: (2.5 * hh * state[SCALE]).ceil() as i32,
+                }
+            })
             .collect()
     }
 
     /// Head `k`'s pose at `frame` and its surface samples for that pose's scale.
-    fn posed_head(&self, k: usize, frame: usize) -> ([f32; DIMS], Arc<HeadSurface>) {
-        let config = &self.config;
-        let state = face_state(config, k, frame);
-        let hh = config.half_width * HEIGHT_RATIO;
-        // Samples every ≤ 0.4 px in the image.
-        let steps = (2.5 * hh * state[SCALE]).ceil() as i32;
-        let seed = config.seed.wrapping_add(k as u64 * 1000);
-        (state, self.surface(k, steps, seed))
+    fn posed_head(&self, pose: &HeadPose) -> ([f32; DIMS], Arc<HeadSurface>) {
+        (pose.state, self.surface(pose.head, pose.steps))
     }
 
     /// Frame `frame` on the calling thread alone, in buffers that the thread keeps from frame
     /// to frame (a fresh 3 MB buffer per frame costs page faults, which serialise threads): the
     /// splats in sample order with one depth test each, as the banded pass resolves them.
-    fn render_on_this_thread(&self, frame: usize) -> Result<GrayImage, FaceError> {
+    fn render_on_this_thread(
+        &self,
+        frame: usize,
+        heads: &[([f32; DIMS], Arc<HeadSurface>)],
+    ) -> Result<GrayImage, FaceError> {
         thread_local! {
             static SCRATCH: std::cell::RefCell<(Vec<f32>, Vec<f32>)> =
                 const { std::cell::RefCell::new((Vec::new(), Vec::new())) };
         }
         let config = &self.config;
-        // Made before the scratch is borrowed: a new surface is made on all cores, and this
-        // thread may take another frame's task while it waits.
-        let heads: Vec<_> = (0..config.faces)
-            .filter(|&k| config.present(k, frame))
-            .map(|k| self.posed_head(k, frame))
-            .collect();
         SCRATCH.with_borrow_mut(|(data, depth)| {
             data.clear();
             data.extend_from_slice(&self.background);
             depth.clear();
             depth.resize(data.len(), f32::NEG_INFINITY);
-            for (state, surface) in &heads {
+            for (state, surface) in heads {
                 let splatter = Splatter::new(config, state);
                 for (idx, z, value) in surface.samples.iter().filter_map(|s| splatter.splat(s)) {
                     if z > depth[idx] {
@@ -402,8 +443,8 @@ impl FaceVideoRenderer {
         let (w, h) = (config.width, config.height);
         let mut data = self.background.clone();
         let mut depth = vec![f32::NEG_INFINITY; data.len()];
-        for k in (0..config.faces).filter(|&k| config.present(k, frame)) {
-            let (state, surface) = self.posed_head(k, frame);
+        for pose in self.head_poses(frame) {
+            let (state, surface) = self.posed_head(&pose);
             // Splats (pixel, depth, value) of every surface sample in parallel, sorted into
             // bands of rows; then each band's depth test in parallel, its splats in sample order
             // (so that ties resolve as one pass over the samples would).
