@@ -503,17 +503,23 @@ impl Splatter {
     /// (pixel index, depth towards the camera, shaded albedo) of a sample that faces the camera
     /// and lands in the frame.
     fn splat(&self, s: &SurfaceSample) -> Option<(usize, f32, f32)> {
-        let n = self.pose.rotation * Vector3::from(s.normal);
-        if n.z < 0.0 {
+        // Half the samples face away: their rotated normal's z alone (the last row of the
+        // product below, in the same order) decides that.
+        let r = &self.pose.rotation;
+        if r[(2, 0)] * s.normal[0] + r[(2, 1)] * s.normal[1] + r[(2, 2)] * s.normal[2] < 0.0 {
             return None;
         }
+        let n = self.pose.rotation * Vector3::from(s.normal);
         let p = Vector3::new(
             s.u * self.half_width,
             s.v * self.half_height,
             s.height * self.half_width,
         );
         let image_point = self.pose.project(&p);
-        let (px, py) = (image_point.x.round(), image_point.y.round());
+        let (px, py) = (
+            round_half_away(image_point.x),
+            round_half_away(image_point.y),
+        );
         if px < 0.0 || py < 0.0 || px >= self.width as f32 || py >= self.height as f32 {
             return None;
         }
@@ -523,6 +529,25 @@ impl Splatter {
             (self.pose.rotation * p).z,
             s.albedo * shade,
         ))
+    }
+}
+
+/// `x.round()` (halves away from zero) without the libm call it compiles to on a baseline
+/// x86-64 target, which took a tenth of the renderer's time. Exact: below 2²³ in magnitude the
+/// truncation and the fraction are exact; from there on every f32 is an integer. (A negative
+/// value that rounds to zero gives +0 where `round` gives −0: the same pixel.)
+pub(crate) fn round_half_away(x: f32) -> f32 {
+    if !(x.abs() < 8_388_608.0) {
+        return x;
+    }
+    let truncated = x as i32 as f32;
+    let fraction = x - truncated;
+    if fraction >= 0.5 {
+        truncated + 1.0
+    } else if fraction <= -0.5 {
+        truncated - 1.0
+    } else {
+        truncated
     }
 }
 
@@ -586,4 +611,48 @@ pub fn render_frame(
     frame: usize,
 ) -> Result<GrayImage, FaceError> {
     FaceVideoRenderer::new(config, model)?.render(frame)
+}
+
+#[cfg(test)]
+mod rounding_tests {
+    use super::round_half_away;
+    use proptest::prelude::*;
+
+    #[test]
+    fn rounds_as_round_at_the_edges() {
+        let edges = [
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            2.5,
+            0.499_999_97,
+            -0.499_999_97,
+            1023.5,
+            767.49994,
+            8_388_607.5,
+            -8_388_607.5,
+            8_388_608.0,
+            16_777_217.0,
+            3.4e38,
+            -3.4e38,
+            f32::MIN_POSITIVE,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ];
+        for x in edges {
+            assert_eq!(round_half_away(x), x.round(), "{x}");
+        }
+        assert!(round_half_away(f32::NAN).is_nan());
+    }
+
+    proptest! {
+        #[test]
+        fn rounds_as_round(x in prop::num::f32::NORMAL | prop::num::f32::SUBNORMAL | prop::num::f32::ZERO, pixel in -100.0f32..2100.0) {
+            prop_assert_eq!(round_half_away(x), x.round());
+            prop_assert_eq!(round_half_away(pixel), pixel.round());
+        }
+    }
 }

@@ -203,8 +203,11 @@ pub struct ReadAhead {
 }
 
 impl ReadAhead {
-    /// Frames decoded ahead of the tracker.
-    pub const FRAMES: usize = 2;
+    /// Frames decoded ahead of the tracker: room for a whole batch and then some, so that the
+    /// reader hands a batch over at once and goes on to the next while the tracker works
+    /// through it (with room for two frames, it waited on the tracker for all but the last two
+    /// frames of each batch, and reading and tracking took turns).
+    pub const FRAMES: usize = Source::BATCH + 2;
 
     /// Starts reading at most `limit` more frames of `source` on a thread of its own.
     pub fn start(mut source: Source, limit: usize) -> anyhow::Result<Self> {
