@@ -537,7 +537,8 @@ impl Splatter {
 /// truncation and the fraction are exact; from there on every f32 is an integer. (A negative
 /// value that rounds to zero gives +0 where `round` gives −0: the same pixel.)
 pub(crate) fn round_half_away(x: f32) -> f32 {
-    if !(x.abs() < 8_388_608.0) {
+    // From 2²³ on (and NaN) there is nothing to round.
+    if x.is_nan() || x.abs() >= 8_388_608.0 {
         return x;
     }
     let truncated = x as i32 as f32;
