@@ -2,7 +2,7 @@
 
 use std::sync::Mutex;
 
-use face_tracker::detect::{Cascade, DetectConfig};
+use face_tracker::detect::{Cascade, DetectConfig, FaceDetector, GpuCascade};
 use face_tracker::extraction::FaceRect;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{pitch_yaw_roll_degrees, rotation_quaternion};
@@ -19,6 +19,28 @@ use crate::errors::{face, runtime_error, value_error};
 
 /// Debian's opencv-data puts OpenCV's cascades here (the command line's default too).
 const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
+
+/// `detector=`: where the detector runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum DetectorChoice {
+    /// On a GPU when the tracker runs on one.
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+impl DetectorChoice {
+    fn parse(name: &str) -> PyResult<Self> {
+        match name {
+            "auto" => Ok(Self::Auto),
+            "cpu" => Ok(Self::Cpu),
+            "gpu" => Ok(Self::Gpu),
+            other => Err(value_error(format!(
+                "detector must be \"auto\", \"cpu\" or \"gpu\", got {other:?}"
+            ))),
+        }
+    }
+}
 
 /// The tracker behind the Python object: faces from the caller's rectangles only, or from the
 /// detector as well.
@@ -100,7 +122,7 @@ impl FaceTracker {
     #[pyo3(signature = (
         width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
-        layers = None, channel_order = "rgb"
+        layers = None, channel_order = "rgb", detector = "auto"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -118,6 +140,7 @@ impl FaceTracker {
         seed: u64,
         layers: Option<usize>,
         channel_order: &str,
+        detector: &str,
     ) -> PyResult<Self> {
         if width < 16 || height < 16 {
             return Err(value_error(format!(
@@ -126,6 +149,7 @@ impl FaceTracker {
         }
         let order = ChannelOrder::parse(channel_order)?;
         let choice = Choice::parse(backend)?;
+        let detector_on = DetectorChoice::parse(detector)?;
         let config = config(particles, seed, layers)?;
         let cascade = match (detect, cascade) {
             (false, None) => None,
@@ -156,15 +180,30 @@ impl FaceTracker {
                 .collect::<Vec<_>>()
                 .join(", "),
         };
+        let on_gpu = match detector_on {
+            DetectorChoice::Cpu => false,
+            DetectorChoice::Gpu => true,
+            DetectorChoice::Auto => !matches!(backend, face_tracker::FaceBackend::Cpu),
+        };
+        let detector = match cascade {
+            Some(cascade) if on_gpu => {
+                let ctx = open(py, Choice::Gpu, allow_software)?.remove(0);
+                Some(FaceDetector::from(
+                    py.detach(|| GpuCascade::new(ctx, cascade)).map_err(face)?,
+                ))
+            }
+            Some(cascade) => Some(FaceDetector::Cpu(cascade)),
+            None => None,
+        };
         let size = (width, height);
         let engine = py
             .detach(|| -> Result<Engine, face_tracker::FaceError> {
                 let model = FaceModel::generic(129)?;
-                Ok(match cascade {
+                Ok(match detector {
                     None => Engine::Fixed(Box::new(face_tracker::FaceTracker::with_capacity(
                         size, max_faces, &model, config, backend,
                     )?)),
-                    Some(cascade) => {
+                    Some(detector) => {
                         let auto = AutoConfig {
                             detect_every,
                             detect: DetectConfig {
@@ -179,7 +218,7 @@ impl FaceTracker {
                             ..AutoConfig::default()
                         };
                         Engine::Detecting(Box::new(AutoTracker::new(
-                            size, cascade, &model, auto, backend,
+                            size, detector, &model, auto, backend,
                         )?))
                     }
                 })

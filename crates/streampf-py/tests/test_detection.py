@@ -12,7 +12,7 @@ MEGAMIND = Path("/usr/share/doc/opencv-doc/examples/data/Megamind.avi")
 CASCADE = Path("/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml")
 
 
-def test_the_detector_starts_tracks_on_a_real_video_in_bgr():
+def megamind_frames(count):
     assert MEGAMIND.exists() and CASCADE.exists(), "run `cargo xtask fetch-media` (opencv-doc, opencv-data)"
     try:
         import cv2  # decodes the video; installed by `cargo xtask fetch-media`
@@ -20,10 +20,15 @@ def test_the_detector_starts_tracks_on_a_real_video_in_bgr():
         pytest.fail("OpenCV's Python package is needed (cargo xtask fetch-media installs it)")
     capture = cv2.VideoCapture(str(MEGAMIND))
     frames = []
-    while len(frames) < 40:
+    while len(frames) < count:
         ok, frame = capture.read()
         assert ok, f"{MEGAMIND} ended after {len(frames)} frames"
         frames.append(frame)
+    return frames
+
+
+def test_the_detector_starts_tracks_on_a_real_video_in_bgr():
+    frames = megamind_frames(40)
     height, width = frames[0].shape[:2]
     tracker = streampf.FaceTracker(
         width, height, detect=True, particles=200, backend="cpu", channel_order="bgr"
@@ -38,3 +43,26 @@ def test_the_detector_starts_tracks_on_a_real_video_in_bgr():
     assert tracked >= 20, tracked
     with pytest.raises(ValueError, match="shape"):
         tracker.step(np.ascontiguousarray(frames[0][:, :, :2]))
+
+
+def test_the_detector_on_the_gpu_starts_the_same_tracks(gpu_backend):
+    """The tracker on the CPU, its detector on the CPU or on the GPU: the same faces found at
+    the same frames, so the same estimates."""
+    frames = megamind_frames(24)
+    height, width = frames[0].shape[:2]
+    runs = {}
+    for detector in ["cpu", "gpu"]:
+        tracker = streampf.FaceTracker(
+            width, height, detect=True, particles=100, backend="cpu", detector=detector,
+            allow_software=gpu_backend["allow_software"], channel_order="bgr",
+        )
+        steps = [tracker.step(frame) for frame in frames]
+        runs[detector] = (
+            [sorted(int(t) for t in s["started"]) for s in steps],
+            np.concatenate([s["state"].ravel() for s in steps]),
+        )
+    assert any(runs["cpu"][0]), "the CPU detector started no track"
+    assert runs["gpu"][0] == runs["cpu"][0]
+    np.testing.assert_array_equal(runs["gpu"][1], runs["cpu"][1])
+    with pytest.raises(ValueError, match="detector must be"):
+        streampf.FaceTracker(width, height, detect=True, detector="tpu")
