@@ -121,8 +121,9 @@ impl Source {
 
     /// The next reads, at most `max` (at least one), in order: a directory's images are decoded
     /// and a synthetic video's frames rendered a frame per core at once (up to
-    /// [`Source::BATCH`]; the frames are independent of each other); a video file (FFmpeg
-    /// decodes on its own threads) and a camera give one frame.
+    /// [`Source::BATCH`]; the frames are independent of each other; a synthetic video's first
+    /// frame comes alone); a video file (FFmpeg decodes on its own threads) and a camera give
+    /// one frame.
     pub fn read_batch(&mut self, max: usize) -> Vec<anyhow::Result<FrameRead>> {
         let count = max.clamp(1, rayon::current_num_threads().clamp(1, Self::BATCH));
         match self {
@@ -142,6 +143,12 @@ impl Source {
                 let end = (*next + count).min(renderer.config().frames);
                 if *next >= end {
                     return vec![Ok(FrameRead::End)];
+                }
+                if *next == 0 {
+                    // The first frame alone, banded over all cores: the tracker starts at once
+                    // instead of waiting for a whole batch.
+                    *next = 1;
+                    return vec![renderer.render(0).map(FrameRead::Frame).map_err(Into::into)];
                 }
                 let reads = renderer
                     .render_frames(*next..end)
