@@ -10,7 +10,7 @@ use std::f32::consts::PI;
 use std::ops::Range;
 use std::sync::{Arc, Mutex, PoisonError};
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::error::FaceError;
@@ -515,7 +515,10 @@ impl Splatter {
             s.v * self.half_height,
             s.height * self.half_width,
         );
-        let image_point = self.pose.project(&p);
+        // Pose::project's arithmetic, keeping the rotated point for its depth.
+        let rotated = self.pose.rotation * p;
+        let image_point =
+            Vector2::new(rotated.x, rotated.y) * self.pose.scale + self.pose.translation;
         let (px, py) = (
             round_half_away(image_point.x),
             round_half_away(image_point.y),
@@ -526,7 +529,7 @@ impl Splatter {
         let shade = 0.55 + 0.45 * n.dot(&self.light).max(0.0);
         Some((
             (py as u32 * self.width + px as u32) as usize,
-            (self.pose.rotation * p).z,
+            rotated.z,
             s.albedo * shade,
         ))
     }
