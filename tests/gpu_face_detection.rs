@@ -14,7 +14,7 @@ use std::collections::HashSet;
 use std::path::PathBuf;
 
 use face_tracker::GrayImage;
-use face_tracker::detect::{Cascade, DetectConfig, Detection, GpuCascade};
+use face_tracker::detect::{Cascade, DetectConfig, Detection, FaceDetector, GpuCascade};
 use face_tracker::model::FaceModel;
 use face_tracker::synth::{FaceSynthConfig, render_frame};
 
@@ -230,4 +230,36 @@ fn flat_and_tiny_frames_and_bad_settings() {
     };
     let err = gpu.detect(&half, &bad).unwrap_err().to_string();
     assert!(err.contains("scale factor"), "{err}");
+}
+
+/// A tracker's GPU detector whose device is lost goes on on the CPU with the same cascade, and
+/// says why.
+#[test]
+fn a_gpu_detector_whose_device_is_lost_goes_on_on_the_cpu() {
+    let cascade = accept_everything();
+    let Some(gpu) = gpu_cascade("gpu detector fallback", cascade.clone()) else {
+        return;
+    };
+    let config = DetectConfig {
+        min_size: 6,
+        ..DetectConfig::default()
+    };
+    let frame = noise(64, 48, 9);
+    let want = cascade.detect(&frame, &config).unwrap();
+    assert!(!want.is_empty());
+    let detector = FaceDetector::from(gpu);
+    assert_eq!(detector.detect(&frame, &config).unwrap(), want);
+    assert_eq!(detector.fallback(), None);
+    let FaceDetector::Gpu { gpu, .. } = &detector else {
+        panic!("a GPU detector")
+    };
+    gpu.context().simulate_device_loss();
+    assert!(
+        gpu.detect(&frame, &config).is_err(),
+        "the lost device still answered"
+    );
+    assert_eq!(detector.detect(&frame, &config).unwrap(), want);
+    let why = detector.fallback().expect("the fallback is reported");
+    assert!(why.contains("lost") || why.contains("destroyed"), "{why}");
+    assert!(detector.device_name().starts_with("GPU"));
 }

@@ -143,13 +143,12 @@ struct Detectors {
 
 impl Detectors {
     fn spawn(
-        detector: FaceDetector,
+        detector: Arc<FaceDetector>,
         config: DetectConfig,
         threads: usize,
     ) -> Result<Self, FaceError> {
         let (jobs, job_queue) = channel::<(usize, Arc<GrayImage>)>();
         let job_queue = Arc::new(Mutex::new(job_queue));
-        let detector = Arc::new(detector);
         let (result_sender, results) = channel();
         let mut handles = Vec::with_capacity(threads);
         for k in 0..threads.max(1) {
@@ -275,6 +274,8 @@ pub struct AutoFrame {
 pub struct AutoTracker {
     config: AutoConfig,
     tracker: FaceTracker,
+    /// The detector the threads run (for its fallback report).
+    detector_used: Arc<FaceDetector>,
     detector: Detectors,
     frame_index: usize,
     /// The running tracks after the last step: number, rectangle, ε.
@@ -305,10 +306,13 @@ impl AutoTracker {
         let threads = config
             .detection_delay
             .map_or(1, |delay| delay / config.detect_every + 1);
-        let detector = Detectors::spawn(detector.into(), config.detect.clone(), threads)?;
+        let detector_used = Arc::new(detector.into());
+        let detector =
+            Detectors::spawn(Arc::clone(&detector_used), config.detect.clone(), threads)?;
         Ok(Self {
             config,
             tracker,
+            detector_used,
             detector,
             frame_index: 0,
             tracked: Vec::new(),
@@ -318,6 +322,12 @@ impl AutoTracker {
 
     pub fn tracker(&self) -> &FaceTracker {
         &self.tracker
+    }
+
+    /// Why the detector went over from its GPU to the CPU, if it did
+    /// ([`FaceDetector::fallback`]).
+    pub fn detector_fallback(&self) -> Option<String> {
+        self.detector_used.fallback()
     }
 
     /// See [`FaceTracker::set_personaliser`].

@@ -901,6 +901,11 @@ impl FaceRun<'_> {
         let closed = closed.and(self.recording.take().map_or(Ok(()), Recording::finish));
         self.record
             .summary(self.args, runner, self.frames, elapsed, &self.skipped);
+        if let Runner::Auto(auto) = runner
+            && let Some(why) = auto.detector_fallback()
+        {
+            eprintln!("warning: the detector's GPU failed ({why}); it ran on the CPU from then on");
+        }
         match end {
             LoopEnd::Failed(e) => {
                 return Err(e.context(format!(

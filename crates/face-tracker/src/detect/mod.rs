@@ -92,11 +92,18 @@ impl DetectConfig {
     }
 }
 
-/// The detector a tracker runs: the cascade on the CPU's cores, or on a GPU.
+/// The detector a tracker runs: the cascade on the CPU's cores, or on a GPU. A GPU detector
+/// that fails (its device lost or reset) hands over to the same cascade on the CPU for the rest
+/// of the run, so that tracking goes on and no result is lost; [`FaceDetector::fallback`] says
+/// why.
 #[derive(Debug)]
 pub enum FaceDetector {
     Cpu(Cascade),
-    Gpu(Box<GpuCascade>),
+    Gpu {
+        gpu: Box<GpuCascade>,
+        /// Why the GPU was given up, once it was.
+        fallback: std::sync::Mutex<Option<String>>,
+    },
 }
 
 impl FaceDetector {
@@ -106,17 +113,40 @@ impl FaceDetector {
         frame: &GrayImage,
         config: &DetectConfig,
     ) -> Result<Vec<Detection>, FaceError> {
-        match self {
-            Self::Cpu(cascade) => cascade.detect(frame, config),
-            Self::Gpu(gpu) => gpu.detect(frame, config),
+        let (gpu, fallback) = match self {
+            Self::Cpu(cascade) => return cascade.detect(frame, config),
+            Self::Gpu { gpu, fallback } => (gpu, fallback),
+        };
+        let lock = || {
+            fallback
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+        };
+        if lock().is_none() {
+            match gpu.detect(frame, config) {
+                Err(FaceError::Gpu(e)) => *lock() = Some(e.to_string()),
+                done => return done,
+            }
         }
+        gpu.cascade().detect(frame, config)
     }
 
     /// Where it runs, in words ("CPU" or the GPU's name).
     pub fn device_name(&self) -> String {
         match self {
             Self::Cpu(_) => "CPU".into(),
-            Self::Gpu(gpu) => format!("GPU: {}", gpu.context().adapter().name),
+            Self::Gpu { gpu, .. } => format!("GPU: {}", gpu.context().adapter().name),
+        }
+    }
+
+    /// Why a GPU detector went over to the CPU, if it did.
+    pub fn fallback(&self) -> Option<String> {
+        match self {
+            Self::Cpu(_) => None,
+            Self::Gpu { fallback, .. } => fallback
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .clone(),
         }
     }
 }
@@ -129,7 +159,10 @@ impl From<Cascade> for FaceDetector {
 
 impl From<GpuCascade> for FaceDetector {
     fn from(gpu: GpuCascade) -> Self {
-        Self::Gpu(Box::new(gpu))
+        Self::Gpu {
+            gpu: Box::new(gpu),
+            fallback: std::sync::Mutex::new(None),
+        }
     }
 }
 
