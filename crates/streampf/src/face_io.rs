@@ -359,4 +359,25 @@ mod read_ahead_tests {
             _ => unreachable!(),
         }
     }
+
+    /// While the tracker works on a frame, the reader goes on: with the tracker holding still
+    /// after the first frame, the reader fills the hand-over with a whole batch and renders the
+    /// next (with room for two frames it stopped inside the first batch, and reading and
+    /// tracking took turns).
+    #[test]
+    fn the_reader_gets_a_whole_batch_ahead_of_a_busy_tracker() {
+        let (source, _) = synthetic(100);
+        let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
+        assert!(frame(ahead.read_next().unwrap()).is_some());
+        // Tiny frames: the reader is done in milliseconds, this is ample.
+        std::thread::sleep(std::time::Duration::from_secs(3));
+        let batch = rayon::current_num_threads().clamp(1, Source::BATCH);
+        match ahead.finish().unwrap() {
+            Source::Synthetic { next, .. } => assert!(
+                next > Source::BATCH + batch,
+                "the reader stopped at frame {next} (batches of {batch})"
+            ),
+            _ => unreachable!(),
+        }
+    }
 }
