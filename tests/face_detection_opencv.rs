@@ -29,19 +29,7 @@ fn media() -> Option<Vec<PathBuf>> {
     if media::opted_out("the detector against OpenCV") {
         return None;
     }
-    let dir = media::media_dir().join("images");
-    let mut images: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap_or_else(|e| panic!("{}: {e}; {HELP}", dir.display()))
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "png"))
-        .collect();
-    images.sort();
-    assert!(
-        images.len() >= 7,
-        "{} images in {}; {HELP}",
-        images.len(),
-        dir.display()
-    );
+    let images = media::photographs();
     for c in CASCADES {
         media::cascade_path(c);
     }

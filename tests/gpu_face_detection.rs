@@ -11,14 +11,13 @@
 mod common;
 
 use std::collections::HashSet;
-use std::path::PathBuf;
 
 use face_tracker::GrayImage;
 use face_tracker::detect::{Cascade, DetectConfig, Detection, FaceDetector, GpuCascade};
 use face_tracker::model::FaceModel;
 use face_tracker::synth::{FaceSynthConfig, render_frame};
 
-use common::media::{self, HELP, cascade_path};
+use common::media::{self, cascade_path};
 
 const CASCADES: [&str; 4] = [
     "haarcascade_frontalface_alt2.xml",
@@ -59,14 +58,7 @@ fn gpu_detector_finds_the_cpu_detectors_faces_on_real_photographs() {
     if media::opted_out("the GPU detector on photographs") {
         return;
     }
-    let dir = media::media_dir().join("images");
-    let mut images: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap_or_else(|e| panic!("{}: {e}; {HELP}", dir.display()))
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "png"))
-        .collect();
-    images.sort();
-    assert!(images.len() >= 7, "{} images; {HELP}", images.len());
+    let images = media::photographs();
     let frames: Vec<GrayImage> = images.iter().map(|p| GrayImage::load(p).unwrap()).collect();
     let config = DetectConfig::default();
     let (mut hits, mut differing, mut faces) = (0, 0, 0);

@@ -33,3 +33,22 @@ pub fn cascade_path(name: &str) -> PathBuf {
 pub fn media_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("target/media")
 }
+
+/// The photographs `cargo xtask fetch-media` put in target/media/images (PNG, name order), or a
+/// panic with instructions when fewer than seven are there.
+pub fn photographs() -> Vec<PathBuf> {
+    let dir = media_dir().join("images");
+    let mut images: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e}; {HELP}", dir.display()))
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "png"))
+        .collect();
+    images.sort();
+    assert!(
+        images.len() >= 7,
+        "{} images in {}; {HELP}",
+        images.len(),
+        dir.display()
+    );
+    images
+}

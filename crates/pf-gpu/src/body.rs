@@ -111,17 +111,7 @@ fn kinematics_params(
     label: &str,
     value: &KinematicsParams,
 ) -> Result<wgpu::Buffer, GpuError> {
-    let buffer = ctx.scoped(&format!("creating the {label}"), || {
-        ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: std::mem::size_of::<KinematicsParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        })
-    })?;
-    ctx.queue
-        .write_buffer(&buffer, 0, bytemuck::bytes_of(value));
-    Ok(buffer)
+    crate::stream::uniform_buffer(ctx, label, value)
 }
 
 /// Forward kinematics plus the fast capsule likelihood for `samples` pose samples on one GPU.

@@ -138,14 +138,7 @@ fn chunk(
     count: usize,
     s: &ChunkStreams<'_>,
 ) -> Result<Chunk, GpuError> {
-    let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("capsule likelihood params"),
-        size: std::mem::size_of::<CapsuleParams>() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    ctx.queue
-        .write_buffer(&buffer, 0, bytemuck::bytes_of(params));
+    let buffer = crate::stream::uniform_buffer(ctx, "capsule likelihood params", params)?;
     let groups = kernels
         .iter()
         .map(|k| {

@@ -143,17 +143,9 @@ impl FaceLikelihoodGpu {
                     min_visible_share,
                     _pad: 0,
                 };
-                let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some("face likelihood params"),
-                    size: std::mem::size_of::<FaceParams>() as u64,
-                    usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                    mapped_at_creation: false,
-                });
-                ctx.queue
-                    .write_buffer(&buffer, 0, bytemuck::bytes_of(&value));
-                buffer
+                crate::stream::uniform_buffer(ctx, "face likelihood params", &value)
             })
-            .collect();
+            .collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
             dispatch,
             faces,

@@ -35,14 +35,7 @@ fn run(
     let counters_stream = DeviceStream::from_slice(ctx, "counters", counters)?;
     let words = DeviceStream::<[u32; 4]>::zeroed(ctx, "philox words", counters.len())?;
     let normals = DeviceStream::<f32>::zeroed(ctx, "normals", normals_len)?;
-    let uniform = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("random params (uniform)"),
-        size: std::mem::size_of::<RandomParams>() as u64,
-        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-        mapped_at_creation: false,
-    });
-    ctx.queue
-        .write_buffer(&uniform, 0, bytemuck::bytes_of(&params));
+    let uniform = crate::stream::uniform_buffer(ctx, "random params (uniform)", &params)?;
     let entries: Vec<(u32, wgpu::BindingResource<'_>)> = if entry == "philox_blocks" {
         vec![
             (0, uniform.as_entire_binding()),

@@ -8,6 +8,25 @@ use bytemuck::Pod;
 use crate::context::GpuContext;
 use crate::error::GpuError;
 
+/// A uniform buffer holding `value` (a kernel's parameters), created once and bound as is.
+pub fn uniform_buffer<T: Pod>(
+    ctx: &GpuContext,
+    label: &str,
+    value: &T,
+) -> Result<wgpu::Buffer, GpuError> {
+    let buffer = ctx.scoped(&format!("creating the {label}"), || {
+        ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: std::mem::size_of::<T>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        })
+    })?;
+    ctx.queue
+        .write_buffer(&buffer, 0, bytemuck::bytes_of(value));
+    Ok(buffer)
+}
+
 /// A storage buffer of `len` values of `T` on the device.
 #[derive(Debug)]
 pub struct DeviceStream<T: Pod> {

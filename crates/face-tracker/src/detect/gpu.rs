@@ -16,6 +16,7 @@ use std::sync::{Mutex, PoisonError};
 
 use bytemuck::{Pod, Zeroable};
 use pf_gpu::kernels::Kernel;
+use pf_gpu::stream::uniform_buffer;
 use pf_gpu::{DeviceStream, GpuContext, GpuError, Readback, wgpu};
 use rayon::prelude::*;
 
@@ -391,17 +392,7 @@ impl GpuCascade {
             rects_at,
             feature_starts_at,
         };
-        let params_buffer = ctx.scoped("creating the detector's parameters", || {
-            let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("haar cascade params"),
-                size: std::mem::size_of::<Params>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            ctx.queue
-                .write_buffer(&buffer, 0, bytemuck::bytes_of(&params));
-            buffer
-        })?;
+        let params_buffer = uniform_buffer(ctx, "haar cascade params", &params)?;
         let level_words: &[u32] = bytemuck::cast_slice(&table);
         let level_stream = DeviceStream::from_slice(ctx, "pyramid levels", level_words)?;
         let pixels = DeviceStream::zeroed(ctx, "pyramid pixels", words)?;

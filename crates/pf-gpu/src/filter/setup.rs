@@ -118,17 +118,7 @@ pub(super) fn uniform_buffer(
     ctx: &GpuContext,
     params: &FrameParams,
 ) -> Result<wgpu::Buffer, GpuError> {
-    let buffer = ctx.scoped("creating the parameter buffer", || {
-        ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("frame params"),
-            size: std::mem::size_of::<FrameParams>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        })
-    })?;
-    ctx.queue
-        .write_buffer(&buffer, 0, bytemuck::bytes_of(params));
-    Ok(buffer)
+    crate::stream::uniform_buffer(ctx, "frame params", params)
 }
 
 /// Every device stream of a filter, created once.
