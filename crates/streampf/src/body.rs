@@ -143,6 +143,10 @@ pub struct TrackArgs {
     /// Pose samples (particles).
     #[arg(long, default_value_t = 1500, value_parser = clap::value_parser!(u32).range(1..=1_000_000))]
     pub particles: u32,
+    /// τ of the likelihood (eq. 6), in metres: a point's distance to the body counts up to this
+    /// much, and a point no capsule explains costs τ².
+    #[arg(long, default_value_t = TrackerConfig::default().tau)]
+    pub tau: f32,
     /// Frames are thinned to at most this many points.
     #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
     pub max_points: u32,
@@ -429,6 +433,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let config = TrackerConfig {
         particles: args.particles as usize,
         max_points: args.max_points as usize,
+        tau: args.tau,
         seed: args.seed,
         annealing: args.filter.apply(&defaults.annealing)?,
         motion: args.filter.motion(defaults.motion)?,

@@ -209,6 +209,17 @@ fn bad_body_inputs_are_clear_errors() {
         pose.to_str().unwrap(),
     ]));
     assert!(err.contains("columns"), "{err}");
+    for tau in ["0", "-0.1", "nan", "inf"] {
+        let err = failure(&streampf(&[
+            "body",
+            "track",
+            "--synthetic",
+            "--backend",
+            "cpu",
+            &format!("--tau={tau}"),
+        ]));
+        assert!(err.contains("tau"), "--tau {tau}: {err}");
+    }
     for bad in [
         vec!["body", "track", "--synthetic", "--capsules", "200"],
         vec!["body", "track", "--synthetic", "--dropout", "1.5"],
