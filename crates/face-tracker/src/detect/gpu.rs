@@ -254,14 +254,14 @@ impl GpuCascade {
             .par_iter()
             .map(|l| resize(frame, l.scaled.0, l.scaled.1))
             .collect();
-        let mut buffers = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
-        if buffers.as_ref().is_none_or(|b| b.levels != levels) {
-            // Drop the old set first: a new frame size should not hold both on the device.
-            *buffers = None;
-            *buffers = Some(self.buffers_for(levels)?);
+        let mut kept = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
+        if kept.as_ref().is_some_and(|b| b.levels != levels) {
+            // Dropped first: a new frame size should not hold both sets on the device.
+            *kept = None;
         }
-        let Some(buffers) = buffers.as_ref() else {
-            unreachable!("the buffers were just made")
+        let buffers: &PyramidBuffers = match &mut *kept {
+            Some(buffers) => buffers,
+            empty => empty.insert(self.buffers_for(levels)?),
         };
         let found = self.run(buffers, &images)?;
         match found {
