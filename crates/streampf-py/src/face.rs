@@ -187,7 +187,10 @@ impl FaceTracker {
         };
         let detector = match cascade {
             Some(cascade) if on_gpu => {
-                let ctx = open(py, Choice::Gpu, allow_software)?.remove(0);
+                let ctx = open(py, Choice::Gpu, allow_software)?
+                    .into_iter()
+                    .next()
+                    .ok_or_else(|| runtime_error("no GPU for the detector"))?;
                 Some(FaceDetector::from(
                     py.detach(|| GpuCascade::new(ctx, cascade)).map_err(face)?,
                 ))

@@ -361,10 +361,13 @@ impl GpuCascade {
             window_rows += rows;
         }
         if values > u32::MAX as usize {
-            return Err(FaceError::InvalidInput(format!(
+            // A limit of this device's layout, not a bad frame: a tracker's detector goes on on
+            // the CPU (FaceDetector falls back on GPU errors).
+            return Err(GpuError::InvalidConfig(format!(
                 "a {}×{} frame is too large for the GPU detector",
                 levels[0].scaled.0, levels[0].scaled.1
-            )));
+            ))
+            .into());
         }
         let [
             stages_at,
