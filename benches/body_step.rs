@@ -64,6 +64,27 @@ fn tracker(
     BodyTracker::new(human_skeleton(K).unwrap(), start, config, backend).unwrap()
 }
 
+/// Prints the step's own GPU time (timestamps) beside its wall clock over a few steps: how much
+/// of a whole step is the GPU's work and how much the host's preparation and the round trip.
+fn report_gpu_share(tracker: &mut BodyTracker, points: &[Vector3<f32>], label: &str) {
+    const STEPS: u32 = 20;
+    let (mut gpu, mut source) = (std::time::Duration::ZERO, "");
+    let started = std::time::Instant::now();
+    for _ in 0..STEPS {
+        std::hint::black_box(tracker.step(points).unwrap());
+        if let Some(time) = tracker.last_gpu_time() {
+            gpu += time.duration();
+            source = time.source();
+        }
+    }
+    let wall = started.elapsed();
+    eprintln!(
+        "body_step/gpu_whole_step/{label}: {:.3} ms a step, {:.3} ms of it on the GPU ({source})",
+        wall.as_secs_f64() * 1e3 / f64::from(STEPS),
+        gpu.as_secs_f64() * 1e3 / f64::from(STEPS),
+    );
+}
+
 fn bench(c: &mut Criterion) {
     let sizes: &[(usize, u32, u32)] = if full_size() {
         &[
@@ -88,6 +109,7 @@ fn bench(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("gpu_whole_step", &label), |b| {
             b.iter(|| std::hint::black_box(gpu.step(&points).unwrap()))
         });
+        report_gpu_share(&mut gpu, &points, &label);
         drop(gpu);
         let mut annealed = gpu_tracker(TrackerConfig::default().annealing);
         group.bench_function(BenchmarkId::new("gpu_annealed_default", &label), |b| {

@@ -44,7 +44,8 @@ struct CapsuleTerms {
     wb: vec4<f32>,
     // p - c for the bounding sphere's centre c = (a + b) / 2, and |p - c|^2 - R^2, R = L/2 + r.
     wc: vec4<f32>,
-    // |w_perp|^2 - r^2 (cylinder), unused.
+    // x: |w_perp|^2 - r^2, the cylinder's q0, > 0 when the camera is outside the infinite
+    // cylinder; yzw unused.
     q0: vec4<f32>,
 }
 
@@ -236,9 +237,15 @@ fn may_matter(dir: vec3<f32>, depth: f32, wc: vec4<f32>) -> bool {
 }
 
 // Appendix A from the precomputed terms of staged capsule k (after may_matter). The terms are
-// read from workgroup memory only here, so that a culled pair reads 16 bytes, not 96.
+// read from workgroup memory only here, so that a culled pair reads 16 bytes, not 96. Whether
+// the camera lies inside the capsule's infinite cylinder is the same for every ray, so the
+// branch below does not split a subgroup; outside it (the usual case) at most two roots are
+// solved, not three.
 fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
     let t = staged_terms[k];
+    if (t.q0.x > 0.0) {
+        return truncated(ray_capsule_outside(dir, t), depth);
+    }
     var best = NO_HIT;
     let len = t.axis.w;
     if (len > 0.0) {
@@ -258,6 +265,40 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
     best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, t.wa.xyz), t.wa.w));
     best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, t.wb.xyz), t.wb.w));
     return truncated(best, depth);
+}
+
+// The first hit on a capsule whose infinite cylinder does not hold the camera (q0 > 0, the
+// same for every ray): the ray's entry into the infinite cylinder if it lies along the segment;
+// otherwise the end sphere on the side where it entered, or nothing. A ray that misses the
+// infinite cylinder misses the capsule, which lies inside it.
+fn ray_capsule_outside(dir: vec3<f32>, t: CapsuleTerms) -> f32 {
+    let vu = dot(dir, t.axis.xyz);
+    let v_perp = dir - t.axis.xyz * vu;
+    let q2 = dot(v_perp, v_perp);
+    let q1 = dot(dir, t.w_perp.xyz);
+    let disc = q1 * q1 - q2 * t.q0.x;
+    if (disc < 0.0 || q1 >= 0.0 || q2 <= 0.0) {
+        return NO_HIT;
+    }
+    let entry = (-q1 - sqrt(disc)) / q2;
+    let along = t.w_perp.w + entry * vu;
+    if (along >= 0.0 && along <= t.axis.w) {
+        return entry;
+    }
+    var end = t.wb;
+    if (along < 0.0) {
+        end = t.wa;
+    }
+    let s1 = dot(dir, end.xyz);
+    let s_disc = s1 * s1 - end.w;
+    if (s_disc < 0.0) {
+        return NO_HIT;
+    }
+    let hit = -s1 - sqrt(s_disc);
+    if (hit < 0.0) {
+        return NO_HIT;
+    }
+    return hit;
 }
 
 // Points per invocation of the fast kernel (a fast tile is FAST_POINTS * TILE points).

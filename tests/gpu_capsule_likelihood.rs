@@ -88,3 +88,77 @@ fn invalid_shapes_are_typed_errors() {
         .unwrap();
     assert!(gpu.upload_capsules(&ctx, &[[0.0; 4]; 11]).is_err());
 }
+
+/// Bones pointing nearly at the camera, so that the camera lies inside some capsules' infinite
+/// cylinders (the fast kernel's general branch) and outside others' (its two-root branch), with
+/// points on, in front of and behind them: the fast kernel against Listing 1.2.
+#[test]
+fn fast_kernel_matches_cpu_for_bones_along_the_line_of_sight() {
+    use body_tracker::capsule::Capsule;
+    let Some(ctx) = common::gpu_context("capsules along the line of sight") else {
+        return;
+    };
+    let mut runner = TestRunner::new(Config {
+        cases: 24,
+        failure_persistence: None,
+        ..Config::default()
+    });
+    // Per capsule: its near end's offset from the axis of sight, the far end's, depth, length
+    // and radius; the camera is inside the infinite cylinder when the bone's line passes
+    // within the radius of the origin.
+    let capsule = (
+        (-0.1f32..0.1, -0.1f32..0.1),
+        (-0.04f32..0.04, -0.04f32..0.04),
+        1.0f32..4.0,
+        prop_oneof![Just(0.0f32), 0.05f32..0.6],
+        0.02f32..0.25,
+    );
+    let strategy = (
+        proptest::collection::vec(capsule, 1..8),
+        proptest::collection::vec((-0.2f32..0.2, -0.2f32..0.2, -0.3f32..0.3), 1..300),
+    );
+    runner
+        .run(&strategy, |(specs, offsets)| {
+            let caps: Vec<Capsule> = specs
+                .iter()
+                .map(|&((ax, ay), (bx, by), depth, length, radius)| {
+                    let a = Vector3::new(ax, ay, depth);
+                    // Along the line from the camera through a, bent by (bx, by).
+                    let b = a + (a.normalize() + Vector3::new(bx, by, 0.0)).normalize() * length;
+                    Capsule { a, b, radius }
+                })
+                .collect();
+            // Points near each capsule's near end, in front of it and behind it.
+            let pts: Vec<Vector3<f32>> = offsets
+                .iter()
+                .enumerate()
+                .map(|(n, &(x, y, dz))| caps[n % caps.len()].a + Vector3::new(x, y, dz))
+                .filter(|p| p.z > 0.1)
+                .collect();
+            prop_assume!(!pts.is_empty());
+            let rays = Rays::through(Vector3::zeros(), &pts).unwrap();
+            let want = listing_1_2(std::slice::from_ref(&caps), &rays, TAU)[0];
+            let gpu = CapsuleLikelihoodGpu::new(
+                &ctx,
+                CapsuleKernel::Fast,
+                1,
+                pts.len(),
+                caps.len(),
+                [0.0; 3],
+                TAU,
+            )
+            .unwrap();
+            gpu.upload_rays(&ctx, &rays.gpu_layout()).unwrap();
+            let mut flat = Vec::new();
+            capsules_gpu_layout(&caps, &mut flat);
+            gpu.upload_capsules(&ctx, &flat).unwrap();
+            let got = f64::from(gpu.evaluate(&ctx).unwrap()[0]);
+            let (tol, grazing) = sum_tolerance(&caps, &rays, want);
+            prop_assert!(
+                (got - want).abs() <= tol,
+                "GPU {got} vs CPU {want} ({grazing} grazing rays, tolerance {tol})"
+            );
+            Ok(())
+        })
+        .unwrap();
+}

@@ -165,6 +165,8 @@ pub struct FilterStep {
     /// M of the estimate (eq. 3's sum over the frame's points), when the GPU computed it in the
     /// step's submission; the host computes it otherwise.
     pub estimate_sum: Option<f64>,
+    /// The step's own time on its GPU (timestamps where the adapter has them); `None` on the CPU.
+    pub gpu_time: Option<pf_gpu::GpuTime>,
 }
 
 /// A frame as every filter weighs it.
@@ -217,6 +219,7 @@ impl Filter {
             spread: report.spreads,
             ess: report.ess[0],
             estimate_sum,
+            gpu_time: report.gpu_time,
         })
     }
 }
@@ -231,6 +234,8 @@ pub struct BodyTracker {
     frames: u64,
     /// The islands' weights at the last frame (empty with one filter).
     island_weights: Vec<f64>,
+    /// The last frame's GPU time (the slowest island's); `None` on the CPU.
+    last_gpu_time: Option<pf_gpu::GpuTime>,
 }
 
 impl BodyTracker {
@@ -276,6 +281,7 @@ impl BodyTracker {
             filters,
             frames: 0,
             island_weights: Vec::new(),
+            last_gpu_time: None,
         })
     }
 
@@ -297,6 +303,12 @@ impl BodyTracker {
             .map(|f| f.engine.particles())
             .collect::<Result<Vec<_>, _>>()?;
         crate::islands::joined_particles(&islands, &self.island_weights)
+    }
+
+    /// The last frame's own time on the GPU (the slowest island's with several; GPU timestamps
+    /// where the adapter has them, the step's wall clock otherwise); `None` on the CPU engine.
+    pub fn last_gpu_time(&self) -> Option<pf_gpu::GpuTime> {
+        self.last_gpu_time
     }
 
     /// The GPU the filter runs on (the first island's with several; `None` on the CPU engine).
@@ -349,6 +361,10 @@ impl BodyTracker {
             })?,
         };
         self.frames += 1;
+        self.last_gpu_time = steps
+            .iter()
+            .filter_map(|s| s.gpu_time)
+            .max_by_key(|t| t.duration());
         let tau = self.config.tau;
         let (pose, spread, ess, fit) = if let [one] = steps.as_slice() {
             (

@@ -252,10 +252,10 @@ impl BodyLikelihoodGpu {
         }
         let mut padded = rays.to_vec();
         padded.resize(self.config.points, [0.0, 0.0, 1.0, -1.0]);
-        let (ordered, cones) = crate::capsules::prepare_rays(&padded);
-        self.capsules.upload_prepared_rays(ctx, &ordered, &cones)?;
+        let prepared = crate::capsules::prepare_rays(&padded);
+        self.capsules.upload_prepared_rays(ctx, &prepared)?;
         if let Some(fit) = &self.estimate_fit {
-            fit.capsules.upload_prepared_rays(ctx, &ordered, &cones)?;
+            fit.capsules.upload_prepared_rays(ctx, &prepared)?;
         }
         Ok(())
     }

@@ -263,20 +263,18 @@ impl CapsuleLikelihoodGpu {
         if self.kind != CapsuleKernel::Fast {
             return self.rays.upload(ctx, rays);
         }
-        let (ordered, cones) = prepare_rays(rays);
-        self.upload_prepared_rays(ctx, &ordered, &cones)
+        self.upload_prepared_rays(ctx, &prepare_rays(rays))
     }
 
-    /// Rays already put in order with their tile cones by [`prepare_rays`] (one preparation for
+    /// Rays already put in order with their cones by [`prepare_rays`] (one preparation for
     /// several likelihoods over the same frame); for the fast kernel.
     pub fn upload_prepared_rays(
         &self,
         ctx: &GpuContext,
-        ordered: &[[f32; 4]],
-        cones: &[[f32; 4]],
+        prepared: &PreparedRays,
     ) -> Result<(), GpuError> {
-        self.rays.upload(ctx, ordered)?;
-        self.tile_cones.upload(ctx, cones)
+        self.rays.upload(ctx, &prepared.ordered)?;
+        self.tile_cones.upload(ctx, &prepared.tile_cones)
     }
 
     /// Every sample's capsules, `samples × capsules × 2` values.
@@ -347,22 +345,43 @@ fn spread_bits(v: u32) -> u32 {
     (x | (x << 1)) & 0x5555_5555
 }
 
+/// A frame's rays as the fast kernel reads them: in Morton order of direction, with the cone of
+/// each tile.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PreparedRays {
+    /// The rays in Morton order, end markers (depth < 0) last.
+    pub ordered: Vec<[f32; 4]>,
+    /// Per tile of `FAST_TILE` rays: (unit axis, half-angle) of a cone holding them.
+    pub tile_cones: Vec<[f32; 4]>,
+}
+
 /// The fast kernel's host preparation of a frame's rays: the rays in Morton order of direction
-/// and the cone of each tile of 1 024 of them (on all cores).
-pub fn prepare_rays(rays: &[[f32; 4]]) -> (Vec<[f32; 4]>, Vec<[f32; 4]>) {
+/// and the cone of each tile (on all cores).
+pub fn prepare_rays(rays: &[[f32; 4]]) -> PreparedRays {
     let ordered = morton_ordered(rays);
-    let cones = tile_cones(&ordered, FAST_TILE);
-    (ordered, cones)
+    let tile_cones = ordered.par_chunks(FAST_TILE).map(cone).collect();
+    PreparedRays {
+        ordered,
+        tile_cones,
+    }
+}
+
+/// An end marker: padding past a frame's last point, which adds nothing to any sum.
+fn is_marker(ray: &[f32; 4]) -> bool {
+    ray[3] < 0.0
 }
 
 /// The rays put in Morton (Z-curve) order of their direction, on a 256 × 256 grid over the
 /// directions' own range, by a counting sort (no comparison sort, and the order within a cell
 /// is the input's, so the result is deterministic). When every ray looks forward (z > 0, as
 /// from a depth camera) a direction's coordinates are (x/z, y/z), its point on the image plane,
-/// so that a depth image's pixels keep their neighbours; otherwise (azimuth, elevation).
+/// so that a depth image's pixels keep their neighbours; otherwise (azimuth, elevation). End
+/// markers go last, so that no cone has to hold their made-up direction.
 fn morton_ordered(rays: &[[f32; 4]]) -> Vec<[f32; 4]> {
     const CELLS_PER_AXIS: f32 = 255.0;
-    let forward = rays.par_iter().all(|r| r[2] > 1e-3);
+    /// The counting sort's key for end markers: after every Morton cell.
+    const MARKER_KEY: usize = 1 << 16;
+    let forward = rays.par_iter().all(|r| is_marker(r) || r[2] > 1e-3);
     let coordinates: Vec<(f32, f32)> = rays
         .par_iter()
         .with_min_len(RAYS_PER_TASK)
@@ -374,13 +393,17 @@ fn morton_ordered(rays: &[[f32; 4]]) -> Vec<[f32; 4]> {
             }
         })
         .collect();
-    let (lo, hi) = coordinates.iter().fold(
-        (
-            (f32::INFINITY, f32::INFINITY),
-            (f32::NEG_INFINITY, f32::NEG_INFINITY),
-        ),
-        |(lo, hi), &(a, e)| ((lo.0.min(a), lo.1.min(e)), (hi.0.max(a), hi.1.max(e))),
-    );
+    let (lo, hi) = rays
+        .iter()
+        .zip(&coordinates)
+        .filter(|(r, _)| !is_marker(r))
+        .fold(
+            (
+                (f32::INFINITY, f32::INFINITY),
+                (f32::NEG_INFINITY, f32::NEG_INFINITY),
+            ),
+            |(lo, hi), (_, &(a, e))| ((lo.0.min(a), lo.1.min(e)), (hi.0.max(a), hi.1.max(e))),
+        );
     let quantise = |x: f32, lo: f32, hi: f32| {
         if hi > lo {
             (((x - lo) / (hi - lo)) * CELLS_PER_AXIS) as u32
@@ -388,27 +411,31 @@ fn morton_ordered(rays: &[[f32; 4]]) -> Vec<[f32; 4]> {
             0
         }
     };
-    let cells: Vec<u16> = coordinates
+    let keys: Vec<u32> = rays
         .par_iter()
+        .zip(&coordinates)
         .with_min_len(RAYS_PER_TASK)
-        .map(|&(a, e)| {
-            (spread_bits(quantise(a, lo.0, hi.0)) | (spread_bits(quantise(e, lo.1, hi.1)) << 1))
-                as u16
+        .map(|(r, &(a, e))| {
+            if is_marker(r) {
+                MARKER_KEY as u32
+            } else {
+                spread_bits(quantise(a, lo.0, hi.0)) | (spread_bits(quantise(e, lo.1, hi.1)) << 1)
+            }
         })
         .collect();
-    // Counting sort by cell: each cell's first place, then every ray into its cell's next.
-    let mut next = vec![0usize; 1 << 16];
-    for &c in &cells {
-        next[usize::from(c)] += 1;
+    // Counting sort by key: each key's first place, then every ray into its key's next.
+    let mut next = vec![0usize; MARKER_KEY + 1];
+    for &k in &keys {
+        next[k as usize] += 1;
     }
     let mut place = 0;
     for n in &mut next {
         (*n, place) = (place, place + *n);
     }
     let mut ordered = vec![[0.0f32; 4]; rays.len()];
-    for (ray, &c) in rays.iter().zip(&cells) {
-        ordered[next[usize::from(c)]] = *ray;
-        next[usize::from(c)] += 1;
+    for (ray, &k) in rays.iter().zip(&keys) {
+        ordered[next[k as usize]] = *ray;
+        next[k as usize] += 1;
     }
     ordered
 }
@@ -416,41 +443,45 @@ fn morton_ordered(rays: &[[f32; 4]]) -> Vec<[f32; 4]> {
 /// Rays per rayon task in the host's ray preparation.
 const RAYS_PER_TASK: usize = 4096;
 
-/// For each tile of `tile` consecutive rays: the unit axis of a cone holding every ray's
-/// direction (their normalised mean) and its half-angle, widened a little for rounding. Tiles in
-/// parallel; one `acos` per tile (of the smallest cosine: acos falls as the cosine grows).
-fn tile_cones(rays: &[[f32; 4]], tile: usize) -> Vec<[f32; 4]> {
-    rays.par_chunks(tile)
-        .map(|chunk| {
-            let mut axis = [0.0f64; 3];
-            for r in chunk {
-                for (a, &x) in axis.iter_mut().zip(r) {
-                    *a += f64::from(x);
-                }
-            }
-            let norm = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
-            if norm <= 1e-9 || norm.is_nan() {
-                // Rays in every direction: a cone that holds everything.
-                return [0.0, 0.0, 1.0, std::f32::consts::PI];
-            }
-            let axis = axis.map(|a| a / norm);
-            let smallest_cos = chunk
-                .iter()
-                .map(|r| {
-                    let cos = axis[0] * f64::from(r[0])
-                        + axis[1] * f64::from(r[1])
-                        + axis[2] * f64::from(r[2]);
-                    cos.clamp(-1.0, 1.0)
-                })
-                .fold(1.0f64, f64::min);
-            [
-                axis[0] as f32,
-                axis[1] as f32,
-                axis[2] as f32,
-                (smallest_cos.acos() + 1e-4) as f32,
-            ]
+/// The cone of a tile without rays (only end markers): it holds nothing.
+const EMPTY_CONE: [f32; 4] = [0.0, 0.0, 1.0, 0.0];
+
+/// The unit axis of a cone holding every ray's direction (their normalised mean) and its
+/// half-angle, widened a little for rounding; end markers are left out. One `acos` (of the
+/// smallest cosine: acos falls as the cosine grows).
+fn cone(rays: &[[f32; 4]]) -> [f32; 4] {
+    let mut axis = [0.0f64; 3];
+    let mut any = false;
+    for r in rays.iter().filter(|r| !is_marker(r)) {
+        any = true;
+        for (a, &x) in axis.iter_mut().zip(r) {
+            *a += f64::from(x);
+        }
+    }
+    if !any {
+        return EMPTY_CONE;
+    }
+    let norm = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    if norm <= 1e-9 || norm.is_nan() {
+        // Rays in every direction: a cone that holds everything.
+        return [0.0, 0.0, 1.0, std::f32::consts::PI];
+    }
+    let axis = axis.map(|a| a / norm);
+    let smallest_cos = rays
+        .iter()
+        .filter(|r| !is_marker(r))
+        .map(|r| {
+            let cos =
+                axis[0] * f64::from(r[0]) + axis[1] * f64::from(r[1]) + axis[2] * f64::from(r[2]);
+            cos.clamp(-1.0, 1.0)
         })
-        .collect()
+        .fold(1.0f64, f64::min);
+    [
+        axis[0] as f32,
+        axis[1] as f32,
+        axis[2] as f32,
+        (smallest_cos.acos() + 1e-4) as f32,
+    ]
 }
 
 #[cfg(test)]
@@ -494,6 +525,39 @@ mod tests {
     }
 
     #[test]
+    fn end_markers_go_last_and_widen_no_cone() {
+        // Two tiles' worth: real rays in a narrow patch off the axis, markers mixed in (their
+        // made-up direction, straight ahead, lies outside the patch).
+        let rays: Vec<[f32; 4]> = (0..2 * FAST_TILE)
+            .map(|i| {
+                if i % 3 == 0 {
+                    [0.0, 0.0, 1.0, -1.0]
+                } else {
+                    let x = 0.3 + (i % 31) as f32 * 1e-3;
+                    let n = (x * x + 1.0).sqrt();
+                    [x / n, 0.0, 1.0 / n, 2.0]
+                }
+            })
+            .collect();
+        let markers = rays.iter().filter(|r| is_marker(r)).count();
+        let prepared = prepare_rays(&rays);
+        let first_marker = prepared.ordered.len() - markers;
+        assert!(
+            prepared.ordered[..first_marker]
+                .iter()
+                .all(|r| !is_marker(r))
+        );
+        assert!(prepared.ordered[first_marker..].iter().all(is_marker));
+        // The first tile holds real rays only: a narrow cone about x/z ≈ 0.3.
+        assert!(
+            prepared.tile_cones[0][3] < 0.05,
+            "{:?}",
+            prepared.tile_cones[0]
+        );
+        assert!(prepared.tile_cones[0][0] > 0.25);
+    }
+
+    #[test]
     fn tile_cones_hold_every_ray_of_their_tile() {
         let mut state = 12345u64;
         let mut next = || {
@@ -509,16 +573,17 @@ mod tests {
                 [x / n, y / n, 1.0 / n, 3.0]
             })
             .collect();
-        let cones = tile_cones(&rays, 1024);
-        assert_eq!(cones.len(), 3);
-        for (t, cone) in cones.iter().enumerate() {
-            for r in &rays[t * 1024..((t + 1) * 1024).min(rays.len())] {
-                let cos = cone[0] * r[0] + cone[1] * r[1] + cone[2] * r[2];
-                assert!(cos.clamp(-1.0, 1.0).acos() <= cone[3] + 1e-5);
-            }
+        let tile_cones = prepare_rays(&rays).tile_cones;
+        assert_eq!(tile_cones.len(), 3);
+        // The cones of the rays in their new order.
+        let ordered = morton_ordered(&rays);
+        for (i, r) in ordered.iter().enumerate() {
+            let cone = tile_cones[i / FAST_TILE];
+            let cos = cone[0] * r[0] + cone[1] * r[1] + cone[2] * r[2];
+            assert!(cos.clamp(-1.0, 1.0).acos() <= cone[3] + 1e-5, "ray {i}");
         }
         // Opposite rays: the axis is undefined, so the cone holds everything.
-        let opposite = tile_cones(&[[0.0, 0.0, 1.0, 1.0], [0.0, 0.0, -1.0, 1.0]], 4);
-        assert!(opposite[0][3] >= std::f32::consts::PI);
+        let opposite = cone(&[[0.0, 0.0, 1.0, 1.0], [0.0, 0.0, -1.0, 1.0]]);
+        assert!(opposite[3] >= std::f32::consts::PI);
     }
 }
