@@ -5,7 +5,9 @@
 //! outliers); the camera's size sets the points: 160×120 gives about 1 000 points, 1024×768 about
 //! 43 000 (the paper's largest cloud). GPU times include the host's ray preparation (Morton sort,
 //! tile cones), the submission, the wait, the readback of the estimate and the host's check of
-//! the estimate (its confidence, timed alone as `host_confidence`). The step is the paper's: one
+//! the estimate (its confidence, timed alone as `host_confidence`); `gpu_frames_in_flight` times
+//! a stream of frames with each frame's preparation on a reader thread, overlapping the GPU's
+//! step of the frame before, as `streampf body track` runs. The step is the paper's: one
 //! weighing a frame (`Annealing::none()`); `gpu_annealed_default` times the tracker's default,
 //! eight annealing layers, on the GPU.
 
@@ -85,6 +87,30 @@ fn report_gpu_share(tracker: &mut BodyTracker, points: &[Vector3<f32>], label: &
     );
 }
 
+/// `frames` steps as a stream runs them (`streampf body track`): a reader thread prepares each
+/// frame (rays, Morton order, tile cones) while the tracker steps the one before. Criterion
+/// divides the time by `frames`: the time per frame, ray preparation included, overlapped.
+fn frames_in_flight(
+    tracker: &mut BodyTracker,
+    points: &[Vector3<f32>],
+    frames: u64,
+) -> std::time::Duration {
+    let preparer = tracker.preparer();
+    let started = std::time::Instant::now();
+    std::thread::scope(|scope| {
+        let (send, prepared) = std::sync::mpsc::sync_channel(2);
+        scope.spawn(move || {
+            for _ in 0..frames {
+                send.send(preparer.prepare(points).unwrap()).unwrap();
+            }
+        });
+        for frame in prepared.iter() {
+            std::hint::black_box(tracker.step_prepared(&frame).unwrap());
+        }
+    });
+    started.elapsed()
+}
+
 fn bench(c: &mut Criterion) {
     let sizes: &[(usize, u32, u32)] = if full_size() {
         &[
@@ -110,6 +136,9 @@ fn bench(c: &mut Criterion) {
             b.iter(|| std::hint::black_box(gpu.step(&points).unwrap()))
         });
         report_gpu_share(&mut gpu, &points, &label);
+        group.bench_function(BenchmarkId::new("gpu_frames_in_flight", &label), |b| {
+            b.iter_custom(|frames| frames_in_flight(&mut gpu, &points, frames))
+        });
         drop(gpu);
         let mut annealed = gpu_tracker(TrackerConfig::default().annealing);
         group.bench_function(BenchmarkId::new("gpu_annealed_default", &label), |b| {

@@ -215,3 +215,73 @@ fn bad_frames_are_errors() {
     };
     assert!(BodyTracker::new(skeleton, &start, none, Backend::Cpu).is_err());
 }
+
+/// Frames prepared on a reader thread ([`BodyTracker::preparer`], the CLI's frames in flight)
+/// give the same poses, bit for bit, as stepping the points; and a frame prepared for another
+/// tracker (the CPU's, or a GPU tracker with another number of points) is an error, not
+/// garbage.
+#[test]
+fn frames_prepared_on_another_thread_track_bit_identically() {
+    let skeleton = human_skeleton(19).unwrap();
+    let context = || common::gpu_context("body frames prepared ahead");
+    let (Some(a), Some(b)) = (context(), context()) else {
+        return;
+    };
+    const FRAMES_AHEAD: usize = 5;
+    let synth = SynthConfig::small(FRAMES_AHEAD).unwrap();
+    let start = pose_at(&skeleton, &synth, 0).unwrap();
+    let config = TrackerConfig {
+        particles: PARTICLES,
+        ..TrackerConfig::default()
+    };
+    let new = |ctx| {
+        BodyTracker::new(
+            skeleton.clone(),
+            &start,
+            config.clone(),
+            Backend::Gpu(Box::new(ctx)),
+        )
+        .unwrap()
+    };
+    let frames: Vec<_> = (0..FRAMES_AHEAD)
+        .map(|f| {
+            let truth = pose_at(&skeleton, &synth, f).unwrap();
+            render(&skeleton, &truth, &synth, f).unwrap().points
+        })
+        .collect();
+    let mut stepped = new(a);
+    let want: Vec<Vec<f32>> = frames
+        .iter()
+        .map(|points| stepped.step(points).unwrap().pose)
+        .collect();
+    let mut ahead = new(b);
+    let preparer = ahead.preparer();
+    let got: Vec<Vec<f32>> = std::thread::scope(|scope| {
+        let (send, prepared) = std::sync::mpsc::sync_channel(2);
+        scope.spawn(|| {
+            for points in &frames {
+                send.send(preparer.prepare(points).unwrap()).unwrap();
+            }
+            drop(send);
+        });
+        prepared
+            .iter()
+            .map(|frame| ahead.step_prepared(&frame).unwrap().pose)
+            .collect()
+    });
+    assert_eq!(got, want);
+    let cpu = BodyTracker::new(skeleton.clone(), &start, config.clone(), Backend::Cpu).unwrap();
+    let for_cpu = cpu.preparer().prepare(&frames[0]).unwrap();
+    let error = ahead.step_prepared(&for_cpu).unwrap_err().to_string();
+    assert!(error.contains("prepared for another tracker"), "{error}");
+    let Some(c) = context() else {
+        return;
+    };
+    let fewer = TrackerConfig {
+        max_points: config.max_points / 2,
+        ..config.clone()
+    };
+    let other = BodyTracker::new(skeleton.clone(), &start, fewer, Backend::Gpu(Box::new(c)));
+    let for_other = other.unwrap().preparer().prepare(&frames[0]).unwrap();
+    assert!(ahead.step_prepared(&for_other).is_err());
+}

@@ -22,6 +22,7 @@ pub mod benchmark_scene;
 pub mod camera;
 pub mod capsule;
 pub mod error;
+pub mod frame;
 pub mod human;
 pub mod islands;
 pub mod likelihood;
@@ -34,6 +35,7 @@ pub mod tracker;
 
 pub use capsule::{Capsule, ray_capsule, truncated_distance};
 pub use error::BodyError;
+pub use frame::{FramePreparer, PreparedFrame};
 pub use human::human_skeleton;
 pub use likelihood::{CapsuleLikelihoodParams, Rays, listing_1_2, parallel_over_samples};
 pub use skeleton::{Skeleton, SkeletonSpec};

@@ -25,6 +25,7 @@ use pf_gpu::{GpuContext, NoLikelihood};
 use rayon::prelude::*;
 
 use crate::error::BodyError;
+use crate::frame::{FramePreparer, PreparedFrame};
 use crate::likelihood::{
     CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances,
     culled_sum_of_squared_distances_parallel,
@@ -172,6 +173,8 @@ pub struct FilterStep {
 /// A frame as every filter weighs it.
 struct Frame<'a> {
     rays: &'a Rays,
+    /// The rays as the GPU likelihood uploads them (`None` on the CPU engine).
+    gpu_rays: Option<&'a pf_gpu::capsules::PreparedRays>,
     params: CapsuleLikelihoodParams,
     /// σ scaled to the frame's number of points.
     sigma: f32,
@@ -182,7 +185,10 @@ impl Filter {
     fn step(&mut self, skeleton: &Skeleton, frame: &Frame) -> Result<FilterStep, BodyError> {
         let Self { engine, measure } = self;
         if let (Measure::Gpu(likelihood), Some(ctx)) = (&mut *measure, engine.context()) {
-            likelihood.upload_rays(ctx, &frame.rays.gpu_layout())?;
+            let rays = frame.gpu_rays.ok_or_else(|| {
+                BodyError::InvalidInput("a GPU filter got a frame prepared for the CPU".into())
+            })?;
+            likelihood.upload_prepared_rays(ctx, rays)?;
             likelihood.set_sigma(ctx, frame.sigma)?;
         }
         let on_gpu: &dyn pf_gpu::GpuLikelihood = match &*measure {
@@ -316,27 +322,41 @@ impl BodyTracker {
         self.filters.first().and_then(|f| f.engine.context())
     }
 
-    /// Thins `points` to at most `max_points` by taking every k-th one.
-    fn thinned<'a>(&self, points: &'a [Vector3<f32>]) -> std::borrow::Cow<'a, [Vector3<f32>]> {
-        if points.len() <= self.config.max_points {
-            return points.into();
+    /// What prepares this tracker's frames ([`FramePreparer::prepare`]): on any thread, for
+    /// example a reader's, while the tracker steps the previous frame.
+    pub fn preparer(&self) -> FramePreparer {
+        FramePreparer {
+            max_points: self.config.max_points,
+            on_gpu: self
+                .filters
+                .iter()
+                .any(|f| matches!(f.measure, Measure::Gpu(_))),
         }
-        let step = points.len().div_ceil(self.config.max_points);
-        points
-            .iter()
-            .step_by(step)
-            .copied()
-            .collect::<Vec<_>>()
-            .into()
     }
 
     /// One frame: predict, weigh against `points` (camera frame, camera at the origin), estimate.
+    /// The same as [`Self::preparer`]'s `prepare` then [`Self::step_prepared`].
     pub fn step(&mut self, points: &[Vector3<f32>]) -> Result<FrameResult, BodyError> {
-        let points = self.thinned(points);
-        let rays = Rays::through(Vector3::zeros(), &points)?;
-        let sigma = self.config.sigma_at_1000_points * (points.len().max(1) as f32 / 1000.0).sqrt();
+        let frame = self.preparer().prepare(points)?;
+        self.step_prepared(&frame)
+    }
+
+    /// One frame prepared by this tracker's [`Self::preparer`] (a frame from another tracker's
+    /// preparer is an error): predict, weigh, estimate.
+    pub fn step_prepared(&mut self, prepared: &PreparedFrame) -> Result<FrameResult, BodyError> {
+        if prepared.preparer != self.preparer() {
+            return Err(BodyError::InvalidInput(format!(
+                "a frame prepared for another tracker ({:?}; this one prepares {:?})",
+                prepared.preparer,
+                self.preparer()
+            )));
+        }
+        let rays = &prepared.rays;
+        let points = rays.depths.len();
+        let sigma = self.config.sigma_at_1000_points * (points.max(1) as f32 / 1000.0).sqrt();
         let frame = Frame {
-            rays: &rays,
+            rays,
+            gpu_rays: prepared.gpu_rays.as_ref(),
             params: CapsuleLikelihoodParams::new(self.config.tau, sigma)?,
             sigma,
             flat: self.config.weighing == Weighing::Flat,
@@ -374,7 +394,7 @@ impl BodyTracker {
                 one.estimate_sum,
             )
         } else {
-            let combined = crate::islands::combine(skeleton, &rays, frame.params, &steps)?;
+            let combined = crate::islands::combine(skeleton, rays, frame.params, &steps)?;
             self.island_weights = combined.weights.clone();
             if crate::islands::exchange_due(self.config.island_exchange_every, self.frames) {
                 crate::islands::exchange(
@@ -392,11 +412,9 @@ impl BodyTracker {
         };
         let fit = match fit {
             Some(sum) => sum,
-            None => culled_sum_of_squared_distances_parallel(
-                &self.skeleton.capsules(&pose)?,
-                &rays,
-                tau,
-            ),
+            None => {
+                culled_sum_of_squared_distances_parallel(&self.skeleton.capsules(&pose)?, rays, tau)
+            }
         };
         let confidence = 1.0 - fit / (rays.depths.len().max(1) as f64 * f64::from(tau * tau));
         Ok(FrameResult {
@@ -404,7 +422,7 @@ impl BodyTracker {
             spread,
             ess,
             confidence: confidence.clamp(0.0, 1.0) as f32,
-            points: points.len(),
+            points,
             island_weights: self.island_weights.clone(),
         })
     }

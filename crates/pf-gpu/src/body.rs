@@ -11,7 +11,9 @@ use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::capsules::{CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES};
+use crate::capsules::{
+    CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES, PreparedRays, prepare_rays,
+};
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
@@ -112,6 +114,29 @@ fn kinematics_params(
     value: &KinematicsParams,
 ) -> Result<wgpu::Buffer, GpuError> {
     crate::stream::uniform_buffer(ctx, label, value)
+}
+
+/// A frame's rays, `[dir, depth]` per point (at most `points` of them), as a
+/// [`BodyLikelihoodGpu`] configured for `points` uploads them: padded to `points` with end markers
+/// (depth −1, which add nothing to any sum), in Morton order with their tile cones. Pure host
+/// work, so that it can run beside the GPU's work on the previous frame.
+pub fn prepare_body_rays(rays: &[[f32; 4]], points: usize) -> Result<PreparedRays, GpuError> {
+    if rays.len() > points {
+        return Err(GpuError::LengthMismatch {
+            what: "frame points (at most)".into(),
+            expected: points,
+            got: rays.len(),
+        });
+    }
+    if let Some(i) = rays.iter().position(|r| r[3].is_nan() || r[3] < 0.0) {
+        return Err(GpuError::InvalidConfig(format!(
+            "ray {i} has depth {}; depths must be >= 0",
+            rays[i][3]
+        )));
+    }
+    let mut padded = rays.to_vec();
+    padded.resize(points, [0.0, 0.0, 1.0, -1.0]);
+    Ok(prepare_rays(&padded))
 }
 
 /// Forward kinematics plus the fast capsule likelihood for `samples` pose samples on one GPU.
@@ -235,27 +260,30 @@ impl BodyLikelihoodGpu {
 
     /// This frame's rays, `[dir, depth]` per point: at most the configured number. The rest of
     /// the buffer is filled with the fast kernel's end marker (depth −1), which adds nothing to
-    /// any sum.
+    /// any sum. The same as [`prepare_body_rays`] then [`Self::upload_prepared_rays`].
     pub fn upload_rays(&mut self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
-        if rays.len() > self.config.points {
+        let prepared = prepare_body_rays(rays, self.config.points)?;
+        self.upload_prepared_rays(ctx, &prepared)
+    }
+
+    /// A frame's rays already prepared by [`prepare_body_rays`] for this likelihood's number of
+    /// points (on any thread, for example while the GPU works on the previous frame): the upload
+    /// alone.
+    pub fn upload_prepared_rays(
+        &mut self,
+        ctx: &GpuContext,
+        prepared: &PreparedRays,
+    ) -> Result<(), GpuError> {
+        if prepared.len() != self.config.points {
             return Err(GpuError::LengthMismatch {
-                what: "frame points (at most)".into(),
+                what: "prepared rays (padded to the likelihood's points)".into(),
                 expected: self.config.points,
-                got: rays.len(),
+                got: prepared.len(),
             });
         }
-        if let Some(i) = rays.iter().position(|r| r[3].is_nan() || r[3] < 0.0) {
-            return Err(GpuError::InvalidConfig(format!(
-                "ray {i} has depth {}; depths must be >= 0",
-                rays[i][3]
-            )));
-        }
-        let mut padded = rays.to_vec();
-        padded.resize(self.config.points, [0.0, 0.0, 1.0, -1.0]);
-        let prepared = crate::capsules::prepare_rays(&padded);
-        self.capsules.upload_prepared_rays(ctx, &prepared)?;
+        self.capsules.upload_prepared_rays(ctx, prepared)?;
         if let Some(fit) = &self.estimate_fit {
-            fit.capsules.upload_prepared_rays(ctx, &prepared)?;
+            fit.capsules.upload_prepared_rays(ctx, prepared)?;
         }
         Ok(())
     }

@@ -350,9 +350,26 @@ fn spread_bits(v: u32) -> u32 {
 #[derive(Debug, Clone, PartialEq)]
 pub struct PreparedRays {
     /// The rays in Morton order, end markers (depth < 0) last.
-    pub ordered: Vec<[f32; 4]>,
+    ordered: Vec<[f32; 4]>,
     /// Per tile of `FAST_TILE` rays: (unit axis, half-angle) of a cone holding them.
-    pub tile_cones: Vec<[f32; 4]>,
+    tile_cones: Vec<[f32; 4]>,
+}
+
+impl PreparedRays {
+    /// The number of rays (end markers included).
+    pub fn len(&self) -> usize {
+        self.ordered.len()
+    }
+
+    /// Whether there are no rays.
+    pub fn is_empty(&self) -> bool {
+        self.ordered.is_empty()
+    }
+
+    /// The rays in the order the kernel reads them.
+    pub fn ordered(&self) -> &[[f32; 4]] {
+        &self.ordered
+    }
 }
 
 /// The fast kernel's host preparation of a frame's rays: the rays in Morton order of direction

@@ -16,7 +16,9 @@ use body_tracker::sequence::{
 };
 use body_tracker::skeleton::ROOT_DOFS;
 use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
-use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, mean_joint_error};
+use body_tracker::{
+    Backend, BodyTracker, PreparedFrame, Skeleton, TrackerConfig, mean_joint_error,
+};
 use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
 
@@ -484,22 +486,32 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let mut run = BodyRun::new(&args.out)?;
     let started = Instant::now();
     let mut end = LoopEnd::Done;
-    // Frames in flight: the next frames are read (or rendered) on a thread of their own, up to
-    // two ahead of the tracker, in order.
+    // Frames in flight: the next frames are read (or rendered) and prepared for the tracker
+    // (their rays, and on a GPU their order and cones) on a thread of their own, up to two ahead
+    // of the tracker, in order, so that the host's share of a frame overlaps the GPU's step.
+    let preparer = tracker.preparer();
+    let prepare = |points: anyhow::Result<Vec<Vector3<f32>>>| {
+        points.and_then(|points| {
+            let prepared = preparer.prepare(&points)?;
+            Ok((points, prepared))
+        })
+    };
+    let first = prepare(Ok(first_points));
     std::thread::scope(|scope| {
         let (send, frames_ahead) = std::sync::mpsc::sync_channel(2);
-        let (source, skeleton) = (&source, &skeleton);
+        let (source, skeleton, prepare) = (&source, &skeleton, &prepare);
         scope.spawn(move || {
             for frame in 1..frames {
                 // A closed channel: the loop below stopped early.
-                if send.send(source.points(skeleton, frame)).is_err() {
+                if send.send(prepare(source.points(skeleton, frame))).is_err() {
                     break;
                 }
             }
         });
+        let mut first = Some(first);
         for frame in 0..frames {
-            let points = if frame == 0 {
-                Ok(first_points.clone())
+            let points = if let Some(first) = first.take() {
+                first
             } else {
                 frames_ahead.recv().unwrap_or_else(|_| {
                     Err(anyhow::anyhow!(
@@ -508,7 +520,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 })
             };
             let result = match points {
-                Ok(points) => {
+                Ok((points, prepared)) => {
                     let save = args
                         .save_particles
                         .as_deref()
@@ -521,7 +533,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                         skeleton,
                         &mut files,
                         frame,
-                        &points,
+                        (&points, &prepared),
                         truth.as_deref(),
                     )
                 }
@@ -672,12 +684,12 @@ impl BodyRun {
         skeleton: &Skeleton,
         files: &mut BodyFiles,
         frame: usize,
-        points: &[Vector3<f32>],
+        (points, prepared): (&[Vector3<f32>], &PreparedFrame),
         truth: Option<&[Vec<f32>]>,
     ) -> anyhow::Result<()> {
         run_output::maybe_simulate_gpu_fault(frame, tracker.gpu_context());
         let step_started = Instant::now();
-        let result = tracker.step(points)?;
+        let result = tracker.step_prepared(prepared)?;
         self.tracking_time += step_started.elapsed().as_secs_f64();
         if let Some(dir) = save_particles {
             let (shape, states, log_weights) = tracker.particles()?;
