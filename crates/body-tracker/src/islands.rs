@@ -23,9 +23,9 @@ use pf_core::resample::{Resampler, Systematic};
 use pf_gpu::engine::FilterEngine;
 
 use crate::error::BodyError;
+use crate::filter::FilterStep;
 use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances_parallel};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
-use crate::tracker::FilterStep;
 
 /// Frames between the islands' exchanges by default.
 pub const DEFAULT_EXCHANGE_EVERY: u64 = 10;

@@ -22,6 +22,7 @@ pub mod benchmark_scene;
 pub mod camera;
 pub mod capsule;
 pub mod error;
+mod filter;
 pub mod frame;
 pub mod human;
 pub mod islands;
