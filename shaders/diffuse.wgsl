@@ -1,9 +1,12 @@
-// Diffusion: x_d += (sigma_d * s) * n (s: the annealing layer's scale, 1 without), n ~ N(0, 1) from counter_gaussian(key_t, m, d, step); optional
-// clamping to [lower, upper]; angle dimensions wrapped. One invocation per (particle, target).
-// CPU twin: pf_core::batch::diffuse.
+// Diffusion: x_d += (sigma_ld * s) * n (sigma_ld: the layer's sigma of dimension d, 0 where a
+// partitioned layer keeps d still; s: the annealing layer's scale, 1 without), n ~ N(0, 1) from
+// counter_gaussian(key_t, m, d, step); optional clamping to [lower, upper]; angle dimensions
+// wrapped. One invocation per (particle, target).
+// CPU twin: pf_core::batch::diffuse (with pf_core::anneal::Annealing::layer_sigma).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read_write> states: array<f32>;
+// [layer * D + d] (pf_core::anneal::Annealing::layer_sigma per layer).
 @group(0) @binding(2) var<storage, read> sigma: array<f32>;
 @group(0) @binding(3) var<storage, read> lower: array<f32>;
 @group(0) @binding(4) var<storage, read> upper: array<f32>;
@@ -26,7 +29,8 @@ fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
         if (params.velocity_gain > 0.0 && params.layer == 0u) {
             x = x + velocity[t * params.dims + d];
         }
-        x = x + (sigma[d] * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
+        let sigma_d = sigma[params.layer * params.dims + d];
+        x = x + (sigma_d * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
         // A NaN state stays NaN (clamp would turn it into a bound), so the failure policy sees it.
         if (params.has_bounds == 1u && !is_nan(x)) {
             x = clamp(x, lower[d], upper[d]);

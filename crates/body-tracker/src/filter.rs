@@ -135,7 +135,11 @@ pub(crate) fn new_filter(
         angular,
         ess_threshold: f64::INFINITY,
         best: 0,
-        annealing: config.annealing.clone(),
+        annealing: if config.partitioned {
+            crate::tracker::partitioned_schedule(skeleton, &config.annealing)?
+        } else {
+            config.annealing.clone()
+        },
         motion: config.motion,
     };
     batch.validate()?;

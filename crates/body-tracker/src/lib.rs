@@ -40,4 +40,7 @@ pub use frame::{FramePreparer, PreparedFrame};
 pub use human::human_skeleton;
 pub use likelihood::{CapsuleLikelihoodParams, Rays, listing_1_2, parallel_over_samples};
 pub use skeleton::{Skeleton, SkeletonSpec};
-pub use tracker::{Backend, BodyTracker, FrameResult, TrackerConfig, Weighing, mean_joint_error};
+pub use tracker::{
+    Backend, BodyTracker, FrameResult, TrackerConfig, Weighing, mean_joint_error,
+    partitioned_schedule,
+};

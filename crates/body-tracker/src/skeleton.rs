@@ -253,6 +253,39 @@ impl Skeleton {
         Ok(self.first_angle[i]..self.first_angle[i] + self.bones[i].joint.len())
     }
 
+    /// Partitioned sampling's two parts of θ: the trunk (the root's six values and the angles of
+    /// every bone above a branch of the tree, whose subtree ends in more than one leaf) and the
+    /// limbs (every other bone's angles). For the default human the trunk is the pelvis, the
+    /// spine and the chest; the limbs are the neck and head, the arms and the legs.
+    pub fn trunk_and_limbs(&self) -> (Vec<usize>, Vec<usize>) {
+        let n = self.bones.len();
+        let mut has_child = vec![false; n];
+        for &p in self.parents.iter().flatten() {
+            has_child[p] = true;
+        }
+        // Parents come before children, so one backward pass counts each subtree's leaves.
+        let mut leaves = vec![0usize; n];
+        for i in (0..n).rev() {
+            if !has_child[i] {
+                leaves[i] += 1;
+            }
+            if let Some(p) = self.parents[i] {
+                leaves[p] += leaves[i];
+            }
+        }
+        let mut trunk: Vec<usize> = (0..ROOT_DOFS).collect();
+        let mut limbs = Vec::new();
+        for (i, bone) in self.bones.iter().enumerate() {
+            let angles = self.first_angle[i]..self.first_angle[i] + bone.joint.len();
+            if leaves[i] > 1 {
+                trunk.extend(angles);
+            } else {
+                limbs.extend(angles);
+            }
+        }
+        (trunk, limbs)
+    }
+
     /// Lower and upper limits of θ (root translation and rotation unbounded).
     pub fn limits(&self) -> (Vec<f32>, Vec<f32>) {
         let mut lo = vec![f32::NEG_INFINITY; self.dofs];

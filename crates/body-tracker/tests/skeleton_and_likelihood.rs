@@ -262,3 +262,49 @@ proptest! {
         prop_assert!((got - want).abs() <= 1e-9 * (1.0 + want), "parallel {} vs {}", got, want);
     }
 }
+
+/// Partitioned sampling's parts of the default human, at every capsule count: the trunk is the
+/// root and the bones above a branch (pelvis, spine, chest), the limbs the rest (neck and head,
+/// arms, legs); together they are every pose value once. The schedule gives the first half of
+/// the layers to the trunk; one layer stays the plain step.
+#[test]
+fn the_human_partitions_into_trunk_and_limbs() {
+    use body_tracker::partitioned_schedule;
+    use pf_core::anneal::Annealing;
+    for capsules in [19, 30, 48] {
+        let skeleton = body_tracker::human_skeleton(capsules).unwrap();
+        let (trunk, limbs) = skeleton.trunk_and_limbs();
+        let mut all: Vec<usize> = trunk.iter().chain(&limbs).copied().collect();
+        all.sort_unstable();
+        assert_eq!(all, (0..skeleton.dofs()).collect::<Vec<_>>(), "{capsules}");
+        assert!(trunk.starts_with(&[0, 1, 2, 3, 4, 5]));
+        for bone in ["spine", "chest"] {
+            let angles = skeleton.angles_of(bone).unwrap();
+            assert!(angles.clone().all(|d| trunk.contains(&d)), "{bone}");
+        }
+        for bone in [
+            "neck",
+            "head",
+            "left_forearm",
+            "right_upper_arm",
+            "left_thigh",
+            "right_shin",
+        ] {
+            let angles = skeleton.angles_of(bone).unwrap();
+            assert!(!angles.is_empty() || bone == "head");
+            assert!(angles.clone().all(|d| limbs.contains(&d)), "{bone}");
+        }
+        let schedule = partitioned_schedule(&skeleton, &Annealing::survival(5, 0.5, 0.7)).unwrap();
+        assert!(schedule.validate_for(skeleton.dofs()).is_ok());
+        assert_eq!(
+            schedule.diffused[..3],
+            [trunk.clone(), trunk.clone(), trunk.clone()]
+        );
+        assert_eq!(schedule.diffused[3..], [limbs.clone(), limbs.clone()]);
+        assert_eq!(schedule.sigma_scale(3), 1.0);
+        assert_eq!(
+            partitioned_schedule(&skeleton, &Annealing::none()).unwrap(),
+            Annealing::none()
+        );
+    }
+}

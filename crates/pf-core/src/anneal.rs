@@ -12,6 +12,12 @@
 //!
 //! The rule for β here and in `normalise.wgsl` is the same bisection, so the CPU twin and the GPU
 //! driver pick the same β up to their float rounding.
+//!
+//! Partitioned sampling (MacCormick & Isard, ECCV 2000; the hierarchical search of Deutscher &
+//! Reid, IJCV 2005) is a schedule of which dimensions each layer diffuses
+//! ([`Annealing::diffused`]): for a tree-structured state the first layers move the root and
+//! every later layer a limb, each weighed and resampled in turn, so that a limb is searched with
+//! the root already in place instead of in the product of every part's noise.
 
 use crate::error::PfError;
 
@@ -39,6 +45,9 @@ pub struct Annealing {
     pub tempering: Tempering,
     /// Layer l diffuses with σ·`sigma_decay`^l, in (0, 1].
     pub sigma_decay: f32,
+    /// Partitioned sampling: the dimensions layer l diffuses, one list per layer (the others keep
+    /// their values in that layer). Empty: every layer diffuses every dimension.
+    pub diffused: Vec<Vec<usize>>,
 }
 
 /// The most layers a frame may run (each is a full resample, diffuse and measure).
@@ -60,6 +69,7 @@ impl Annealing {
             layers: 1,
             tempering: Tempering::Fixed(vec![1.0]),
             sigma_decay: 1.0,
+            diffused: Vec::new(),
         }
     }
 
@@ -73,7 +83,14 @@ impl Annealing {
                 max_beta: 1.0,
             },
             sigma_decay,
+            diffused: Vec::new(),
         }
+    }
+
+    /// The same schedule with layer l diffusing only the dimensions `diffused[l]` (partitioned
+    /// sampling); checked against the state's dimensions by [`Self::validate_for`].
+    pub fn partitioned(self, diffused: Vec<Vec<usize>>) -> Self {
+        Self { diffused, ..self }
     }
 
     /// Checks the schedule; the error names the bad value.
@@ -118,9 +135,70 @@ impl Annealing {
         Ok(())
     }
 
-    /// Layer `l`'s diffusion scale, `sigma_decay`^l (computed in f32 as the GPU's parameters are).
+    /// [`Self::validate`], and that the partitions name `dims`-dimensional states: one list of
+    /// dimensions per layer, each dimension below `dims`, none repeated, none empty.
+    pub fn validate_for(&self, dims: usize) -> Result<(), PfError> {
+        self.validate()?;
+        if self.diffused.is_empty() {
+            return Ok(());
+        }
+        let bad = |msg: String| Err(PfError::InvalidConfig(msg));
+        if self.diffused.len() != self.layers {
+            return bad(format!(
+                "{} partitions of diffused dimensions for {} annealing layers",
+                self.diffused.len(),
+                self.layers
+            ));
+        }
+        for (layer, dims_of_layer) in self.diffused.iter().enumerate() {
+            if dims_of_layer.is_empty() {
+                return bad(format!("annealing layer {layer} diffuses no dimension"));
+            }
+            if let Some(d) = dims_of_layer.iter().find(|&&d| d >= dims) {
+                return bad(format!(
+                    "annealing layer {layer} diffuses dimension {d} of a {dims}-dimensional state"
+                ));
+            }
+            let mut seen = vec![false; dims];
+            for &d in dims_of_layer {
+                if std::mem::replace(&mut seen[d], true) {
+                    return bad(format!("annealing layer {layer} names dimension {d} twice"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Layer `l`'s σ per dimension: `sigma`, with 0 for the dimensions the layer does not
+    /// diffuse. The annealing scale ([`Self::sigma_scale`]) multiplies it after.
+    pub fn layer_sigma(&self, layer: usize, sigma: &[f32]) -> Vec<f32> {
+        match self.diffused.get(layer) {
+            None => sigma.to_vec(),
+            Some(dims) => {
+                let mut out = vec![0.0; sigma.len()];
+                for &d in dims {
+                    if let Some(s) = sigma.get(d) {
+                        out[d] = *s;
+                    }
+                }
+                out
+            }
+        }
+    }
+
+    /// Layer `l`'s diffusion scale, `sigma_decay`^k (computed in f32 as the GPU's parameters
+    /// are), k the layers since the schedule or, partitioned, since the layers began diffusing
+    /// the dimensions layer l diffuses: each partition's search starts at the full σ.
     pub fn sigma_scale(&self, layer: usize) -> f32 {
-        (0..layer).fold(1.0f32, |s, _| s * self.sigma_decay)
+        let first = match self.diffused.get(layer) {
+            None => 0,
+            Some(dims) => (0..layer)
+                .rev()
+                .take_while(|&l| &self.diffused[l] == dims)
+                .last()
+                .unwrap_or(layer),
+        };
+        (first..layer).fold(1.0f32, |s, _| s * self.sigma_decay)
     }
 
     /// Layer `l`'s fixed β, or `None` when the survival rule chooses it.
@@ -232,6 +310,22 @@ mod tests {
                 "beta",
             ),
             (Annealing::survival(3, 1.0, 0.5), "survival rate"),
+            (
+                Annealing::survival(2, 0.5, 0.5).partitioned(vec![vec![0]]),
+                "1 partitions of diffused dimensions for 2",
+            ),
+            (
+                Annealing::survival(2, 0.5, 0.5).partitioned(vec![vec![0], vec![]]),
+                "layer 1 diffuses no dimension",
+            ),
+            (
+                Annealing::survival(2, 0.5, 0.5).partitioned(vec![vec![0], vec![3]]),
+                "dimension 3 of a 3-dimensional",
+            ),
+            (
+                Annealing::survival(2, 0.5, 0.5).partitioned(vec![vec![1, 1], vec![2]]),
+                "dimension 1 twice",
+            ),
             (Annealing::survival(3, f32::NAN, 0.5), "survival rate"),
             (
                 Annealing {
@@ -245,9 +339,33 @@ mod tests {
             ),
         ];
         for (schedule, words) in cases {
-            let message = schedule.validate().unwrap_err().to_string();
+            let message = schedule.validate_for(3).unwrap_err().to_string();
             assert!(message.contains(words), "{message:?} lacks {words:?}");
         }
+    }
+
+    #[test]
+    fn a_layer_diffuses_only_its_partition() {
+        let schedule = Annealing::survival(2, 0.5, 0.5).partitioned(vec![vec![0, 2], vec![1]]);
+        assert!(schedule.validate_for(3).is_ok());
+        let sigma = [0.5, 0.25, 2.0];
+        assert_eq!(schedule.layer_sigma(0, &sigma), vec![0.5, 0.0, 2.0]);
+        assert_eq!(schedule.layer_sigma(1, &sigma), vec![0.0, 0.25, 0.0]);
+        assert_eq!(Annealing::none().layer_sigma(0, &sigma), sigma.to_vec());
+        // The decay restarts where the diffused dimensions change.
+        let runs = Annealing::survival(5, 0.5, 0.5).partitioned(vec![
+            vec![0],
+            vec![0],
+            vec![1, 2],
+            vec![1, 2],
+            vec![1, 2],
+        ]);
+        let scales: Vec<f32> = (0..5).map(|l| runs.sigma_scale(l)).collect();
+        assert_eq!(scales, vec![1.0, 0.5, 1.0, 0.5, 0.25]);
+        let plain: Vec<f32> = (0..3)
+            .map(|l| Annealing::survival(3, 0.5, 0.5).sigma_scale(l))
+            .collect();
+        assert_eq!(plain, vec![1.0, 0.5, 0.25]);
     }
 
     #[test]

@@ -149,6 +149,11 @@ pub struct TrackArgs {
     /// much, and a point no capsule explains costs τ².
     #[arg(long, default_value_t = TrackerConfig::default().tau)]
     pub tau: f32,
+    /// Partitioned sampling: the first half of the annealing layers move only the trunk (the
+    /// root, pelvis, spine and chest), the second half only the limbs, each from the full σ;
+    /// false: every layer moves every pose value.
+    #[arg(long, default_value_t = TrackerConfig::default().partitioned, action = clap::ArgAction::Set)]
+    pub partitioned: bool,
     /// Frames are thinned to at most this many points.
     #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
     pub max_points: u32,
@@ -439,6 +444,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         seed: args.seed,
         annealing: args.filter.apply(&defaults.annealing)?,
         motion: args.filter.motion(defaults.motion)?,
+        partitioned: args.partitioned,
         ..defaults
     };
     let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;

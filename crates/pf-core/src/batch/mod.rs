@@ -229,7 +229,7 @@ impl BatchConfig {
             }
         };
         check("sigma", self.sigma.len())?;
-        self.annealing.validate()?;
+        self.annealing.validate_for(d)?;
         if let Motion::ConstantVelocity { gain } = self.motion
             && !(gain > 0.0 && gain <= 1.0)
         {
@@ -572,7 +572,7 @@ impl<R: Resampler> BatchFilter<R> {
                 diffuse(
                     &shape,
                     &mut self.states,
-                    &self.sigma,
+                    &self.annealing.layer_sigma(layer, &self.sigma),
                     self.annealing.sigma_scale(layer),
                     bounds,
                     &self.angular,

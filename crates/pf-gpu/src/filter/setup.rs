@@ -195,7 +195,15 @@ impl Streams {
                 "previous estimates",
                 &vec![f32::NAN; shape.targets * shape.dims],
             )?,
-            sigma: DeviceStream::from_slice(ctx, "sigma", &config.sigma)?,
+            // [layer · D + d]: each annealing layer's σ (0 where a partitioned layer keeps a
+            // dimension still).
+            sigma: DeviceStream::from_slice(
+                ctx,
+                "sigma per layer",
+                &(0..config.annealing.layers)
+                    .flat_map(|layer| config.annealing.layer_sigma(layer, &config.sigma))
+                    .collect::<Vec<f32>>(),
+            )?,
             lower: DeviceStream::from_slice(ctx, "lower bounds", &lo)?,
             upper: DeviceStream::from_slice(ctx, "upper bounds", &hi)?,
             diffusion_keys: DeviceStream::from_slice(
