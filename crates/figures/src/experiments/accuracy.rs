@@ -244,7 +244,8 @@ pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
         description: format!(
             "The synthetic walk-and-wave depth sequence ({} frames, {}×{} camera, depth noise, \
              dropout, outliers and self-occlusion), tracked from the true first pose with the \
-             tracker's defaults (eight annealing layers), as a plain filter (one layer: \
+             tracker's defaults (eight annealing layers, partitioned: the trunk's four, then the \
+             limbs'), as a plain filter (one layer: \
              Condensation as the paper ran it; paler) and with a flat likelihood (diffusion only; \
              palest). Joints: {}.",
             synth.frames,
