@@ -32,13 +32,19 @@ fn load_skeleton(capsules: usize, skeleton: Option<std::path::PathBuf>) -> PyRes
     }
 }
 
-fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<TrackerConfig> {
+fn config(
+    particles: usize,
+    seed: u64,
+    layers: Option<usize>,
+    partitioned: bool,
+) -> PyResult<TrackerConfig> {
     let defaults = TrackerConfig::default();
     let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
     Ok(TrackerConfig {
         particles,
         seed,
         annealing,
+        partitioned,
         ..defaults
     })
 }
@@ -48,7 +54,7 @@ impl BodyTracker {
     #[new]
     #[pyo3(signature = (
         initial_pose = None, *, capsules = 19, skeleton = None, particles = 1500,
-        backend = "auto", allow_software = false, seed = 1, layers = None
+        backend = "auto", allow_software = false, seed = 1, layers = None, partitioned = true
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -61,6 +67,7 @@ impl BodyTracker {
         allow_software: bool,
         seed: u64,
         layers: Option<usize>,
+        partitioned: bool,
     ) -> PyResult<Self> {
         let choice = Choice::parse(backend)?;
         let skeleton = load_skeleton(capsules, skeleton)?;
@@ -68,7 +75,7 @@ impl BodyTracker {
             Some(pose) => finite_f32(pose, &[Some(skeleton.dofs())], "initial_pose")?.1,
             None => standing_pose(&skeleton, 3.0),
         };
-        let config = config(particles, seed, layers)?;
+        let config = config(particles, seed, layers, partitioned)?;
         let contexts = open(py, choice, allow_software)?;
         let backend = body_backend(contexts, choice);
         let device = match &backend {

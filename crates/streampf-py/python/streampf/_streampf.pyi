@@ -94,7 +94,10 @@ class BodyTracker:
     right, y up, z forward, metres), ``step_depth`` a 16-bit depth image and its intrinsics.
     ``initial_pose`` (float32, one value per ``pose_names``) defaults to standing 3 m in front
     of the camera. ``backend`` as FaceTracker's ("all-gpus": an island of the samples per GPU);
-    ``layers``: annealing layers per frame (default 8). Thread-safe; steps release the GIL."""
+    ``layers``: annealing layers per frame (default 8); ``partitioned``: the first half of them
+    move only the trunk (root, pelvis, spine, chest), the rest only the limbs (partitioned
+    sampling, the default; False: every layer moves every value). Thread-safe; steps release the
+    GIL."""
 
     def __init__(
         self,
@@ -107,6 +110,7 @@ class BodyTracker:
         allow_software: bool = False,
         seed: int = 1,
         layers: Optional[int] = None,
+        partitioned: bool = True,
     ) -> None: ...
     @property
     def device(self) -> str: ...
