@@ -204,6 +204,8 @@ impl FrameRead {
 /// one frame at a time.
 pub struct ReadAhead {
     frames: std::sync::mpsc::Receiver<anyhow::Result<FrameRead>>,
+    /// Frames the reader has handed over so far (read by the tests, which watch it get ahead).
+    handed_over: std::sync::Arc<std::sync::atomic::AtomicUsize>,
     reader: Option<std::thread::JoinHandle<Source>>,
     /// The source, once its thread has ended.
     source: Option<Source>,
@@ -226,6 +228,8 @@ impl ReadAhead {
             .thread_name(|k| format!("frame-decoder-{k}"))
             .build()
             .context("starting the frame decoder threads")?;
+        let handed_over = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let count = handed_over.clone();
         let reader = std::thread::Builder::new()
             .name("frame-reader".into())
             .spawn(move || {
@@ -238,6 +242,7 @@ impl ReadAhead {
                         if send.send(read).is_err() || last {
                             break 'reading;
                         }
+                        count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                     }
                 }
                 source
@@ -245,9 +250,15 @@ impl ReadAhead {
             .context("starting the frame reader thread")?;
         Ok(Self {
             frames,
+            handed_over,
             reader: Some(reader),
             source: None,
         })
+    }
+
+    /// Frames the reader has handed over so far (taken or waiting).
+    pub fn handed_over(&self) -> usize {
+        self.handed_over.load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// The next frame, in order; `End` after the limit.
@@ -369,8 +380,18 @@ mod read_ahead_tests {
         let (source, _) = synthetic(100);
         let mut ahead = ReadAhead::start(source, usize::MAX).unwrap();
         assert!(frame(ahead.read_next().unwrap()).is_some());
-        // Tiny frames: the reader is done in milliseconds, this is ample.
-        std::thread::sleep(std::time::Duration::from_secs(3));
+        // The one frame taken and a full hand-over: the reader got there without the tracker.
+        // (Tiny frames take milliseconds; the deadline is for a machine busy with other work.)
+        let full = 1 + ReadAhead::FRAMES;
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+        while ahead.handed_over() < full && std::time::Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        assert_eq!(
+            ahead.handed_over(),
+            full,
+            "the reader did not fill the hand-over"
+        );
         let batch = rayon::current_num_threads().clamp(1, Source::BATCH);
         match ahead.finish().unwrap() {
             Source::Synthetic { next, .. } => assert!(
