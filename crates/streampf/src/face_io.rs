@@ -205,6 +205,7 @@ impl FrameRead {
 pub struct ReadAhead {
     frames: std::sync::mpsc::Receiver<anyhow::Result<FrameRead>>,
     /// Frames the reader has handed over so far (read by the tests, which watch it get ahead).
+    #[cfg_attr(not(test), allow(dead_code))]
     handed_over: std::sync::Arc<std::sync::atomic::AtomicUsize>,
     reader: Option<std::thread::JoinHandle<Source>>,
     /// The source, once its thread has ended.
@@ -257,7 +258,8 @@ impl ReadAhead {
     }
 
     /// Frames the reader has handed over so far (taken or waiting).
-    pub fn handed_over(&self) -> usize {
+    #[cfg(test)]
+    fn handed_over(&self) -> usize {
         self.handed_over.load(std::sync::atomic::Ordering::Relaxed)
     }
 

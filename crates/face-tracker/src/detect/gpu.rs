@@ -20,7 +20,7 @@ use pf_gpu::stream::uniform_buffer;
 use pf_gpu::{DeviceStream, GpuContext, GpuError, Readback, wgpu};
 use rayon::prelude::*;
 
-use super::{Cascade, DetectConfig, Detection, PyramidLevel, group, resize};
+use super::{Cascade, DetectConfig, Detection, PyramidLevel, group, resize_into};
 use crate::error::FaceError;
 use crate::image::GrayImage;
 
@@ -146,7 +146,8 @@ struct PyramidBuffers {
     levels: Vec<PyramidLevel>,
     /// Each level's first word in `pixels`.
     pixel_words: Vec<usize>,
-    pixel_word_count: usize,
+    /// The levels' pixels as uploaded, four to a word: kept between frames of one size.
+    pixel_upload: Vec<u32>,
     pixels: DeviceStream<u32>,
     hits: DeviceStream<u32>,
     readback: Readback<u32>,
@@ -155,6 +156,29 @@ struct PyramidBuffers {
     // Held for the bind groups.
     _params: wgpu::Buffer,
     _tables: [DeviceStream<u32>; 4],
+}
+
+impl PyramidBuffers {
+    /// Each level of `frame`, resized by the CPU detector's own bilinear resize, written straight
+    /// into its place in the upload (levels in parallel).
+    fn resize_levels(&mut self, frame: &GrayImage) {
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut self.pixel_upload);
+        let mut places = Vec::with_capacity(self.levels.len());
+        let mut rest = bytes;
+        let mut at = 0;
+        for (level, &first) in self.levels.iter().zip(&self.pixel_words) {
+            let (width, height) = level.scaled;
+            let len = width as usize * height as usize;
+            let (_, tail) = std::mem::take(&mut rest).split_at_mut(4 * first - at);
+            let (place, tail) = tail.split_at_mut(len);
+            places.push((level.scaled, place));
+            rest = tail;
+            at = 4 * first + len;
+        }
+        places
+            .into_par_iter()
+            .for_each(|((width, height), place)| resize_into(frame, width, height, place));
+    }
 }
 
 /// The Viola–Jones detector on a GPU: [`Cascade::detect`]'s faces, from a submission per frame.
@@ -250,20 +274,17 @@ impl GpuCascade {
         if levels.is_empty() {
             return Ok(Vec::new());
         }
-        let images: Vec<GrayImage> = levels
-            .par_iter()
-            .map(|l| resize(frame, l.scaled.0, l.scaled.1))
-            .collect();
         let mut kept = self.buffers.lock().unwrap_or_else(PoisonError::into_inner);
         if kept.as_ref().is_some_and(|b| b.levels != levels) {
             // Dropped first: a new frame size should not hold both sets on the device.
             *kept = None;
         }
-        let buffers: &PyramidBuffers = match &mut *kept {
+        let buffers: &mut PyramidBuffers = match &mut *kept {
             Some(buffers) => buffers,
             empty => empty.insert(self.buffers_for(levels)?),
         };
-        let found = self.run(buffers, &images)?;
+        buffers.resize_levels(frame);
+        let found = self.run(buffers)?;
         match found {
             Some(hits) => Ok(hits),
             // More raw hits than the GPU keeps: the CPU finds them all.
@@ -272,20 +293,9 @@ impl GpuCascade {
     }
 
     /// One submission: upload, the four passes, the hits read back (`None`: too many).
-    fn run(
-        &self,
-        buffers: &PyramidBuffers,
-        images: &[GrayImage],
-    ) -> Result<Option<Vec<Detection>>, GpuError> {
-        let mut words = vec![0u32; buffers.pixel_word_count];
-        {
-            let bytes: &mut [u8] = bytemuck::cast_slice_mut(&mut words);
-            for (image, &first) in images.iter().zip(&buffers.pixel_words) {
-                bytes[4 * first..4 * first + image.data.len()].copy_from_slice(&image.data);
-            }
-        }
+    fn run(&self, buffers: &PyramidBuffers) -> Result<Option<Vec<Detection>>, GpuError> {
         let ctx = &self.ctx;
-        buffers.pixels.upload(ctx, &words)?;
+        buffers.pixels.upload(ctx, &buffers.pixel_upload)?;
         buffers.hits.upload_at(ctx, 0, &[0])?;
         let submission = ctx.scoped("detecting faces on the GPU", || {
             let mut encoder = ctx.device.create_command_encoder(&Default::default());
@@ -463,7 +473,7 @@ impl GpuCascade {
         Ok(PyramidBuffers {
             levels,
             pixel_words,
-            pixel_word_count: words,
+            pixel_upload: vec![0; words],
             pixels,
             hits,
             readback,

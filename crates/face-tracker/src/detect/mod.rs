@@ -313,8 +313,25 @@ impl Level {
 /// Bilinear resize with pixel centres aligned (OpenCV's `INTER_LINEAR` convention), rounded to
 /// 8 bits.
 pub(crate) fn resize(image: &GrayImage, width: u32, height: u32) -> GrayImage {
+    let mut data = vec![0u8; width as usize * height as usize];
+    resize_into(image, width, height, &mut data);
+    GrayImage {
+        width,
+        height,
+        data,
+    }
+}
+
+/// [`resize`] into `out` (`width × height` bytes, row-major): the GPU detector writes each
+/// pyramid level straight into its upload.
+pub(crate) fn resize_into(image: &GrayImage, width: u32, height: u32, out: &mut [u8]) {
+    debug_assert_eq!(out.len(), width as usize * height as usize);
     if (width, height) == (image.width, image.height) {
-        return image.clone();
+        out.copy_from_slice(&image.data);
+        return;
+    }
+    if width == 0 || height == 0 {
+        return;
     }
     let (sx, sy) = (
         f64::from(image.width) / f64::from(width),
@@ -332,24 +349,17 @@ pub(crate) fn resize(image: &GrayImage, width: u32, height: u32) -> GrayImage {
     };
     let columns: Vec<_> = (0..width).map(|x| source(x, sx, image.width)).collect();
     let stride = image.width as usize;
-    let data: Vec<u8> = (0..height)
-        .into_par_iter()
-        .flat_map_iter(|y| {
-            let (y0, y1, fy) = source(y, sy, image.height);
-            let columns = &columns;
-            columns.iter().map(move |&(x0, x1, fx)| {
-                let at = |yy: usize, xx: usize| f32::from(image.data[yy * stride + xx]);
+    out.par_chunks_mut(width as usize)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (y0, y1, fy) = source(y as u32, sy, image.height);
+            let at = |yy: usize, xx: usize| f32::from(image.data[yy * stride + xx]);
+            for (value, &(x0, x1, fx)) in row.iter_mut().zip(&columns) {
                 let top = at(y0, x0) * (1.0 - fx) + at(y0, x1) * fx;
                 let bottom = at(y1, x0) * (1.0 - fx) + at(y1, x1) * fx;
-                (top * (1.0 - fy) + bottom * fy + 0.5) as u8
-            })
-        })
-        .collect();
-    GrayImage {
-        width,
-        height,
-        data,
-    }
+                *value = (top * (1.0 - fy) + bottom * fy + 0.5) as u8;
+            }
+        });
 }
 
 /// OpenCV's `groupRectangles` (rounding halves to even, as its cvRound): clusters of similar rectangles (union of pairs within eps) with
