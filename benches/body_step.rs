@@ -7,7 +7,8 @@
 //! tile cones), the submission, the wait, the readback of the estimate and the host's check of
 //! the estimate (its confidence, timed alone as `host_confidence`); `gpu_frames_in_flight` times
 //! a stream of frames with each frame's preparation on a reader thread, overlapping the GPU's
-//! step of the frame before, as `streampf body track` runs. The step is the paper's: one
+//! step of the frame before, as `streampf body track` runs, and `gpu_two_steps_in_flight` the
+//! same with two steps in flight on the GPU (frame t − 1 read while the GPU works on frame t). The step is the paper's: one
 //! weighing a frame (`Annealing::none()`); `gpu_annealed_default` times the tracker's default,
 //! eight annealing layers, on the GPU.
 
@@ -87,13 +88,16 @@ fn report_gpu_share(tracker: &mut BodyTracker, points: &[Vector3<f32>], label: &
     );
 }
 
-/// `frames` steps as a stream runs them (`streampf body track`): a reader thread prepares each
-/// frame (rays, Morton order, tile cones) while the tracker steps the one before. Criterion
-/// divides the time by `frames`: the time per frame, ray preparation included, overlapped.
+/// `frames` steps as a stream runs them: a reader thread prepares each frame (rays, Morton
+/// order, tile cones) while the tracker steps the one before (`streampf body track`). With
+/// `two_on_gpu` the tracker also keeps two steps in flight on the GPU
+/// (`BodyTracker::submit_prepared`, `finish`), reading frame t − 1 while the GPU works on frame
+/// t. Criterion divides the time by `frames`: the time per frame, ray preparation included.
 fn frames_in_flight(
     tracker: &mut BodyTracker,
     points: &[Vector3<f32>],
     frames: u64,
+    two_on_gpu: bool,
 ) -> std::time::Duration {
     let preparer = tracker.preparer();
     let started = std::time::Instant::now();
@@ -105,7 +109,17 @@ fn frames_in_flight(
             }
         });
         for frame in prepared.iter() {
-            std::hint::black_box(tracker.step_prepared(&frame).unwrap());
+            if two_on_gpu {
+                tracker.submit_prepared(frame).unwrap();
+                if tracker.frames_in_flight() == 2 {
+                    std::hint::black_box(tracker.finish().unwrap());
+                }
+            } else {
+                std::hint::black_box(tracker.step_prepared(&frame).unwrap());
+            }
+        }
+        while let Some(result) = tracker.finish().unwrap() {
+            std::hint::black_box(result);
         }
     });
     started.elapsed()
@@ -137,7 +151,10 @@ fn bench(c: &mut Criterion) {
         });
         report_gpu_share(&mut gpu, &points, &label);
         group.bench_function(BenchmarkId::new("gpu_frames_in_flight", &label), |b| {
-            b.iter_custom(|frames| frames_in_flight(&mut gpu, &points, frames))
+            b.iter_custom(|frames| frames_in_flight(&mut gpu, &points, frames, false))
+        });
+        group.bench_function(BenchmarkId::new("gpu_two_steps_in_flight", &label), |b| {
+            b.iter_custom(|frames| frames_in_flight(&mut gpu, &points, frames, true))
         });
         drop(gpu);
         let mut annealed = gpu_tracker(TrackerConfig::default().annealing);

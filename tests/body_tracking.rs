@@ -285,3 +285,79 @@ fn frames_prepared_on_another_thread_track_bit_identically() {
     let for_other = other.unwrap().preparer().prepare(&frames[0]).unwrap();
     assert!(ahead.step_prepared(&for_other).is_err());
 }
+
+/// Frames in flight on the GPU ([`BodyTracker::submit_prepared`], [`BodyTracker::finish`]): two
+/// submitted before the first is read give the poses of stepping one at a time, bit for bit, in
+/// order; the CPU engine hands its results over the same way; a third frame in flight, a frame
+/// stepped or particles read while frames are in flight, are errors.
+#[test]
+fn frames_in_flight_on_the_gpu_give_the_one_at_a_time_results() {
+    let skeleton = human_skeleton(19).unwrap();
+    let context = || common::gpu_context("body frames in flight");
+    let (Some(a), Some(b)) = (context(), context()) else {
+        return;
+    };
+    const FRAMES_IN_FLIGHT: usize = 6;
+    let synth = SynthConfig::small(FRAMES_IN_FLIGHT).unwrap();
+    let start = pose_at(&skeleton, &synth, 0).unwrap();
+    let config = TrackerConfig {
+        particles: PARTICLES,
+        ..TrackerConfig::default()
+    };
+    let frames: Vec<_> = (0..FRAMES_IN_FLIGHT)
+        .map(|f| {
+            let truth = pose_at(&skeleton, &synth, f).unwrap();
+            render(&skeleton, &truth, &synth, f).unwrap().points
+        })
+        .collect();
+    let new =
+        |backend| BodyTracker::new(skeleton.clone(), &start, config.clone(), backend).unwrap();
+    let mut one_at_a_time = new(Backend::Gpu(Box::new(a)));
+    let want: Vec<_> = frames
+        .iter()
+        .map(|points| one_at_a_time.step(points).unwrap())
+        .collect();
+    let in_flight = |mut tracker: BodyTracker| {
+        let preparer = tracker.preparer();
+        let mut got = Vec::new();
+        for points in &frames {
+            tracker
+                .submit_prepared(preparer.prepare(points).unwrap())
+                .unwrap();
+            if tracker.frames_in_flight() == 2 {
+                got.push(tracker.finish().unwrap().unwrap());
+            }
+        }
+        while let Some(result) = tracker.finish().unwrap() {
+            got.push(result);
+        }
+        (tracker, got)
+    };
+    let (mut tracker, got) = in_flight(new(Backend::Gpu(Box::new(b))));
+    assert_eq!(got, want);
+    // Misuse: a third frame, a plain step or the particles while two are in flight.
+    let prepare = |t: &BodyTracker| t.preparer().prepare(&frames[0]).unwrap();
+    tracker.submit_prepared(prepare(&tracker)).unwrap();
+    tracker.submit_prepared(prepare(&tracker)).unwrap();
+    assert!(tracker.submit_prepared(prepare(&tracker)).is_err());
+    assert!(tracker.step(&frames[0]).is_err());
+    assert!(tracker.particles().is_err());
+    assert!(tracker.finish().unwrap().is_some());
+    assert!(tracker.finish().unwrap().is_some());
+    assert!(tracker.finish().unwrap().is_none());
+    assert!(tracker.particles().is_ok());
+    // The CPU engine: the same results as its own steps, handed over in order.
+    let mut cpu = new(Backend::Cpu);
+    let cpu_want: Vec<_> = frames[..2].iter().map(|p| cpu.step(p).unwrap()).collect();
+    let mut cpu = new(Backend::Cpu);
+    let preparer = cpu.preparer();
+    for points in &frames[..2] {
+        cpu.submit_prepared(preparer.prepare(points).unwrap())
+            .unwrap();
+    }
+    let cpu_got = vec![
+        cpu.finish().unwrap().unwrap(),
+        cpu.finish().unwrap().unwrap(),
+    ];
+    assert_eq!(cpu_got, cpu_want);
+}

@@ -4,8 +4,8 @@
 
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu};
-use pf_gpu::engine::FilterEngine;
-use pf_gpu::{GpuContext, NoLikelihood};
+use pf_gpu::engine::{EngineReport, FilterEngine};
+use pf_gpu::{GpuContext, NoLikelihood, PendingStep};
 use rayon::prelude::*;
 
 use crate::error::BodyError;
@@ -58,14 +58,8 @@ impl Filter {
         skeleton: &Skeleton,
         frame: &Frame,
     ) -> Result<FilterStep, BodyError> {
+        self.upload(frame)?;
         let Self { engine, measure } = self;
-        if let (Measure::Gpu(likelihood), Some(ctx)) = (&mut *measure, engine.context()) {
-            let rays = frame.gpu_rays.ok_or_else(|| {
-                BodyError::InvalidInput("a GPU filter got a frame prepared for the CPU".into())
-            })?;
-            likelihood.upload_prepared_rays(ctx, rays)?;
-            likelihood.set_sigma(ctx, frame.sigma)?;
-        }
         let on_gpu: &dyn pf_gpu::GpuLikelihood = match &*measure {
             Measure::Gpu(likelihood) if !frame.flat => &**likelihood,
             _ => &NoLikelihood,
@@ -85,11 +79,53 @@ impl Filter {
             },
             on_gpu,
         )?;
+        self.step_of(report, frame.flat)
+    }
+
+    /// On a GPU, uploads the frame and submits its step without waiting ([`Self::finish`] reads
+    /// it back); `None` on the CPU engine, which steps with [`Self::step`].
+    pub(crate) fn submit(&mut self, frame: &Frame) -> Result<Option<PendingStep>, BodyError> {
+        if !matches!(self.measure, Measure::Gpu(_)) {
+            return Ok(None);
+        }
+        self.upload(frame)?;
+        let on_gpu: &dyn pf_gpu::GpuLikelihood = match &self.measure {
+            Measure::Gpu(likelihood) if !frame.flat => &**likelihood,
+            _ => &NoLikelihood,
+        };
+        Ok(self.engine.submit(on_gpu)?)
+    }
+
+    /// The step of a frame from [`Self::submit`], after waiting for it.
+    pub(crate) fn finish(
+        &mut self,
+        pending: PendingStep,
+        flat: bool,
+    ) -> Result<FilterStep, BodyError> {
+        let report = self.engine.finish(pending)?;
+        self.step_of(report, flat)
+    }
+
+    /// A GPU filter's upload of a frame: its prepared rays and σ.
+    fn upload(&mut self, frame: &Frame) -> Result<(), BodyError> {
+        let Self { engine, measure } = self;
+        if let (Measure::Gpu(likelihood), Some(ctx)) = (&mut *measure, engine.context()) {
+            let rays = frame.gpu_rays.ok_or_else(|| {
+                BodyError::InvalidInput("a GPU filter got a frame prepared for the CPU".into())
+            })?;
+            likelihood.upload_prepared_rays(ctx, rays)?;
+            likelihood.set_sigma(ctx, frame.sigma)?;
+        }
+        Ok(())
+    }
+
+    /// The filter's step from its engine's report.
+    fn step_of(&self, report: EngineReport, flat: bool) -> Result<FilterStep, BodyError> {
         if let Some(Err(e)) = report.status.into_iter().next() {
             return Err(e.into());
         }
-        let estimate_sum = match &*measure {
-            Measure::Gpu(_) if !frame.flat => {
+        let estimate_sum = match &self.measure {
+            Measure::Gpu(_) if !flat => {
                 let sums: Vec<f32> = report.likelihood.get(BodyLikelihoodGpu::ESTIMATE_SUM)?;
                 sums.first().map(|&m| f64::from(m))
             }

@@ -158,6 +158,8 @@ pub struct BodyTracker {
     island_weights: Vec<f64>,
     /// The last frame's GPU time (the slowest island's); `None` on the CPU.
     last_gpu_time: Option<pf_gpu::GpuTime>,
+    /// Frames submitted and not yet finished, oldest first.
+    in_flight: std::collections::VecDeque<InFlight>,
 }
 
 impl BodyTracker {
@@ -204,6 +206,7 @@ impl BodyTracker {
             frames: 0,
             island_weights: Vec::new(),
             last_gpu_time: None,
+            in_flight: std::collections::VecDeque::new(),
         })
     }
 
@@ -214,8 +217,14 @@ impl BodyTracker {
     /// The particles after the last step: the batch shape (1 × J × θ's length), the poses in the
     /// batch layout `[d·J + j]` and the normalised log-weights (islands' particles one after
     /// another, each island's weights times its island weight). On the GPU this reads them back
-    /// (a wait), so call it only when needed.
+    /// (a wait), so call it only when needed, and not while frames are in flight (whose
+    /// particles are not the last finished frame's).
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), BodyError> {
+        if !self.in_flight.is_empty() {
+            return Err(BodyError::InvalidInput(
+                "the particles of a finished frame: frames are still in flight".into(),
+            ));
+        }
         if let [filter] = self.filters.as_slice() {
             return Ok(filter.engine.particles()?);
         }
@@ -258,8 +267,69 @@ impl BodyTracker {
     }
 
     /// One frame prepared by this tracker's [`Self::preparer`] (a frame from another tracker's
-    /// preparer is an error): predict, weigh, estimate.
+    /// preparer is an error): predict, weigh, estimate. Not while frames are in flight
+    /// ([`Self::submit_prepared`]).
     pub fn step_prepared(&mut self, prepared: &PreparedFrame) -> Result<FrameResult, BodyError> {
+        if !self.in_flight.is_empty() {
+            return Err(BodyError::InvalidInput(
+                "frames are in flight: finish them before stepping another".into(),
+            ));
+        }
+        self.step_now(prepared)
+    }
+
+    /// Starts a frame without waiting for it: on one GPU the frame's step is submitted and the
+    /// host is free to prepare the next frame or read the one before ([`Self::finish`]), so that
+    /// the GPU goes from one frame's step to the next without a round trip between. At most two
+    /// frames are in flight. The results are those of [`Self::step_prepared`], bit for bit, in
+    /// the order submitted. The CPU engine and the islands of several GPUs step the frame here
+    /// and hand its result over at [`Self::finish`].
+    pub fn submit_prepared(&mut self, prepared: PreparedFrame) -> Result<(), BodyError> {
+        self.check_prepared(&prepared)?;
+        if self.in_flight.len() >= 2 {
+            return Err(BodyError::InvalidInput(
+                "two frames are in flight already: finish one first".into(),
+            ));
+        }
+        let work = match self.filters.as_mut_slice() {
+            [filter] if matches!(filter.measure, Measure::Gpu(_)) => {
+                let frame = frame_of(&self.config, &prepared)?;
+                match filter.submit(&frame)? {
+                    Some(pending) => Submitted::Gpu(pending),
+                    None => Submitted::Done(self.step_now(&prepared)),
+                }
+            }
+            _ => Submitted::Done(self.step_now(&prepared)),
+        };
+        self.in_flight.push_back(InFlight {
+            frame: prepared,
+            work,
+        });
+        Ok(())
+    }
+
+    /// The result of the oldest frame in flight, after waiting for it; `None` when no frame is.
+    pub fn finish(&mut self) -> Result<Option<FrameResult>, BodyError> {
+        let Some(InFlight { frame, work }) = self.in_flight.pop_front() else {
+            return Ok(None);
+        };
+        match work {
+            Submitted::Done(result) => result.map(Some),
+            Submitted::Gpu(pending) => {
+                let flat = self.config.weighing == Weighing::Flat;
+                let step = self.filters[0].finish(pending, flat)?;
+                let weighed = frame_of(&self.config, &frame)?;
+                self.result_of(vec![step], &weighed).map(Some)
+            }
+        }
+    }
+
+    /// Frames submitted and not yet finished.
+    pub fn frames_in_flight(&self) -> usize {
+        self.in_flight.len()
+    }
+
+    fn check_prepared(&self, prepared: &PreparedFrame) -> Result<(), BodyError> {
         if prepared.preparer != self.preparer() {
             return Err(BodyError::InvalidInput(format!(
                 "a frame prepared for another tracker ({:?}; this one prepares {:?})",
@@ -267,16 +337,13 @@ impl BodyTracker {
                 self.preparer()
             )));
         }
-        let rays = &prepared.rays;
-        let points = rays.depths.len();
-        let sigma = self.config.sigma_at_1000_points * (points.max(1) as f32 / 1000.0).sqrt();
-        let frame = Frame {
-            rays,
-            gpu_rays: prepared.gpu_rays.as_ref(),
-            params: CapsuleLikelihoodParams::new(self.config.tau, sigma)?,
-            sigma,
-            flat: self.config.weighing == Weighing::Flat,
-        };
+        Ok(())
+    }
+
+    /// One frame, waited for.
+    fn step_now(&mut self, prepared: &PreparedFrame) -> Result<FrameResult, BodyError> {
+        self.check_prepared(prepared)?;
+        let frame = frame_of(&self.config, prepared)?;
         let skeleton = &self.skeleton;
         let steps: Vec<FilterStep> = match self.filters.as_mut_slice() {
             [filter] => vec![filter.step(skeleton, &frame)?],
@@ -296,6 +363,18 @@ impl BodyTracker {
                     .collect::<Result<Vec<_>, BodyError>>()
             })?,
         };
+        self.result_of(steps, &frame)
+    }
+
+    /// The frame's result from its filters' steps: one filter's, or the islands' combined (and,
+    /// when due, their exchange of particles).
+    fn result_of(
+        &mut self,
+        steps: Vec<FilterStep>,
+        frame: &Frame<'_>,
+    ) -> Result<FrameResult, BodyError> {
+        let rays = frame.rays;
+        let points = rays.depths.len();
         self.frames += 1;
         self.last_gpu_time = steps
             .iter()
@@ -310,7 +389,7 @@ impl BodyTracker {
                 one.estimate_sum,
             )
         } else {
-            let combined = crate::islands::combine(skeleton, rays, frame.params, &steps)?;
+            let combined = crate::islands::combine(&self.skeleton, rays, frame.params, &steps)?;
             self.island_weights = combined.weights.clone();
             if crate::islands::exchange_due(self.config.island_exchange_every, self.frames) {
                 crate::islands::exchange(
@@ -332,7 +411,7 @@ impl BodyTracker {
                 culled_sum_of_squared_distances_parallel(&self.skeleton.capsules(&pose)?, rays, tau)
             }
         };
-        let confidence = 1.0 - fit / (rays.depths.len().max(1) as f64 * f64::from(tau * tau));
+        let confidence = 1.0 - fit / (points.max(1) as f64 * f64::from(tau * tau));
         Ok(FrameResult {
             pose,
             spread,
@@ -342,6 +421,36 @@ impl BodyTracker {
             island_weights: self.island_weights.clone(),
         })
     }
+}
+
+/// A frame as the filters weigh it: its rays, and σ of eq. 3 scaled to its number of points.
+fn frame_of<'a>(
+    config: &TrackerConfig,
+    prepared: &'a PreparedFrame,
+) -> Result<Frame<'a>, BodyError> {
+    let points = prepared.rays.depths.len();
+    let sigma = config.sigma_at_1000_points * (points.max(1) as f32 / 1000.0).sqrt();
+    Ok(Frame {
+        rays: &prepared.rays,
+        gpu_rays: prepared.gpu_rays.as_ref(),
+        params: CapsuleLikelihoodParams::new(config.tau, sigma)?,
+        sigma,
+        flat: config.weighing == Weighing::Flat,
+    })
+}
+
+/// A frame submitted by [`BodyTracker::submit_prepared`].
+struct InFlight {
+    frame: PreparedFrame,
+    work: Submitted,
+}
+
+/// How far a frame in flight has got.
+enum Submitted {
+    /// On the GPU; its results are read at `finish`.
+    Gpu(pf_gpu::PendingStep),
+    /// Stepped already (the CPU engine, or islands).
+    Done(Result<FrameResult, BodyError>),
 }
 
 /// Partitioned sampling over the skeleton's tree (MacCormick & Isard, ECCV 2000; the

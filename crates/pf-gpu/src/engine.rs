@@ -12,7 +12,8 @@ use pf_core::resample::Systematic;
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{
-    GpuFilter, GpuLikelihood, GpuResampler, LikelihoodInputs, LikelihoodReadbacks,
+    GpuFilter, GpuLikelihood, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodReadbacks,
+    PendingStep,
 };
 use crate::timing::GpuTime;
 
@@ -30,6 +31,22 @@ pub struct GpuEngine {
     pub ctx: GpuContext,
     /// The driver.
     pub filter: GpuFilter,
+}
+
+impl GpuEngine {
+    /// The engine's report of a GPU step.
+    fn report(&self, report: GpuStepReport) -> EngineReport {
+        let particles = self.filter.shape().particles;
+        EngineReport {
+            ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
+            status: report.stats.iter().map(|s| s.result(particles)).collect(),
+            estimates: report.estimates,
+            best_estimates: report.best_estimates,
+            spreads: report.spreads,
+            gpu_time: Some(report.time),
+            likelihood: report.likelihood,
+        }
+    }
 }
 
 /// What one step of either engine reports.
@@ -142,16 +159,41 @@ impl FilterEngine {
             }
             Self::Gpu(gpu) => {
                 let report = gpu.filter.step(&gpu.ctx, gpu_likelihood)?;
-                let particles = gpu.filter.shape().particles;
-                Ok(EngineReport {
-                    ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
-                    status: report.stats.iter().map(|s| s.result(particles)).collect(),
-                    estimates: report.estimates,
-                    best_estimates: report.best_estimates,
-                    spreads: report.spreads,
-                    gpu_time: Some(report.time),
-                    likelihood: report.likelihood,
-                })
+                Ok(gpu.report(report))
+            }
+        }
+    }
+
+    /// On the GPU engine, submits one step without waiting (`None` on the CPU engine, which
+    /// steps with [`Self::step`]); [`Self::finish`] reads it back. See
+    /// [`GpuFilter::submit_stages`]: two steps may be in flight, finished in order.
+    pub fn submit(
+        &mut self,
+        gpu_likelihood: &dyn GpuLikelihood,
+    ) -> Result<Option<PendingStep>, GpuError> {
+        use crate::filter::GpuStage::*;
+        match self {
+            Self::Cpu(_) => Ok(None),
+            Self::Gpu(gpu) => gpu
+                .filter
+                .submit_stages(
+                    &gpu.ctx,
+                    &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
+                    gpu_likelihood,
+                )
+                .map(Some),
+        }
+    }
+
+    /// The report of a step from [`Self::submit`], after waiting for it.
+    pub fn finish(&mut self, pending: PendingStep) -> Result<EngineReport, GpuError> {
+        match self {
+            Self::Cpu(_) => Err(GpuError::InvalidConfig(
+                "the CPU engine has no submitted steps to finish".into(),
+            )),
+            Self::Gpu(gpu) => {
+                let report = gpu.filter.finish_step(&gpu.ctx, pending)?;
+                Ok(gpu.report(report))
             }
         }
     }

@@ -30,7 +30,7 @@ pub mod toy;
 pub use context::{ContextOptions, GpuContext};
 pub use filter::{
     GpuFilter, GpuLikelihood, GpuResampler, GpuStage, GpuStepReport, LikelihoodInputs,
-    LikelihoodPhase, LikelihoodReadbacks, NoLikelihood, ReadbackSource, TargetStats,
+    LikelihoodPhase, LikelihoodReadbacks, NoLikelihood, PendingStep, ReadbackSource, TargetStats,
 };
 pub use kernels::Kernel;
 pub use stream::{DeviceStream, Readback, ReadbackSet};

@@ -75,6 +75,16 @@ pub struct GpuStepReport {
     pub likelihood: LikelihoodReadbacks,
 }
 
+/// A step submitted by [`GpuFilter::submit_stages`] and not yet read back.
+#[must_use = "a submitted step must be finished (GpuFilter::finish_step)"]
+pub struct PendingStep {
+    submission: wgpu::SubmissionIndex,
+    /// The staging set its results are copied into.
+    back: usize,
+    map: crate::stream::PendingMap,
+    started: std::time::Instant,
+}
+
 /// T targets × M particles on one GPU.
 pub struct GpuFilter {
     shape: BatchShape,
@@ -92,10 +102,16 @@ pub struct GpuFilter {
     resample_steps: Vec<Dispatch>,
     /// The step's readbacks in one staging buffer: estimates, statistics, best-M′ estimates
     /// (empty without them), the timestamps (empty without a timer), then the likelihood's.
-    step_back: ReadbackSet,
-    /// The byte lengths of the filter's own sections of `step_back`.
+    /// Two of them, used in turn, so that a step can be submitted while the one before it still
+    /// waits to be read ([`GpuFilter::submit_stages`], [`GpuFilter::finish_step`]).
+    step_backs: [ReadbackSet; 2],
+    /// The staging set the next submission copies into.
+    next_back: usize,
+    /// Steps submitted and not yet finished (at most two).
+    in_flight: usize,
+    /// The byte lengths of the filter's own sections of `step_backs`.
     own_sections: [u64; STEP_BACK_OWN],
-    /// The likelihood sections `step_back` was last built with (name, bytes).
+    /// The likelihood sections `step_backs` were last built with (name, bytes).
     likelihood_sections: Vec<(&'static str, u64)>,
     has_best: bool,
     timer: Option<StepTimer>,
@@ -147,14 +163,19 @@ impl GpuFilter {
             if timer.is_some() { 16 } else { 0 },
             estimate_bytes,
         ];
-        let step_back = ReadbackSet::new(ctx, "step readback", &own_sections)?;
+        let step_backs = [
+            ReadbackSet::new(ctx, "step readback", &own_sections)?,
+            ReadbackSet::new(ctx, "step readback (second)", &own_sections)?,
+        ];
         Ok(Self {
             shape,
             params,
             params_buffer,
             annealing: config.annealing.clone(),
             layer_params,
-            step_back,
+            step_backs,
+            next_back: 0,
+            in_flight: 0,
             own_sections,
             likelihood_sections: Vec::new(),
             has_best: config.best > 0,
@@ -212,6 +233,26 @@ impl GpuFilter {
         stages: &[GpuStage],
         likelihood: &dyn GpuLikelihood,
     ) -> Result<GpuStepReport, GpuError> {
+        let pending = self.submit_stages(ctx, stages, likelihood)?;
+        self.finish_step(ctx, pending)
+    }
+
+    /// Records and submits `stages` without waiting: the GPU works on this step while the host
+    /// prepares the next one, or reads the one before ([`Self::finish_step`]). At most two steps
+    /// are in flight; each must be finished, in the order submitted. Results are the same, bit
+    /// for bit, as stepping one at a time: the steps run in order on the GPU, and each copies
+    /// its results into a staging buffer of its own.
+    pub fn submit_stages(
+        &mut self,
+        ctx: &GpuContext,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) -> Result<PendingStep, GpuError> {
+        if self.in_flight >= 2 {
+            return Err(GpuError::InvalidConfig(
+                "two filter steps are in flight already: finish the older one first".into(),
+            ));
+        }
         let uses_likelihood = stages.contains(&GpuStage::Likelihood)
             || (stages.contains(&GpuStage::Diffuse) && likelihood.propagates());
         if uses_likelihood && !likelihood.is_prepared() {
@@ -229,6 +270,7 @@ impl GpuFilter {
                 label: Some("filter step"),
             });
         let started = std::time::Instant::now();
+        let back = self.next_back;
         let submission = ctx.scoped("recording filter stages", || {
             if let Some(timer) = &self.timer {
                 timer.begin(&mut encoder);
@@ -236,16 +278,45 @@ impl GpuFilter {
             self.record_stages(ctx, &mut encoder, stages, likelihood);
             if let Some(timer) = &self.timer {
                 timer.end(&mut encoder);
-                self.step_back
-                    .record_copy(&mut encoder, STEP_BACK_TICKS, timer.resolved());
+                self.step_backs[back].record_copy(&mut encoder, STEP_BACK_TICKS, timer.resolved());
             }
             ctx.queue.submit([encoder.finish()])
         })?;
         // Every readback is mapped behind one wait: one poll a frame.
-        let step_map = self.step_back.request_map();
+        let map = self.step_backs[back].request_map();
+        self.next_back = 1 - back;
+        self.in_flight += 1;
+        Ok(PendingStep {
+            submission,
+            back,
+            map,
+            started,
+        })
+    }
+
+    /// Waits for a step from [`Self::submit_stages`] (the oldest in flight) and reads its
+    /// results back.
+    pub fn finish_step(
+        &mut self,
+        ctx: &GpuContext,
+        pending: PendingStep,
+    ) -> Result<GpuStepReport, GpuError> {
+        let PendingStep {
+            submission,
+            back,
+            map,
+            started,
+        } = pending;
+        let oldest = (self.next_back + 2 - self.in_flight) % 2;
+        if self.in_flight == 0 || back != oldest {
+            return Err(GpuError::InvalidConfig(
+                "filter steps are finished in the order they were submitted".into(),
+            ));
+        }
+        self.in_flight -= 1;
         ctx.wait(Some(submission), "the filter step")?;
         let wall = started.elapsed();
-        let sections = self.step_back.collect(step_map)?;
+        let sections = self.step_backs[back].collect(map)?;
         let estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_ESTIMATES]);
         let stats = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_STATS]);
         let best_estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_BEST]);
@@ -291,9 +362,17 @@ impl GpuFilter {
                 )));
             }
         }
+        if self.in_flight > 0 {
+            return Err(GpuError::InvalidConfig(
+                "another likelihood's readbacks while a filter step is in flight".into(),
+            ));
+        }
         let mut bytes = self.own_sections.to_vec();
         bytes.extend(wanted.iter().map(|&(_, b)| b));
-        self.step_back = ReadbackSet::new(ctx, "step readback", &bytes)?;
+        self.step_backs = [
+            ReadbackSet::new(ctx, "step readback", &bytes)?,
+            ReadbackSet::new(ctx, "step readback (second)", &bytes)?,
+        ];
         self.likelihood_sections = wanted;
         Ok(())
     }

@@ -63,24 +63,33 @@ impl GpuFilter {
             .zip(&self.likelihood_sections);
         for (k, (source, &(name, bytes))) in fitted.enumerate() {
             if source.name == name && source.bytes == bytes {
-                self.step_back
-                    .record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
+                self.step_backs[self.next_back].record_copy(
+                    encoder,
+                    STEP_BACK_OWN + k,
+                    source.buffer,
+                );
             }
         }
-        self.step_back.record_copy(
+        self.step_backs[self.next_back].record_copy(
             encoder,
             STEP_BACK_ESTIMATES,
             self.streams.estimates.buffer(),
         );
-        self.step_back
-            .record_copy(encoder, STEP_BACK_STATS, self.streams.stats.buffer());
-        self.step_back.record_copy(
+        self.step_backs[self.next_back].record_copy(
+            encoder,
+            STEP_BACK_STATS,
+            self.streams.stats.buffer(),
+        );
+        self.step_backs[self.next_back].record_copy(
             encoder,
             STEP_BACK_BEST,
             self.streams.best_estimates.buffer(),
         );
-        self.step_back
-            .record_copy(encoder, STEP_BACK_SPREADS, self.streams.spreads.buffer());
+        self.step_backs[self.next_back].record_copy(
+            encoder,
+            STEP_BACK_SPREADS,
+            self.streams.spreads.buffer(),
+        );
     }
 
     /// One annealing layer's stages (the whole frame but the estimate without annealing): the
