@@ -216,6 +216,18 @@ fn bad_frames_are_errors() {
     assert!(BodyTracker::new(skeleton, &start, none, Backend::Cpu).is_err());
 }
 
+/// The first `count` frames of the short walk-wave, and the true pose to start from.
+fn walk_frames(skeleton: &Skeleton, count: usize) -> (Vec<f32>, Vec<Vec<nalgebra::Vector3<f32>>>) {
+    let synth = SynthConfig::small(count).unwrap();
+    let frames = (0..count)
+        .map(|f| {
+            let truth = pose_at(skeleton, &synth, f).unwrap();
+            render(skeleton, &truth, &synth, f).unwrap().points
+        })
+        .collect();
+    (pose_at(skeleton, &synth, 0).unwrap(), frames)
+}
+
 /// Frames prepared on a reader thread ([`BodyTracker::preparer`], the CLI's frames in flight)
 /// give the same poses, bit for bit, as stepping the points; and a frame prepared for another
 /// tracker (the CPU's, or a GPU tracker with another number of points) is an error, not
@@ -228,8 +240,7 @@ fn frames_prepared_on_another_thread_track_bit_identically() {
         return;
     };
     const FRAMES_AHEAD: usize = 5;
-    let synth = SynthConfig::small(FRAMES_AHEAD).unwrap();
-    let start = pose_at(&skeleton, &synth, 0).unwrap();
+    let (start, frames) = walk_frames(&skeleton, FRAMES_AHEAD);
     let config = TrackerConfig {
         particles: PARTICLES,
         ..TrackerConfig::default()
@@ -243,12 +254,6 @@ fn frames_prepared_on_another_thread_track_bit_identically() {
         )
         .unwrap()
     };
-    let frames: Vec<_> = (0..FRAMES_AHEAD)
-        .map(|f| {
-            let truth = pose_at(&skeleton, &synth, f).unwrap();
-            render(&skeleton, &truth, &synth, f).unwrap().points
-        })
-        .collect();
     let mut stepped = new(a);
     let want: Vec<Vec<f32>> = frames
         .iter()
@@ -298,18 +303,11 @@ fn frames_in_flight_on_the_gpu_give_the_one_at_a_time_results() {
         return;
     };
     const FRAMES_IN_FLIGHT: usize = 6;
-    let synth = SynthConfig::small(FRAMES_IN_FLIGHT).unwrap();
-    let start = pose_at(&skeleton, &synth, 0).unwrap();
+    let (start, frames) = walk_frames(&skeleton, FRAMES_IN_FLIGHT);
     let config = TrackerConfig {
         particles: PARTICLES,
         ..TrackerConfig::default()
     };
-    let frames: Vec<_> = (0..FRAMES_IN_FLIGHT)
-        .map(|f| {
-            let truth = pose_at(&skeleton, &synth, f).unwrap();
-            render(&skeleton, &truth, &synth, f).unwrap().points
-        })
-        .collect();
     let new =
         |backend| BodyTracker::new(skeleton.clone(), &start, config.clone(), backend).unwrap();
     let mut one_at_a_time = new(Backend::Gpu(Box::new(a)));
