@@ -3,7 +3,8 @@
 //! which keeps what frames share, against rendering each frame from nothing.
 
 use face_tracker::likelihood::{
-    LANES, residual_error, residual_errors, residual_errors_of, weigh_parallel, weigh_single_thread,
+    LANES, residual_error, residual_errors, residual_errors_of, residual_errors_of_baseline,
+    weigh_parallel, weigh_single_thread,
 };
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
@@ -69,6 +70,11 @@ proptest! {
         let mut batched = vec![-1.0; states.len()];
         residual_errors_of(&states, &template, &frame, &mut batched);
         prop_assert_eq!(bits(&batched), bits(&one_at_a_time));
+        // Where the CPU has AVX2 the call above ran the AVX2 build of the lanes: the baseline
+        // build must give the same bits.
+        let mut baseline = vec![-1.0; states.len()];
+        residual_errors_of_baseline(&states, &template, &frame, &mut baseline);
+        prop_assert_eq!(bits(&baseline), bits(&one_at_a_time));
         prop_assert_eq!(bits(&weigh_single_thread(&states, &template, &frame)), bits(&one_at_a_time));
         prop_assert_eq!(bits(&weigh_parallel(&states, &template, &frame)), bits(&one_at_a_time));
         if let Some(group) = states.first_chunk::<LANES>() {

@@ -260,9 +260,10 @@ fn head_surface(model: &FaceModel, steps: i32, seed: u64) -> HeadSurface {
 }
 
 /// Renders a synthetic video frame by frame. What stays the same from frame to frame is made
-/// once: the background, and each head's surface samples (model height, normal and albedo) for
-/// the grid density its scale asks for (the density changes only when the scale crosses a
-/// step). A frame is then the background, the heads splatted from their samples with a depth
+/// once: the background, and each head's surface samples (model height, normal and albedo) at
+/// one grid density, the finest its scale asks for over the video (a density that followed the
+/// scale would change every few frames, and making a surface costs more than splatting it). A
+/// frame is then the background, the heads splatted from their samples with a depth
 /// buffer, the occluder and the light: the same pixels as [`render_frame`], several times
 /// faster, so that the synthetic run shows the tracker's speed rather than the renderer's.
 ///
@@ -274,6 +275,9 @@ pub struct FaceVideoRenderer {
     config: FaceSynthConfig,
     model: FaceModel,
     background: Vec<f32>,
+    /// Each head's surface density over the video: the most samples per unit any of its
+    /// frames asks for.
+    video_steps: Vec<i32>,
     /// Each head's surfaces for the densities its latest frames asked for, newest last, shared
     /// by the frames being rendered at once. A head's density steps with its scale every few
     /// frames, so a batch of frames asks for several; making one costs more than splatting it.
@@ -287,8 +291,14 @@ struct HeadPose {
     steps: i32,
 }
 
-/// Densities kept per head (a batch of 16 frames spans a few).
+/// Densities kept per head: the video's, and finer ones for frames past its end.
 const SURFACES_KEPT: usize = 8;
+
+/// Surface samples per unit of the model's u and v for a head at `scale`: a sample every
+/// ≤ 0.4 px in the image, so that a turned head's stretched flanks are still covered.
+fn steps_for_scale(config: &FaceSynthConfig, scale: f32) -> i32 {
+    (2.5 * config.half_width * HEIGHT_RATIO * scale).ceil() as i32
+}
 
 impl Clone for FaceVideoRenderer {
     fn clone(&self) -> Self {
@@ -296,6 +306,7 @@ impl Clone for FaceVideoRenderer {
             config: self.config.clone(),
             model: self.model.clone(),
             background: self.background.clone(),
+            video_steps: self.video_steps.clone(),
             surfaces: Mutex::new(self.cached_surfaces().clone()),
         }
     }
@@ -309,10 +320,19 @@ impl FaceVideoRenderer {
             .into_par_iter()
             .map(|k| background((k % w) as f32, (k / w) as f32, config.seed))
             .collect();
+        let video_steps = (0..config.faces)
+            .map(|k| {
+                (0..config.frames)
+                    .map(|f| steps_for_scale(config, face_state(config, k, f)[SCALE]))
+                    .max()
+                    .unwrap_or(1)
+            })
+            .collect();
         Ok(Self {
             config: config.clone(),
             model: model.clone(),
             background,
+            video_steps,
             surfaces: Mutex::new(vec![Vec::new(); config.faces]),
         })
     }
@@ -376,10 +396,10 @@ impl FaceVideoRenderer {
             .collect()
     }
 
-    /// The heads present at `frame`: each one's pose and the density its scale asks for.
+    /// The heads present at `frame`: each one's pose and its surface's density (the video's,
+    /// or finer where a frame past the video's end asks for more).
     fn head_poses(&self, frame: usize) -> Vec<HeadPose> {
         let config = &self.config;
-        let hh = config.half_width * HEIGHT_RATIO;
         (0..config.faces)
             .filter(|&k| config.present(k, frame))
             .map(|k| {
@@ -387,8 +407,7 @@ impl FaceVideoRenderer {
                 HeadPose {
                     head: k,
                     state,
-                    // Samples every ≤ 0.4 px in the image.
-                    steps: (2.5 * hh * state[SCALE]).ceil() as i32,
+                    steps: steps_for_scale(config, state[SCALE]).max(self.video_steps[k]),
                 }
             })
             .collect()
