@@ -16,13 +16,16 @@ mod common;
 use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use face_tracker::extraction::FaceRect;
-use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, weigh_parallel, weigh_single_thread};
+use face_tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
+use face_tracker::likelihood::{
+    MIN_ERROR, MIN_VISIBLE_SHARE, residual_errors_of_baseline, weigh_parallel, weigh_single_thread,
+};
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
 use face_tracker::synth::{
     FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect, render_frame,
 };
-use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
+use face_tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
 use pf_gpu::stream::DeviceStream;
@@ -87,6 +90,14 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
         group.throughput(Throughput::Elements((m * template.len()) as u64));
         group.bench_function(BenchmarkId::new("cpu_one_thread", m), |b| {
             b.iter(|| std::hint::black_box(weigh_single_thread(&states, &template, &frame)))
+        });
+        // The same lanes built for the baseline x86-64 target (no AVX2), for comparison.
+        group.bench_function(BenchmarkId::new("cpu_one_thread_baseline_target", m), |b| {
+            b.iter(|| {
+                let mut errors = vec![0.0; states.len()];
+                residual_errors_of_baseline(&states, &template, &frame, &mut errors);
+                std::hint::black_box(errors)
+            })
         });
         // The yardstick of the one-thread reference: the same arithmetic as a plain C loop.
         group.bench_function(BenchmarkId::new("plain_c_loop_one_thread", m), |b| {
@@ -220,6 +231,9 @@ fn over_gpus(c: &mut Criterion) {
             "face_step_over_gpus/{faces}: one GPU's own time for the last step: {}",
             gpu_ms(one.last_gpu_time())
         );
+        group.bench_function(BenchmarkId::new("one_gpu_two_in_flight", faces), |b| {
+            b.iter(|| std::hint::black_box(step_in_flight(&mut one, &frame)))
+        });
         drop(one);
         let contexts = GpuContext::all(&pf_gpu::ContextOptions::default()).unwrap();
         let mut split =
@@ -231,8 +245,21 @@ fn over_gpus(c: &mut Criterion) {
             "face_step_over_gpus/{faces}: the slowest GPU's own time for the last step: {}",
             gpu_ms(split.last_gpu_time())
         );
+        group.bench_function(BenchmarkId::new("all_gpus_two_in_flight", faces), |b| {
+            b.iter(|| std::hint::black_box(step_in_flight(&mut split, &frame)))
+        });
     }
     group.finish();
+}
+
+/// One frame of a stream with two frames in flight: submits `frame` and, once two are in
+/// flight, finishes the oldest (a frame's time in the steady state).
+fn step_in_flight(tracker: &mut FaceTracker, frame: &GrayImage) -> Option<Vec<FaceEstimate>> {
+    tracker.submit(frame).unwrap();
+    if tracker.frames_in_flight() < MAX_FRAMES_IN_FLIGHT {
+        return None;
+    }
+    tracker.finish().unwrap()
 }
 
 /// The synthetic video's renderer (the README's main job renders every frame): frame after

@@ -11,13 +11,14 @@
 mod common;
 
 use face_tracker::extraction::FaceRect;
+use face_tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{SCALE, TX, TY};
 use face_tracker::synth::{
     FaceSynthConfig, FaceVideoRenderer, HEIGHT_RATIO, face_state, initial_rect,
 };
 use face_tracker::tracker::pose_errors;
-use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, TrackStatus};
+use face_tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 
 const MAX_TRANSLATION_PX: f32 = 3.0;
 /// One frame of a track that started mid-video may stray further than the mean (the old bound
@@ -213,4 +214,121 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         before_loss < 0.5 * early,
         "confidence {before_loss} just before the loss, {early} at the start"
     );
+}
+
+/// Every frame's estimates, stepped one at a time or with two frames in flight.
+fn estimates_per_frame(
+    video: &FaceSynthConfig,
+    backend: FaceBackend,
+    in_flight: bool,
+) -> Vec<Vec<FaceEstimate>> {
+    let model = FaceModel::generic(129).unwrap();
+    let renderer = FaceVideoRenderer::new(video, &model).unwrap();
+    let first = renderer.render(0).unwrap();
+    let rects: Vec<_> = (0..video.faces).map(|k| initial_rect(video, k)).collect();
+    let mut tracker = FaceTracker::new(&first, &rects, &model, config(), backend).unwrap();
+    let mut out = Vec::new();
+    for frame in 0..video.frames {
+        let image = renderer.render(frame).unwrap();
+        if !in_flight {
+            out.push(tracker.step(&image).unwrap());
+            continue;
+        }
+        tracker.submit(&image).unwrap();
+        if tracker.frames_in_flight() == MAX_FRAMES_IN_FLIGHT {
+            out.push(tracker.finish().unwrap().unwrap());
+        }
+    }
+    while let Some(estimates) = tracker.finish().unwrap() {
+        out.push(estimates);
+    }
+    out
+}
+
+/// Two frames in flight give the estimates of one frame at a time, bit for bit, frame by frame:
+/// on the CPU, on a GPU context and split over two, through a track lost (face 0 walks out of
+/// the frame) while the next frame was already in flight.
+#[test]
+fn frames_in_flight_give_the_estimates_of_one_frame_at_a_time() {
+    let video = FaceSynthConfig {
+        exit_after: Some(0),
+        occlusion: false,
+        ..video(22)
+    };
+    let context = || common::gpu_context("frames in flight on the GPU");
+    type MakeBackend = Box<dyn Fn() -> Option<FaceBackend>>;
+    let backends: Vec<(&str, MakeBackend)> = vec![
+        ("cpu", Box::new(|| Some(FaceBackend::Cpu))),
+        (
+            "one gpu",
+            Box::new(move || context().map(|c| FaceBackend::Gpu(Box::new(c)))),
+        ),
+        (
+            "two gpu contexts",
+            Box::new(move || Some(FaceBackend::Gpus(vec![context()?, context()?]))),
+        ),
+    ];
+    for (name, backend) in backends {
+        let (Some(one), Some(two)) = (backend(), backend()) else {
+            continue;
+        };
+        let alone = estimates_per_frame(&video, one, false);
+        assert_eq!(alone.len(), video.frames, "{name}");
+        assert!(
+            alone
+                .iter()
+                .flatten()
+                .any(|e| e.track == 0 && matches!(e.status, TrackStatus::Lost { .. })),
+            "{name}: face 0 was never lost, so the test does not reach a lost track"
+        );
+        assert_eq!(estimates_per_frame(&video, two, true), alone, "{name}");
+    }
+}
+
+/// While frames are in flight the tracker refuses what would change a filter or wait on it.
+#[test]
+fn frames_in_flight_refuse_what_would_change_the_filters() {
+    let video = video(3);
+    let backends: Vec<FaceBackend> = [Some(FaceBackend::Cpu)]
+        .into_iter()
+        .chain([common::gpu_context("frames in flight on the GPU")
+            .map(|c| FaceBackend::Gpu(Box::new(c)))])
+        .flatten()
+        .collect();
+    for backend in backends {
+        let model = FaceModel::generic(129).unwrap();
+        let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+        let first = renderer.render(0).unwrap();
+        let mut tracker =
+            FaceTracker::with_capacity((video.width, video.height), 2, &model, config(), backend)
+                .unwrap();
+        tracker.add_face(&first, &initial_rect(&video, 0)).unwrap();
+        assert_eq!(tracker.finish().unwrap(), None);
+        for frame in 0..MAX_FRAMES_IN_FLIGHT {
+            tracker.submit(&renderer.render(frame).unwrap()).unwrap();
+        }
+        let refused = |e: Result<_, face_tracker::FaceError>| {
+            e.expect_err("refused while frames are in flight")
+                .to_string()
+        };
+        assert!(refused(tracker.submit(&first)).contains("in flight"));
+        assert!(refused(tracker.step(&first).map(|_| ())).contains("in flight"));
+        assert!(
+            refused(
+                tracker
+                    .add_face(&first, &initial_rect(&video, 1))
+                    .map(|_| ())
+            )
+            .contains("in flight")
+        );
+        assert!(refused(tracker.particles().map(|_| ())).contains("in flight"));
+        let small = face_tracker::GrayImage::new(64, 64, vec![0; 64 * 64]).unwrap();
+        assert_eq!(tracker.frames_in_flight(), MAX_FRAMES_IN_FLIGHT);
+        tracker.finish().unwrap().unwrap();
+        assert!(refused(tracker.submit(&small)).contains("64x64"));
+        tracker.finish().unwrap().unwrap();
+        assert_eq!(tracker.frames_in_flight(), 0);
+        tracker.add_face(&first, &initial_rect(&video, 1)).unwrap();
+        assert_eq!(tracker.step(&first).unwrap().len(), 2);
+    }
 }

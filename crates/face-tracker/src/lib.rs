@@ -14,6 +14,7 @@
 //! - [`synth`]: synthetic videos of textured heads with ground truth;
 //! - [`tracker`]: several faces at once, each its own filter, on the CPU, a GPU or several GPUs
 //!   ([`shards`]), with failure detection; slots free when a track is lost and take new faces;
+//!   [`in_flight`]: two frames in flight on the GPUs (`submit` / `finish`);
 //! - [`detect`]: Viola–Jones face detection with OpenCV's Haar cascades;
 //! - [`landmarks`]: dlib's 68-point shape predictor, read and run in Rust; [`personal`]: the
 //!   face model warped to a face's landmarks (the personalised model);
@@ -24,6 +25,7 @@ pub mod detect;
 pub mod error;
 pub mod extraction;
 pub mod image;
+pub mod in_flight;
 pub mod landmarks;
 pub mod likelihood;
 pub mod model;

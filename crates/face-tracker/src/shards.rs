@@ -9,9 +9,9 @@
 
 use pf_core::batch::{BatchConfig, BatchShape};
 use pf_core::random::part_seed;
-use pf_gpu::engine::FilterEngine;
+use pf_gpu::engine::{EngineReport, FilterEngine};
 use pf_gpu::faces::FaceLikelihoodGpu;
-use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood};
+use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood, PendingStep};
 use rayon::prelude::*;
 
 use crate::error::FaceError;
@@ -196,31 +196,19 @@ impl Shard {
             },
             on_gpu,
         )?;
-        let estimates = report.point_estimates().to_vec();
-        let errors = match &self.gpu_likelihood {
-            // The GPU weighed the estimates in the step's submission.
-            Some(_) => report
-                .likelihood
-                .get::<f32>(FaceLikelihoodGpu::ESTIMATE_ERRORS)?
-                .into_iter()
-                .map(f64::from)
-                .collect(),
-            // Faces in parallel (at 64 faces this is 15 000 points); a free slot's ε is 1.
-            None => {
-                let image = match &image {
-                    Some(image) => image,
-                    None => unreachable!("the CPU engine has its image"),
-                };
-                templates
-                    .par_iter()
-                    .enumerate()
-                    .map(|(t, template)| {
-                        let state: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
-                        template.map_or(1.0, |template| residual_error(&state, template, image))
-                    })
-                    .collect()
-            }
+        let Some(image) = &image else {
+            return gpu_shard_step(report);
         };
+        // Faces in parallel (at 64 faces this is 15 000 points); a free slot's ε is 1.
+        let estimates = report.point_estimates().to_vec();
+        let errors = templates
+            .par_iter()
+            .enumerate()
+            .map(|(t, template)| {
+                let state: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
+                template.map_or(1.0, |template| residual_error(&state, template, image))
+            })
+            .collect();
         Ok(ShardStep {
             estimates,
             spreads: report.spreads,
@@ -229,6 +217,39 @@ impl Shard {
             gpu_time: report.gpu_time,
         })
     }
+
+    /// On a GPU: uploads the frame and submits the shard's step without waiting for it; `None`
+    /// on the CPU engine, which steps with [`Shard::step`]. [`Shard::finish`] reads it back.
+    pub fn submit(&mut self, frame: FrameRef<'_>) -> Result<Option<PendingStep>, FaceError> {
+        let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) else {
+            return Ok(None);
+        };
+        likelihood.upload_frame(ctx, frame.pixels())?;
+        Ok(self.engine.submit(&**likelihood)?)
+    }
+
+    /// The step [`Shard::submit`] submitted, after waiting for it.
+    pub fn finish(&mut self, pending: PendingStep) -> Result<ShardStep, FaceError> {
+        gpu_shard_step(self.engine.finish(pending)?)
+    }
+}
+
+/// A GPU shard's step from its engine's report: the GPU weighed the estimates in the step's
+/// submission.
+fn gpu_shard_step(report: EngineReport) -> Result<ShardStep, FaceError> {
+    let errors = report
+        .likelihood
+        .get::<f32>(FaceLikelihoodGpu::ESTIMATE_ERRORS)?
+        .into_iter()
+        .map(f64::from)
+        .collect();
+    Ok(ShardStep {
+        estimates: report.point_estimates().to_vec(),
+        spreads: report.spreads,
+        ess: report.ess,
+        errors,
+        gpu_time: report.gpu_time,
+    })
 }
 
 /// The CPU engine's measure: each slot's particles in tasks of `TASK` (a particle is about a

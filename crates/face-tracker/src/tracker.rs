@@ -17,12 +17,15 @@ use pf_gpu::{GpuContext, GpuTime};
 use crate::error::FaceError;
 use crate::extraction::{ExtractionConfig, FaceRect, extract_template};
 use crate::image::GrayImage;
+use crate::in_flight::FrameInFlight;
 use crate::landmarks::Landmarks;
 use crate::model::FaceModel;
 use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
+use crate::shards::ShardStep;
 use crate::shards::{FrameRef, Shard, joined_particles, shard_sizes, step_all};
 use crate::template::Template;
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
@@ -148,9 +151,11 @@ pub struct FaceTracker {
     frame_size: (u32, u32),
     frame_index: usize,
     /// The filters: one engine (the CPU or one GPU), or one per GPU with a share of the slots.
-    shards: Vec<Shard>,
+    pub(crate) shards: Vec<Shard>,
     /// The last step's GPU time (GPU engines only; the longest of the GPUs').
     last_time: Option<GpuTime>,
+    /// Frames submitted and not yet finished, oldest first ([`crate::in_flight`]).
+    pub(crate) in_flight: VecDeque<FrameInFlight>,
 }
 
 /// The state bounds: S and α in sensible ranges, pitch and yaw within ±`MAX_TURN`.
@@ -258,6 +263,7 @@ impl FaceTracker {
             frame_index: 0,
             shards,
             last_time: None,
+            in_flight: VecDeque::new(),
             config,
         })
     }
@@ -384,6 +390,7 @@ impl FaceTracker {
         rect: &FaceRect,
         template: Template,
     ) -> Result<(), FaceError> {
+        self.check_nothing_in_flight("a face is started or restarted")?;
         let (cx, cy) = rect.centre();
         let shape = BatchShape::new(1, self.config.particles, DIMS)?;
         // Each start gets its own initial cloud (the track's number and the frame key it).
@@ -431,6 +438,7 @@ impl FaceTracker {
     /// states in the batch layout `[(slot·7 + d)·M + m]` and the normalised log-weights
     /// `[slot·M + m]`. On the GPU this reads them back (a wait), so call it only when needed.
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
+        self.check_nothing_in_flight("the particles are read")?;
         joined_particles(&self.shards)
     }
 
@@ -445,7 +453,7 @@ impl FaceTracker {
         self.last_time
     }
 
-    fn check_size(&self, (width, height): (u32, u32)) -> Result<(), FaceError> {
+    pub(crate) fn check_size(&self, (width, height): (u32, u32)) -> Result<(), FaceError> {
         if (width, height) != self.frame_size {
             return Err(FaceError::InvalidInput(format!(
                 "frame {} is {width}x{height}; the video started at {}x{}",
@@ -483,19 +491,37 @@ impl FaceTracker {
         })
     }
 
-    fn step_frame(&mut self, frame: FrameRef<'_>) -> Result<Vec<FaceEstimate>, FaceError> {
+    pub(crate) fn step_frame(
+        &mut self,
+        frame: FrameRef<'_>,
+    ) -> Result<Vec<FaceEstimate>, FaceError> {
+        self.check_nothing_in_flight("a frame is stepped alone")?;
+        self.step_now(frame)
+    }
+
+    /// One frame, stepped and waited for (frames in flight are the caller's to rule out).
+    pub(crate) fn step_now(&mut self, frame: FrameRef<'_>) -> Result<Vec<FaceEstimate>, FaceError> {
         self.check_size(frame.size())?;
-        let (frame_width, frame_height) = frame.size();
-        let slots = self.slots.len();
-        let state_of = |estimates: &[f32], t: usize| -> [f32; DIMS] {
-            std::array::from_fn(|d| estimates[t * DIMS + d])
-        };
         // Each slot's estimate and its ε (the failure test's input); free slots are not weighed
         // on the CPU, and weigh the GPU's empty template there (ε = 1, a flat likelihood).
         let templates: Vec<Option<&Template>> = (self.slots.iter())
             .map(|s| s.as_ref().map(|t| &t.template))
             .collect();
         let steps = step_all(&mut self.shards, frame, &templates, self.config.sharpness)?;
+        Ok(self.conclude(steps, frame.size()))
+    }
+
+    /// The tracks' results from the shards' steps of the next frame (`frame_size`): each
+    /// running track's estimate, its failure test, and the slots of lost tracks freed.
+    pub(crate) fn conclude(
+        &mut self,
+        steps: Vec<ShardStep>,
+        (frame_width, frame_height): (u32, u32),
+    ) -> Vec<FaceEstimate> {
+        let slots = self.slots.len();
+        let state_of = |estimates: &[f32], t: usize| -> [f32; DIMS] {
+            std::array::from_fn(|d| estimates[t * DIMS + d])
+        };
         self.last_time = (steps.iter().filter_map(|s| s.gpu_time)).max_by_key(|t| t.duration());
         let (mut estimates, mut spreads, mut ess, mut errors) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -553,7 +579,7 @@ impl FaceTracker {
             }
         }
         self.frame_index += 1;
-        Ok(out)
+        out
     }
 }
 
