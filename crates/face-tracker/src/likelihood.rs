@@ -13,6 +13,9 @@
 
 use rayon::prelude::*;
 
+#[cfg(target_arch = "x86_64")]
+mod gather;
+
 use crate::image::GrayImage;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
 use crate::template::Template;
@@ -178,6 +181,20 @@ pub fn residual_error(state: &[f32; DIMS], template: &Template, frame: &GrayImag
     mean_residual(sum, visible, template.points.len())
 }
 
+/// The four corners (top left, top right, bottom left, bottom right) of each lane's cell, its
+/// top-left pixel at `at[l]`: one lane at a time, into one array per corner (so that the
+/// interpolation vectorises).
+#[inline(always)]
+fn read_corners(pixels: &Pixels, at: &[usize; LANES]) -> [[f32; LANES]; 4] {
+    // A plain loop: `cells.map(..)` compiled to a call that took a third of the time.
+    let mut corners = [[0.0f32; LANES]; 4];
+    for l in 0..LANES {
+        let [a, b, c, d] = pixels.corners(at[l]);
+        (corners[0][l], corners[1][l], corners[2][l], corners[3][l]) = (a, b, c, d);
+    }
+    corners
+}
+
 /// Particles weighed together by [`residual_errors`].
 pub const LANES: usize = 8;
 
@@ -191,6 +208,19 @@ pub fn residual_errors(
     template: &Template,
     frame: &GrayImage,
 ) -> [f64; LANES] {
+    lanes::<false>(states, template, frame)
+}
+
+/// [`residual_errors`], the pixels read with AVX2's gather when `GATHER` (only ever
+/// instantiated so inside [`residual_errors_of_avx2`], which runs where the CPU has AVX2).
+#[inline(always)]
+fn lanes<const GATHER: bool>(
+    states: &[[f32; DIMS]; LANES],
+    template: &Template,
+    frame: &GrayImage,
+) -> [f64; LANES] {
+    #[cfg(target_arch = "x86_64")]
+    let gather = GATHER && gather::can_gather(&frame.data, frame.width, frame.height);
     let poses = states.map(|s| Projector::new(&s));
     let lanes =
         |f: fn(&Projector) -> f32| -> [f32; LANES] { std::array::from_fn(|l| f(&poses[l])) };
@@ -231,16 +261,20 @@ pub fn residual_errors(
             (fx[l], fy[l]) = (u - x0 as f32, v - y0 as f32);
             cells[l] = (x0, y0);
         }
-        // The pixel reads, one lane at a time, into one array per corner (so that the
-        // interpolation below vectorises); a plain loop: `cells.map(..)` compiled to a call
-        // that took a third of the time.
-        let (mut top_left, mut top_right, mut bottom_left, mut bottom_right) =
-            (zero, zero, zero, zero);
-        for l in 0..LANES {
-            let (x0, y0) = cells[l];
-            [top_left[l], top_right[l], bottom_left[l], bottom_right[l]] =
-                pixels.corners(y0 as usize * pixels.width + x0 as usize);
-        }
+        // The pixel reads, into one array per corner, so that the interpolation vectorises.
+        let at = cells.map(|(x0, y0)| y0 as usize * pixels.width + x0 as usize);
+        let [top_left, top_right, bottom_left, bottom_right] = {
+            #[cfg(target_arch = "x86_64")]
+            if gather {
+                // SAFETY: GATHER is set only in the AVX2 build (see above); `can_gather` held;
+                // each cell is inside the frame, so at + width + 1 < len.
+                unsafe { gather::gather_corners(&frame.data, pixels.width, &at) }
+            } else {
+                read_corners(&pixels, &at)
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            read_corners(&pixels, &at)
+        };
         for l in 0..LANES {
             let top = top_left[l] * (1.0 - fx[l]) + top_right[l] * fx[l];
             let bottom = bottom_left[l] * (1.0 - fx[l]) + bottom_right[l] * fx[l];
@@ -283,13 +317,23 @@ fn residual_errors_of_avx2(
     frame: &GrayImage,
     out: &mut [f64],
 ) {
-    residual_errors_of_baseline(states, template, frame, out);
+    errors_of::<true>(states, template, frame, out);
 }
 
-/// [`residual_errors_of`] for the target the crate is compiled for (inlined into the AVX2
-/// variant, so that it is compiled again there with the wider registers).
-#[inline(always)]
+/// [`residual_errors_of`] built for the target the crate is compiled for, without AVX2.
 pub fn residual_errors_of_baseline(
+    states: &[[f32; DIMS]],
+    template: &Template,
+    frame: &GrayImage,
+    out: &mut [f64],
+) {
+    errors_of::<false>(states, template, frame, out);
+}
+
+/// [`residual_errors_of`], its lanes' pixels gathered with AVX2 when `GATHER` (inlined into
+/// each caller, so that the AVX2 variant compiles it with the wider registers).
+#[inline(always)]
+fn errors_of<const GATHER: bool>(
     states: &[[f32; DIMS]],
     template: &Template,
     frame: &GrayImage,
@@ -299,7 +343,7 @@ pub fn residual_errors_of_baseline(
     let mut outs = out.chunks_exact_mut(LANES);
     for (group, out) in (&mut groups).zip(&mut outs) {
         let group: &[[f32; DIMS]; LANES] = group.try_into().expect("chunks_exact gives LANES");
-        out.copy_from_slice(&residual_errors(group, template, frame));
+        out.copy_from_slice(&lanes::<GATHER>(group, template, frame));
     }
     for (state, out) in groups.remainder().iter().zip(outs.into_remainder()) {
         *out = residual_error(state, template, frame);
