@@ -181,18 +181,28 @@ pub fn residual_error(state: &[f32; DIMS], template: &Template, frame: &GrayImag
     mean_residual(sum, visible, template.points.len())
 }
 
-/// The four corners (top left, top right, bottom left, bottom right) of each lane's cell, its
-/// top-left pixel at `at[l]`: one lane at a time, into one array per corner (so that the
-/// interpolation vectorises).
+/// Where the lanes sample the frame: each one's position within its cell and the cell's four
+/// corners (top left, top right, bottom left, bottom right), one array per corner so that the
+/// interpolation vectorises.
+struct LaneSamples {
+    fx: [f32; LANES],
+    fy: [f32; LANES],
+    corners: [[f32; LANES]; 4],
+}
+
+/// The [`LaneSamples`] of points (u, v) [`Pixels::inside`] the frame, one lane at a time.
 #[inline(always)]
-fn read_corners(pixels: &Pixels, at: &[usize; LANES]) -> [[f32; LANES]; 4] {
-    // A plain loop: `cells.map(..)` compiled to a call that took a third of the time.
+fn sample_lanes(pixels: &Pixels, u: &[f32; LANES], v: &[f32; LANES]) -> LaneSamples {
+    let (mut fx, mut fy) = ([0.0f32; LANES], [0.0f32; LANES]);
     let mut corners = [[0.0f32; LANES]; 4];
+    // Plain loops: `cells.map(..)` compiled to a call that took a third of the time.
     for l in 0..LANES {
-        let [a, b, c, d] = pixels.corners(at[l]);
+        let (x0, y0) = pixels.cell(u[l], v[l]);
+        (fx[l], fy[l]) = (u[l] - x0 as f32, v[l] - y0 as f32);
+        let [a, b, c, d] = pixels.corners(y0 as usize * pixels.width + x0 as usize);
         (corners[0][l], corners[1][l], corners[2][l], corners[3][l]) = (a, b, c, d);
     }
-    corners
+    LaneSamples { fx, fy, corners }
 }
 
 /// Particles weighed together by [`residual_errors`].
@@ -249,31 +259,30 @@ fn lanes<const GATHER: bool>(
     for q in &template.points {
         let ([nx, ny, nz], [px, py, pz]) = (q.normal, q.position);
         let (mut facing, mut inside) = ([false; LANES], [false; LANES]);
-        let (mut fx, mut fy, mut cells) = (zero, zero, [(0u32, 0u32); LANES]);
+        let (mut u, mut v) = (zero, zero);
         for l in 0..LANES {
             facing[l] = facing_camera(zx[l] * nx + zy[l] * ny + zz[l] * nz);
-            let u = xx[l] * px + xy[l] * py + xz[l] * pz + tx[l];
-            let v = yx[l] * px + yy[l] * py + yz[l] * pz + ty[l];
-            inside[l] = pixels.inside(u, v);
+            let x = xx[l] * px + xy[l] * py + xz[l] * pz + tx[l];
+            let y = yx[l] * px + yy[l] * py + yz[l] * pz + ty[l];
+            inside[l] = pixels.inside(x, y);
             // Outside the frame a lane reads the corner's pixels, then ignores them.
-            let (u, v) = if inside[l] { (u, v) } else { (0.0, 0.0) };
-            let (x0, y0) = pixels.cell(u, v);
-            (fx[l], fy[l]) = (u - x0 as f32, v - y0 as f32);
-            cells[l] = (x0, y0);
+            (u[l], v[l]) = if inside[l] { (x, y) } else { (0.0, 0.0) };
         }
-        // The pixel reads, into one array per corner, so that the interpolation vectorises.
-        let at = cells.map(|(x0, y0)| y0 as usize * pixels.width + x0 as usize);
-        let [top_left, top_right, bottom_left, bottom_right] = {
+        let LaneSamples {
+            fx,
+            fy,
+            corners: [top_left, top_right, bottom_left, bottom_right],
+        } = {
             #[cfg(target_arch = "x86_64")]
             if gather {
-                // SAFETY: GATHER is set only in the AVX2 build (see above); `can_gather` held;
-                // each cell is inside the frame, so at + width + 1 < len.
-                unsafe { gather::gather_corners(&frame.data, pixels.width, &at) }
+                // SAFETY: GATHER is set only in the AVX2 build (see above), `can_gather` held,
+                // and every lane's point is inside the frame.
+                unsafe { gather::sample_lanes(&pixels, &u, &v) }
             } else {
-                read_corners(&pixels, &at)
+                sample_lanes(&pixels, &u, &v)
             }
             #[cfg(not(target_arch = "x86_64"))]
-            read_corners(&pixels, &at)
+            sample_lanes(&pixels, &u, &v)
         };
         for l in 0..LANES {
             let top = top_left[l] * (1.0 - fx[l]) + top_right[l] * fx[l];
