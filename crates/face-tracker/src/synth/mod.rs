@@ -19,7 +19,7 @@ use crate::model::FaceModel;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
 
 mod splat;
-use splat::{BAND_ROWS, Splatter, splat_head};
+use splat::{BAND_ROWS, HeadSurface, SPLAT_LANES, Splatter, SurfaceSample, splat_head};
 
 /// How a synthetic video is made.
 #[derive(Debug, Clone, PartialEq)]
@@ -60,9 +60,9 @@ impl FaceSynthConfig {
 
     pub fn validate(&self) -> Result<(), FaceError> {
         let bad = |m: String| Err(FaceError::InvalidInput(m));
-        if self.width < 64 || self.height < 64 {
+        if !(64..=16384).contains(&self.width) || !(64..=16384).contains(&self.height) {
             return bad(format!(
-                "frames must be at least 64x64, got {}x{}",
+                "frames must be 64x64 to 16384x16384, got {}x{}",
                 self.width, self.height
             ));
         }
@@ -217,27 +217,10 @@ fn background(x: f32, y: f32, seed: u64) -> f32 {
         + 8.0 * (hash(x as i32, y as i32, seed ^ 9) - 0.5)
 }
 
-/// One surface sample of a head's model on the (u, v) grid: what does not depend on the pose.
-#[derive(Debug, Clone, Copy)]
-struct SurfaceSample {
-    u: f32,
-    v: f32,
-    height: f32,
-    normal: [f32; 3],
-    albedo: f32,
-}
-
-/// A head's surface samples for one grid density (`steps` per unit of u and v).
-#[derive(Debug, Clone)]
-struct HeadSurface {
-    steps: i32,
-    samples: Vec<SurfaceSample>,
-}
-
 /// The surface samples of head `k` on the grid of `steps` per unit, inside the unit disk, in
 /// row order.
 fn head_surface(model: &FaceModel, steps: i32, seed: u64) -> HeadSurface {
-    let samples = (-steps..=steps)
+    let samples: Vec<SurfaceSample> = (-steps..=steps)
         .into_par_iter()
         .flat_map_iter(|j| {
             (-steps..=steps).filter_map(move |i| {
@@ -256,7 +239,7 @@ fn head_surface(model: &FaceModel, steps: i32, seed: u64) -> HeadSurface {
             })
         })
         .collect();
-    HeadSurface { steps, samples }
+    HeadSurface::new(steps, &samples)
 }
 
 /// Renders a synthetic video frame by frame. What stays the same from frame to frame is made
@@ -438,10 +421,14 @@ impl FaceVideoRenderer {
             depth.resize(data.len(), f32::NEG_INFINITY);
             for (state, surface) in heads {
                 let splatter = Splatter::new(config, state);
-                for (idx, z, value) in surface.samples.iter().filter_map(|s| splatter.splat(s)) {
-                    if z > depth[idx] {
-                        depth[idx] = z;
-                        data[idx] = value;
+                for first in (0..surface.len()).step_by(SPLAT_LANES) {
+                    let splats = splatter.splat_lanes(surface, first);
+                    for l in 0..SPLAT_LANES {
+                        let idx = splats.pixel[l] as usize;
+                        if splats.valid[l] && splats.depth[l] > depth[idx] {
+                            depth[idx] = splats.depth[l];
+                            data[idx] = splats.value[l];
+                        }
                     }
                 }
             }

@@ -1,30 +1,111 @@
-//! Where a head's surface samples land in a frame: the splat of one sample (projection, depth,
-//! shading) shared by the banded one-frame pass and the frame-per-core batch pass.
+//! Where a head's surface samples land in a frame: the splats of eight samples at a time
+//! (projection, depth, shading), shared by the banded one-frame pass and the frame-per-core
+//! batch pass, so that both draw the same pixels.
 
-use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 
-use super::{FaceSynthConfig, HEIGHT_RATIO, HeadSurface, SurfaceSample};
+use super::{FaceSynthConfig, HEIGHT_RATIO};
 use crate::projection::{DIMS, Pose};
 
 /// Rows per band of the renderer's parallel depth test.
 pub(super) const BAND_ROWS: usize = 16;
 
+/// Samples splatted together by [`Splatter::splat_lanes`]: the loop over them has no branches,
+/// so that the compiler keeps them in vector registers.
+pub(super) const SPLAT_LANES: usize = 8;
+
+/// One surface sample of a head's model on the (u, v) grid: what does not depend on the pose.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct SurfaceSample {
+    pub u: f32,
+    pub v: f32,
+    pub height: f32,
+    pub normal: [f32; 3],
+    pub albedo: f32,
+}
+
+/// A head's surface samples for one grid density (`steps` per unit of u and v), in row order,
+/// one array per quantity, padded to whole groups of [`SPLAT_LANES`] (the padding never lands).
+#[derive(Debug, Clone)]
+pub(super) struct HeadSurface {
+    pub steps: i32,
+    len: usize,
+    u: Vec<f32>,
+    v: Vec<f32>,
+    height: Vec<f32>,
+    normal: [Vec<f32>; 3],
+    albedo: Vec<f32>,
+}
+
+impl HeadSurface {
+    pub(super) fn new(steps: i32, samples: &[SurfaceSample]) -> Self {
+        let padded = samples.len().next_multiple_of(SPLAT_LANES);
+        let column = |f: fn(&SurfaceSample) -> f32| {
+            let mut values: Vec<f32> = samples.iter().map(f).collect();
+            values.resize(padded, 0.0);
+            values
+        };
+        Self {
+            steps,
+            len: samples.len(),
+            u: column(|s| s.u),
+            v: column(|s| s.v),
+            height: column(|s| s.height),
+            normal: [
+                column(|s| s.normal[0]),
+                column(|s| s.normal[1]),
+                column(|s| s.normal[2]),
+            ],
+            albedo: column(|s| s.albedo),
+        }
+    }
+
+    /// Samples, padding included: a multiple of [`SPLAT_LANES`].
+    pub(super) fn len(&self) -> usize {
+        self.u.len()
+    }
+}
+
+/// Where [`SPLAT_LANES`] samples land: the pixel index, the depth towards the camera and the
+/// shaded albedo of each, and whether it lands at all (faces the camera, inside the frame, not
+/// padding).
+pub(super) struct LaneSplats {
+    pub pixel: [u32; SPLAT_LANES],
+    pub depth: [f32; SPLAT_LANES],
+    pub value: [f32; SPLAT_LANES],
+    pub valid: [bool; SPLAT_LANES],
+}
+
 /// Where a head's surface samples land in a frame, for one pose.
 pub(super) struct Splatter {
-    pose: Pose,
-    light: Vector3<f32>,
+    /// R row by row.
+    rotation: [f32; 9],
+    scale: f32,
+    translation: [f32; 2],
+    light: [f32; 3],
     half_width: f32,
     half_height: f32,
     width: u32,
     height: u32,
 }
 
+/// `samples[first..first + SPLAT_LANES]`, which the padding keeps in bounds.
+fn lanes(samples: &[f32], first: usize) -> &[f32; SPLAT_LANES] {
+    samples[first..first + SPLAT_LANES]
+        .try_into()
+        .expect("a slice of SPLAT_LANES")
+}
+
 impl Splatter {
     pub(super) fn new(config: &FaceSynthConfig, state: &[f32; DIMS]) -> Self {
+        let pose = Pose::new(state);
+        let r = &pose.rotation;
+        let light = nalgebra::Vector3::new(0.3f32, -0.4, 1.0).normalize();
         Self {
-            pose: Pose::new(state),
-            light: Vector3::new(0.3, -0.4, 1.0).normalize(),
+            rotation: std::array::from_fn(|k| r[(k / 3, k % 3)]),
+            scale: pose.scale,
+            translation: [pose.translation.x, pose.translation.y],
+            light: [light.x, light.y, light.z],
             half_width: config.half_width,
             half_height: config.half_width * HEIGHT_RATIO,
             width: config.width,
@@ -32,58 +113,64 @@ impl Splatter {
         }
     }
 
-    /// (pixel index, depth towards the camera, shaded albedo) of a sample that faces the camera
-    /// and lands in the frame.
-    pub(super) fn splat(&self, s: &SurfaceSample) -> Option<(usize, f32, f32)> {
-        // Half the samples face away: their rotated normal's z alone (the last row of the
-        // product below, in the same order) decides that.
-        let r = &self.pose.rotation;
-        if r[(2, 0)] * s.normal[0] + r[(2, 1)] * s.normal[1] + r[(2, 2)] * s.normal[2] < 0.0 {
-            return None;
-        }
-        let n = self.pose.rotation * Vector3::from(s.normal);
-        let p = Vector3::new(
-            s.u * self.half_width,
-            s.v * self.half_height,
-            s.height * self.half_width,
+    /// The splats of samples `first..first + SPLAT_LANES` of `surface` (`first` a multiple of
+    /// [`SPLAT_LANES`]). A sample lands on its nearest pixel when its rotated normal faces the
+    /// camera; Lambert shading under a fixed light.
+    pub(super) fn splat_lanes(&self, surface: &HeadSurface, first: usize) -> LaneSplats {
+        let r = &self.rotation;
+        let (u, v, h) = (
+            lanes(&surface.u, first),
+            lanes(&surface.v, first),
+            lanes(&surface.height, first),
         );
-        // Pose::project's arithmetic, keeping the rotated point for its depth.
-        let rotated = self.pose.rotation * p;
-        let image_point =
-            Vector2::new(rotated.x, rotated.y) * self.pose.scale + self.pose.translation;
-        let (px, py) = (
-            round_half_away(image_point.x),
-            round_half_away(image_point.y),
+        let (nx, ny, nz) = (
+            lanes(&surface.normal[0], first),
+            lanes(&surface.normal[1], first),
+            lanes(&surface.normal[2], first),
         );
-        if px < 0.0 || py < 0.0 || px >= self.width as f32 || py >= self.height as f32 {
-            return None;
+        let albedo = lanes(&surface.albedo, first);
+        let mut out = LaneSplats {
+            pixel: [0; SPLAT_LANES],
+            depth: [0.0; SPLAT_LANES],
+            value: [0.0; SPLAT_LANES],
+            valid: [false; SPLAT_LANES],
+        };
+        let (width, height) = (self.width as i32, self.height as i32);
+        for l in 0..SPLAT_LANES {
+            let normal = [
+                r[0] * nx[l] + r[1] * ny[l] + r[2] * nz[l],
+                r[3] * nx[l] + r[4] * ny[l] + r[5] * nz[l],
+                r[6] * nx[l] + r[7] * ny[l] + r[8] * nz[l],
+            ];
+            let p = [
+                u[l] * self.half_width,
+                v[l] * self.half_height,
+                h[l] * self.half_width,
+            ];
+            let rotated = [
+                r[0] * p[0] + r[1] * p[1] + r[2] * p[2],
+                r[3] * p[0] + r[4] * p[1] + r[5] * p[2],
+                r[6] * p[0] + r[7] * p[1] + r[8] * p[2],
+            ];
+            // The nearest pixel: x + 0.5 truncated is its floor wherever it is ≥ 0, the only
+            // place a pixel lands (NaN fails the comparisons; `as` saturates far outside).
+            let x = rotated[0] * self.scale + self.translation[0] + 0.5;
+            let y = rotated[1] * self.scale + self.translation[1] + 0.5;
+            let (column, row) = (x as i32, y as i32);
+            // `&`, not `&&`: no branches, so that the lanes vectorise.
+            out.valid[l] = (normal[2] >= 0.0)
+                & (x >= 0.0)
+                & (y >= 0.0)
+                & (column < width)
+                & (row < height)
+                & (first + l < surface.len);
+            out.pixel[l] = (row.clamp(0, height - 1) * width + column.clamp(0, width - 1)) as u32;
+            out.depth[l] = rotated[2];
+            let lit =
+                normal[0] * self.light[0] + normal[1] * self.light[1] + normal[2] * self.light[2];
+            out.value[l] = albedo[l] * (0.55 + 0.45 * lit.max(0.0));
         }
-        let shade = 0.55 + 0.45 * n.dot(&self.light).max(0.0);
-        Some((
-            (py as u32 * self.width + px as u32) as usize,
-            rotated.z,
-            s.albedo * shade,
-        ))
-    }
-}
-
-/// `x.round()` (halves away from zero) without the libm call it compiles to on a baseline
-/// x86-64 target, which took a tenth of the renderer's time. Exact: below 2²³ in magnitude the
-/// truncation and the fraction are exact; from there on every f32 is an integer. (A negative
-/// value that rounds to zero gives +0 where `round` gives −0: the same pixel.)
-pub(crate) fn round_half_away(x: f32) -> f32 {
-    // From 2²³ on (and NaN) there is nothing to round.
-    if x.is_nan() || x.abs() >= 8_388_608.0 {
-        return x;
-    }
-    let truncated = x as i32 as f32;
-    let fraction = x - truncated;
-    if fraction >= 0.5 {
-        truncated + 1.0
-    } else if fraction <= -0.5 {
-        truncated - 1.0
-    } else {
-        truncated
+        out
     }
 }
 
@@ -95,62 +182,30 @@ pub(super) fn splat_head(
     surface: &HeadSurface,
     state: &[f32; DIMS],
 ) -> Vec<Vec<Vec<(usize, f32, f32)>>> {
+    const CHUNK: usize = 4096;
+    const _: () = assert!(CHUNK.is_multiple_of(SPLAT_LANES));
     let splatter = Splatter::new(config, state);
     let bands = (config.height as usize).div_ceil(BAND_ROWS);
     let row_len = config.width as usize;
-    surface
-        .samples
-        .par_chunks(4096)
-        .map(|chunk| {
+    (0..surface.len())
+        .step_by(CHUNK)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|start| {
             let mut by_band = vec![Vec::new(); bands];
-            for splat in chunk.iter().filter_map(|s| splatter.splat(s)) {
-                by_band[splat.0 / row_len / BAND_ROWS].push(splat);
+            let end = (start + CHUNK).min(surface.len());
+            for first in (start..end).step_by(SPLAT_LANES) {
+                let splats = splatter.splat_lanes(surface, first);
+                for l in (0..SPLAT_LANES).filter(|&l| splats.valid[l]) {
+                    let pixel = splats.pixel[l] as usize;
+                    by_band[pixel / row_len / BAND_ROWS].push((
+                        pixel,
+                        splats.depth[l],
+                        splats.value[l],
+                    ));
+                }
             }
             by_band
         })
         .collect()
-}
-
-#[cfg(test)]
-mod rounding_tests {
-    use super::round_half_away;
-    use proptest::prelude::*;
-
-    #[test]
-    fn rounds_as_round_at_the_edges() {
-        let edges = [
-            0.0f32,
-            -0.0,
-            0.5,
-            -0.5,
-            1.5,
-            -1.5,
-            2.5,
-            0.499_999_97,
-            -0.499_999_97,
-            1023.5,
-            767.49994,
-            8_388_607.5,
-            -8_388_607.5,
-            8_388_608.0,
-            16_777_217.0,
-            3.4e38,
-            -3.4e38,
-            f32::MIN_POSITIVE,
-            f32::INFINITY,
-            f32::NEG_INFINITY,
-        ];
-        for x in edges {
-            assert_eq!(round_half_away(x), x.round(), "{x}");
-        }
-        assert!(round_half_away(f32::NAN).is_nan());
-    }
-
-    proptest! {
-        #[test]
-        fn rounds_as_round(x in prop::num::f32::NORMAL | prop::num::f32::SUBNORMAL | prop::num::f32::ZERO, pixel in -100.0f32..2100.0) {
-            prop_assert_eq!(round_half_away(x), x.round());
-            prop_assert_eq!(round_half_away(pixel), pixel.round());
-        }
-    }
 }
