@@ -19,7 +19,7 @@ use crate::model::FaceModel;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
 
 mod splat;
-use splat::{BAND_ROWS, HeadSurface, SPLAT_LANES, Splatter, SurfaceSample, splat_head};
+use splat::{BAND_ROWS, HeadSurface, Splatter, SurfaceSample, splat_head};
 
 /// How a synthetic video is made.
 #[derive(Debug, Clone, PartialEq)]
@@ -421,16 +421,12 @@ impl FaceVideoRenderer {
             depth.resize(data.len(), f32::NEG_INFINITY);
             for (state, surface) in heads {
                 let splatter = Splatter::new(config, state);
-                for first in (0..surface.len()).step_by(SPLAT_LANES) {
-                    let splats = splatter.splat_lanes(surface, first);
-                    for l in 0..SPLAT_LANES {
-                        let idx = splats.pixel[l] as usize;
-                        if splats.valid[l] && splats.depth[l] > depth[idx] {
-                            depth[idx] = splats.depth[l];
-                            data[idx] = splats.value[l];
-                        }
+                splatter.splat(surface, 0..surface.len(), |idx, z, value| {
+                    if z > depth[idx] {
+                        depth[idx] = z;
+                        data[idx] = value;
                     }
-                }
+                });
             }
             if config.occlusion && config.frames >= 3 {
                 draw_occluder(config, frame, data);

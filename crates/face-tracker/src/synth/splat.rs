@@ -69,11 +69,11 @@ impl HeadSurface {
 /// Where [`SPLAT_LANES`] samples land: the pixel index, the depth towards the camera and the
 /// shaded albedo of each, and whether it lands at all (faces the camera, inside the frame, not
 /// padding).
-pub(super) struct LaneSplats {
-    pub pixel: [u32; SPLAT_LANES],
-    pub depth: [f32; SPLAT_LANES],
-    pub value: [f32; SPLAT_LANES],
-    pub valid: [bool; SPLAT_LANES],
+struct LaneSplats {
+    pixel: [u32; SPLAT_LANES],
+    depth: [f32; SPLAT_LANES],
+    value: [f32; SPLAT_LANES],
+    valid: [bool; SPLAT_LANES],
 }
 
 /// Where a head's surface samples land in a frame, for one pose.
@@ -113,10 +113,59 @@ impl Splatter {
         }
     }
 
+    /// Calls `land(pixel, depth, value)` for every sample of `samples` (a range of `surface`
+    /// that starts at a multiple of [`SPLAT_LANES`]) that lands, in sample order: with AVX2's
+    /// 8-wide registers where the CPU has them (the same values: the instructions differ, the
+    /// arithmetic does not).
+    pub(super) fn splat(
+        &self,
+        surface: &HeadSurface,
+        samples: std::ops::Range<usize>,
+        mut land: impl FnMut(usize, f32, f32),
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2, detected just above.
+            unsafe { self.splat_avx2(surface, samples, &mut land) };
+            return;
+        }
+        self.splat_all(surface, samples, &mut land);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn splat_avx2(
+        &self,
+        surface: &HeadSurface,
+        samples: std::ops::Range<usize>,
+        land: &mut impl FnMut(usize, f32, f32),
+    ) {
+        self.splat_all(surface, samples, land);
+    }
+
+    /// [`Splatter::splat`] for the target it is inlined into.
+    #[inline(always)]
+    fn splat_all(
+        &self,
+        surface: &HeadSurface,
+        samples: std::ops::Range<usize>,
+        land: &mut impl FnMut(usize, f32, f32),
+    ) {
+        for first in samples.step_by(SPLAT_LANES) {
+            let splats = self.splat_lanes(surface, first);
+            for l in 0..SPLAT_LANES {
+                if splats.valid[l] {
+                    land(splats.pixel[l] as usize, splats.depth[l], splats.value[l]);
+                }
+            }
+        }
+    }
+
     /// The splats of samples `first..first + SPLAT_LANES` of `surface` (`first` a multiple of
     /// [`SPLAT_LANES`]). A sample lands on its nearest pixel when its rotated normal faces the
     /// camera; Lambert shading under a fixed light.
-    pub(super) fn splat_lanes(&self, surface: &HeadSurface, first: usize) -> LaneSplats {
+    #[inline(always)]
+    fn splat_lanes(&self, surface: &HeadSurface, first: usize) -> LaneSplats {
         let r = &self.rotation;
         let (u, v, h) = (
             lanes(&surface.u, first),
@@ -194,17 +243,9 @@ pub(super) fn splat_head(
         .map(|start| {
             let mut by_band = vec![Vec::new(); bands];
             let end = (start + CHUNK).min(surface.len());
-            for first in (start..end).step_by(SPLAT_LANES) {
-                let splats = splatter.splat_lanes(surface, first);
-                for l in (0..SPLAT_LANES).filter(|&l| splats.valid[l]) {
-                    let pixel = splats.pixel[l] as usize;
-                    by_band[pixel / row_len / BAND_ROWS].push((
-                        pixel,
-                        splats.depth[l],
-                        splats.value[l],
-                    ));
-                }
-            }
+            splatter.splat(surface, start..end, |pixel, depth, value| {
+                by_band[pixel / row_len / BAND_ROWS].push((pixel, depth, value));
+            });
             by_band
         })
         .collect()
