@@ -5,9 +5,11 @@
 //! likelihood stage alone, one face, so the paper's per-face dispatch; for Fig. 7 the tracker's
 //! whole step, all faces weighed in one dispatch of the packed kernel; set
 //! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout). `face_step_over_gpus`:
-//! 64 and 256 faces split over every GPU against one GPU (where there are two or more).
+//! 64, 256 and 1 024 faces on one GPU and split over every GPU (where there are two or more),
+//! one frame at a time and with two frames in flight.
 //! GPU times include the submission, the wait and the readback. Fig. 6 also times the plain C
-//! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick.
+//! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick,
+//! and the one-thread reference built without AVX2.
 
 #[path = "baseline/mod.rs"]
 mod baseline;
