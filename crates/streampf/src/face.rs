@@ -34,8 +34,11 @@ use std::sync::Arc;
 use crate::annotated::Annotated;
 use crate::face_io::{FrameRead, ReadAhead, Source};
 use crate::face_overlay::{ColourFrames, FaceOverlay};
+
+mod in_flight;
 use crate::recording::{FaceClouds, FaceFrame, Recording};
 use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
+use in_flight::InFlight;
 
 #[derive(Debug, Subcommand)]
 pub enum FaceCommand {
@@ -803,32 +806,54 @@ impl FaceRun<'_> {
         frames_known: Option<usize>,
     ) -> LoopEnd {
         let bar = crate::body::progress_bar(frames_known.unwrap_or(0), self.args.quiet);
+        let mut stream = InFlight::for_run(runner, self.args);
         let mut next = FrameRead::Frame(first);
+        // The frame `next` holds: frames in flight are read but not yet written.
+        let mut frame = 0;
         let end = loop {
-            let frame = self.frames;
+            // Each error names its frame (with frames in flight, the one that failed).
+            let in_this_frame = |e: anyhow::Error| e.context(format!("frame {frame}"));
             let result = match next {
                 FrameRead::End => break LoopEnd::Done,
-                FrameRead::Frame(image) => self.track_one(runner, frame, &image),
-                FrameRead::Unreadable(e) => self.skip_one(frame, e),
+                FrameRead::Frame(image) => match stream.as_mut() {
+                    Some(in_flight) => self.submit_one(runner, in_flight, frame, image, &bar),
+                    None => (self.track_one(runner, frame, &image))
+                        .map(|()| self.written(&bar))
+                        .map_err(in_this_frame),
+                },
+                FrameRead::Unreadable(e) => (self.finish_in_flight(runner, stream.as_mut(), &bar))
+                    .and_then(|()| self.skip_one(frame, e).map_err(in_this_frame))
+                    .map(|()| self.written(&bar)),
             };
             if let Err(e) = result {
-                break LoopEnd::Failed(e.context(format!("frame {frame}")));
+                break LoopEnd::Failed(e);
             }
-            self.frames += 1;
-            bar.inc(1);
+            frame += 1;
             if run_output::stop_requested() {
                 break LoopEnd::Interrupted;
             }
-            if self.frames >= limit {
+            if frame >= limit {
                 break LoopEnd::Done;
             }
             next = match source.read_next() {
                 Ok(read) => read,
-                Err(e) => break LoopEnd::Failed(e.context(format!("frame {}", self.frames))),
+                Err(e) => break LoopEnd::Failed(e.context(format!("frame {frame}"))),
             };
+        };
+        // The frames still in flight are finished and written however the loop ended: a
+        // failure loses only what cannot be finished.
+        let end = match (self.finish_in_flight(runner, stream.as_mut(), &bar), end) {
+            (Err(e), LoopEnd::Done | LoopEnd::Interrupted) => LoopEnd::Failed(e),
+            (_, end) => end,
         };
         bar.finish_and_clear();
         end
+    }
+
+    /// One more frame written (tracked or skipped).
+    fn written(&mut self, bar: &indicatif::ProgressBar) {
+        self.frames += 1;
+        bar.inc(1);
     }
 
     fn track_one(
@@ -841,6 +866,19 @@ impl FaceRun<'_> {
         let step_started = Instant::now();
         let (estimates, detections) = runner.step(image)?;
         self.record.tracking_time += step_started.elapsed().as_secs_f64();
+        self.write_frame(runner, frame, image, estimates, detections)
+    }
+
+    /// Writes a tracked frame's results: states (and errors, landmarks), particles, the
+    /// recording and the overlay.
+    fn write_frame(
+        &mut self,
+        runner: &Runner,
+        frame: usize,
+        image: &GrayImage,
+        estimates: Vec<FaceEstimate>,
+        detections: Vec<(usize, FaceRect, bool)>,
+    ) -> anyhow::Result<()> {
         let replayed = frame < self.resume_from;
         if let Some(dir) = self.args.save_particles.as_ref().filter(|_| !replayed) {
             save_particles(dir, frame, runner.tracker(), &estimates).context("--save-particles")?;

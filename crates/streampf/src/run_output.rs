@@ -51,9 +51,9 @@ pub fn stop_requested() -> bool {
 }
 
 /// The environment variable that loses the GPU on purpose before frame N of a `face track` or
-/// `body track` run (`STREAMPF_SIMULATE_GPU_FAULT_AT=N`), through wgpu's device-lost path: the
-/// tests' way to check that a GPU fault ends a run with a clear error and every earlier frame
-/// written.
+/// `body track` run is stepped (`STREAMPF_SIMULATE_GPU_FAULT_AT=N`; with frames in flight,
+/// before frame N is read back), through wgpu's device-lost path: the tests' way to check that
+/// a GPU fault ends a run with a clear error and every earlier frame written.
 pub const SIMULATE_GPU_FAULT_ENV: &str = "STREAMPF_SIMULATE_GPU_FAULT_AT";
 
 /// Loses `ctx`'s device when `frame` is the one [`SIMULATE_GPU_FAULT_ENV`] names.

@@ -386,3 +386,70 @@ fn software_only_adapters_are_explained_in_the_command_lines_words() {
         assert!(ok(&auto).contains("tracked 1 face"));
     }
 }
+
+/// On a GPU, faces from rectangles run with two frames in flight; `--save-particles` reads the
+/// particles every frame, so it steps one frame at a time. Both write the same states, errors
+/// and overlay frames, byte for byte.
+#[test]
+fn frames_in_flight_write_what_one_frame_at_a_time_writes() {
+    let run = |name: &str, extra: &[&str]| {
+        let out = scratch(name);
+        let (o, overlay) = (out.join("out"), out.join("overlay"));
+        let mut args = vec![
+            "face",
+            "track",
+            "--synthetic",
+            "--particles",
+            "100",
+            "--backend",
+            "gpu",
+            "--allow-software",
+            "--quiet",
+            "--out",
+            o.to_str().unwrap(),
+            "--overlay",
+            overlay.to_str().unwrap(),
+        ];
+        args.extend(SMALL);
+        args.extend(extra);
+        (streampf(&args), out)
+    };
+    let (streamed, streamed_dir) = run("in-flight", &[]);
+    if !streamed.status.success() && failure(&streamed).contains("no GPU adapter was found") {
+        assert!(
+            std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
+            "this test needs a GPU adapter (or Mesa's lavapipe); set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly"
+        );
+        eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
+        return;
+    }
+    ok(&streamed);
+    let particles = scratch("in-flight-particles");
+    let (alone, alone_dir) = run(
+        "one-at-a-time",
+        &["--save-particles", particles.to_str().unwrap()],
+    );
+    ok(&alone);
+    let read = |dir: &std::path::Path, file: &str| std::fs::read(dir.join(file)).unwrap();
+    for file in ["out/states.csv", "out/errors.csv"] {
+        assert_eq!(read(&streamed_dir, file), read(&alone_dir, file), "{file}");
+    }
+    assert_eq!(
+        String::from_utf8(read(&streamed_dir, "out/states.csv"))
+            .unwrap()
+            .lines()
+            .count(),
+        1 + 8 * 2
+    );
+    for frame in 0..8 {
+        let file = format!("overlay/overlay_{frame:05}.png");
+        assert_eq!(
+            read(&streamed_dir, &file),
+            read(&alone_dir, &file),
+            "{file}"
+        );
+    }
+    for dir in [streamed_dir, alone_dir, particles] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+}
