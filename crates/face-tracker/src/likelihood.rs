@@ -210,7 +210,8 @@ pub const LANES: usize = 8;
 
 /// ε of [`LANES`] particles at once, bit for bit [`residual_error`]'s: each template point is
 /// loaded once for all of them and the arithmetic runs without branches, so that the compiler
-/// keeps the lanes in vector registers (the pixel reads stay scalar). This is the CPU path's whole
+/// keeps the lanes in vector registers (the pixel reads are scalar here; the AVX2 build of
+/// [`residual_errors_of`] gathers them). This is the CPU path's whole
 /// cost: 5 layers × 4 000 particles × ~230 points a frame at the defaults.
 #[inline(always)]
 pub fn residual_errors(
