@@ -5,6 +5,7 @@
 //!   angles (`poses.csv`) and joint positions (`joints.csv`), and, when the ground truth is known,
 //!   the per-frame mean joint position error (`errors.csv`) and its mean.
 
+use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -17,7 +18,7 @@ use body_tracker::sequence::{
 use body_tracker::skeleton::ROOT_DOFS;
 use body_tracker::synth::{Motion, SynthConfig, pose_at, render};
 use body_tracker::{
-    Backend, BodyTracker, PreparedFrame, Skeleton, TrackerConfig, mean_joint_error,
+    Backend, BodyTracker, FrameResult, PreparedFrame, Skeleton, TrackerConfig, mean_joint_error,
 };
 use clap::{Args, Subcommand, ValueEnum};
 use nalgebra::Vector3;
@@ -515,6 +516,11 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             }
         });
         let mut first = Some(first);
+        // Two frames in flight on one GPU (the GPU steps frame t + 1 while frame t is read back
+        // and written) where nothing reads the particles between frames; the same results.
+        let streaming =
+            tracker.gpu_context().is_some() && args.save_particles.is_none() && recording.is_none();
+        let mut in_flight: VecDeque<(usize, Vec<Vector3<f32>>)> = VecDeque::new();
         for frame in 0..frames {
             let points = if let Some(first) = first.take() {
                 first
@@ -526,6 +532,25 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 })
             };
             let result = match points {
+                // Each error names its frame (with frames in flight, the one that failed).
+                Ok((points, prepared)) if streaming => tracker
+                    .submit_prepared(prepared)
+                    .with_context(|| format!("frame {frame}"))
+                    .and_then(|()| {
+                        in_flight.push_back((frame, points));
+                        if in_flight.len() < MAX_BODY_FRAMES_IN_FLIGHT {
+                            return Ok(());
+                        }
+                        run.finish_oldest(
+                            &mut in_flight,
+                            overlay.as_mut(),
+                            &mut tracker,
+                            skeleton,
+                            &mut files,
+                            resume_from,
+                            truth.as_deref(),
+                        )
+                    }),
                 Ok((points, prepared)) => {
                     let save = args
                         .save_particles
@@ -542,27 +567,66 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                         (&points, &prepared),
                         truth.as_deref(),
                     )
+                    .map_err(|e| e.context(format!("frame {frame}")))
                 }
-                Err(e) if args.strict => Err(e.context("unreadable frame (--strict)")),
+                Err(e) if args.strict => Err(e
+                    .context("unreadable frame (--strict)")
+                    .context(format!("frame {frame}"))),
                 // A generated frame that fails is a bug or a bad setting, not a frame to skip.
-                Err(e) if matches!(source, Source::Synthetic(_)) => Err(e),
-                Err(e) => run
-                    .skip_one(frame, e)
-                    .and_then(|()| match overlay.as_mut() {
-                        Some(overlay) => overlay.skip(frame),
-                        None => Ok(()),
-                    }),
+                Err(e) if matches!(source, Source::Synthetic(_)) => {
+                    Err(e.context(format!("frame {frame}")))
+                }
+                Err(e) => {
+                    let mut finished = Ok(());
+                    while finished.is_ok() && !in_flight.is_empty() {
+                        finished = run.finish_oldest(
+                            &mut in_flight,
+                            overlay.as_mut(),
+                            &mut tracker,
+                            skeleton,
+                            &mut files,
+                            resume_from,
+                            truth.as_deref(),
+                        );
+                    }
+                    finished.and_then(|()| {
+                        run.skip_one(frame, e)
+                            .and_then(|()| match overlay.as_mut() {
+                                Some(overlay) => overlay.skip(frame),
+                                None => Ok(()),
+                            })
+                            .map_err(|e| e.context(format!("frame {frame}")))
+                    })
+                }
             };
             if let Err(e) = result {
-                end = LoopEnd::Failed(e.context(format!("frame {frame}")));
+                end = LoopEnd::Failed(e);
                 break;
             }
             if let Some(error) = run.errors.last() {
                 bar.set_message(format!("joint error {:.1} cm", 100.0 * error));
             }
-            bar.inc(1);
+            bar.set_position(run.frames as u64);
             if run_output::stop_requested() {
                 end = LoopEnd::Interrupted;
+                break;
+            }
+        }
+        // The frames still in flight are finished and written however the loop ended: a
+        // failure loses only what cannot be finished.
+        while !in_flight.is_empty() {
+            if let Err(e) = run.finish_oldest(
+                &mut in_flight,
+                overlay.as_mut(),
+                &mut tracker,
+                skeleton,
+                &mut files,
+                resume_from,
+                truth.as_deref(),
+            ) {
+                if !matches!(end, LoopEnd::Failed(_)) {
+                    end = LoopEnd::Failed(e);
+                }
                 break;
             }
         }
@@ -591,6 +655,9 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         ))),
     }
 }
+
+/// The most frames a body run keeps in flight on its GPU (`BodyTracker::submit_prepared`).
+const MAX_BODY_FRAMES_IN_FLIGHT: usize = 2;
 
 const POSES_FILE: &str = "poses.csv";
 const JOINTS_FILE: &str = "joints.csv";
@@ -697,6 +764,60 @@ impl BodyRun {
         let step_started = Instant::now();
         let result = tracker.step_prepared(prepared)?;
         self.tracking_time += step_started.elapsed().as_secs_f64();
+        let outputs = (save_particles, (overlay, recording));
+        self.write_frame(
+            outputs, tracker, skeleton, files, frame, points, result, truth,
+        )
+    }
+
+    /// Finishes the oldest of the frames in flight and writes it (see [`track`]).
+    #[allow(clippy::too_many_arguments)]
+    fn finish_oldest(
+        &mut self,
+        in_flight: &mut VecDeque<(usize, Vec<Vector3<f32>>)>,
+        overlay: Option<&mut BodyOverlay>,
+        tracker: &mut BodyTracker,
+        skeleton: &Skeleton,
+        files: &mut BodyFiles,
+        resume_from: usize,
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
+        let Some((frame, points)) = in_flight.pop_front() else {
+            return Ok(());
+        };
+        // A device fault (simulated for the tests) shows when a frame is read back.
+        run_output::maybe_simulate_gpu_fault(frame, tracker.gpu_context());
+        let started = Instant::now();
+        let finished = tracker.finish();
+        self.tracking_time += started.elapsed().as_secs_f64();
+        let result = finished
+            .with_context(|| format!("frame {frame}"))?
+            .with_context(|| format!("frame {frame} was not in flight"))?;
+        let overlay = overlay.filter(|_| frame >= resume_from);
+        let outputs = (None, (overlay, None));
+        self.write_frame(
+            outputs, tracker, skeleton, files, frame, &points, result, truth,
+        )
+        .with_context(|| format!("frame {frame}"))
+    }
+
+    /// Writes a tracked frame's results: the CSV rows, and the particles, the recording and the
+    /// overlay when asked for.
+    #[allow(clippy::too_many_arguments)]
+    fn write_frame(
+        &mut self,
+        (save_particles, (overlay, recording)): (
+            Option<&Path>,
+            (Option<&mut BodyOverlay>, Option<&Recording>),
+        ),
+        tracker: &mut BodyTracker,
+        skeleton: &Skeleton,
+        files: &mut BodyFiles,
+        frame: usize,
+        points: &[Vector3<f32>],
+        result: FrameResult,
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
         if let Some(dir) = save_particles {
             let (shape, states, log_weights) = tracker.particles()?;
             pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)

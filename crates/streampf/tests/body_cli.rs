@@ -235,23 +235,35 @@ fn bad_body_inputs_are_clear_errors() {
     std::fs::remove_dir_all(&data).unwrap();
 }
 
+/// On a GPU with no particles read back, a run keeps two frames in flight; `--save-particles`
+/// reads them every frame, so it steps one frame at a time. Both write the same files and
+/// overlay frames, byte for byte.
 #[test]
 fn track_synthetic_on_the_gpu() {
     let out = scratch("gpu");
-    let mut args = vec![
-        "body",
-        "track",
-        "--synthetic",
-        "--out",
-        out.to_str().unwrap(),
-        "--particles",
-        "200",
-        "--backend",
-        "gpu",
-        "--allow-software",
-    ];
-    args.extend(SMALL);
-    let result = streampf(&args);
+    let one_at_a_time = scratch("gpu-one-at-a-time");
+    let particles = scratch("gpu-particles");
+    let run = |out: &Path, extra: &[&str]| {
+        let overlay = out.join("overlay");
+        let mut args = vec![
+            "body",
+            "track",
+            "--synthetic",
+            "--out",
+            out.to_str().unwrap(),
+            "--overlay",
+            overlay.to_str().unwrap(),
+            "--particles",
+            "200",
+            "--backend",
+            "gpu",
+            "--allow-software",
+        ];
+        args.extend(SMALL);
+        args.extend(extra);
+        streampf(&args)
+    };
+    let result = run(&out, &[]);
     let err = String::from_utf8_lossy(&result.stderr);
     if !result.status.success() && err.contains("no GPU adapter was found") {
         assert!(
@@ -268,7 +280,22 @@ fn track_synthetic_on_the_gpu() {
         number_after(&text, "mean joint position error:") < 0.15,
         "{text}"
     );
-    std::fs::remove_dir_all(&out).unwrap();
+    ok(&run(
+        &one_at_a_time,
+        &["--save-particles", particles.to_str().unwrap()],
+    ));
+    let read = |dir: &Path, file: &str| std::fs::read(dir.join(file)).unwrap();
+    for file in ["poses.csv", "joints.csv", "errors.csv"] {
+        assert_eq!(read(&out, file), read(&one_at_a_time, file), "{file}");
+    }
+    assert_eq!(lines(&out.join("poses.csv")).len(), 1 + 6);
+    for frame in 0..6 {
+        let file = format!("overlay/overlay_{frame:05}.png");
+        assert_eq!(read(&out, &file), read(&one_at_a_time, &file), "{file}");
+    }
+    for dir in [out, one_at_a_time, particles] {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
 }
 
 #[test]
