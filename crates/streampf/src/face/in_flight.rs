@@ -88,6 +88,7 @@ impl FaceRun<'_> {
         let started = Instant::now();
         let finished = tracker(runner)?.finish();
         self.record.tracking_time += started.elapsed().as_secs_f64();
+        self.record.gpu_time += super::gpu_seconds(runner.tracker().last_gpu_time());
         let estimates = finished
             .with_context(|| format!("frame {frame}"))?
             .with_context(|| format!("frame {frame} was not in flight"))?;
