@@ -576,28 +576,24 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 Err(e) if matches!(source, Source::Synthetic(_)) => {
                     Err(e.context(format!("frame {frame}")))
                 }
-                Err(e) => {
-                    let mut finished = Ok(());
-                    while finished.is_ok() && !in_flight.is_empty() {
-                        finished = run.finish_oldest(
-                            &mut in_flight,
-                            overlay.as_mut(),
-                            &mut tracker,
-                            skeleton,
-                            &mut files,
-                            resume_from,
-                            truth.as_deref(),
-                        );
-                    }
-                    finished.and_then(|()| {
+                Err(e) => run
+                    .finish_in_flight(
+                        &mut in_flight,
+                        overlay.as_mut(),
+                        &mut tracker,
+                        skeleton,
+                        &mut files,
+                        resume_from,
+                        truth.as_deref(),
+                    )
+                    .and_then(|()| {
                         run.skip_one(frame, e)
                             .and_then(|()| match overlay.as_mut() {
                                 Some(overlay) => overlay.skip(frame),
                                 None => Ok(()),
                             })
                             .map_err(|e| e.context(format!("frame {frame}")))
-                    })
-                }
+                    }),
             };
             if let Err(e) = result {
                 end = LoopEnd::Failed(e);
@@ -612,23 +608,20 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
                 break;
             }
         }
-        // The frames still in flight are finished and written however the loop ended: a
-        // failure loses only what cannot be finished.
-        while !in_flight.is_empty() {
-            if let Err(e) = run.finish_oldest(
-                &mut in_flight,
-                overlay.as_mut(),
-                &mut tracker,
-                skeleton,
-                &mut files,
-                resume_from,
-                truth.as_deref(),
-            ) {
-                if !matches!(end, LoopEnd::Failed(_)) {
-                    end = LoopEnd::Failed(e);
-                }
-                break;
-            }
+        // The frames still in flight are finished and written however the loop ended (after a
+        // frame that failed to finish, none are left): a failure loses only what cannot be
+        // finished.
+        let finished = run.finish_in_flight(
+            &mut in_flight,
+            overlay.as_mut(),
+            &mut tracker,
+            skeleton,
+            &mut files,
+            resume_from,
+            truth.as_deref(),
+        );
+        if let (Err(e), LoopEnd::Done | LoopEnd::Interrupted) = (finished, &end) {
+            end = LoopEnd::Failed(e);
         }
         // Dropping the receiver ends the reader at its next frame.
         drop(frames_ahead);
@@ -791,21 +784,52 @@ impl BodyRun {
         let Some((frame, points)) = in_flight.pop_front() else {
             return Ok(());
         };
-        // A device fault (simulated for the tests) shows when a frame is read back.
-        run_output::maybe_simulate_gpu_fault(frame, tracker.gpu_context());
-        let started = Instant::now();
-        let finished = tracker.finish();
-        self.tracking_time += started.elapsed().as_secs_f64();
-        self.gpu_time += crate::face::gpu_seconds(tracker.last_gpu_time());
-        let result = finished
-            .with_context(|| format!("frame {frame}"))?
-            .with_context(|| format!("frame {frame} was not in flight"))?;
-        let overlay = overlay.filter(|_| frame >= resume_from);
-        let outputs = (None, (overlay, None));
-        self.write_frame(
-            outputs, tracker, skeleton, files, frame, &points, result, truth,
-        )
-        .with_context(|| format!("frame {frame}"))
+        let finish_and_write = || -> anyhow::Result<()> {
+            // A device fault (simulated for the tests) shows when a frame is read back.
+            run_output::maybe_simulate_gpu_fault(frame, tracker.gpu_context());
+            let started = Instant::now();
+            let finished = tracker.finish();
+            self.tracking_time += started.elapsed().as_secs_f64();
+            self.gpu_time += crate::face::gpu_seconds(tracker.last_gpu_time());
+            let result = finished?.context("the frame was not in flight")?;
+            let overlay = overlay.filter(|_| frame >= resume_from);
+            let outputs = (None, (overlay, None));
+            self.write_frame(
+                outputs, tracker, skeleton, files, frame, &points, result, truth,
+            )
+        };
+        let written = finish_and_write().with_context(|| format!("frame {frame}"));
+        if written.is_err() {
+            // The frames after a failed one are not written: the files would have a gap.
+            in_flight.clear();
+        }
+        written
+    }
+
+    /// Finishes and writes every frame in flight, oldest first (none after one that fails).
+    #[allow(clippy::too_many_arguments)]
+    fn finish_in_flight(
+        &mut self,
+        in_flight: &mut VecDeque<(usize, Vec<Vector3<f32>>)>,
+        mut overlay: Option<&mut BodyOverlay>,
+        tracker: &mut BodyTracker,
+        skeleton: &Skeleton,
+        files: &mut BodyFiles,
+        resume_from: usize,
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
+        while !in_flight.is_empty() {
+            self.finish_oldest(
+                in_flight,
+                overlay.as_deref_mut(),
+                tracker,
+                skeleton,
+                files,
+                resume_from,
+                truth,
+            )?;
+        }
+        Ok(())
     }
 
     /// Writes a tracked frame's results: the CSV rows, and the particles, the recording and the

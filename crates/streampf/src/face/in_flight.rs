@@ -58,7 +58,7 @@ impl FaceRun<'_> {
         Ok(())
     }
 
-    /// Finishes and writes every frame in flight, oldest first.
+    /// Finishes and writes every frame in flight, oldest first (none after one that fails).
     pub(super) fn finish_in_flight(
         &mut self,
         runner: &mut Runner,
@@ -83,18 +83,22 @@ impl FaceRun<'_> {
         let Some((frame, image)) = in_flight.0.pop_front() else {
             return Ok(());
         };
-        // A device fault (simulated for the tests) shows when a frame is read back.
-        run_output::maybe_simulate_gpu_fault(frame, runner.tracker().gpu_context());
-        let started = Instant::now();
-        let finished = tracker(runner)?.finish();
-        self.record.tracking_time += started.elapsed().as_secs_f64();
-        self.record.gpu_time += super::gpu_seconds(runner.tracker().last_gpu_time());
-        let estimates = finished
-            .with_context(|| format!("frame {frame}"))?
-            .with_context(|| format!("frame {frame} was not in flight"))?;
-        self.write_frame(runner, frame, &image, estimates, Vec::new())
-            .with_context(|| format!("frame {frame}"))?;
-        self.written(bar);
-        Ok(())
+        let mut finish_and_write = || -> anyhow::Result<()> {
+            // A device fault (simulated for the tests) shows when a frame is read back.
+            run_output::maybe_simulate_gpu_fault(frame, runner.tracker().gpu_context());
+            let started = Instant::now();
+            let finished = tracker(runner)?.finish();
+            self.record.tracking_time += started.elapsed().as_secs_f64();
+            self.record.gpu_time += super::gpu_seconds(runner.tracker().last_gpu_time());
+            let estimates = finished?.context("the frame was not in flight")?;
+            self.write_frame(runner, frame, &image, estimates, Vec::new())
+        };
+        let written = finish_and_write().with_context(|| format!("frame {frame}"));
+        match written {
+            Ok(()) => self.written(bar),
+            // The frames after a failed one are not written: the files would have a gap.
+            Err(_) => in_flight.0.clear(),
+        }
+        written
     }
 }
