@@ -521,6 +521,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         let streaming =
             tracker.gpu_context().is_some() && args.save_particles.is_none() && recording.is_none();
         let mut in_flight: VecDeque<(usize, Vec<Vector3<f32>>)> = VecDeque::new();
+        run.frames_in_flight = streaming;
         for frame in 0..frames {
             let points = if let Some(first) = first.take() {
                 first
@@ -730,6 +731,8 @@ struct BodyRun {
     /// the longer of the two.
     tracking_time: f64,
     gpu_time: f64,
+    /// Whether the frames were tracked with two in flight.
+    frames_in_flight: bool,
 }
 
 impl BodyRun {
@@ -743,6 +746,7 @@ impl BodyRun {
             points_seen: 0,
             tracking_time: 0.0,
             gpu_time: 0.0,
+            frames_in_flight: false,
         })
     }
 
@@ -918,9 +922,14 @@ impl BodyRun {
     fn summary(&self, args: &TrackArgs, elapsed: f64) {
         let tracked = self.frames - self.skipped.frames.len();
         println!(
-            "tracked {tracked} frames ({:.0} points a frame) in {elapsed:.2} s: {:.1} frames/s in the tracker{}",
+            "tracked {tracked} frames ({:.0} points a frame) in {elapsed:.2} s: {:.1} frames/s in the tracker{}{}",
             self.points_seen as f64 / tracked.max(1) as f64,
             tracked as f64 / self.tracking_time.max(self.gpu_time).max(1e-9),
+            if self.frames_in_flight {
+                " (two frames in flight)"
+            } else {
+                ""
+            },
             self.skipped.note(),
         );
         if !self.errors.is_empty() {

@@ -812,6 +812,7 @@ impl FaceRun<'_> {
     ) -> LoopEnd {
         let bar = crate::body::progress_bar(frames_known.unwrap_or(0), self.args.quiet);
         let mut stream = InFlight::for_run(runner, self.args);
+        self.record.frames_in_flight = stream.is_some();
         let mut next = FrameRead::Frame(first);
         // The frame `next` holds: frames in flight are read but not yet written.
         let mut frame = 0;
@@ -1139,6 +1140,8 @@ struct TrackRecord {
     /// tracker's time is the longer of the two.
     tracking_time: f64,
     gpu_time: f64,
+    /// Whether the frames were tracked with two in flight (`face/in_flight.rs`).
+    frames_in_flight: bool,
     /// Frames per second of the input: a row's timestamp is its frame / this.
     fps: f64,
 }
@@ -1262,6 +1265,7 @@ impl TrackRecord {
             },
             tracking_time: 0.0,
             gpu_time: 0.0,
+            frames_in_flight: false,
         })
     }
 
@@ -1332,9 +1336,14 @@ impl TrackRecord {
     ) {
         let faces = self.tracks_seen.len();
         println!(
-            "tracked {faces} face{} through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker, {:.1} frames/s with reading{}{}",
+            "tracked {faces} face{} through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker{}, {:.1} frames/s with reading{}{}",
             if faces == 1 { "" } else { "s" },
             frames as f64 / self.tracking_time.max(self.gpu_time).max(1e-9),
+            if self.frames_in_flight {
+                " (two frames in flight)"
+            } else {
+                ""
+            },
             frames as f64 / elapsed.max(1e-9),
             if args.overlay.as_deref().is_some() {
                 " and drawing"

@@ -276,14 +276,16 @@ fn track_synthetic_on_the_gpu() {
     }
     let text = ok(&result);
     assert!(text.contains("on GPU: "), "{text}");
+    assert!(text.contains("(two frames in flight)"), "{text}");
     assert!(
         number_after(&text, "mean joint position error:") < 0.15,
         "{text}"
     );
-    ok(&run(
+    let alone = ok(&run(
         &one_at_a_time,
         &["--save-particles", particles.to_str().unwrap()],
     ));
+    assert!(!alone.contains("in flight"), "{alone}");
     let read = |dir: &Path, file: &str| std::fs::read(dir.join(file)).unwrap();
     for file in ["poses.csv", "joints.csv", "errors.csv"] {
         assert_eq!(read(&out, file), read(&one_at_a_time, file), "{file}");

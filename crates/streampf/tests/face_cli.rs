@@ -423,13 +423,13 @@ fn frames_in_flight_write_what_one_frame_at_a_time_writes() {
         eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
         return;
     }
-    ok(&streamed);
+    assert!(ok(&streamed).contains("(two frames in flight)"));
     let particles = scratch("in-flight-particles");
     let (alone, alone_dir) = run(
         "one-at-a-time",
         &["--save-particles", particles.to_str().unwrap()],
     );
-    ok(&alone);
+    assert!(!ok(&alone).contains("in flight"));
     let read = |dir: &std::path::Path, file: &str| std::fs::read(dir.join(file)).unwrap();
     for file in ["out/states.csv", "out/errors.csv"] {
         assert_eq!(read(&streamed_dir, file), read(&alone_dir, file), "{file}");
