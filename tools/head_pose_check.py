@@ -1,29 +1,42 @@
 #!/usr/bin/env python3
 """Checks the face tracker's head pose on a real video against an independent per-frame estimate.
 
-The reference knows nothing of the tracker: dlib's face detector and 68-landmark model, then
-OpenCV's solvePnP (SQPnP) with a generic six-point 3D face (nose tip, chin, the eyes' outer
-corners, the mouth's corners) and a pinhole camera whose focal length is the frame's width. Its
-rotation is split as the tracker's is, R = Rx(pitch)·Ry(yaw)·Rz(roll). OpenCV's camera looks along
-+z; the tracker's model frame has z towards the camera, which mirrors z and so negates pitch and
-yaw (S·R·S with S = diag(1, 1, −1)): the reference's pitch and yaw are negated to compare.
+Two references, neither of which knows anything of the tracker:
 
-For each track of the tracker's states.csv, frames where a detected face's centre lies within a
+- `mesh` (the default): MediaPipe's Face Mesh (0.10.14, the last release that bundles its models),
+  run on every frame on its own (static image mode). It places 468 landmarks in 3D on each face,
+  its depth learned from 3D face data. Each face's rotation is the rigid rotation (Kabsch) that
+  best takes the clip's mean mesh (a generalised Procrustes mean over every face found) onto
+  that face's mesh. Angles are thus relative to the clip's mean head pose.
+- `six-point`: dlib's face detector and 68 landmarks, then OpenCV's solvePnP (SQPnP) with a
+  generic six-point 3D face (nose tip, chin, the eyes' outer corners, the mouth's corners) and a
+  pinhole camera whose focal length is the frame's width. Kept for comparison: it reads yaw two
+  to four times as large as the mesh does (docs/ACCURACY.md says why: its six points do not fit a
+  real face's proportions, and its nose stands out less than a real one).
+
+Both rotations are split as the tracker's is, R = Rx(pitch)·Ry(yaw)·Rz(roll), in the tracker's
+frame (x right, y down, z towards the camera). OpenCV's camera looks along +z, which mirrors z and
+so negates pitch and yaw (S·R·S with S = diag(1, 1, −1)): the six-point reference's pitch and yaw
+are negated to compare. The mesh's z (smaller nearer the camera) is negated as it is read.
+
+For each track of the tracker's states.csv, frames where a reference face's centre lies within a
 quarter of the face's width of the track's centre are paired. Per axis the check reports the
 Pearson correlation r, the ratio of the tracker's spread to the reference's (sd ratio) and the
-mean absolute difference after removing each series' mean (an offset between the generic 3D face
-and the tracker's face model is expected and is not an error).
+mean absolute difference after removing each series' mean (an offset between the reference's
+frontal pose and the tracker's, whose angles are relative to the pose at its template, is
+expected and is not an error).
 
-The reference's landmarks jitter from frame to frame (on a 176x144 clip its yaw by about 5 degrees,
-sd of its difference from a 5-frame running median), which caps r on small motions. `--smooth N`
+A reference's landmarks jitter from frame to frame, which caps r on small motions. `--smooth N`
 also compares against the reference's running median over N frames (centred, paired frames only):
 the slow head motion that a tracker should follow.
 
-    python3 tools/head_pose_check.py VIDEO STATES_CSV [--json OUT.json] [--min-frames 30]
-        [--max-frames N] [--smooth 5]
+    python3 tools/head_pose_check.py VIDEO STATES_CSV [--reference mesh|six-point]
+        [--json OUT.json] [--min-frames 30] [--max-frames N] [--smooth 5]
 
-Needs numpy, opencv-python and dlib (installed by `cargo xtask fetch-media`) and dlib's model at
-/usr/share/dlib/shape_predictor_68_face_landmarks.dat (Debian's libdlib-data).
+The mesh needs mediapipe==0.10.14 and the six-point reference dlib and its model at
+/usr/share/dlib/shape_predictor_68_face_landmarks.dat (Debian's libdlib-data); both need numpy and
+OpenCV. `cargo xtask fetch-media` puts them in target/media/pose-venv: run the check with
+target/media/pose-venv/bin/python3.
 """
 
 import argparse
@@ -33,7 +46,6 @@ import math
 import sys
 
 import cv2
-import dlib
 import numpy as np
 
 PREDICTOR = "/usr/share/dlib/shape_predictor_68_face_landmarks.dat"
@@ -64,18 +76,73 @@ def angles_xyz(rotation):
     return tuple(math.degrees(a) for a in (rx, ry, rz))
 
 
-def reference_poses(video, max_frames=None):
-    """Per frame, a list of (centre_x, centre_y, width, (pitch, yaw, roll)) for each face found."""
-    detector = dlib.get_frontal_face_detector()
-    predictor = dlib.shape_predictor(PREDICTOR)
+def frames_of(video, max_frames=None):
+    """The video's frames (BGR), the first `max_frames` of them when given."""
     capture = cv2.VideoCapture(video)
     if not capture.isOpened():
         sys.exit(f"cannot open {video}")
-    frames = []
-    while max_frames is None or len(frames) < max_frames:
+    count = 0
+    while max_frames is None or count < max_frames:
         ok, image = capture.read()
         if not ok:
-            break
+            return
+        count += 1
+        yield image
+
+
+def kabsch(points, model):
+    """The rotation R that best takes `model` onto `points` (both centred; rows are points):
+    points ≈ model·Rᵀ."""
+    u, _, vt = np.linalg.svd(model.T @ points)
+    d = np.sign(np.linalg.det(vt.T @ u.T))
+    return vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+
+
+def mesh_reference(video, max_frames=None):
+    """Per frame, (centre_x, centre_y, width, (pitch, yaw, roll)) for each face MediaPipe's Face
+    Mesh finds: the rotation from the clip's mean mesh to the face's mesh."""
+    import mediapipe
+
+    mesh = mediapipe.solutions.face_mesh.FaceMesh(static_image_mode=True, max_num_faces=8)
+    meshes = []
+    for image in frames_of(video, max_frames):
+        height, width = image.shape[:2]
+        found = mesh.process(cv2.cvtColor(image, cv2.COLOR_BGR2RGB)).multi_face_landmarks or []
+        # Pixels, with z towards the camera (MediaPipe's z grows away from it, in x's scale).
+        meshes.append(
+            [
+                np.array([(p.x * width, p.y * height, -p.z * width) for p in face.landmark])
+                for face in found
+            ]
+        )
+    centred = [face - face.mean(axis=0) for faces in meshes for face in faces]
+    if not centred:
+        sys.exit(f"MediaPipe's Face Mesh found no face in {video}")
+    # The generalised Procrustes mean: align every mesh to the current mean, average, repeat.
+    mean = centred[0]
+    for _ in range(3):
+        mean = np.mean([face @ kabsch(face, mean) for face in centred], axis=0)
+    return [
+        [
+            (
+                *face[:, :2].mean(axis=0),
+                np.ptp(face[:, 0]),
+                angles_xyz(kabsch(face - face.mean(axis=0), mean)),
+            )
+            for face in faces
+        ]
+        for faces in meshes
+    ]
+
+
+def six_point_reference(video, max_frames=None):
+    """Per frame, a list of (centre_x, centre_y, width, (pitch, yaw, roll)) for each face found."""
+    import dlib
+
+    detector = dlib.get_frontal_face_detector()
+    predictor = dlib.shape_predictor(PREDICTOR)
+    frames = []
+    for image in frames_of(video, max_frames):
         gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
         height, width = gray.shape
         camera = np.array(
@@ -142,6 +209,12 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("video")
     parser.add_argument("states_csv")
+    parser.add_argument(
+        "--reference",
+        choices=("mesh", "six-point"),
+        default="mesh",
+        help="the independent estimate to compare with (see above)",
+    )
     parser.add_argument("--json", help="write the results here too")
     parser.add_argument("--min-frames", type=int, default=30)
     parser.add_argument("--max-frames", type=int, help="read only the first N frames")
@@ -149,7 +222,8 @@ def main():
         "--smooth", type=int, default=1, help="also compare with the reference's N-frame median"
     )
     args = parser.parse_args()
-    reference = reference_poses(args.video, args.max_frames)
+    poses = mesh_reference if args.reference == "mesh" else six_point_reference
+    reference = poses(args.video, args.max_frames)
     results = {}
     for track, rows in sorted(tracker_rows(args.states_csv).items()):
         pairs = []
@@ -182,7 +256,9 @@ def main():
     if not results:
         sys.exit(f"no track had {args.min_frames} frames paired with the reference")
     for track, result in results.items():
-        print(f"track {track}: {result['frames']} frames paired with the reference")
+        print(
+            f"track {track}: {result['frames']} frames paired with the {args.reference} reference"
+        )
         print_axes(result)
         if "smoothed" in result:
             jitter = result["smoothed"]["reference_jitter_sd_deg"]

