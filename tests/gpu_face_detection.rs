@@ -121,8 +121,9 @@ fn gpu_detector_finds_the_synthetic_faces_and_reuses_its_buffers_across_sizes() 
         &cascade.detect(&large, &config).unwrap(),
         "1024x768",
     );
-    // Three of the four heads are frontal enough at frame 0 for the cascade (the CPU agrees).
-    assert!(large_faces.len() >= 3, "{large_faces:?}");
+    // Two of the four heads are frontal enough at frame 0 for the cascade (the CPU agrees; three
+    // were before the generic head's nose was made as deep as a real one's: its shading moved).
+    assert!(large_faces.len() >= 2, "{large_faces:?}");
     let small_hits = gpu.window_hits(&small, &config).unwrap();
     assert!(differing_hits(&small_hits, &cascade.window_hits(&small, &config).unwrap()) <= 2);
     // Back to the first size (new buffers again), and a repeat: the same hits each time.

@@ -3,7 +3,7 @@
 
 use face_tracker::extraction::{ExtractionConfig, FaceRect, extract_template};
 use face_tracker::likelihood::{log_weight, residual_error, rho};
-use face_tracker::model::FaceModel;
+use face_tracker::model::{FaceModel, NOSE_TIP_V};
 use face_tracker::projection::{DIMS, Pose};
 use face_tracker::{FeaturePoint, GrayImage, Template};
 use nalgebra::Vector3;
@@ -105,14 +105,23 @@ fn the_residual_is_zero_on_the_template_and_grows_with_illumination() {
 #[test]
 fn the_generic_model_is_a_head() {
     let model = FaceModel::generic(65).unwrap();
-    let (centre, n) = model.sample(0.0, 0.0);
+    let (centre, _) = model.sample(0.0, 0.0);
     let (nose, _) = model.sample(0.0, 0.12);
     let (cheek_edge, side) = model.sample(0.95, 0.0);
     assert!(
         nose > centre && centre > cheek_edge,
         "{nose} {centre} {cheek_edge}"
     );
-    assert!(n[2] > 0.8, "{n:?}");
+    // The forehead faces the camera.
+    let (_, forehead) = model.sample(0.0, -0.6);
+    assert!(forehead[2] > 0.8, "{forehead:?}");
+    // The nose tip stands about one eye-corner half-distance in front of the eyes' outer corners,
+    // as a real face's does (the generic head's eye corners, placed by dlib's mean shape, are at
+    // u = ±0.62, v = −0.10): the depth that sets how far the tracker's yaw turns.
+    let (tip, _) = model.sample(0.0, NOSE_TIP_V);
+    let (eye_corner, _) = model.sample(0.62, -0.10);
+    let ratio = (tip - eye_corner) / 0.62;
+    assert!((0.9..=1.1).contains(&ratio), "{ratio}");
     // At the right edge the surface turns right (towards +x).
     assert!(side[0] > 0.5, "{side:?}");
     for k in 0..model.normals.len() {
