@@ -28,6 +28,7 @@ pub mod image;
 pub mod in_flight;
 pub mod landmarks;
 pub mod likelihood;
+mod mesh_head;
 pub mod model;
 pub mod personal;
 pub mod projection;

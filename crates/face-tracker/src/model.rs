@@ -4,7 +4,8 @@
 //! Model coordinates (u, v) ∈ [−1, 1]² span the rectangle (u right, v down). Heights are in units
 //! of the rectangle's half-width and grow towards the camera; normals are unit vectors in the
 //! image frame (x right, y down, z towards the camera). The generic model is a smooth parametric
-//! head — an ellipsoid with nose, brow and cheek relief — and users can load their own maps.
+//! head — an ellipsoid with nose, brow and cheek relief; the photographed model puts a real face's
+//! depth (the mean of five photographed faces) on its skull; and users can load their own maps.
 
 use std::path::Path;
 
@@ -29,6 +30,11 @@ fn gaussian(u: f32, v: f32, cu: f32, cv: f32, su: f32, sv: f32) -> f32 {
 pub const NOSE_TIP_V: f32 = 0.3;
 pub const BROW_RIDGE_V: f32 = -0.32;
 
+/// Where the generic head's eyes' outer corners are (model u, ±; and v): where personalisation
+/// places dlib's mean shape, and where [`crate::mesh_head`] zeroes the real face's depth.
+pub const EYE_CORNER_U: f32 = 0.62;
+pub const EYE_CORNER_V: f32 = -0.10;
+
 /// The generic head's height at (u, v).
 pub fn generic_height(u: f32, v: f32) -> f32 {
     // An ellipsoid a little taller than wide, flattened in depth.
@@ -49,9 +55,54 @@ pub fn generic_height(u: f32, v: f32) -> f32 {
     skull + fade * (nose + tip + brow + cheeks)
 }
 
+/// The photographed head's height at (u, v): a real face's depth on the face (the mean of
+/// MediaPipe's face mesh over five photographed faces, [`crate::mesh_head`]) on the generic
+/// head's skull around it, the two joined at the eyes' outer corners.
+///
+/// Its mouth and chin stand 0.2–0.4 half-widths further forward than the generic head's, its
+/// forehead 0.1, and its nose is a ridge that rises to the tip where the generic one is a round
+/// bump between the eyes. On real talking-face clips it brings the yaw's spread nearer the
+/// reference's; on the synthetic video (whose heads are the generic head) it is the wrong model
+/// (docs/ACCURACY.md has both).
+pub fn photographed_height(u: f32, v: f32) -> f32 {
+    let (face, on_face) = mesh_head_at(u, v);
+    let eye_corner = generic_height(EYE_CORNER_U, EYE_CORNER_V);
+    on_face * (eye_corner + face) + (1.0 - on_face) * generic_height(u, v)
+}
+
+/// The real face's height above the eye corners and its weight (1 on the face, 0 off it) at
+/// (u, v), bilinear between the table's nodes.
+fn mesh_head_at(u: f32, v: f32) -> (f32, f32) {
+    use crate::mesh_head::{MESH_HEAD_GRID, MESH_HEAD_HEIGHTS, MESH_HEAD_ON_FACE};
+    let last = (MESH_HEAD_GRID - 1) as f32;
+    let x = ((u + 1.0) / 2.0 * last).clamp(0.0, last);
+    let y = ((v + 1.0) / 2.0 * last).clamp(0.0, last);
+    let (x0, y0) = (
+        (x.floor() as usize).min(MESH_HEAD_GRID - 2),
+        (y.floor() as usize).min(MESH_HEAD_GRID - 2),
+    );
+    let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+    let at = |table: &[f32], i: usize, j: usize| table[j * MESH_HEAD_GRID + i];
+    let bilinear = |table: &[f32]| {
+        (1.0 - fy) * ((1.0 - fx) * at(table, x0, y0) + fx * at(table, x0 + 1, y0))
+            + fy * ((1.0 - fx) * at(table, x0, y0 + 1) + fx * at(table, x0 + 1, y0 + 1))
+    };
+    (bilinear(&MESH_HEAD_HEIGHTS), bilinear(&MESH_HEAD_ON_FACE))
+}
+
 impl FaceModel {
     /// The generic head on a `size × size` grid, normals from central differences.
     pub fn generic(size: u32) -> Result<Self, FaceError> {
+        Self::from_heights(size, generic_height)
+    }
+
+    /// The photographed head ([`photographed_height`]) on a `size × size` grid.
+    pub fn photographed(size: u32) -> Result<Self, FaceError> {
+        Self::from_heights(size, photographed_height)
+    }
+
+    /// `height(u, v)` on a `size × size` grid, normals from central differences.
+    fn from_heights(size: u32, height: fn(f32, f32) -> f32) -> Result<Self, FaceError> {
         if size < 3 {
             return Err(FaceError::InvalidInput(format!(
                 "a face model grid needs at least 3x3 nodes, got {size}"
@@ -59,7 +110,7 @@ impl FaceModel {
         }
         let coord = |i: u32| -1.0 + 2.0 * i as f32 / (size - 1) as f32;
         let heights: Vec<f32> = (0..size * size)
-            .map(|k| generic_height(coord(k % size), coord(k / size)))
+            .map(|k| height(coord(k % size), coord(k / size)))
             .collect();
         let model = Self {
             size,

@@ -3,7 +3,7 @@
 
 use face_tracker::extraction::{ExtractionConfig, FaceRect, extract_template};
 use face_tracker::likelihood::{log_weight, residual_error, rho};
-use face_tracker::model::{FaceModel, NOSE_TIP_V};
+use face_tracker::model::{EYE_CORNER_U, EYE_CORNER_V, FaceModel, NOSE_TIP_V};
 use face_tracker::projection::{DIMS, Pose};
 use face_tracker::{FeaturePoint, GrayImage, Template};
 use nalgebra::Vector3;
@@ -129,6 +129,42 @@ fn the_generic_model_is_a_head() {
         assert!((len - 1.0).abs() < 1e-5);
     }
     assert!(FaceModel::generic(2).is_err());
+}
+
+#[test]
+fn the_photographed_model_is_a_real_face_on_the_generic_skull() {
+    let (photographed, generic) = (
+        FaceModel::photographed(97).unwrap(),
+        FaceModel::generic(97).unwrap(),
+    );
+    // Heights above the eyes' outer corners.
+    let relief = |model: &FaceModel, u: f32, v: f32| {
+        model.sample(u, v).0 - model.sample(EYE_CORNER_U, EYE_CORNER_V).0
+    };
+    // A real nose: its tip about one eye-corner half-distance in front of the eye corners, and a
+    // ridge that rises from between the eyes to the tip (the generic one is highest above it).
+    let tip = relief(&photographed, 0.0, NOSE_TIP_V) / EYE_CORNER_U;
+    assert!((0.9..=1.15).contains(&tip), "{tip}");
+    assert!(relief(&photographed, 0.0, EYE_CORNER_V) < relief(&photographed, 0.0, NOSE_TIP_V));
+    // A real mouth and chin stand well forward of the generic head's, which falls away below the
+    // nose; the forehead a little.
+    for (v, by) in [(0.6, 0.15), (0.9, 0.2), (-0.5, 0.05)] {
+        let (real, parametric) = (relief(&photographed, 0.0, v), relief(&generic, 0.0, v));
+        assert!(
+            real > parametric + by,
+            "v = {v}: {real} against {parametric}"
+        );
+    }
+    // Left and right alike; off the face it is the generic skull.
+    for (u, v) in [(0.3, 0.2), (0.62, -0.1), (0.5, 0.7), (0.2, -0.4)] {
+        let (left, right) = (photographed.sample(-u, v).0, photographed.sample(u, v).0);
+        assert!((left - right).abs() < 1e-3, "({u}, {v}): {left} {right}");
+    }
+    for (u, v) in [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)] {
+        let (a, b) = (photographed.sample(u, v).0, generic.sample(u, v).0);
+        assert!((a - b).abs() < 1e-4, "({u}, {v}): {a} {b}");
+    }
+    assert!(FaceModel::photographed(2).is_err());
 }
 
 fn blob_image(blobs: &[(f32, f32, f32)]) -> GrayImage {

@@ -112,6 +112,17 @@ pub enum BackendArg {
     AllGpus,
 }
 
+/// The built-in face models a template's points take their depths from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FaceModelArg {
+    /// The parametric head (an ellipsoid with nose, brow and cheek relief): the synthetic
+    /// video's heads.
+    Generic,
+    /// A real face's depth (the mean of five photographed faces) on the generic skull: nearer
+    /// real heads' turns (docs/ACCURACY.md).
+    Photographed,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum DetectorArg {
     /// On a GPU when the tracker runs on one, else on the CPU.
@@ -215,6 +226,9 @@ pub struct TrackArgs {
     /// Seed of the filters' random numbers.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The built-in face model (when no --heightmap is given).
+    #[arg(long, value_enum, default_value_t = FaceModelArg::Generic, conflicts_with = "heightmap")]
+    pub face_model: FaceModelArg,
     /// Your own face model: a square gray heightmap PNG (with --normalmap; black 0, white
     /// --height-scale half-widths of the face rectangle) instead of the generic head.
     #[arg(long, requires = "normalmap")]
@@ -283,8 +297,11 @@ const STATES_FILE: &str = "states.csv";
 const ERRORS_FILE: &str = "errors.csv";
 const LANDMARKS_FILE: &str = "landmarks.csv";
 
+/// Nodes per side of the built-in face models' grids.
+const MODEL_GRID: u32 = 129;
+
 fn model() -> anyhow::Result<FaceModel> {
-    Ok(FaceModel::generic(129)?)
+    Ok(FaceModel::generic(MODEL_GRID)?)
 }
 
 fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
@@ -1007,7 +1024,10 @@ fn build_runner(
 ) -> anyhow::Result<(Runner, String)> {
     let face_model = match (&args.heightmap, &args.normalmap) {
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
-        _ => model()?,
+        _ => match args.face_model {
+            FaceModelArg::Generic => model()?,
+            FaceModelArg::Photographed => FaceModel::photographed(MODEL_GRID)?,
+        },
     };
     let defaults = FaceTrackerConfig::default();
     let config = FaceTrackerConfig {
