@@ -74,20 +74,27 @@ pub fn photographed_height(u: f32, v: f32) -> f32 {
 /// (u, v), bilinear between the table's nodes.
 fn mesh_head_at(u: f32, v: f32) -> (f32, f32) {
     use crate::mesh_head::{MESH_HEAD_GRID, MESH_HEAD_HEIGHTS, MESH_HEAD_ON_FACE};
-    let last = (MESH_HEAD_GRID - 1) as f32;
+    let corners = bilinear_corners(MESH_HEAD_GRID, u, v);
+    let bilinear = |table: &[f32]| corners.iter().map(|&(k, w)| table[k] * w).sum::<f32>();
+    (bilinear(&MESH_HEAD_HEIGHTS), bilinear(&MESH_HEAD_ON_FACE))
+}
+
+/// The four grid nodes around (u, v) on a `size × size` grid over [−1, 1]² (clamped to the
+/// grid; node (i, j) at index j·size + i) and their bilinear weights.
+fn bilinear_corners(size: usize, u: f32, v: f32) -> [(usize, f32); 4] {
+    let last = (size - 1) as f32;
     let x = ((u + 1.0) / 2.0 * last).clamp(0.0, last);
     let y = ((v + 1.0) / 2.0 * last).clamp(0.0, last);
-    let (x0, y0) = (
-        (x.floor() as usize).min(MESH_HEAD_GRID - 2),
-        (y.floor() as usize).min(MESH_HEAD_GRID - 2),
-    );
+    let x0 = (x.floor() as usize).min(size - 2);
+    let y0 = (y.floor() as usize).min(size - 2);
     let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-    let at = |table: &[f32], i: usize, j: usize| table[j * MESH_HEAD_GRID + i];
-    let bilinear = |table: &[f32]| {
-        (1.0 - fy) * ((1.0 - fx) * at(table, x0, y0) + fx * at(table, x0 + 1, y0))
-            + fy * ((1.0 - fx) * at(table, x0, y0 + 1) + fx * at(table, x0 + 1, y0 + 1))
-    };
-    (bilinear(&MESH_HEAD_HEIGHTS), bilinear(&MESH_HEAD_ON_FACE))
+    let idx = |i: usize, j: usize| j * size + i;
+    [
+        (idx(x0, y0), (1.0 - fx) * (1.0 - fy)),
+        (idx(x0 + 1, y0), fx * (1.0 - fy)),
+        (idx(x0, y0 + 1), (1.0 - fx) * fy),
+        (idx(x0 + 1, y0 + 1), fx * fy),
+    ]
 }
 
 impl FaceModel {
@@ -197,19 +204,7 @@ impl FaceModel {
 
     /// Height and unit normal at (u, v), bilinear between grid nodes (clamped to the grid).
     pub fn sample(&self, u: f32, v: f32) -> (f32, [f32; 3]) {
-        let last = (self.size - 1) as f32;
-        let x = ((u + 1.0) / 2.0 * last).clamp(0.0, last);
-        let y = ((v + 1.0) / 2.0 * last).clamp(0.0, last);
-        let x0 = (x.floor() as u32).min(self.size - 2);
-        let y0 = (y.floor() as u32).min(self.size - 2);
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
-        let idx = |i: u32, j: u32| (j * self.size + i) as usize;
-        let corners = [
-            (idx(x0, y0), (1.0 - fx) * (1.0 - fy)),
-            (idx(x0 + 1, y0), fx * (1.0 - fy)),
-            (idx(x0, y0 + 1), (1.0 - fx) * fy),
-            (idx(x0 + 1, y0 + 1), fx * fy),
-        ];
+        let corners = bilinear_corners(self.size as usize, u, v);
         let mut h = 0.0;
         let mut n = [0.0f32; 3];
         for (k, w) in corners {

@@ -119,8 +119,8 @@ fn the_generic_model_is_a_head() {
     // as a real face's does (the generic head's eye corners, placed by dlib's mean shape, are at
     // u = ±0.62, v = −0.10): the depth that sets how far the tracker's yaw turns.
     let (tip, _) = model.sample(0.0, NOSE_TIP_V);
-    let (eye_corner, _) = model.sample(0.62, -0.10);
-    let ratio = (tip - eye_corner) / 0.62;
+    let (eye_corner, _) = model.sample(EYE_CORNER_U, EYE_CORNER_V);
+    let ratio = (tip - eye_corner) / EYE_CORNER_U;
     assert!((0.9..=1.1).contains(&ratio), "{ratio}");
     // At the right edge the surface turns right (towards +x).
     assert!(side[0] > 0.5, "{side:?}");
