@@ -13,7 +13,7 @@ mod common;
 use face_tracker::extraction::FaceRect;
 use face_tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::model::FaceModel;
-use face_tracker::projection::{SCALE, TX, TY};
+use face_tracker::projection::{RX, RY, RZ, SCALE, TX, TY};
 use face_tracker::synth::{
     FaceSynthConfig, FaceVideoRenderer, HEIGHT_RATIO, face_state, initial_rect,
 };
@@ -178,14 +178,7 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
                 assert!(tracker.template(0).is_none());
                 // The freed slot takes the other face, where it is now, as track 1, tracked from
                 // the next frame.
-                let s = face_state(&video, 1, frame);
-                let (hw, hh) = (50.0 * s[SCALE], 50.0 * HEIGHT_RATIO * s[SCALE]);
-                let rect = FaceRect {
-                    x: s[TX] - hw,
-                    y: s[TY] - hh,
-                    width: 2.0 * hw,
-                    height: 2.0 * hh,
-                };
+                let rect = true_rect(&video, 1, frame);
                 assert_eq!(tracker.add_face(&image, &rect).unwrap(), 1);
             }
         } else {
@@ -214,6 +207,79 @@ fn a_lost_track_frees_its_slot_for_a_new_face() {
         before_loss < 0.5 * early,
         "confidence {before_loss} just before the loss, {early} at the start"
     );
+}
+
+/// The face rectangle of synthetic face `face` at `frame`: the tracker's rectangle, as a
+/// detector would give it.
+fn true_rect(video: &FaceSynthConfig, face: usize, frame: usize) -> FaceRect {
+    let s = face_state(video, face, frame);
+    let hw = video.half_width * s[SCALE];
+    let hh = hw * HEIGHT_RATIO;
+    FaceRect {
+        x: s[TX] - hw,
+        y: s[TY] - hh,
+        width: 2.0 * hw,
+        height: 2.0 * hh,
+    }
+}
+
+/// A track restarted on a new template while its face is turned goes on from its pose: its
+/// rotation and scale stay near the truth after the restart, where starting again from R = 0
+/// and S = 1 would be off by the whole turn.
+#[test]
+fn a_restarted_track_keeps_its_pose() {
+    let video = FaceSynthConfig {
+        faces: 1,
+        occlusion: false,
+        ..video(30)
+    };
+    let model = FaceModel::generic(129).unwrap();
+    let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let first = renderer.render(0).unwrap();
+    let rect = initial_rect(&video, 0);
+    let mut tracker =
+        FaceTracker::new(&first, &[rect], &model, config(), FaceBackend::Cpu).unwrap();
+    // The restart comes at the largest turn from the first frame's pose in frames 8–19.
+    let mut unturned = face_state(&video, 0, 0);
+    (unturned[RX], unturned[RY], unturned[RZ]) = (0.0, 0.0, 0.0);
+    let turn = |frame| pose_errors(&unturned, &face_state(&video, 0, frame)).1;
+    let restart_at = (8..20)
+        .max_by(|&a, &b| turn(a).total_cmp(&turn(b)))
+        .unwrap();
+    let (mut rotation_after, mut scale_after) = (Vec::new(), Vec::new());
+    for frame in 0..video.frames {
+        let image = renderer.render(frame).unwrap();
+        let e = tracker.step(&image).unwrap().remove(0);
+        assert_eq!(e.status, TrackStatus::Tracking, "frame {frame}");
+        let truth = face_state(&video, 0, frame);
+        if frame > restart_at {
+            rotation_after.push(pose_errors(&e.state, &truth).1);
+            // S is relative to the rectangle the track started from.
+            scale_after.push((e.state[SCALE] * unturned[SCALE] / truth[SCALE] - 1.0).abs());
+        }
+        if frame == restart_at {
+            let rect = true_rect(&video, 0, frame);
+            let template = tracker.extract(&image, &rect).unwrap();
+            tracker.restart_template(0, &rect, template, frame).unwrap();
+        }
+    }
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    let (rotation, scale) = (mean(&rotation_after), mean(&scale_after));
+    eprintln!(
+        "turned {:.1}° at the restart (frame {restart_at}); after it: rotation error {rotation:.2}°, scale error {:.1} %",
+        turn(restart_at),
+        100.0 * scale
+    );
+    assert!(
+        turn(restart_at) > 15.0,
+        "the face turned only {}°",
+        turn(restart_at)
+    );
+    assert!(
+        rotation <= MAX_ROTATION_DEG,
+        "rotation error {rotation}° after the restart"
+    );
+    assert!(scale <= 0.05, "scale off by {scale} after the restart");
 }
 
 /// Every frame's estimates, stepped one at a time or with two frames in flight.

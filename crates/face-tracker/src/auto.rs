@@ -368,7 +368,7 @@ impl AutoTracker {
             };
             if let Some(i) = on_track {
                 let track = self.tracked[i].0;
-                self.tracker.restart_template(track, &rect, template)?;
+                (self.tracker).restart_template(track, &rect, template, result.frame_index)?;
                 self.tracked[i] = (track, rect, 0.0);
                 out.restarted.push((track, rect, result.frame_index));
                 continue;

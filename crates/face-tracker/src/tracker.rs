@@ -131,9 +131,31 @@ pub struct FaceEstimate {
 struct Track {
     id: usize,
     template: Template,
-    /// The rectangle the track started from.
+    /// The rectangle the track started from (a restart keeps it: S stays relative to it).
     start: FaceRect,
     bad_frames: usize,
+    /// The last [`RECENT_ESTIMATES`] estimates (frame, state), oldest first: a restart poses
+    /// its new template in the estimate of the frame the template was taken from.
+    recent: VecDeque<(usize, [f32; DIMS])>,
+}
+
+/// How many of a track's estimates it keeps for a restart (a detector's answer arrives
+/// `--detection-delay` frames after the frame it looked at).
+const RECENT_ESTIMATES: usize = 16;
+
+impl Track {
+    /// The estimate of `frame`, else the newest one.
+    fn estimate_at(&self, frame: usize) -> Option<[f32; DIMS]> {
+        (self.recent.iter().find(|(f, _)| *f == frame))
+            .or(self.recent.back())
+            .map(|(_, state)| *state)
+    }
+}
+
+/// The state a new track's particles start around: the rectangle's centre, S = 1, R = 0, α = 1.
+fn fresh_state(rect: &FaceRect) -> [f32; DIMS] {
+    let (cx, cy) = rect.centre();
+    [cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0]
 }
 
 /// Several faces, each its own particle filter in a slot of one batch. Faces can be added while
@@ -298,26 +320,43 @@ impl FaceTracker {
             ))
         })?;
         let id = self.next_track;
-        self.start_in_slot(slot, id, rect, template)?;
+        self.start_in_slot(slot, id, *rect, fresh_state(rect), template)?;
         self.next_track += 1;
         Ok(id)
     }
 
     /// Starts running track `track` afresh from `rect` and its template `template` (extracted
-    /// by [`Self::extract`]): new particles, the same number. For a detector that finds a face
-    /// its track has drifted from.
+    /// by [`Self::extract`] from frame `taken_at`): new particles, the same number. For a
+    /// detector that finds a face its track has drifted from.
+    ///
+    /// The track keeps its pose: the new template is posed back by the track's scale and
+    /// rotation at `taken_at` (or its newest estimate), and the particles start there, so its
+    /// angles and scale go on from where they were instead of starting again from 0 and 1 with
+    /// every new template (head pose read over a whole video stays one series).
     pub fn restart_template(
         &mut self,
         track: usize,
         rect: &FaceRect,
         template: Template,
+        taken_at: usize,
     ) -> Result<(), FaceError> {
         let slot = self
             .slots
             .iter()
             .position(|s| s.as_ref().is_some_and(|t| t.id == track))
             .ok_or_else(|| FaceError::InvalidInput(format!("track {track} is not running")))?;
-        self.start_in_slot(slot, track, rect, template)
+        let running = self.slots[slot].as_ref();
+        let start = running.map_or(*rect, |t| t.start);
+        let (mean, template) = match running.and_then(|t| t.estimate_at(taken_at)) {
+            Some(pose) => {
+                let (cx, cy) = rect.centre();
+                let rotation = rotation(pose[RX], pose[RY], pose[RZ]);
+                let mean = [cx, cy, pose[SCALE], pose[RX], pose[RY], pose[RZ], 1.0];
+                (mean, template.posed_back(pose[SCALE], &rotation))
+            }
+            None => (fresh_state(rect), template),
+        };
+        self.start_in_slot(slot, track, start, mean, template)
     }
 
     /// The template this tracker would build for a face at `rect` in `frame`.
@@ -383,22 +422,23 @@ impl FaceTracker {
     }
 
     /// Puts a fresh particle cloud around `rect` and `template` in `slot`, as track `track`.
+    /// Starts `track` in `slot`: its particles around `mean`, S relative to `start`.
     fn start_in_slot(
         &mut self,
         slot: usize,
         track: usize,
-        rect: &FaceRect,
+        start: FaceRect,
+        mean: [f32; DIMS],
         template: Template,
     ) -> Result<(), FaceError> {
         self.check_nothing_in_flight("a face is started or restarted")?;
-        let (cx, cy) = rect.centre();
         let shape = BatchShape::new(1, self.config.particles, DIMS)?;
         // Each start gets its own initial cloud (the track's number and the frame key it).
         let key = (track as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.frame_index as u64;
         let cloud = gaussian_clouds(
             &shape,
             self.config.seed ^ key,
-            &[cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0],
+            &mean,
             &self.config.diffusion,
         );
         let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
@@ -407,8 +447,9 @@ impl FaceTracker {
         self.slots[slot] = Some(Track {
             id: track,
             template,
-            start: *rect,
+            start,
             bad_frames: 0,
+            recent: VecDeque::with_capacity(RECENT_ESTIMATES),
         });
         Ok(())
     }
@@ -539,6 +580,10 @@ impl FaceTracker {
             let Some(track) = &mut self.slots[slot] else {
                 continue;
             };
+            if track.recent.len() == RECENT_ESTIMATES {
+                track.recent.pop_front();
+            }
+            track.recent.push_back((self.frame_index, state));
             track.bad_frames = if error > f64::from(self.config.failure_error) {
                 track.bad_frames + 1
             } else {
