@@ -259,8 +259,10 @@ fn a_restarted_track_keeps_its_pose() {
         }
         if frame == restart_at {
             let rect = true_rect(&video, 0, frame);
-            let template = tracker.extract(&image, &rect).unwrap();
-            tracker.restart_template(0, &rect, template, frame).unwrap();
+            let restart = tracker
+                .template_for_restart(0, &image, &rect, frame)
+                .unwrap();
+            tracker.restart_template(0, restart).unwrap();
         }
     }
     let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;

@@ -362,17 +362,26 @@ impl AutoTracker {
                 out.ignored += 1;
                 continue;
             }
-            let Some(template) = self.trackable_template(&result.frame, &rect) else {
-                out.ignored += 1;
-                continue;
-            };
             if let Some(i) = on_track {
                 let track = self.tracked[i].0;
-                (self.tracker).restart_template(track, &rect, template, result.frame_index)?;
+                // The new template is taken with the face seen as the track has it.
+                let restart = (self.tracker)
+                    .template_for_restart(track, &result.frame, &rect, result.frame_index)
+                    .ok()
+                    .filter(|r| self.has_contrast(&r.template));
+                let Some(restart) = restart else {
+                    out.ignored += 1;
+                    continue;
+                };
+                self.tracker.restart_template(track, restart)?;
                 self.tracked[i] = (track, rect, 0.0);
                 out.restarted.push((track, rect, result.frame_index));
                 continue;
             }
+            let Some(template) = self.trackable_template(&result.frame, &rect) else {
+                out.ignored += 1;
+                continue;
+            };
             let seen = 1 + self
                 .candidates
                 .iter()
@@ -395,13 +404,18 @@ impl AutoTracker {
     /// The template of a detection's rectangle, if it has the contrast of a face.
     fn trackable_template(&self, frame: &GrayImage, rect: &FaceRect) -> Option<Template> {
         let template = self.tracker.extract(frame, rect).ok()?;
+        self.has_contrast(&template).then_some(template)
+    }
+
+    /// Whether a template's gray levels span the contrast of a face.
+    fn has_contrast(&self, template: &Template) -> bool {
         let (low, high) = template
             .points
             .iter()
             .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), q| {
                 (lo.min(q.gray), hi.max(q.gray))
             });
-        (high - low >= self.config.min_template_contrast).then_some(template)
+        high - low >= self.config.min_template_contrast
     }
 
     /// One frame: hand the detector a copy of this frame when the period says so (live: when it

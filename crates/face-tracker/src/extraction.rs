@@ -13,6 +13,7 @@ use crate::error::FaceError;
 use crate::image::{FloatImage, GrayImage, Image, Level};
 use crate::model::FaceModel;
 use crate::template::{FeaturePoint, MIN_GRAY, Template};
+use crate::view::View;
 
 /// A face rectangle in frame pixels: top-left corner and size.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -247,12 +248,26 @@ fn select(candidates: &[Candidate], taken: &mut Vec<(f32, f32)>, budget: usize, 
     }
 }
 
-/// The template of the face in `rect` of `frame`.
+/// The template of the face in `rect` of `frame`, the face taken as looking straight at the
+/// camera.
 pub fn extract_template(
     frame: &GrayImage,
     rect: &FaceRect,
     model: &FaceModel,
     config: &ExtractionConfig,
+) -> Result<Template, FaceError> {
+    extract_template_seen(frame, rect, model, config, &View::frontal())
+}
+
+/// The template of the face in `rect` of `frame` seen with `view`: each chosen pixel's point is
+/// where the model, turned and scaled by the view, shows it (in the model's units), and pixels
+/// whose ray misses the model or meets it facing away are not taken.
+pub fn extract_template_seen(
+    frame: &GrayImage,
+    rect: &FaceRect,
+    model: &FaceModel,
+    config: &ExtractionConfig,
+    view: &View,
 ) -> Result<Template, FaceError> {
     rect.validate(frame)?;
     if config.max_points == 0
@@ -292,13 +307,8 @@ pub fn extract_template(
         .into_iter()
         .filter_map(|(x, y)| {
             let gray = frame.bilinear(x, y)?;
-            let (u, v) = to_model(x, y);
-            let (height, normal) = model.sample(u, v);
-            Some(FeaturePoint::new(
-                [x - cx, y - cy, height * hw],
-                normal,
-                gray.max(MIN_GRAY),
-            ))
+            let (point, normal) = view.cast(model, (hw, hh), [x - cx, y - cy])?;
+            Some(FeaturePoint::new(point, normal, gray.max(MIN_GRAY)))
         })
         .collect();
     Template::new(points).map_err(|_| {

@@ -36,6 +36,7 @@ pub mod shards;
 pub mod synth;
 pub mod template;
 pub mod tracker;
+pub mod view;
 
 pub use auto::{AutoConfig, AutoFrame, AutoTracker};
 pub use error::FaceError;

@@ -22,6 +22,7 @@ use crate::image::GrayImage;
 use crate::landmarks::{Landmarks, ShapePredictor, ibug68, similarity};
 use crate::model::{BROW_RIDGE_V, FaceModel, NOSE_TIP_V};
 use crate::synth::HEIGHT_RATIO;
+use crate::view::View;
 
 /// Half the side of the square of fixed border points, in model units (the model spans ±1).
 pub const BORDER: f32 = 3.0;
@@ -127,6 +128,19 @@ impl Personaliser {
         rect: &FaceRect,
         model: &FaceModel,
     ) -> Result<Personalised, FaceError> {
+        self.personalise_seen(frame, rect, model, &View::frontal())
+    }
+
+    /// [`Self::personalise`] for a face seen with `view` (a track that restarts turned): each
+    /// fitted landmark is cast onto `model` turned by the view, so the warp moves the model's
+    /// landmarks to where the turned face has them, not to where they appear in the frame.
+    pub fn personalise_seen(
+        &self,
+        frame: &GrayImage,
+        rect: &FaceRect,
+        model: &FaceModel,
+        view: &View,
+    ) -> Result<Personalised, FaceError> {
         let (cx, cy) = rect.centre();
         let side = rect.height;
         let face_box = FaceRect {
@@ -137,10 +151,18 @@ impl Personaliser {
         };
         let landmarks = self.predictor.fit(frame, &face_box)?;
         let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
-        let in_model: Vec<[f32; 2]> = landmarks
-            .iter()
-            .map(|p| [(p[0] - cx) / hw, (p[1] - cy) / hh])
-            .collect();
+        let in_model = (landmarks.iter())
+            .map(|p| {
+                let offset = [p[0] - cx, p[1] - cy];
+                if view.is_frontal() {
+                    // Seen frontally a landmark may lie outside the rectangle (a jaw's end):
+                    // the warp's own checks judge it.
+                    return Ok([offset[0] / hw, offset[1] / hh]);
+                }
+                let cast = view.unproject(model, (hw, hh), offset);
+                Ok(cast.map_or([offset[0] / hw, offset[1] / hh], |(u, v)| [u, v]))
+            })
+            .collect::<Result<Vec<[f32; 2]>, FaceError>>()?;
         let model = self.warp(model, &in_model)?;
         Ok(Personalised { landmarks, model })
     }

@@ -1,7 +1,6 @@
 //! Sparse templates: the feature points a face is tracked by.
 
 use bytemuck::{Pod, Zeroable};
-use nalgebra::{Matrix3, Vector3};
 
 use crate::error::FaceError;
 
@@ -90,72 +89,5 @@ impl Template {
 
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
-    }
-
-    /// The template as a face already at `scale` and `rotation` would have it: a template is
-    /// taken as if the face looked straight at the camera, so posing its points (positions,
-    /// normals, landmarks) back by Rᵀ/S makes a state with that scale and rotation show them
-    /// exactly as they were seen. A track that takes a new template goes on from its pose.
-    pub fn posed_back(mut self, scale: f32, rotation: &Matrix3<f32>) -> Self {
-        let back = |v: [f32; 3]| -> [f32; 3] { (rotation.transpose() * Vector3::from(v)).into() };
-        for q in &mut self.points {
-            q.position = back(q.position).map(|c| c / scale);
-            q.normal = back(q.normal);
-        }
-        if let Some(landmarks) = &mut self.landmarks {
-            for p in landmarks.iter_mut() {
-                *p = back(*p).map(|c| c / scale);
-            }
-        }
-        self
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::projection::{DIMS, Pose};
-    use proptest::prelude::*;
-
-    proptest! {
-        /// A template posed back by (S, R) and then posed by a state with that S and R shows
-        /// every point where it was seen, facing the way it faced.
-        #[test]
-        fn a_template_posed_back_is_seen_as_it_was_taken(
-            points in proptest::collection::vec(
-                (prop::array::uniform3(-60.0f32..60.0), prop::array::uniform3(-1.0f32..1.0)),
-                1..20,
-            ),
-            scale in 0.2f32..5.0,
-            angles in prop::array::uniform3(-1.2f32..1.2),
-            centre in prop::array::uniform2(0.0f32..640.0),
-        ) {
-            let points: Vec<FeaturePoint> = points
-                .iter()
-                .map(|&(p, n)| FeaturePoint::new(p, [n[0], n[1], n[2] + 2.0], 100.0))
-                .collect();
-            let mut seen = Template::new(points).unwrap();
-            seen.landmarks = Some(seen.points.iter().map(|q| q.position).collect());
-            let mut state = [0.0f32; DIMS];
-            state[..3].copy_from_slice(&[centre[0], centre[1], scale]);
-            state[3..6].copy_from_slice(&angles);
-            state[6] = 1.0;
-            let pose = Pose::new(&state);
-            let posed = seen.clone().posed_back(scale, &pose.rotation);
-            let landmarks = posed.landmarks.as_ref().unwrap();
-            for ((was, is), landmark) in seen.points.iter().zip(&posed.points).zip(landmarks) {
-                let expected = [was.position[0] + centre[0], was.position[1] + centre[1]];
-                for p in [is.position, *landmark] {
-                    let at = pose.project(&Vector3::from(p));
-                    prop_assert!((at.x - expected[0]).abs() < 1e-3 * (1.0 + expected[0].abs()));
-                    prop_assert!((at.y - expected[1]).abs() < 1e-3 * (1.0 + expected[1].abs()));
-                }
-                let facing = pose.rotation * Vector3::from(is.normal);
-                for d in 0..3 {
-                    prop_assert!((facing[d] - was.normal[d]).abs() < 1e-4);
-                }
-                prop_assert_eq!(is.gray, was.gray);
-            }
-        }
     }
 }

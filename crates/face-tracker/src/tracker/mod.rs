@@ -10,15 +10,14 @@
 //! when the face's centre leaves the frame; its slot is then free for a new face.
 
 use pf_core::anneal::Annealing;
-use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
+use pf_core::batch::{BatchConfig, BatchShape, Motion};
 use pf_gpu::faces::FaceDispatch;
 use pf_gpu::{GpuContext, GpuTime};
 
 use crate::error::FaceError;
-use crate::extraction::{ExtractionConfig, FaceRect, extract_template};
+use crate::extraction::{ExtractionConfig, FaceRect};
 use crate::image::GrayImage;
 use crate::in_flight::FrameInFlight;
-use crate::landmarks::Landmarks;
 use crate::model::FaceModel;
 use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
@@ -27,7 +26,11 @@ use crate::shards::{FrameRef, Shard, joined_particles, shard_sizes, step_all};
 use crate::template::Template;
 use std::collections::VecDeque;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::AtomicUsize;
+
+mod start;
+use start::RECENT_ESTIMATES;
+pub use start::Restart;
 
 /// The largest pitch and yaw a track may take (70°).
 pub const MAX_TURN: f32 = 1.222;
@@ -137,25 +140,6 @@ struct Track {
     /// The last [`RECENT_ESTIMATES`] estimates (frame, state), oldest first: a restart poses
     /// its new template in the estimate of the frame the template was taken from.
     recent: VecDeque<(usize, [f32; DIMS])>,
-}
-
-/// How many of a track's estimates it keeps for a restart (a detector's answer arrives
-/// `--detection-delay` frames after the frame it looked at).
-const RECENT_ESTIMATES: usize = 16;
-
-impl Track {
-    /// The estimate of `frame`, else the newest one.
-    fn estimate_at(&self, frame: usize) -> Option<[f32; DIMS]> {
-        (self.recent.iter().find(|(f, _)| *f == frame))
-            .or(self.recent.back())
-            .map(|(_, state)| *state)
-    }
-}
-
-/// The state a new track's particles start around: the rectangle's centre, S = 1, R = 0, α = 1.
-fn fresh_state(rect: &FaceRect) -> [f32; DIMS] {
-    let (cx, cy) = rect.centre();
-    [cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0]
 }
 
 /// Several faces, each its own particle filter in a slot of one batch. Faces can be added while
@@ -297,161 +281,6 @@ impl FaceTracker {
 
     pub fn capacity(&self) -> usize {
         self.slots.len()
-    }
-
-    /// Starts a new track on `rect` in `frame` (its template is extracted there; its particles
-    /// start around (centre, S = 1, R = 0, α = 1)) in a free slot, and returns the track's number.
-    /// The next `step` is the track's first.
-    pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
-        let template = self.extract(frame, rect)?;
-        self.add_template(rect, template)
-    }
-
-    /// `add_face` with the template already extracted from `rect` (by [`Self::extract`]).
-    pub fn add_template(
-        &mut self,
-        rect: &FaceRect,
-        template: Template,
-    ) -> Result<usize, FaceError> {
-        let slot = self.slots.iter().position(Option::is_none).ok_or_else(|| {
-            FaceError::InvalidInput(format!(
-                "all {} face slots are taken; free one or make the tracker larger",
-                self.slots.len()
-            ))
-        })?;
-        let id = self.next_track;
-        self.start_in_slot(slot, id, *rect, fresh_state(rect), template)?;
-        self.next_track += 1;
-        Ok(id)
-    }
-
-    /// Starts running track `track` afresh from `rect` and its template `template` (extracted
-    /// by [`Self::extract`] from frame `taken_at`): new particles, the same number. For a
-    /// detector that finds a face its track has drifted from.
-    ///
-    /// The track keeps its pose: the new template is posed back by the track's scale and
-    /// rotation at `taken_at` (or its newest estimate), and the particles start there, so its
-    /// angles and scale go on from where they were instead of starting again from 0 and 1 with
-    /// every new template (head pose read over a whole video stays one series).
-    pub fn restart_template(
-        &mut self,
-        track: usize,
-        rect: &FaceRect,
-        template: Template,
-        taken_at: usize,
-    ) -> Result<(), FaceError> {
-        let slot = self
-            .slots
-            .iter()
-            .position(|s| s.as_ref().is_some_and(|t| t.id == track))
-            .ok_or_else(|| FaceError::InvalidInput(format!("track {track} is not running")))?;
-        let running = self.slots[slot].as_ref();
-        let start = running.map_or(*rect, |t| t.start);
-        let (mean, template) = match running.and_then(|t| t.estimate_at(taken_at)) {
-            Some(pose) => {
-                let (cx, cy) = rect.centre();
-                let rotation = rotation(pose[RX], pose[RY], pose[RZ]);
-                let mean = [cx, cy, pose[SCALE], pose[RX], pose[RY], pose[RZ], 1.0];
-                (mean, template.posed_back(pose[SCALE], &rotation))
-            }
-            None => (fresh_state(rect), template),
-        };
-        self.start_in_slot(slot, track, start, mean, template)
-    }
-
-    /// The template this tracker would build for a face at `rect` in `frame`.
-    pub fn extract(&self, frame: &GrayImage, rect: &FaceRect) -> Result<Template, FaceError> {
-        Ok(self.extract_with_landmarks(frame, rect)?.0)
-    }
-
-    /// [`Self::extract`], with the landmarks the model was personalised to (`None` without a
-    /// personaliser, or when the fit missed the face and the generic model was used).
-    pub fn extract_with_landmarks(
-        &self,
-        frame: &GrayImage,
-        rect: &FaceRect,
-    ) -> Result<(Template, Option<Landmarks>), FaceError> {
-        self.check_size((frame.width, frame.height))?;
-        rect.validate(frame)?;
-        let personal = self.personaliser.as_ref().and_then(|p| {
-            let fitted = p.personalise(frame, rect, &self.model).ok();
-            let counter = if fitted.is_some() {
-                &self.personalised
-            } else {
-                &self.fit_failures
-            };
-            counter.fetch_add(1, Ordering::Relaxed);
-            fitted
-        });
-        let model = personal.as_ref().map_or(&self.model, |p| &p.model);
-        let mut template = extract_template(frame, rect, model, &self.config.extraction)?;
-        // The landmarks on the model's surface: the fitted ones, else the generic head's.
-        let (cx, cy) = rect.centre();
-        let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
-        let on_surface = |u: f32, v: f32| [u * hw, v * hh, model.sample(u, v).0 * hw];
-        template.landmarks = match (&personal, &self.personaliser) {
-            (Some(p), _) => Some(
-                (p.landmarks.iter())
-                    .map(|l| on_surface((l[0] - cx) / hw, (l[1] - cy) / hh))
-                    .collect(),
-            ),
-            (None, Some(personaliser)) => Some(
-                (personaliser.generic_landmarks().iter())
-                    .map(|l| on_surface(l[0], l[1]))
-                    .collect(),
-            ),
-            (None, None) => None,
-        };
-        Ok((template, personal.map(|p| p.landmarks)))
-    }
-
-    /// Builds each new face's template on the face model warped to that face's landmarks (the
-    /// paper's personalised model), or on the generic model (`None`, the default). A face whose
-    /// landmark fit fails (folds the model, leaves the face) gets the generic model.
-    pub fn set_personaliser(&mut self, personaliser: Option<Arc<Personaliser>>) {
-        self.personaliser = personaliser;
-    }
-
-    /// Templates built so far on a personalised model, and on the generic model because the
-    /// landmark fit failed.
-    pub fn personalisation_counts(&self) -> (usize, usize) {
-        (
-            self.personalised.load(Ordering::Relaxed),
-            self.fit_failures.load(Ordering::Relaxed),
-        )
-    }
-
-    /// Puts a fresh particle cloud around `rect` and `template` in `slot`, as track `track`.
-    /// Starts `track` in `slot`: its particles around `mean`, S relative to `start`.
-    fn start_in_slot(
-        &mut self,
-        slot: usize,
-        track: usize,
-        start: FaceRect,
-        mean: [f32; DIMS],
-        template: Template,
-    ) -> Result<(), FaceError> {
-        self.check_nothing_in_flight("a face is started or restarted")?;
-        let shape = BatchShape::new(1, self.config.particles, DIMS)?;
-        // Each start gets its own initial cloud (the track's number and the frame key it).
-        let key = (track as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.frame_index as u64;
-        let cloud = gaussian_clouds(
-            &shape,
-            self.config.seed ^ key,
-            &mean,
-            &self.config.diffusion,
-        );
-        let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
-            .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
-        shard.start(slot, &cloud, &template)?;
-        self.slots[slot] = Some(Track {
-            id: track,
-            template,
-            start,
-            bad_frames: 0,
-            recent: VecDeque::with_capacity(RECENT_ESTIMATES),
-        });
-        Ok(())
     }
 
     /// The template of a track that is still running.

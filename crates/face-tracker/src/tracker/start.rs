@@ -1,0 +1,241 @@
+//! Starting tracks: a new face in a free slot, or a running track afresh on a new template
+//! (a restart keeps the track's pose), and the templates they start from (extracted on the
+//! face model, personalised to the face's landmarks when a personaliser is set).
+
+use std::collections::VecDeque;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
+use pf_core::batch::{BatchShape, gaussian_clouds};
+
+use super::{FaceTracker, Track};
+use crate::error::FaceError;
+use crate::extraction::{FaceRect, extract_template_seen};
+use crate::image::GrayImage;
+use crate::landmarks::Landmarks;
+use crate::personal::Personaliser;
+use crate::projection::{DIMS, RX, RY, RZ, SCALE, rotation};
+use crate::template::Template;
+use crate::view::View;
+
+/// How many of a track's estimates it keeps for a restart (a detector's answer arrives
+/// `--detection-delay` frames after the frame it looked at).
+pub(super) const RECENT_ESTIMATES: usize = 16;
+
+impl Track {
+    /// The estimate of `frame`, else the newest one.
+    fn estimate_at(&self, frame: usize) -> Option<[f32; DIMS]> {
+        (self.recent.iter().find(|(f, _)| *f == frame))
+            .or(self.recent.back())
+            .map(|(_, state)| *state)
+    }
+}
+
+/// A restart's new template and the state its particles start around.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Restart {
+    pub template: Template,
+    pub mean: [f32; DIMS],
+}
+
+fn not_running(track: usize) -> FaceError {
+    FaceError::InvalidInput(format!("track {track} is not running"))
+}
+
+/// The state a new track's particles start around: the rectangle's centre, S = 1, R = 0, α = 1.
+fn fresh_state(rect: &FaceRect) -> [f32; DIMS] {
+    let (cx, cy) = rect.centre();
+    [cx, cy, 1.0, 0.0, 0.0, 0.0, 1.0]
+}
+
+impl FaceTracker {
+    /// Starts a new track on `rect` in `frame` (its template is extracted there; its particles
+    /// start around (centre, S = 1, R = 0, α = 1)) in a free slot, and returns the track's number.
+    /// The next `step` is the track's first.
+    pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
+        let template = self.extract(frame, rect)?;
+        self.add_template(rect, template)
+    }
+
+    /// `add_face` with the template already extracted from `rect` (by [`Self::extract`]).
+    pub fn add_template(
+        &mut self,
+        rect: &FaceRect,
+        template: Template,
+    ) -> Result<usize, FaceError> {
+        let slot = self.slots.iter().position(Option::is_none).ok_or_else(|| {
+            FaceError::InvalidInput(format!(
+                "all {} face slots are taken; free one or make the tracker larger",
+                self.slots.len()
+            ))
+        })?;
+        let id = self.next_track;
+        self.start_in_slot(slot, id, *rect, fresh_state(rect), template)?;
+        self.next_track += 1;
+        Ok(id)
+    }
+
+    /// The template a restart of running track `track` takes from `rect` of `frame` (frame
+    /// number `taken_at`), and the state its particles start around: for a detector that finds
+    /// a face its track has drifted from ([`Self::restart_template`]).
+    ///
+    /// The track keeps its pose: the particles start at the track's scale and rotation in
+    /// `taken_at` (or its newest estimate), and the template is taken with the face seen that
+    /// way (`extraction::extract_template_seen`; the landmarks cast onto the turned model too),
+    /// so the track's angles and scale go on from where they were instead of starting again
+    /// from 0 and 1 with every new template: head pose read over a whole video stays one series.
+    pub fn template_for_restart(
+        &self,
+        track: usize,
+        frame: &GrayImage,
+        rect: &FaceRect,
+        taken_at: usize,
+    ) -> Result<Restart, FaceError> {
+        let running = self.running(track)?;
+        let (cx, cy) = rect.centre();
+        let (mean, view) = match running.estimate_at(taken_at) {
+            Some(pose) => {
+                let view = View {
+                    scale: pose[SCALE],
+                    rotation: rotation(pose[RX], pose[RY], pose[RZ]),
+                };
+                (
+                    [cx, cy, pose[SCALE], pose[RX], pose[RY], pose[RZ], 1.0],
+                    view,
+                )
+            }
+            None => (fresh_state(rect), View::frontal()),
+        };
+        let template = self.extract_seen(frame, rect, &view)?.0;
+        Ok(Restart { template, mean })
+    }
+
+    /// Starts running track `track` afresh from `restart` ([`Self::template_for_restart`]):
+    /// new particles, the same number, S still relative to the rectangle it started from.
+    pub fn restart_template(&mut self, track: usize, restart: Restart) -> Result<(), FaceError> {
+        let start = self.running(track)?.start;
+        let slot = (self.slots.iter())
+            .position(|s| s.as_ref().is_some_and(|t| t.id == track))
+            .ok_or_else(|| not_running(track))?;
+        self.start_in_slot(slot, track, start, restart.mean, restart.template)
+    }
+
+    fn running(&self, track: usize) -> Result<&Track, FaceError> {
+        (self.slots.iter().flatten())
+            .find(|t| t.id == track)
+            .ok_or_else(|| not_running(track))
+    }
+
+    /// The template this tracker would build for a face at `rect` in `frame`.
+    pub fn extract(&self, frame: &GrayImage, rect: &FaceRect) -> Result<Template, FaceError> {
+        Ok(self.extract_with_landmarks(frame, rect)?.0)
+    }
+
+    /// [`Self::extract`], with the landmarks the model was personalised to (`None` without a
+    /// personaliser, or when the fit missed the face and the generic model was used).
+    pub fn extract_with_landmarks(
+        &self,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Result<(Template, Option<Landmarks>), FaceError> {
+        self.extract_seen(frame, rect, &View::frontal())
+    }
+
+    /// [`Self::extract_with_landmarks`] for a face seen with `view`.
+    fn extract_seen(
+        &self,
+        frame: &GrayImage,
+        rect: &FaceRect,
+        view: &View,
+    ) -> Result<(Template, Option<Landmarks>), FaceError> {
+        self.check_size((frame.width, frame.height))?;
+        rect.validate(frame)?;
+        let personal = self.personaliser.as_ref().and_then(|p| {
+            let fitted = p.personalise_seen(frame, rect, &self.model, view).ok();
+            let counter = if fitted.is_some() {
+                &self.personalised
+            } else {
+                &self.fit_failures
+            };
+            counter.fetch_add(1, Ordering::Relaxed);
+            fitted
+        });
+        let model = personal.as_ref().map_or(&self.model, |p| &p.model);
+        let mut template =
+            extract_template_seen(frame, rect, model, &self.config.extraction, view)?;
+        // The landmarks on the model's surface: the fitted ones, else the generic head's.
+        let (cx, cy) = rect.centre();
+        let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
+        let on_surface = |u: f32, v: f32| view.surface_point(model, (hw, hh), u, v);
+        // A fitted landmark seen frontally lies at its offset; seen turned, where its ray meets
+        // the turned model (where it misses, as if seen frontally: only --landmarks-out uses
+        // them).
+        let fitted_on_surface = |l: &[f32; 2]| {
+            let offset = [l[0] - cx, l[1] - cy];
+            let frontal = || on_surface(offset[0] / hw, offset[1] / hh);
+            if view.is_frontal() {
+                return frontal();
+            }
+            (view.cast(model, (hw, hh), offset).map(|(point, _)| point)).unwrap_or_else(frontal)
+        };
+        template.landmarks = match (&personal, &self.personaliser) {
+            (Some(p), _) => Some(p.landmarks.iter().map(fitted_on_surface).collect()),
+            (None, Some(personaliser)) => Some(
+                (personaliser.generic_landmarks().iter())
+                    .map(|l| on_surface(l[0], l[1]))
+                    .collect(),
+            ),
+            (None, None) => None,
+        };
+        Ok((template, personal.map(|p| p.landmarks)))
+    }
+
+    /// Builds each new face's template on the face model warped to that face's landmarks (the
+    /// paper's personalised model), or on the generic model (`None`, the default). A face whose
+    /// landmark fit fails (folds the model, leaves the face) gets the generic model.
+    pub fn set_personaliser(&mut self, personaliser: Option<Arc<Personaliser>>) {
+        self.personaliser = personaliser;
+    }
+
+    /// Templates built so far on a personalised model, and on the generic model because the
+    /// landmark fit failed.
+    pub fn personalisation_counts(&self) -> (usize, usize) {
+        (
+            self.personalised.load(Ordering::Relaxed),
+            self.fit_failures.load(Ordering::Relaxed),
+        )
+    }
+
+    /// Puts a fresh particle cloud around `rect` and `template` in `slot`, as track `track`.
+    /// Starts `track` in `slot`: its particles around `mean`, S relative to `start`.
+    fn start_in_slot(
+        &mut self,
+        slot: usize,
+        track: usize,
+        start: FaceRect,
+        mean: [f32; DIMS],
+        template: Template,
+    ) -> Result<(), FaceError> {
+        self.check_nothing_in_flight("a face is started or restarted")?;
+        let shape = BatchShape::new(1, self.config.particles, DIMS)?;
+        // Each start gets its own initial cloud (the track's number and the frame key it).
+        let key = (track as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ self.frame_index as u64;
+        let cloud = gaussian_clouds(
+            &shape,
+            self.config.seed ^ key,
+            &mean,
+            &self.config.diffusion,
+        );
+        let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
+            .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
+        shard.start(slot, &cloud, &template)?;
+        self.slots[slot] = Some(Track {
+            id: track,
+            template,
+            start,
+            bad_frames: 0,
+            recent: VecDeque::with_capacity(RECENT_ESTIMATES),
+        });
+        Ok(())
+    }
+}
