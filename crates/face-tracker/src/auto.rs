@@ -368,7 +368,7 @@ impl AutoTracker {
                 let restart = (self.tracker)
                     .template_for_restart(track, &result.frame, &rect, result.frame_index)
                     .ok()
-                    .filter(|r| self.has_contrast(&r.template));
+                    .filter(|r| self.has_contrast(r.template()));
                 let Some(restart) = restart else {
                     out.ignored += 1;
                     continue;

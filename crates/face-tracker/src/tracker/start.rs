@@ -31,11 +31,18 @@ impl Track {
     }
 }
 
-/// A restart's new template and the state its particles start around.
+/// A restart's new template and the state its particles start around, made only by
+/// [`FaceTracker::template_for_restart`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct Restart {
-    pub template: Template,
-    pub mean: [f32; DIMS],
+    template: Template,
+    mean: [f32; DIMS],
+}
+
+impl Restart {
+    pub fn template(&self) -> &Template {
+        &self.template
+    }
 }
 
 fn not_running(track: usize) -> FaceError {
