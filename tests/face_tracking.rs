@@ -227,7 +227,18 @@ fn true_rect(video: &FaceSynthConfig, face: usize, frame: usize) -> FaceRect {
 /// rotation and scale stay near the truth after the restart, where starting again from R = 0
 /// and S = 1 would be off by the whole turn.
 #[test]
-fn a_restarted_track_keeps_its_pose() {
+fn a_restarted_track_keeps_its_pose_on_cpu() {
+    restarted_track_keeps_its_pose(FaceBackend::Cpu);
+}
+
+#[test]
+fn a_restarted_track_keeps_its_pose_on_gpu() {
+    if let Some(context) = common::gpu_context("a restarted track on the GPU") {
+        restarted_track_keeps_its_pose(FaceBackend::Gpu(Box::new(context)));
+    }
+}
+
+fn restarted_track_keeps_its_pose(backend: FaceBackend) {
     let video = FaceSynthConfig {
         faces: 1,
         occlusion: false,
@@ -237,8 +248,7 @@ fn a_restarted_track_keeps_its_pose() {
     let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
     let first = renderer.render(0).unwrap();
     let rect = initial_rect(&video, 0);
-    let mut tracker =
-        FaceTracker::new(&first, &[rect], &model, config(), FaceBackend::Cpu).unwrap();
+    let mut tracker = FaceTracker::new(&first, &[rect], &model, config(), backend).unwrap();
     // The restart comes at the largest turn from the first frame's pose in frames 8–19.
     let mut unturned = face_state(&video, 0, 0);
     (unturned[RX], unturned[RY], unturned[RZ]) = (0.0, 0.0, 0.0);
