@@ -151,18 +151,16 @@ impl Personaliser {
         };
         let landmarks = self.predictor.fit(frame, &face_box)?;
         let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
-        let in_model = (landmarks.iter())
+        // A landmark whose ray misses the model (always, seen frontally, for one outside the
+        // rectangle such as a jaw's end) keeps its frontal coordinates: the warp's own checks
+        // judge it.
+        let in_model: Vec<[f32; 2]> = (landmarks.iter())
             .map(|p| {
                 let offset = [p[0] - cx, p[1] - cy];
-                if view.is_frontal() {
-                    // Seen frontally a landmark may lie outside the rectangle (a jaw's end):
-                    // the warp's own checks judge it.
-                    return Ok([offset[0] / hw, offset[1] / hh]);
-                }
                 let cast = view.unproject(model, (hw, hh), offset);
-                Ok(cast.map_or([offset[0] / hw, offset[1] / hh], |(u, v)| [u, v]))
+                cast.map_or([offset[0] / hw, offset[1] / hh], |(u, v)| [u, v])
             })
-            .collect::<Result<Vec<[f32; 2]>, FaceError>>()?;
+            .collect();
         let model = self.warp(model, &in_model)?;
         Ok(Personalised { landmarks, model })
     }

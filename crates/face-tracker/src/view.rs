@@ -135,14 +135,20 @@ fn inside_model(uv: [f32; 2]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::projection::rotation;
+    use crate::projection::{Pose, rotation};
     use proptest::prelude::*;
 
-    /// Where a model point appears, in pixels from the rectangle's centre, and how near the
-    /// camera it lies.
+    /// Where a model point appears, in pixels from the rectangle's centre (the tracker's own
+    /// projection, `Pose::project`), and how near the camera it lies.
     fn project(view: &View, p: [f32; 3]) -> ([f32; 2], f32) {
-        let turned = view.rotation * Vector3::from(p);
-        ([turned.x * view.scale, turned.y * view.scale], turned.z)
+        let pose = Pose {
+            translation: nalgebra::Vector2::zeros(),
+            scale: view.scale,
+            rotation: view.rotation,
+            alpha: 1.0,
+        };
+        let at = pose.project(&Vector3::from(p));
+        ([at.x, at.y], (view.rotation * Vector3::from(p)).z)
     }
 
     proptest! {

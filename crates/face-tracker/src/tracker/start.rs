@@ -120,17 +120,20 @@ impl FaceTracker {
     /// Starts running track `track` afresh from `restart` ([`Self::template_for_restart`]):
     /// new particles, the same number, S still relative to the rectangle it started from.
     pub fn restart_template(&mut self, track: usize, restart: Restart) -> Result<(), FaceError> {
+        let slot = self.slot_of(track)?;
         let start = self.running(track)?.start;
-        let slot = (self.slots.iter())
-            .position(|s| s.as_ref().is_some_and(|t| t.id == track))
-            .ok_or_else(|| not_running(track))?;
         self.start_in_slot(slot, track, start, restart.mean, restart.template)
     }
 
-    fn running(&self, track: usize) -> Result<&Track, FaceError> {
-        (self.slots.iter().flatten())
-            .find(|t| t.id == track)
+    fn slot_of(&self, track: usize) -> Result<usize, FaceError> {
+        (self.slots.iter())
+            .position(|s| s.as_ref().is_some_and(|t| t.id == track))
             .ok_or_else(|| not_running(track))
+    }
+
+    fn running(&self, track: usize) -> Result<&Track, FaceError> {
+        let slot = self.slot_of(track)?;
+        (self.slots[slot].as_ref()).ok_or_else(|| not_running(track))
     }
 
     /// The template this tracker would build for a face at `rect` in `frame`.
