@@ -115,6 +115,10 @@ pub enum BackendArg {
 /// The built-in face models a template's points take their depths from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum FaceModelArg {
+    /// The photographed head for a video, images or a webcam; the generic head for --synthetic,
+    /// whose heads are the generic model. Chosen by measurement on real clips against MediaPipe's
+    /// face mesh (docs/ACCURACY.md, "Which face model by default").
+    Auto,
     /// The parametric head (an ellipsoid with nose, brow and cheek relief): the synthetic
     /// video's heads.
     Generic,
@@ -227,7 +231,7 @@ pub struct TrackArgs {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// The built-in face model (when no --heightmap is given).
-    #[arg(long, value_enum, default_value_t = FaceModelArg::Generic, conflicts_with = "heightmap")]
+    #[arg(long, value_enum, default_value_t = FaceModelArg::Auto, conflicts_with = "heightmap")]
     pub face_model: FaceModelArg,
     /// Your own face model: a square gray heightmap PNG (with --normalmap; black 0, white
     /// --height-scale half-widths of the face rectangle) instead of the generic head.
@@ -1043,9 +1047,11 @@ fn build_runner(
 ) -> anyhow::Result<(Runner, String)> {
     let face_model = match (&args.heightmap, &args.normalmap) {
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
-        _ => match args.face_model {
-            FaceModelArg::Generic => model()?,
-            FaceModelArg::Photographed => FaceModel::photographed(MODEL_GRID)?,
+        _ => match (args.face_model, args.synthetic) {
+            (FaceModelArg::Generic, _) | (FaceModelArg::Auto, true) => model()?,
+            (FaceModelArg::Photographed, _) | (FaceModelArg::Auto, false) => {
+                FaceModel::photographed(MODEL_GRID)?
+            }
         },
     };
     let defaults = FaceTrackerConfig::default();
