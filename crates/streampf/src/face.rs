@@ -253,8 +253,8 @@ pub struct TrackArgs {
     #[arg(long)]
     pub generic_model: bool,
     /// Template points are not taken inside either eye's fitted outline grown by this factor
-    /// about its centre: an eye turns with the gaze, not the head, so a glance would read as a
-    /// turn of the head. 0 takes the eyes like the rest. Applies where the landmarks are fitted
+    /// about its centre: an eye blinks, narrows and turns with the gaze on its own, and the fit
+    /// would read that as a move of the head. 0 takes the eyes like the rest. Applies where the landmarks are fitted
     /// (not with --generic-model or --synthetic).
     #[arg(long, default_value_t = FaceTrackerConfig::default().extraction.eye_outline_growth.unwrap_or(0.0), value_parser = eye_outline_growth)]
     pub eye_outline_growth: f32,

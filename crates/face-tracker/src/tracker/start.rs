@@ -171,7 +171,7 @@ impl FaceTracker {
             fitted
         });
         let model = personal.as_ref().map_or(&self.model, |p| &p.model);
-        // The eyes are left out where the fit found them (they turn with the gaze).
+        // The eyes are left out where the fit found them (they blink and turn on their own).
         let avoid = match (&personal, self.config.extraction.eye_outline_growth) {
             (Some(p), Some(growth)) => eye_outlines(&p.landmarks, growth),
             _ => Vec::new(),
