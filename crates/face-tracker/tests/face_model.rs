@@ -1,7 +1,7 @@
 //! Projection against hand-computed cases, the likelihood's pieces, the face model, template
 //! extraction on synthetic images with known extrema and edges, and bad inputs.
 
-use face_tracker::extraction::{ExtractionConfig, FaceRect, extract_template};
+use face_tracker::extraction::{ExtractionConfig, FaceRect, Outline, extract_template};
 use face_tracker::likelihood::{log_weight, residual_error, rho};
 use face_tracker::model::{EYE_CORNER_U, EYE_CORNER_V, FaceModel, NOSE_TIP_V};
 use face_tracker::projection::{DIMS, Pose};
@@ -167,6 +167,14 @@ fn the_photographed_model_is_a_real_face_on_the_generic_skull() {
     assert!(FaceModel::photographed(2).is_err());
 }
 
+/// The face rectangle the blob images' tests extract from.
+const BLOB_RECT: FaceRect = FaceRect {
+    x: 20.0,
+    y: 20.0,
+    width: 80.0,
+    height: 80.0,
+};
+
 fn blob_image(blobs: &[(f32, f32, f32)]) -> GrayImage {
     let (w, h) = (120u32, 120u32);
     let data: Vec<f32> = (0..w * h)
@@ -191,12 +199,7 @@ fn extraction_finds_known_extrema_in_order() {
         (75.0, 35.0, -40.0),
     ];
     let image = blob_image(&blobs);
-    let rect = FaceRect {
-        x: 20.0,
-        y: 20.0,
-        width: 80.0,
-        height: 80.0,
-    };
+    let rect = BLOB_RECT;
     let model = FaceModel::generic(33).unwrap();
     let config = ExtractionConfig {
         max_points: 4,
@@ -236,12 +239,7 @@ fn extraction_puts_dipoles_across_edges_and_keeps_points_apart() {
         })
         .collect();
     let image = GrayImage::from_levels(w, h, &data).unwrap();
-    let rect = FaceRect {
-        x: 20.0,
-        y: 20.0,
-        width: 80.0,
-        height: 80.0,
-    };
+    let rect = BLOB_RECT;
     let model = FaceModel::generic(33).unwrap();
     let config = ExtractionConfig {
         max_points: 20,
@@ -376,4 +374,86 @@ fn bad_inputs_are_clear_errors() {
     assert!((loaded.heights[9 * 8 + 8] - 0.5 * (8.0 * 20.0 + 8.0) / 255.0).abs() < 1e-3);
     assert!(loaded.normals[0][2] > 0.99);
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn a_template_takes_no_point_inside_an_outline_it_avoids() {
+    // The strongest blob sits where an eye would be; three weaker ones elsewhere.
+    let blobs = [
+        (45.0, 50.0, -110.0),
+        (70.0, 60.0, 80.0),
+        (55.0, 80.0, 60.0),
+        (75.0, 40.0, -50.0),
+    ];
+    let image = blob_image(&blobs);
+    let rect = BLOB_RECT;
+    let model = FaceModel::generic(33).unwrap();
+    let config = ExtractionConfig {
+        max_points: 3,
+        extrema_share: 1.0,
+        ..ExtractionConfig::default()
+    };
+    // A hexagon of radius 6 about the strongest blob.
+    let eye: Outline = (0..6)
+        .map(|k| {
+            let a = std::f32::consts::TAU * k as f32 / 6.0;
+            [45.0 + 6.0 * a.cos(), 50.0 + 6.0 * a.sin()]
+        })
+        .collect();
+    let taken = |avoid: &[Outline]| {
+        let template = face_tracker::extraction::extract_template_seen(
+            &image,
+            &rect,
+            &model,
+            &config,
+            &face_tracker::view::View::frontal(),
+            avoid,
+        )
+        .unwrap();
+        let (cx, cy) = rect.centre();
+        (template.points.iter())
+            .map(|q| (q.position[0] + cx, q.position[1] + cy))
+            .collect::<Vec<_>>()
+    };
+    let near = |(x, y): (f32, f32), (bx, by): (f32, f32)| (x - bx).hypot(y - by) < 1.0;
+    let all = taken(&[]);
+    assert!(near(all[0], (45.0, 50.0)), "{all:?}");
+    let avoiding = taken(std::slice::from_ref(&eye));
+    assert_eq!(avoiding.len(), 3, "{avoiding:?}");
+    for p in &avoiding {
+        assert!(
+            !face_tracker::extraction::inside_outline(&eye, p.0, p.1),
+            "{p:?} is inside the eye"
+        );
+    }
+    for blob in &blobs[1..] {
+        assert!(
+            avoiding.iter().any(|&p| near(p, (blob.0, blob.1))),
+            "blob {blob:?} not taken: {avoiding:?}"
+        );
+    }
+}
+
+#[test]
+fn a_bad_growth_is_a_clear_error() {
+    let image = blob_image(&[(60.0, 60.0, 100.0)]);
+    let rect = BLOB_RECT;
+    let model = FaceModel::generic(33).unwrap();
+    for growth in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+        let config = ExtractionConfig {
+            eye_outline_growth: Some(growth),
+            ..ExtractionConfig::default()
+        };
+        let error = face_tracker::extraction::extract_template_seen(
+            &image,
+            &rect,
+            &model,
+            &config,
+            &face_tracker::view::View::frontal(),
+            &[],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(error.contains("invalid extraction settings"), "{error}");
+    }
 }
