@@ -69,8 +69,8 @@ pub struct ExtractionConfig {
     pub dipole_half_length: f32,
     /// Dipoles whose gray-level step is below this are ignored.
     pub min_step: f32,
-    /// No point is taken inside either eye's fitted outline grown by this factor about its
-    /// centre (`None`: eyes are taken like the rest). An eye changes on its own, not with the
+    /// No point is taken inside either eye's fitted outline grown by this factor (at least 1, so
+    /// that the whole eye is left out) about its centre (`None`: eyes are taken like the rest). An eye changes on its own, not with the
     /// head (it blinks, narrows in a laugh, turns with the gaze), and the fit reads those
     /// changes as moves of the head. Needs the face's landmarks, so it applies to personalised
     /// templates only.
@@ -334,7 +334,7 @@ pub fn extract_template_seen(
         || !(config.separation >= 1.0 && config.sigma > 0.0 && config.dipole_half_length > 0.0)
         || config
             .eye_outline_growth
-            .is_some_and(|g| !(g.is_finite() && g > 0.0))
+            .is_some_and(|g| !(g.is_finite() && g >= 1.0))
     {
         return Err(FaceError::InvalidInput(format!(
             "invalid extraction settings: {config:?}"

@@ -439,7 +439,7 @@ fn a_bad_growth_is_a_clear_error() {
     let image = blob_image(&[(60.0, 60.0, 100.0)]);
     let rect = BLOB_RECT;
     let model = FaceModel::generic(33).unwrap();
-    for growth in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+    for growth in [0.0, 0.5, -1.0, f32::NAN, f32::INFINITY] {
         let config = ExtractionConfig {
             eye_outline_growth: Some(growth),
             ..ExtractionConfig::default()

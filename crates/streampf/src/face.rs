@@ -253,9 +253,9 @@ pub struct TrackArgs {
     #[arg(long)]
     pub generic_model: bool,
     /// Template points are not taken inside either eye's fitted outline grown by this factor
-    /// about its centre: an eye blinks, narrows and turns with the gaze on its own, and the fit
-    /// would read that as a move of the head. 0 takes the eyes like the rest. Applies where the landmarks are fitted
-    /// (not with --generic-model or --synthetic).
+    /// (at least 1) about its centre: an eye blinks, narrows and turns with the gaze on its own,
+    /// and the fit would read that as a move of the head. 0 takes the eyes like the rest.
+    /// Applies where the landmarks are fitted (not with --generic-model or --synthetic).
     #[arg(long, default_value_t = FaceTrackerConfig::default().extraction.eye_outline_growth.unwrap_or(0.0), value_parser = eye_outline_growth)]
     pub eye_outline_growth: f32,
     /// Stop at the first frame that cannot be read (after writing every frame before it)
@@ -568,15 +568,16 @@ impl Runner {
     }
 }
 
-/// `--eye-outline-growth`: 0 (eyes taken), or a finite factor of at least 1 (an outline grown
-/// less than that would leave part of the eye in the template).
+/// `--eye-outline-growth`: 0 (eyes taken), or what `ExtractionConfig::eye_outline_growth`
+/// accepts, a finite factor of at least 1 (an outline grown less would leave part of the eye in
+/// the template), checked here so that a bad value is refused before anything runs.
 fn eye_outline_growth(text: &str) -> Result<f32, String> {
     let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    if value == 0.0 || (value.is_finite() && (1.0..=4.0).contains(&value)) {
+    if value == 0.0 || (value.is_finite() && value >= 1.0) {
         Ok(value)
     } else {
         Err(format!(
-            "{value}: give 0 (take the eyes) or a factor from 1 to 4"
+            "{value}: give 0 (take the eyes) or a factor of at least 1"
         ))
     }
 }

@@ -32,17 +32,18 @@ fn axis(result: &serde_json::Value, name: &str) -> (f64, f64) {
     (r, ratio)
 }
 
-/// Tracks carphone with `model_args` and checks it against the mesh: the one track's result and
-/// the run's states.csv, or `None` when the tests on real media are skipped by request.
-fn carphone_against_the_mesh(
-    name: &str,
-    model_args: &[&str],
-) -> Option<(serde_json::Value, String)> {
+fn carphone() -> PathBuf {
+    workspace().join("target/media/talking/carphone.mp4")
+}
+
+/// Tracks carphone with `model_args` into a scratch directory of `name` (its states.csv there),
+/// or `None` when the tests on real media are skipped by request.
+fn track_carphone(name: &str, model_args: &[&str]) -> Option<PathBuf> {
     if std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1") {
         eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
         return None;
     }
-    let clip = workspace().join("target/media/talking/carphone.mp4");
+    let clip = carphone();
     assert!(clip.is_file(), "{} is missing; {HELP}", clip.display());
     let out = scratch(name);
     let out_dir = out.to_str().unwrap();
@@ -62,6 +63,12 @@ fn carphone_against_the_mesh(
         .chain(model_args.iter().copied())
         .collect::<Vec<_>>(),
     ));
+    Some(out)
+}
+
+/// The run in `out` checked against the mesh: its one track's result.
+fn against_the_mesh(out: &Path) -> serde_json::Value {
+    let clip = carphone();
     let json = out.join("check.json");
     let python = workspace().join("target/media/pose-venv/bin/python3");
     assert!(python.is_file(), "{} is missing; {HELP}", python.display());
@@ -86,16 +93,15 @@ fn carphone_against_the_mesh(
     assert_eq!(tracks.len(), 1, "one face, one track: {results}");
     let track = tracks.values().next().unwrap();
     assert!(track["frames"].as_u64().unwrap() >= 100, "{track}");
-    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
-    Some((track.clone(), states))
+    track.clone()
 }
 
 #[test]
 fn head_pose_on_a_real_talking_face_follows_the_reference() {
-    let Some((track, _)) = carphone_against_the_mesh("carphone", &["--face-model", "generic"])
-    else {
+    let Some(out) = track_carphone("carphone", &["--face-model", "generic"]) else {
         return;
     };
+    let track = against_the_mesh(&out);
     // Against the reference's 5-frame median (the mesh's landmarks jitter by about half a degree).
     let slow = &track["smoothed"];
     let (roll_r, roll_ratio) = axis(slow, "roll");
@@ -113,17 +119,18 @@ fn head_pose_on_a_real_talking_face_follows_the_reference() {
 
 #[test]
 fn a_video_gets_the_photographed_face_model_which_turns_as_far_as_the_head() {
-    let Some((track, states)) = carphone_against_the_mesh("carphone-default", &[]) else {
+    let Some(default) = track_carphone("carphone-default", &[]) else {
         return;
     };
     // The default for a video is the photographed head: the same run as asking for it.
-    let (_, photographed) =
-        carphone_against_the_mesh("carphone-photographed", &["--face-model", "photographed"])
-            .expect("not skipped: the first run was not");
+    let photographed = track_carphone("carphone-photographed", &["--face-model", "photographed"])
+        .expect("not skipped: the first run was not");
+    let states = |out: &Path| std::fs::read_to_string(out.join("states.csv")).unwrap();
     assert!(
-        states == photographed,
+        states(&default) == states(&photographed),
         "the default run differs from --face-model photographed"
     );
+    let track = against_the_mesh(&default);
     // A real face's depth: the yaw's spread 1.11 times the mesh's on this clip (docs/ACCURACY.md;
     // the bound leaves room for the reference's own uncertainty), roll as with the generic head.
     let slow = &track["smoothed"];
