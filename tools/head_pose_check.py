@@ -30,8 +30,14 @@ A reference's landmarks jitter from frame to frame, which caps r on small motion
 also compares against the reference's running median over N frames (centred, paired frames only):
 the slow head motion that a tracker should follow.
 
+A talking head turns far only now and then, so a whole clip's spread is mostly small motion.
+`--widest N` also reports, per axis, the N consecutive paired frames over which the reference
+(its running median with --smooth) moves furthest: which frames, how far the reference turns
+there about its own mean, and the comparison over them. The stretch is chosen by the
+reference's motion alone, never by the tracker's agreement with it.
+
     python3 tools/head_pose_check.py VIDEO STATES_CSV [--reference mesh|six-point]
-        [--json OUT.json] [--min-frames 30] [--max-frames N] [--smooth 5]
+        [--json OUT.json] [--min-frames 30] [--max-frames N] [--smooth 5] [--widest 300]
 
 The mesh needs mediapipe==0.10.14 and the six-point reference dlib and its model at
 /usr/share/dlib/shape_predictor_68_face_landmarks.dat (Debian's libdlib-data); both need numpy and
@@ -205,6 +211,26 @@ def smoothed(frames, values, window):
     )
 
 
+def widest_stretch(frames, ours, theirs, length):
+    """Over the `length` consecutive pairs where `theirs` spans the widest range (max - min;
+    the earliest such stretch on a tie): the frames, the reference's extremes about its mean
+    there, and the comparison. Every pair when there are fewer than `length`."""
+    theirs = np.asarray(theirs)
+    length = min(length, len(theirs))
+    spans = [np.ptp(theirs[start : start + length]) for start in range(len(theirs) - length + 1)]
+    start = int(np.argmax(spans))
+    window = slice(start, start + length)
+    reference = theirs[window]
+    return {
+        "first_frame": int(frames[start]),
+        "last_frame": int(frames[start + length - 1]),
+        "pairs": length,
+        "reference_below_mean_deg": float(reference.min() - reference.mean()),
+        "reference_above_mean_deg": float(reference.max() - reference.mean()),
+        **compare(np.asarray(ours)[window], reference),
+    }
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("video")
@@ -221,7 +247,17 @@ def main():
     parser.add_argument(
         "--smooth", type=int, default=1, help="also compare with the reference's N-frame median"
     )
+    parser.add_argument(
+        "--widest",
+        type=int,
+        metavar="N",
+        help="also compare, per axis, over the N paired frames where the reference moves furthest",
+    )
     args = parser.parse_args()
+    for name in ("min_frames", "max_frames", "smooth", "widest"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, not {value}")
     poses = mesh_reference if args.reference == "mesh" else six_point_reference
     reference = poses(args.video, args.max_frames)
     results = {}
@@ -253,6 +289,12 @@ def main():
             }
             for k, axis in enumerate(AXES):
                 results[track]["smoothed"][axis] = compare(ours[:, k], slow[:, k])
+        if args.widest:
+            against = slow if args.smooth > 1 else theirs
+            results[track]["widest"] = {
+                axis: widest_stretch(frames, ours[:, k], against[:, k], args.widest)
+                for k, axis in enumerate(AXES)
+            }
     if not results:
         sys.exit(f"no track had {args.min_frames} frames paired with the reference")
     for track, result in results.items():
@@ -268,6 +310,16 @@ def main():
                 + ")"
             )
             print_axes(result["smoothed"])
+        if "widest" in result:
+            median = f"{args.smooth}-frame median" if args.smooth > 1 else "reference"
+            print(f"  over the {args.widest} paired frames where the {median} moves furthest:")
+            for axis, c in result["widest"].items():
+                print(
+                    f"  {axis:5}: frames {c['first_frame']}-{c['last_frame']}, reference "
+                    f"{c['reference_below_mean_deg']:+.1f}° to {c['reference_above_mean_deg']:+.1f}° "
+                    f"about its mean; r {c['r']:.2f}, sd ratio {c['sd_ratio']:.2f}, mean "
+                    f"|difference| after offset {c['mean_abs_diff_deg']:.1f}°"
+                )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(results, f, indent=1)
