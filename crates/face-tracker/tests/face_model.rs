@@ -457,3 +457,56 @@ fn a_bad_growth_is_a_clear_error() {
         assert!(error.contains("invalid extraction settings"), "{error}");
     }
 }
+
+/// A deeper or shallower photographed face (`--face-depth`): the heights above the eyes' outer
+/// corners scale with it down the middle of the face, the skull off the face stays, 1 is the
+/// photographed head itself, and a depth outside the range is refused.
+#[test]
+fn the_photographed_face_can_be_made_deeper_or_shallower() {
+    use face_tracker::model::{FACE_DEPTH_RANGE, photographed_height_with_face_depth as height};
+    use proptest::prelude::*;
+    use proptest::test_runner::{Config, TestRunner};
+    assert_eq!(
+        FaceModel::photographed_with_face_depth(65, 1.0).unwrap(),
+        FaceModel::photographed(65).unwrap()
+    );
+    let relief = |u: f32, v: f32, k: f32| height(u, v, k) - height(EYE_CORNER_U, EYE_CORNER_V, k);
+    let mut runner = TestRunner::new(Config {
+        cases: 256,
+        failure_persistence: None,
+        ..Config::default()
+    });
+    let depths = FACE_DEPTH_RANGE;
+    runner
+        .run(
+            &(depths.clone(), prop_oneof![Just(1.0f32), depths]),
+            |(k, other)| {
+                // Down the middle of the face (nose ridge, tip, mouth, chin) the relief scales.
+                for v in [-0.1f32, 0.1, NOSE_TIP_V, 0.6, 0.8] {
+                    let (a, b) = (relief(0.0, v, k), relief(0.0, v, other));
+                    prop_assert!(
+                        (a * other - b * k).abs()
+                            <= 1e-4 * (1.0 + a.abs() + b.abs()) * k.max(other),
+                        "v = {v}: {a} at {k}, {b} at {other}"
+                    );
+                }
+                // The skull beyond the photographed face (the rectangle's top and corners) does
+                // not move.
+                for (u, v) in [
+                    (-1.0f32, -1.0f32),
+                    (0.0, -1.0),
+                    (1.0, -1.0),
+                    (-1.0, 1.0),
+                    (1.0, 1.0),
+                ] {
+                    prop_assert_eq!(height(u, v, k), height(u, v, other));
+                }
+                Ok(())
+            },
+        )
+        .unwrap();
+    for bad in [0.0, 0.2, 4.5, -1.0, f32::NAN, f32::INFINITY] {
+        let err = FaceModel::photographed_with_face_depth(65, bad).unwrap_err();
+        assert!(err.to_string().contains("depth scale"), "{bad}: {err}");
+    }
+}

@@ -233,6 +233,12 @@ pub struct TrackArgs {
     /// The built-in face model (when no --heightmap is given).
     #[arg(long, value_enum, default_value_t = FaceModelArg::Auto, conflicts_with = "heightmap")]
     pub face_model: FaceModelArg,
+    /// The photographed head's face this many times as deep (0.25 to 4): its height above the
+    /// eyes' outer corners scaled. One depth does not fit every face and camera: on the real
+    /// clips a face 1.1 times as deep follows one man's turns better and another's worse
+    /// (docs/ACCURACY.md, "The widest turns"). Only with the photographed head.
+    #[arg(long, default_value_t = 1.0, value_parser = face_depth)]
+    pub face_depth: f32,
     /// Your own face model: a square gray heightmap PNG (with --normalmap; black 0, white
     /// --height-scale half-widths of the face rectangle) instead of the generic head.
     #[arg(long, requires = "normalmap")]
@@ -565,6 +571,22 @@ impl Runner {
             Runner::Fixed(tracker) => tracker.add_face(frame, rect)?,
             Runner::Auto(auto) => auto.add_face(frame, rect)?,
         })
+    }
+}
+
+/// `--face-depth`: a finite scale within the face model's range, checked here so that a bad
+/// value is refused before anything runs.
+fn face_depth(text: &str) -> Result<f32, String> {
+    let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if face_tracker::model::FACE_DEPTH_RANGE.contains(&value) {
+        Ok(value)
+    } else {
+        let range = face_tracker::model::FACE_DEPTH_RANGE;
+        Err(format!(
+            "{value}: give a scale from {} to {}",
+            range.start(),
+            range.end()
+        ))
     }
 }
 
@@ -1046,12 +1068,27 @@ fn build_runner(
     rects: &[FaceRect],
     detect: bool,
 ) -> anyhow::Result<(Runner, String)> {
+    let photographed = args.heightmap.is_none()
+        && matches!(
+            (args.face_model, args.synthetic),
+            (FaceModelArg::Photographed, _) | (FaceModelArg::Auto, false)
+        );
+    if args.face_depth != 1.0 && !photographed {
+        bail!(
+            "--face-depth scales the photographed head's face; this run's model is {} (give --face-model photographed)",
+            if args.heightmap.is_some() {
+                "your --heightmap"
+            } else {
+                "the generic head"
+            }
+        );
+    }
     let face_model = match (&args.heightmap, &args.normalmap) {
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
         _ => match (args.face_model, args.synthetic) {
             (FaceModelArg::Generic, _) | (FaceModelArg::Auto, true) => model()?,
             (FaceModelArg::Photographed, _) | (FaceModelArg::Auto, false) => {
-                FaceModel::photographed(MODEL_GRID)?
+                FaceModel::photographed_with_face_depth(MODEL_GRID, args.face_depth)?
             }
         },
     };

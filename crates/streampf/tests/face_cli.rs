@@ -290,6 +290,31 @@ fn bad_face_inputs_are_clear_errors() {
         let err = failure(&streampf(&bad));
         assert!(err.len() > 10, "{bad:?}: {err}");
     }
+    // --face-depth: a scale in range, and only where the photographed head is the model.
+    for (depth, expected) in [
+        ("0", "give a scale from 0.25 to 4"),
+        ("4.5", "give a scale from 0.25 to 4"),
+        ("NaN", "give a scale from 0.25 to 4"),
+        ("deep", "invalid float"),
+    ] {
+        let err = failure(&streampf(&[
+            "face",
+            "track",
+            "--synthetic",
+            "--face-model",
+            "photographed",
+            "--face-depth",
+            depth,
+        ]));
+        assert!(err.contains(expected), "{depth}: {err}");
+    }
+    for model in ["auto", "generic"] {
+        let mut args = vec!["face", "track", "--synthetic", "--face-depth", "1.1"];
+        args.extend(SMALL);
+        args.extend(["--face-model", model, "--backend", "cpu"]);
+        let err = failure(&streampf(&args));
+        assert!(err.contains("the generic head"), "{model}: {err}");
+    }
     std::fs::remove_dir_all(&data).unwrap();
 }
 
