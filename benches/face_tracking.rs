@@ -136,6 +136,7 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
             1.0,
             MIN_ERROR,
             MIN_VISIBLE_SHARE,
+            pf_gpu::faces::Lens::WEAK,
         )
         .unwrap();
         gpu.upload_frame(ctx, &frame.data).unwrap();
@@ -362,6 +363,7 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
         1.0,
         MIN_ERROR,
         MIN_VISIBLE_SHARE,
+        pf_gpu::faces::Lens::WEAK,
     )
     .unwrap();
     let floats: Vec<f32> = frame.data.iter().map(|&v| f32::from(v)).collect();

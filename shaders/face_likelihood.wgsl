@@ -6,7 +6,11 @@
 // per face with `face_offset` (the paper's form). CPU twin:
 // face_tracker::likelihood::residual_error.
 //
-// Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty), I(p) bilinear, kappa =
+// Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty) (weak perspective, the
+// paper's), or through a pinhole (inverse_focal = 1/f > 0) that point magnified by
+// 1 / (1 - S (R P)_z / f) about the principal point (through_lens; CPU twin
+// pf_gpu::faces::Lens::apply); a point at or behind the camera counts as outside the frame.
+// I(p) bilinear, kappa =
 // (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1), computed as d^2 / (d^2 + J^2) with d =
 // alpha I(p) - J (the same value, one division); a point outside the frame has rho = 1.
 // epsilon = mean rho over those points (1 when fewer than min_visible_share of the points face
@@ -28,7 +32,11 @@ struct FaceParams {
     min_error: f32,
     // A pose showing fewer than this share of the points has epsilon = 1.
     min_visible_share: f32,
-    _pad1: u32,
+    inverse_focal: f32,
+    principal_x: f32,
+    principal_y: f32,
+    _pad2: u32,
+    _pad3: u32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -85,6 +93,24 @@ fn bilinear(x: f32, y: f32) -> f32 {
     return top * (1.0 - fy) + bottom * fy;
 }
 
+// Lens::MIN_DISTANCE_SHARE.
+const MIN_DISTANCE_SHARE: f32 = 0.05;
+
+// Where a point is seen whose weak-perspective image is `weak` and which lies `depth` pixels
+// nearer the camera than the face's centre; (-1, -1), outside every frame, when it is at or
+// behind the camera.
+fn through_lens(weak: vec2<f32>, depth: f32) -> vec2<f32> {
+    if (fp.inverse_focal == 0.0) {
+        return weak;
+    }
+    let distance = 1.0 - depth * fp.inverse_focal;
+    if (!(distance > MIN_DISTANCE_SHARE)) {
+        return vec2<f32>(-1.0, -1.0);
+    }
+    let principal = vec2<f32>(fp.principal_x, fp.principal_y);
+    return principal + (weak - principal) / distance;
+}
+
 struct FacePose {
     tx: f32,
     ty: f32,
@@ -135,7 +161,8 @@ fn accumulate(t: u32, x: FacePose, first: u32, step: u32) -> vec2<f32> {
         if ((x.r * n).z >= 0.0) {
             visible = visible + 1.0;
             let q = x.r * pj.xyz;
-            let intensity = bilinear(x.scale * q.x + x.tx, x.scale * q.y + x.ty);
+            let p = through_lens(vec2<f32>(x.scale * q.x + x.tx, x.scale * q.y + x.ty), x.scale * q.z);
+            let intensity = bilinear(p.x, p.y);
             if (intensity < 0.0) {
                 rho_sum = rho_sum + 1.0;
             } else {

@@ -1,5 +1,7 @@
 //! The GPU face likelihood (per-face, batched and packed dispatch) against the CPU reference: random
-//! frames, templates and particles, with faces partly out of the frame and turned up to ±90°.
+//! frames, templates and particles, with faces partly out of the frame and turned up to ±90°, seen
+//! through weak perspective or a pinhole (from a long lens to one that puts points at or behind
+//! the camera).
 //!
 //! Tolerance (DESIGN.md): ε agrees to 1e-4 relative plus 1e-5, plus what each point's ρ can move
 //! when its projection moves by 1e-3 px (f32 rounding of the projection is ~1e-4 px at these
@@ -7,11 +9,15 @@
 //! visible points. Two flips are allowed and counted: a point within 1e-3 px of the frame's edge
 //! (inside or outside decides between its ρ and 1), and a point whose rotated normal has
 //! |n_z| < 1e-5 (visible or occluded: it moves ε by at most 1/(N−1), or to 1 when it carries the
-//! visible count across the minimum share).
+//! visible count across the minimum share). Through a pinhole, a point nearer the camera than a
+//! quarter of the face's distance counts as a flip too (magnified so much that rounding moves it
+//! further than the shift, or not imaged).
 
 mod common;
 
-use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error, rho};
+use face_tracker::likelihood::{
+    Lens, MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error, residual_error_through, rho,
+};
 use face_tracker::projection::{DIMS, Pose};
 use face_tracker::{FeaturePoint, GrayImage, Template};
 use nalgebra::Vector3;
@@ -23,6 +29,10 @@ use proptest::test_runner::{Config, TestRunner};
 
 const SHARPNESS: f32 = 1.0;
 const SHIFT: f32 = 1e-3;
+/// Through a pinhole, a point whose distance from the camera is under this share of the face's
+/// (magnified more than four times, or not imaged at all below `Lens::MIN_DISTANCE_SHARE`) is
+/// counted as a flip: rounding moves it by more than `SHIFT`.
+const NEAR_CAMERA: f32 = 0.25;
 
 fn frame(rng: &mut pf_core::RandomStream, width: u32, height: u32) -> GrayImage {
     // Smooth structure plus pixel noise: gradients of every size.
@@ -73,7 +83,13 @@ fn state(rng: &mut pf_core::RandomStream, width: u32, height: u32) -> [f32; DIMS
 }
 
 /// The allowed |ε_GPU − ε_CPU| for one particle (see the module doc).
-fn tolerance(s: &[f32; DIMS], template: &Template, image: &GrayImage, want: f64) -> f64 {
+fn tolerance(
+    s: &[f32; DIMS],
+    template: &Template,
+    image: &GrayImage,
+    lens: &Lens,
+    want: f64,
+) -> f64 {
     let pose = Pose::new(s);
     let mut spread = 0.0f64;
     let mut visible = 0usize;
@@ -87,7 +103,16 @@ fn tolerance(s: &[f32; DIMS], template: &Template, image: &GrayImage, want: f64)
             continue;
         }
         visible += 1;
-        let p = pose.project(&Vector3::from(q.position));
+        let position = pose.rotation * Vector3::from(q.position);
+        let distance = 1.0 - pose.scale * position.z * lens.inverse_focal;
+        if distance < NEAR_CAMERA {
+            // Magnified many times or not imaged: a flip.
+            flips += 1;
+            continue;
+        }
+        let Some(p) = pose.project_through(&Vector3::from(q.position), lens) else {
+            continue;
+        };
         let shifted = [
             (0.0, 0.0),
             (SHIFT, 0.0),
@@ -141,9 +166,12 @@ fn check(dispatch: FaceDispatch, cases: u32) {
         prop_oneof![Just(1usize), Just(64), 2usize..300],
         prop_oneof![Just(1usize), Just(255), Just(256), Just(257), 2usize..400],
         (2u32..300, 2u32..200),
+        // Weak perspective, or a pinhole from a long lens to one nearer than the faces' depth.
+        prop_oneof![Just(None), (20f32..3000.0).prop_map(Some)],
     );
     runner
-        .run(&strategy, |(seed, faces, particles, points, (width, height))| {
+        .run(&strategy, |(seed, faces, particles, points, (width, height), focal)| {
+            let lens = focal.map_or(Lens::WEAK, |f| Lens::pinhole(f, width, height).unwrap());
             let mut rng = pf_core::RandomStreams::new(seed).stream(0, pf_core::Stage::Model(3));
             let image = frame(&mut rng, width, height);
             let templates: Vec<Template> = (0..faces)
@@ -183,6 +211,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
                 SHARPNESS,
                 MIN_ERROR,
                 MIN_VISIBLE_SHARE,
+                lens,
             )
             .unwrap();
             gpu.upload_frame(&ctx, &image.data).unwrap();
@@ -196,9 +225,9 @@ fn check(dispatch: FaceDispatch, cases: u32) {
             for t in 0..faces {
                 for m in 0..particles {
                     let s = &states[t * particles + m];
-                    let want = residual_error(s, &templates[t], &image);
+                    let want = residual_error_through(s, &templates[t], &image, &lens);
                     let got = f64::from(errors[t * particles + m]);
-                    let tol = tolerance(s, &templates[t], &image, want);
+                    let tol = tolerance(s, &templates[t], &image, &lens, want);
                     prop_assert!(
                         (got - want).abs() <= tol,
                         "face {t} particle {m}: GPU ε {got} vs CPU {want} (tolerance {tol}), state {s:?}"
@@ -289,6 +318,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
                 SHARPNESS,
                 MIN_ERROR,
                 MIN_VISIBLE_SHARE,
+                Lens::WEAK,
             )
             .unwrap();
             prop_assert!(gpu.readbacks().is_empty(), "no readback before prepare");
@@ -312,7 +342,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
                 for t in 0..faces {
                     let s: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
                     let want = residual_error(&s, &templates[t], &image);
-                    let tol = tolerance(&s, &templates[t], &image, want);
+                    let tol = tolerance(&s, &templates[t], &image, &Lens::WEAK, want);
                     let got = f64::from(errors[t]);
                     prop_assert!(
                         (got - want).abs() <= tol,
@@ -341,6 +371,7 @@ fn invalid_face_setups_are_typed_errors() {
             sharpness,
             MIN_ERROR,
             MIN_VISIBLE_SHARE,
+            Lens::WEAK,
         )
     };
     assert!(make(0, 10, 64, 48, 1.0).is_err());

@@ -12,6 +12,7 @@
 use crate::error::FaceError;
 use crate::image::{FloatImage, GrayImage, Image, Level};
 use crate::landmarks::ibug68;
+use crate::likelihood::Lens;
 use crate::model::FaceModel;
 use crate::template::{FeaturePoint, MIN_GRAY, Template};
 use crate::view::View;
@@ -313,19 +314,29 @@ pub fn extract_template(
     model: &FaceModel,
     config: &ExtractionConfig,
 ) -> Result<Template, FaceError> {
-    extract_template_seen(frame, rect, model, config, &View::frontal(), &[])
+    extract_template_seen(
+        frame,
+        rect,
+        model,
+        config,
+        &View::frontal(),
+        &Lens::WEAK,
+        &[],
+    )
 }
 
 /// The template of the face in `rect` of `frame` seen with `view`: each chosen pixel's point is
 /// where the model, turned and scaled by the view, shows it (in the model's units), and pixels
 /// whose ray misses the model or meets it facing away are not taken, nor pixels inside any of
-/// `avoid` (frame pixels; the eyes' outlines, [`eye_outlines`]).
+/// `avoid` (frame pixels; the eyes' outlines, [`eye_outlines`]). The face is seen through `lens`
+/// ([`Lens::WEAK`]: the paper's weak perspective), the rectangle's centre its centre.
 pub fn extract_template_seen(
     frame: &GrayImage,
     rect: &FaceRect,
     model: &FaceModel,
     config: &ExtractionConfig,
     view: &View,
+    lens: &Lens,
     avoid: &[Outline],
 ) -> Result<Template, FaceError> {
     rect.validate(frame)?;
@@ -369,7 +380,8 @@ pub fn extract_template_seen(
         .into_iter()
         .filter_map(|(x, y)| {
             let gray = frame.bilinear(x, y)?;
-            let (point, normal) = view.cast(model, (hw, hh), [x - cx, y - cy])?;
+            let (point, normal) =
+                view.cast_through(lens, [cx, cy], model, (hw, hh), [x - cx, y - cy])?;
             Some(FeaturePoint::new(point, normal, gray.max(MIN_GRAY)))
         })
         .collect();

@@ -10,11 +10,17 @@
 //! handful of points that match by chance, would outweigh the true pose. The paper's weight is π ∝ 1/ε; the tracker allows
 //! π ∝ ε^−γ (γ, the sharpness, is 1 in the paper), so log π = −γ·ln ε, ε floored at
 //! [`MIN_ERROR`].
+//!
+//! Points are seen through a [`Lens`]: weak perspective (the paper's, and [`residual_error`]'s),
+//! or a pinhole of known focal length ([`residual_error_through`]), which magnifies each point
+//! by its depth about the principal point.
 
 use rayon::prelude::*;
 
 #[cfg(target_arch = "x86_64")]
 mod gather;
+
+pub use pf_gpu::faces::Lens;
 
 use crate::image::GrayImage;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
@@ -50,6 +56,8 @@ struct Projector {
     row_z: [f32; 3],
     tx: f32,
     ty: f32,
+    /// S, which turns row_z's depth into pixels for a lens.
+    scale: f32,
     alpha: f32,
 }
 
@@ -69,6 +77,7 @@ impl Projector {
             row_z: [-cx * sy * cz + sx * sz, cx * sy * sz + sx * cz, cx * cy],
             tx: state[TX],
             ty: state[TY],
+            scale: s,
             alpha: state[ALPHA],
         }
     }
@@ -155,10 +164,21 @@ fn mean_residual(sum: f64, visible: usize, points: usize) -> f64 {
     }
 }
 
-/// ε of one particle, accumulated in f64: the definition, written as the plain loop it is (the
-/// rotation's rows once per particle; no `Option` or `floor` call per point).
-/// [`residual_errors`] computes the same values, bit for bit, several particles at a time.
+/// ε of one particle through weak perspective, accumulated in f64: the definition, written as
+/// the plain loop it is (the rotation's rows once per particle; no `Option` or `floor` call per
+/// point). [`residual_errors`] computes the same values, bit for bit, several particles at a time.
 pub fn residual_error(state: &[f32; DIMS], template: &Template, frame: &GrayImage) -> f64 {
+    residual_error_through(state, template, frame, &Lens::WEAK)
+}
+
+/// [`residual_error`] with the points seen through `lens` (a point at or behind the camera
+/// counts as outside the frame).
+pub fn residual_error_through(
+    state: &[f32; DIMS],
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
+) -> f64 {
     let x = Projector::new(state);
     let pixels = Pixels::new(frame);
     let mut sum = 0.0f64;
@@ -169,8 +189,12 @@ pub fn residual_error(state: &[f32; DIMS], template: &Template, frame: &GrayImag
             continue;
         }
         visible += 1;
-        let u = x.row_x[0] * px + x.row_x[1] * py + x.row_x[2] * pz + x.tx;
-        let v = x.row_y[0] * px + x.row_y[1] * py + x.row_y[2] * pz + x.ty;
+        let weak = [
+            x.row_x[0] * px + x.row_x[1] * py + x.row_x[2] * pz + x.tx,
+            x.row_y[0] * px + x.row_y[1] * py + x.row_y[2] * pz + x.ty,
+        ];
+        let depth = x.scale * (x.row_z[0] * px + x.row_z[1] * py + x.row_z[2] * pz);
+        let [u, v] = lens.apply(weak, depth).unwrap_or([f32::NAN; 2]);
         sum += if pixels.inside(u, v) {
             let intensity = pixels.bilinear(u, v);
             f64::from(rho_of_residual(x.alpha * intensity - q.gray, q.gray))
@@ -219,16 +243,35 @@ pub fn residual_errors(
     template: &Template,
     frame: &GrayImage,
 ) -> [f64; LANES] {
-    lanes::<false>(states, template, frame)
+    lanes::<false>(states, template, frame, &Lens::WEAK)
 }
 
 /// [`residual_errors`], the pixels read with AVX2's gather when `GATHER` (only ever
-/// instantiated so inside [`residual_errors_of_avx2`], which runs where the CPU has AVX2).
+/// instantiated so inside [`residual_errors_of_avx2`], which runs where the CPU has AVX2), the
+/// points seen through `lens`.
 #[inline(always)]
 fn lanes<const GATHER: bool>(
     states: &[[f32; DIMS]; LANES],
     template: &Template,
     frame: &GrayImage,
+    lens: &Lens,
+) -> [f64; LANES] {
+    // The weak path keeps its arithmetic (bit for bit what it was); a pinhole adds its own.
+    if lens.is_weak() {
+        lanes_through::<GATHER, false>(states, template, frame, lens)
+    } else {
+        lanes_through::<GATHER, true>(states, template, frame, lens)
+    }
+}
+
+/// [`lanes`] for weak perspective, or through a pinhole when `PINHOLE` (the arithmetic of
+/// [`Lens::apply`], lane by lane without branches).
+#[inline(always)]
+fn lanes_through<const GATHER: bool, const PINHOLE: bool>(
+    states: &[[f32; DIMS]; LANES],
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
 ) -> [f64; LANES] {
     #[cfg(target_arch = "x86_64")]
     let gather = GATHER && gather::can_gather(&frame.data, frame.width, frame.height);
@@ -251,6 +294,8 @@ fn lanes<const GATHER: bool>(
         lanes(|p| p.row_y[2]),
     );
     let (tx, ty, alpha) = (lanes(|p| p.tx), lanes(|p| p.ty), lanes(|p| p.alpha));
+    let scale = lanes(|p| p.scale);
+    let (inverse_focal, [principal_x, principal_y]) = (lens.inverse_focal, lens.principal);
     let pixels = Pixels::new(frame);
     let mut sum = [0.0f64; LANES];
     let mut visible = [0usize; LANES];
@@ -263,9 +308,17 @@ fn lanes<const GATHER: bool>(
         let (mut u, mut v) = (zero, zero);
         for l in 0..LANES {
             facing[l] = facing_camera(zx[l] * nx + zy[l] * ny + zz[l] * nz);
-            let x = xx[l] * px + xy[l] * py + xz[l] * pz + tx[l];
-            let y = yx[l] * px + yy[l] * py + yz[l] * pz + ty[l];
-            inside[l] = pixels.inside(x, y);
+            let mut x = xx[l] * px + xy[l] * py + xz[l] * pz + tx[l];
+            let mut y = yx[l] * px + yy[l] * py + yz[l] * pz + ty[l];
+            let mut near = true;
+            if PINHOLE {
+                let depth = scale[l] * (zx[l] * px + zy[l] * py + zz[l] * pz);
+                let distance = 1.0 - depth * inverse_focal;
+                near = distance > Lens::MIN_DISTANCE_SHARE;
+                x = principal_x + (x - principal_x) / distance;
+                y = principal_y + (y - principal_y) / distance;
+            }
+            inside[l] = near & pixels.inside(x, y);
             // Outside the frame a lane reads the corner's pixels, then ignores them.
             (u[l], v[l]) = if inside[l] { (x, y) } else { (0.0, 0.0) };
         }
@@ -308,13 +361,25 @@ pub fn residual_errors_of(
     frame: &GrayImage,
     out: &mut [f64],
 ) {
+    residual_errors_of_through(states, template, frame, &Lens::WEAK, out);
+}
+
+/// [`residual_errors_of`] with the points seen through `lens`: [`residual_error_through`]'s
+/// values, bit for bit.
+pub fn residual_errors_of_through(
+    states: &[[f32; DIMS]],
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
+    out: &mut [f64],
+) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, detected just above.
-        unsafe { residual_errors_of_avx2(states, template, frame, out) };
+        unsafe { residual_errors_of_avx2(states, template, frame, lens, out) };
         return;
     }
-    residual_errors_of_baseline(states, template, frame, out);
+    errors_of::<false>(states, template, frame, lens, out);
 }
 
 /// [`residual_errors_of`] compiled for AVX2: the baseline x86-64 target has 4-wide registers,
@@ -325,9 +390,10 @@ fn residual_errors_of_avx2(
     states: &[[f32; DIMS]],
     template: &Template,
     frame: &GrayImage,
+    lens: &Lens,
     out: &mut [f64],
 ) {
-    errors_of::<true>(states, template, frame, out);
+    errors_of::<true>(states, template, frame, lens, out);
 }
 
 /// [`residual_errors_of`] built for the target the crate is compiled for, without AVX2.
@@ -337,7 +403,7 @@ pub fn residual_errors_of_baseline(
     frame: &GrayImage,
     out: &mut [f64],
 ) {
-    errors_of::<false>(states, template, frame, out);
+    errors_of::<false>(states, template, frame, &Lens::WEAK, out);
 }
 
 /// [`residual_errors_of`], its lanes' pixels gathered with AVX2 when `GATHER` (inlined into
@@ -347,16 +413,17 @@ fn errors_of<const GATHER: bool>(
     states: &[[f32; DIMS]],
     template: &Template,
     frame: &GrayImage,
+    lens: &Lens,
     out: &mut [f64],
 ) {
     let mut groups = states.chunks_exact(LANES);
     let mut outs = out.chunks_exact_mut(LANES);
     for (group, out) in (&mut groups).zip(&mut outs) {
         let group: &[[f32; DIMS]; LANES] = group.try_into().expect("chunks_exact gives LANES");
-        out.copy_from_slice(&lanes::<GATHER>(group, template, frame));
+        out.copy_from_slice(&lanes::<GATHER>(group, template, frame, lens));
     }
     for (state, out) in groups.remainder().iter().zip(outs.into_remainder()) {
-        *out = residual_error(state, template, frame);
+        *out = residual_error_through(state, template, frame, lens);
     }
 }
 
@@ -378,12 +445,22 @@ pub fn weigh_single_thread(
 
 /// The same on all cores.
 pub fn weigh_parallel(states: &[[f32; DIMS]], template: &Template, frame: &GrayImage) -> Vec<f64> {
+    weigh_parallel_through(states, template, frame, &Lens::WEAK)
+}
+
+/// [`weigh_parallel`] with the points seen through `lens`.
+pub fn weigh_parallel_through(
+    states: &[[f32; DIMS]],
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
+) -> Vec<f64> {
     let mut errors = vec![0.0; states.len()];
     // Tasks of 64 particles: one particle is about a microsecond of work.
     states
         .par_chunks(64)
         .zip(errors.par_chunks_mut(64))
-        .for_each(|(states, out)| residual_errors_of(states, template, frame, out));
+        .for_each(|(states, out)| residual_errors_of_through(states, template, frame, lens, out));
     errors
 }
 

@@ -20,6 +20,7 @@ use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
 use crate::landmarks::{Landmarks, ShapePredictor, ibug68, similarity};
+use crate::likelihood::Lens;
 use crate::model::{BROW_RIDGE_V, FaceModel, NOSE_TIP_V};
 use crate::synth::HEIGHT_RATIO;
 use crate::view::View;
@@ -128,18 +129,20 @@ impl Personaliser {
         rect: &FaceRect,
         model: &FaceModel,
     ) -> Result<Personalised, FaceError> {
-        self.personalise_seen(frame, rect, model, &View::frontal())
+        self.personalise_seen(frame, rect, model, &View::frontal(), &Lens::WEAK)
     }
 
     /// [`Self::personalise`] for a face seen with `view` (a track that restarts turned): each
     /// fitted landmark is cast onto `model` turned by the view, so the warp moves the model's
-    /// landmarks to where the turned face has them, not to where they appear in the frame.
+    /// landmarks to where the turned face has them, not to where they appear in the frame;
+    /// through `lens`, as the camera shows them.
     pub fn personalise_seen(
         &self,
         frame: &GrayImage,
         rect: &FaceRect,
         model: &FaceModel,
         view: &View,
+        lens: &Lens,
     ) -> Result<Personalised, FaceError> {
         let (cx, cy) = rect.centre();
         let side = rect.height;
@@ -157,7 +160,7 @@ impl Personaliser {
         let in_model: Vec<[f32; 2]> = (landmarks.iter())
             .map(|p| {
                 let offset = [p[0] - cx, p[1] - cy];
-                let cast = view.unproject(model, (hw, hh), offset);
+                let cast = view.unproject_through(lens, [cx, cy], model, (hw, hh), offset);
                 cast.map_or([offset[0] / hw, offset[1] / hh], |(u, v)| [u, v])
             })
             .collect();

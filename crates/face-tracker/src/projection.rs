@@ -7,6 +7,8 @@
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector2, Vector3};
 
+use crate::likelihood::Lens;
+
 /// Indices into the state.
 pub const TX: usize = 0;
 pub const TY: usize = 1;
@@ -72,9 +74,86 @@ impl Pose {
         Vector2::new(r.x, r.y) * self.scale + self.translation
     }
 
+    /// The image position of model point `p` seen through `lens` ([`Self::project`] for weak
+    /// perspective; magnified by its depth about the principal point through a pinhole), `None`
+    /// at or behind the camera.
+    pub fn project_through(&self, p: &Vector3<f32>, lens: &Lens) -> Option<Vector2<f32>> {
+        let r = self.rotation * p;
+        let weak = Vector2::new(r.x, r.y) * self.scale + self.translation;
+        let [x, y] = lens.apply([weak.x, weak.y], self.scale * r.z)?;
+        Some(Vector2::new(x, y))
+    }
+
     /// Whether a point with model normal `n` faces the camera.
     pub fn faces_camera(&self, n: &Vector3<f32>) -> bool {
         (self.rotation * n).z >= 0.0
+    }
+}
+
+#[cfg(test)]
+mod lens_tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Through a pinhole a point at the face's centre depth is where weak perspective puts
+        /// it; nearer points move away from the principal point, further ones towards it, by
+        /// f/(f − d); `unapply` undoes `apply`; a point at or behind the camera is not imaged.
+        #[test]
+        fn a_pinhole_magnifies_by_depth_about_its_principal_point(
+            focal in 50.0f32..5000.0,
+            size in (64u32..4000, 64u32..3000),
+            weak in prop::array::uniform2(-500.0f32..4500.0),
+            depth_share in -3.0f32..0.9,
+        ) {
+            let lens = Lens::pinhole(focal, size.0, size.1).unwrap();
+            let [px, py] = lens.principal;
+            prop_assert_eq!([px, py], [(size.0 - 1) as f32 / 2.0, (size.1 - 1) as f32 / 2.0]);
+            let at_centre = lens.apply(weak, 0.0).expect("in front of the camera");
+            for (s, w) in at_centre.iter().zip(weak) {
+                prop_assert!((s - w).abs() <= 1e-3 * (1.0 + w.abs()), "{s} vs {w}");
+            }
+            let depth = depth_share * focal;
+            let seen = lens.apply(weak, depth).expect("in front of the camera");
+            let magnification = focal / (focal - depth);
+            for (s, (w, p)) in seen.iter().zip(weak.iter().zip([px, py])) {
+                let want = p + (w - p) * magnification;
+                prop_assert!((s - want).abs() <= 1e-3 * (1.0 + want.abs()), "{s} vs {want}");
+            }
+            let back = lens.unapply(seen, depth);
+            for (b, w) in back.iter().zip(weak) {
+                prop_assert!((b - w).abs() <= 1e-3 * (1.0 + w.abs()), "{b} vs {w}");
+            }
+            prop_assert_eq!(lens.apply(weak, focal), None);
+            prop_assert_eq!(lens.apply(weak, 2.0 * focal), None);
+            prop_assert_eq!(Lens::WEAK.apply(weak, depth), Some(weak));
+            prop_assert_eq!(Lens::WEAK.unapply(weak, depth), weak);
+        }
+    }
+
+    #[test]
+    fn a_focal_length_must_be_finite_and_positive() {
+        for bad in [0.0, -10.0, f32::NAN, f32::INFINITY] {
+            let err = Lens::pinhole(bad, 640, 480).unwrap_err().to_string();
+            assert!(err.contains("focal length"), "{bad}: {err}");
+        }
+    }
+
+    /// `Pose::project_through` is `Pose::project` through weak perspective, and through a
+    /// pinhole the weak image magnified by the rotated point's depth times S.
+    #[test]
+    fn projecting_through_a_lens_magnifies_the_weak_image() {
+        let state = [300.0, 200.0, 1.5, 0.2, -0.4, 0.1, 1.0];
+        let pose = Pose::new(&state);
+        let p = Vector3::new(12.0, -30.0, 25.0);
+        let weak = pose.project(&p);
+        assert_eq!(pose.project_through(&p, &Lens::WEAK), Some(weak));
+        let lens = Lens::pinhole(400.0, 640, 480).unwrap();
+        let depth = 1.5 * (pose.rotation * p).z;
+        let seen = pose.project_through(&p, &lens).unwrap();
+        let m = 400.0 / (400.0 - depth);
+        assert!((seen.x - (319.5 + (weak.x - 319.5) * m)).abs() < 1e-3);
+        assert!((seen.y - (239.5 + (weak.y - 239.5) * m)).abs() < 1e-3);
     }
 }
 

@@ -17,7 +17,8 @@ use rayon::prelude::*;
 use crate::error::FaceError;
 use crate::image::GrayImage;
 use crate::likelihood::{
-    MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error, residual_errors_of,
+    Lens, MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error_through,
+    residual_errors_of_through,
 };
 use crate::projection::DIMS;
 use crate::template::Template;
@@ -31,6 +32,9 @@ pub(crate) struct Shard {
     /// The tracker's first slot in this shard.
     pub first_slot: usize,
     pub slots: usize,
+    /// The camera the faces are seen through (the CPU engine's; a GPU's likelihood has its own
+    /// copy).
+    pub lens: Lens,
 }
 
 /// One shard's step: per slot of the shard, the estimate (`[t·7 + d]`), its spread, the ESS and
@@ -116,6 +120,7 @@ impl Shard {
             ..batch.clone()
         };
         batch.validate()?;
+        let lens = config.lens(frame_size)?;
         // Free slots hold a cloud at the origin until a face arrives; they are never reported.
         let states = vec![0.0; shape.state_len()];
         let (engine, gpu_likelihood) = match ctx {
@@ -131,6 +136,7 @@ impl Shard {
                     config.sharpness,
                     MIN_ERROR,
                     MIN_VISIBLE_SHARE,
+                    lens,
                 )?;
                 let engine = FilterEngine::gpu(ctx, &batch, &states)?;
                 if let Some((ctx, inputs)) = engine.likelihood_inputs() {
@@ -144,6 +150,7 @@ impl Shard {
             gpu_likelihood,
             first_slot,
             slots,
+            lens,
         })
     }
 
@@ -187,10 +194,11 @@ impl Shard {
             Some(likelihood) => &**likelihood,
             None => &NoLikelihood,
         };
+        let lens = self.lens;
         let report = self.engine.step(
             |shape, states, out| -> Result<(), FaceError> {
                 if let Some(image) = &image {
-                    host_log_weights(shape, states, templates, image, sharpness, out);
+                    host_log_weights(shape, states, templates, image, &lens, sharpness, out);
                 }
                 Ok(())
             },
@@ -206,7 +214,9 @@ impl Shard {
             .enumerate()
             .map(|(t, template)| {
                 let state: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
-                template.map_or(1.0, |template| residual_error(&state, template, image))
+                template.map_or(1.0, |template| {
+                    residual_error_through(&state, template, image, &lens)
+                })
             })
             .collect();
         Ok(ShardStep {
@@ -259,6 +269,7 @@ fn host_log_weights(
     states: &[f32],
     templates: &[Option<&Template>],
     frame: &GrayImage,
+    lens: &Lens,
     sharpness: f32,
     out: &mut [f32],
 ) {
@@ -279,10 +290,11 @@ fn host_log_weights(
                         *s = std::array::from_fn(|d| states[shape.state_index(t, d, first + k)]);
                     }
                     let mut errors = [0.0f64; TASK];
-                    residual_errors_of(
+                    residual_errors_of_through(
                         &particles[..out.len()],
                         template,
                         frame,
+                        lens,
                         &mut errors[..out.len()],
                     );
                     for (out, error) in out.iter_mut().zip(errors) {

@@ -9,6 +9,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use crate::likelihood::Lens;
 use crate::model::FaceModel;
 
 /// The scale and rotation a face is seen with: S maps the model's units to pixels.
@@ -55,6 +56,53 @@ impl View {
         Some((point, normal))
     }
 
+    /// [`Self::cast`] for a face seen through `lens`, its centre at `centre` in the frame: the
+    /// first point of the model on the ray from the camera's centre through the pixel at
+    /// `offset` from the face's centre ([`Self::unproject_through`]). Weak perspective is
+    /// [`Self::cast`] itself.
+    pub fn cast_through(
+        &self,
+        lens: &Lens,
+        centre: [f32; 2],
+        model: &FaceModel,
+        half: (f32, f32),
+        offset: [f32; 2],
+    ) -> Option<([f32; 3], [f32; 3])> {
+        if lens.is_weak() {
+            return self.cast(model, half, offset);
+        }
+        let (u, v) = self.unproject_through(lens, centre, model, half, offset)?;
+        Some((self.surface_point(model, half, u, v), model.sample(u, v).1))
+    }
+
+    /// [`Self::unproject`] for a face seen through `lens`, its centre at `centre` in the frame:
+    /// through a pinhole the pixel's ray is not the viewing axis but the line from the camera's
+    /// centre, so the ray's point at depth d (pixels nearer the camera than the face's centre)
+    /// lies where weak perspective would show it at the pixel moved towards the principal
+    /// point by d/f ([`Lens::unapply`]).
+    pub fn unproject_through(
+        &self,
+        lens: &Lens,
+        centre: [f32; 2],
+        model: &FaceModel,
+        half: (f32, f32),
+        offset: [f32; 2],
+    ) -> Option<(f32, f32)> {
+        if lens.is_weak() {
+            return self.unproject(model, half, offset);
+        }
+        let image = [centre[0] + offset[0], centre[1] + offset[1]];
+        let weak_offset = |depth: f32| {
+            // At or behind the camera the ray has no point (NaN is off the model).
+            if lens.apply([0.0; 2], depth).is_none() {
+                return [f32::NAN; 2];
+            }
+            let weak = lens.unapply(image, depth);
+            [weak[0] - centre[0], weak[1] - centre[1]]
+        };
+        self.march(model, half, &weak_offset)
+    }
+
     /// Whether this is [`Self::frontal`].
     pub fn is_frontal(&self) -> bool {
         self.scale == 1.0 && self.rotation == Matrix3::identity()
@@ -83,11 +131,28 @@ impl View {
             let uv = [offset[0] / hw, offset[1] / hh];
             return inside_model(uv).then_some((uv[0], uv[1]));
         }
+        self.march(model, half, &|_| offset)
+    }
+
+    /// The first surface point on a ray, coming from the camera: the ray's point at depth d
+    /// (pixels nearer the camera than the face's centre) is the one weak perspective shows at
+    /// `offset_at(d)` from the face's centre (the same offset for every depth: the viewing
+    /// axis).
+    fn march(
+        &self,
+        model: &FaceModel,
+        half: (f32, f32),
+        offset_at: &dyn Fn(f32) -> [f32; 2],
+    ) -> Option<(f32, f32)> {
+        let (hw, hh) = half;
         // In model units: the ray's point at depth t (towards the camera) turned back into the
         // model's frame, and how far it lies above the surface there (None off the model).
         let (a, b) = (hw / self.scale, hh / self.scale);
         let back = self.rotation.transpose();
-        let ray = |t: f32| back * Vector3::new(offset[0] / self.scale, offset[1] / self.scale, t);
+        let ray = |t: f32| {
+            let offset = offset_at(t * self.scale);
+            back * Vector3::new(offset[0] / self.scale, offset[1] / self.scale, t)
+        };
         let above = |t: f32| {
             let p = ray(t);
             let uv = [p.x / a, p.y / b];

@@ -407,6 +407,7 @@ fn a_template_takes_no_point_inside_an_outline_it_avoids() {
             &model,
             &config,
             &face_tracker::view::View::frontal(),
+            &face_tracker::likelihood::Lens::WEAK,
             avoid,
         )
         .unwrap();
@@ -450,6 +451,7 @@ fn a_bad_growth_is_a_clear_error() {
             &model,
             &config,
             &face_tracker::view::View::frontal(),
+            &face_tracker::likelihood::Lens::WEAK,
             &[],
         )
         .unwrap_err()

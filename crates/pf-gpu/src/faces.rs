@@ -26,6 +26,90 @@ pub enum FaceDispatch {
     Packed,
 }
 
+/// The camera a face is seen through: weak perspective (the face paper's: a point's image is
+/// S·R₂ₓ₃·P + T whatever its depth), or a pinhole whose focal length is f pixels, the principal
+/// point at `principal`. Through a pinhole a point lying d pixels nearer the camera than the
+/// face's centre is magnified f/(f − d) about the principal point: at a webcam's range the
+/// side of a face that turns towards the camera grows and moves out, which weak perspective reads
+/// as a larger turn. `through_lens` in `shaders/face_likelihood.wgsl` is the GPU's copy of
+/// [`Lens::apply`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Lens {
+    /// 1/f (0: weak perspective).
+    pub inverse_focal: f32,
+    /// Where the camera's axis meets the frame (pixels).
+    pub principal: [f32; 2],
+}
+
+impl Lens {
+    /// Weak perspective: images are not magnified by depth.
+    pub const WEAK: Lens = Lens {
+        inverse_focal: 0.0,
+        principal: [0.0, 0.0],
+    };
+
+    /// A pinhole of focal length `focal` pixels whose principal point is the middle of a
+    /// `width × height` frame.
+    pub fn pinhole(focal: f32, width: u32, height: u32) -> Result<Self, GpuError> {
+        if !(focal.is_finite() && focal > 0.0) {
+            return Err(GpuError::InvalidConfig(format!(
+                "a focal length must be finite and positive (pixels), got {focal}"
+            )));
+        }
+        Ok(Self {
+            inverse_focal: 1.0 / focal,
+            principal: [
+                (width.max(1) - 1) as f32 / 2.0,
+                (height.max(1) - 1) as f32 / 2.0,
+            ],
+        })
+    }
+
+    /// Whether this is weak perspective (no focal length).
+    pub fn is_weak(&self) -> bool {
+        self.inverse_focal == 0.0
+    }
+
+    /// Where a point is seen whose weak-perspective image is `weak` (S·R₂ₓ₃·P + T) and which
+    /// lies `depth` pixels nearer the camera than the face's centre (S·(R·P)_z): `weak` itself
+    /// through weak perspective, else magnified f/(f − depth) about the principal point. `None`
+    /// for a point at or behind the camera's centre (within [`Self::MIN_DISTANCE_SHARE`] of f).
+    #[inline]
+    pub fn apply(&self, weak: [f32; 2], depth: f32) -> Option<[f32; 2]> {
+        if self.is_weak() {
+            return Some(weak);
+        }
+        let distance = 1.0 - depth * self.inverse_focal;
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
+        if !(distance > Self::MIN_DISTANCE_SHARE) {
+            return None;
+        }
+        let [px, py] = self.principal;
+        Some([
+            px + (weak[0] - px) / distance,
+            py + (weak[1] - py) / distance,
+        ])
+    }
+
+    /// The inverse of [`Self::apply`] at a known depth: the weak-perspective image of a point
+    /// seen at `image` that lies `depth` nearer the camera than the face's centre.
+    pub fn unapply(&self, image: [f32; 2], depth: f32) -> [f32; 2] {
+        if self.is_weak() {
+            return image;
+        }
+        let distance = 1.0 - depth * self.inverse_focal;
+        let [px, py] = self.principal;
+        [
+            px + (image[0] - px) * distance,
+            py + (image[1] - py) * distance,
+        ]
+    }
+
+    /// A point nearer the camera than 1 − this share of the focal length (of the face's
+    /// distance, in the focal length's units) is not imaged: it is at or behind the camera.
+    pub const MIN_DISTANCE_SHARE: f32 = 0.05;
+}
+
 /// Particles per workgroup of the packed kernel (`PACKED` in the shader).
 const PACKED: usize = 4;
 
@@ -39,7 +123,11 @@ struct FaceParams {
     sharpness: f32,
     min_error: f32,
     min_visible_share: f32,
-    _pad: u32,
+    /// The camera ([`Lens`]): 1/f (0: weak perspective) and the principal point.
+    inverse_focal: f32,
+    principal_x: f32,
+    principal_y: f32,
+    _pad: [u32; 2],
 }
 
 /// The check of each face's estimate: ε per face, read back with the step
@@ -79,6 +167,7 @@ impl FaceLikelihoodGpu {
 
     /// `sharpness` γ in π ∝ ε^−γ (the paper's π ∝ 1/ε is γ = 1; γ = 0 weighs every particle the
     /// same, the diffusion-only baseline); ε is floored at `min_error`, and is 1 for a pose that shows less than `min_visible_share` of its face's points.
+    /// Points are seen through `lens` ([`Lens::WEAK`]: the paper's weak perspective).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         ctx: &GpuContext,
@@ -90,10 +179,19 @@ impl FaceLikelihoodGpu {
         sharpness: f32,
         min_error: f32,
         min_visible_share: f32,
+        lens: Lens,
     ) -> Result<Self, GpuError> {
         if faces == 0 || max_points == 0 || width < 2 || height < 2 {
             return Err(GpuError::InvalidConfig(format!(
                 "the face likelihood needs faces, points and a frame of at least 2x2 (got {faces} faces, {max_points} points, {width}x{height})"
+            )));
+        }
+        if !(lens.inverse_focal.is_finite()
+            && lens.inverse_focal >= 0.0
+            && lens.principal.iter().all(|c| c.is_finite()))
+        {
+            return Err(GpuError::InvalidConfig(format!(
+                "the lens needs a finite, non-negative 1/f and a finite principal point, got {lens:?}"
             )));
         }
         if !(sharpness.is_finite() && sharpness >= 0.0 && min_error.is_finite() && min_error > 0.0)
@@ -141,7 +239,10 @@ impl FaceLikelihoodGpu {
                     sharpness,
                     min_error,
                     min_visible_share,
-                    _pad: 0,
+                    inverse_focal: lens.inverse_focal,
+                    principal_x: lens.principal[0],
+                    principal_y: lens.principal[1],
+                    _pad: [0; 2],
                 };
                 crate::stream::uniform_buffer(ctx, "face likelihood params", &value)
             })
@@ -343,7 +444,7 @@ mod layout_tests {
             "FaceParams",
             size_of::<FaceParams>(),
             &fields!(FaceParams: width, height, max_points, face_offset, sharpness, min_error,
-                min_visible_share),
+                min_visible_share, inverse_focal, principal_x, principal_y),
         );
     }
 }

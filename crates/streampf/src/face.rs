@@ -68,6 +68,31 @@ pub struct VideoArgs {
     /// Seed of the video's textures.
     #[arg(long, default_value_t = 11)]
     pub video_seed: u64,
+    /// The camera's horizontal field of view in degrees (1 to 170): faces are seen through a
+    /// pinhole of that angle, whose perspective magnifies what is nearer the camera. Give your
+    /// camera's for real input (a webcam's is about 50-70°); the synthetic video is rendered
+    /// through it. Unset: weak perspective, the paper's, right for a camera far from the faces
+    /// (docs/ACCURACY.md, "The camera's lens").
+    #[arg(long, value_parser = field_of_view)]
+    pub fov: Option<f32>,
+}
+
+/// `--fov`: degrees, finite, within 1 to 170.
+fn field_of_view(text: &str) -> Result<f32, String> {
+    let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if (1.0..=170.0).contains(&value) {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value}: give the field of view in degrees, 1 to 170"
+        ))
+    }
+}
+
+/// The focal length in pixels of a camera whose frames are `width` pixels wide and span `fov`
+/// degrees across.
+pub fn focal_length(fov: f32, width: u32) -> f32 {
+    width as f32 / 2.0 / (fov.to_radians() / 2.0).tan()
 }
 
 impl VideoArgs {
@@ -87,6 +112,7 @@ impl VideoArgs {
             exit_after: None,
             enter_every: 0,
             seed: self.video_seed,
+            focal_length: self.fov.map(|fov| focal_length(fov, self.width)),
         };
         config.validate()?;
         Ok(config)
@@ -501,6 +527,7 @@ fn record_face_frame(
         image,
         templates: &tracker.templates(),
         estimates,
+        lens: tracker.lens(),
         clouds: Some(clouds),
         errors: &errors,
     })
@@ -787,6 +814,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         Some(path) => Some(FaceOverlay::new(
             Annotated::create(path, size.0, size.1, source.fps())?,
             colour_frames(args, &source, size)?,
+            runner.tracker().lens(),
         )),
         None => None,
     };
@@ -955,8 +983,12 @@ impl FaceRun<'_> {
         }
         let truth = self.truth.as_ref().and_then(|t| t.get(frame));
         self.record.add(frame, &estimates, "", truth)?;
-        self.record
-            .add_landmarks(frame, &runner.tracker().templates(), &estimates)?;
+        self.record.add_landmarks(
+            frame,
+            &runner.tracker().templates(),
+            &estimates,
+            &runner.tracker().lens(),
+        )?;
         if let Some(recording) = &self.recording {
             record_face_frame(
                 recording,
@@ -1105,6 +1137,7 @@ fn build_runner(
             eye_outline_growth: (args.eye_outline_growth > 0.0).then_some(args.eye_outline_growth),
             ..defaults.extraction
         },
+        focal_length: args.video.fov.map(|fov| focal_length(fov, size.0)),
         ..defaults
     };
     let cascade = if detect {
@@ -1259,6 +1292,7 @@ impl TrackRecord {
         frame: usize,
         templates: &[(usize, &face_tracker::Template)],
         estimates: &[FaceEstimate],
+        lens: &face_tracker::likelihood::Lens,
     ) -> anyhow::Result<()> {
         let timestamp = self.timestamp(frame);
         let Some(file) = self.landmarks.as_mut() else {
@@ -1277,8 +1311,9 @@ impl TrackRecord {
             let pixels: Vec<String> = landmarks
                 .iter()
                 .map(|&p| {
-                    let at = pose.project(&nalgebra::Vector3::from(p));
-                    format!("{},{}", at.x, at.y)
+                    // A landmark at or behind the camera (never on a tracked face) is left empty.
+                    (pose.project_through(&nalgebra::Vector3::from(p), lens))
+                        .map_or_else(|| ",".to_string(), |at| format!("{},{}", at.x, at.y))
                 })
                 .collect();
             file.row(&format!(

@@ -17,6 +17,7 @@ use std::process::{Child, ChildStdout, Command, Stdio};
 
 use anyhow::Context;
 use face_tracker::extraction::FaceRect;
+use face_tracker::likelihood::Lens;
 use face_tracker::{FaceEstimate, GrayImage, Pose, Template, TrackStatus};
 use image::{Rgb, RgbImage};
 use nalgebra::Vector3;
@@ -51,13 +52,14 @@ pub struct Marks {
 }
 
 /// `picture` (the frame, in colour or gray) with the frame number, the tracks, the fresh
-/// detections and the recently lost tracks drawn on it.
+/// detections and the recently lost tracks drawn on it; the tracks' points seen through `lens`.
 pub fn draw_faces(
     mut picture: RgbImage,
     frame: usize,
     templates: &[(usize, &Template)],
     estimates: &[FaceEstimate],
     marks: &Marks,
+    lens: &Lens,
 ) -> RgbImage {
     for e in estimates
         .iter()
@@ -66,7 +68,7 @@ pub fn draw_faces(
         let Some((_, template)) = templates.iter().find(|(id, _)| *id == e.track) else {
             continue;
         };
-        draw_track(&mut picture, e, template);
+        draw_track(&mut picture, e, template, lens);
     }
     for (track, rect, restarted) in &marks.detections {
         rectangle(&mut picture, rect, DETECTION, false);
@@ -102,14 +104,14 @@ pub fn draw_faces(
 }
 
 /// One track: its visible template points posed by the estimate, the head's axes, its label.
-fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template) {
+fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template, lens: &Lens) {
     let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
-    for (x, y) in posed_points(e, template) {
+    for (x, y) in posed_points(e, template, lens) {
         for (dx, dy) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (-1.0, 0.0), (0.0, -1.0)] {
             put(picture, x + dx, y + dy, colour);
         }
     }
-    let (origin, ends) = head_axes(e);
+    let (origin, ends) = head_axes(e, lens);
     for (end, c) in ends.into_iter().zip(AXIS_COLOURS) {
         for offset in [-0.5f32, 0.0, 0.5] {
             line(
@@ -128,29 +130,29 @@ fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template) {
 /// The head's axes' colours: x red, y green, z blue.
 pub const AXIS_COLOURS: [[u8; 3]; 3] = [[255, 0, 0], [0, 255, 0], [0, 0, 255]];
 
-/// A track's template points that face the camera, posed by its estimate, in pixels.
-pub fn posed_points(e: &FaceEstimate, template: &Template) -> Vec<(f32, f32)> {
+/// A track's template points that face the camera, posed by its estimate and seen through
+/// `lens`, in pixels.
+pub fn posed_points(e: &FaceEstimate, template: &Template, lens: &Lens) -> Vec<(f32, f32)> {
     let pose = Pose::new(&e.state);
     (template.points.iter())
         .filter(|q| pose.faces_camera(&Vector3::from(q.normal)))
-        .map(|q| {
-            let p = pose.project(&Vector3::from(q.position));
-            (p.x, p.y)
-        })
+        .filter_map(|q| pose.project_through(&Vector3::from(q.position), lens))
+        .map(|p| (p.x, p.y))
         .collect()
 }
 
 /// The head's origin and the ends of its x, y and z axes in pixels, each axis half the face's
-/// width long (at S = 1).
-pub fn head_axes(e: &FaceEstimate) -> ((f32, f32), [(f32, f32); 3]) {
+/// width long (at S = 1), seen through `lens` (an end at or behind the camera is drawn where
+/// weak perspective puts it).
+pub fn head_axes(e: &FaceEstimate, lens: &Lens) -> ((f32, f32), [(f32, f32); 3]) {
     let pose = Pose::new(&e.state);
     let length = 0.5 * e.rect.width / e.state[face_tracker::projection::SCALE].max(1e-3);
-    let origin = pose.project(&Vector3::zeros());
-    let ends = [Vector3::x(), Vector3::y(), Vector3::z()].map(|axis| {
-        let end = pose.project(&(axis * length));
-        (end.x, end.y)
-    });
-    ((origin.x, origin.y), ends)
+    let seen = |p: Vector3<f32>| {
+        let at = (pose.project_through(&p, lens)).unwrap_or_else(|| pose.project(&p));
+        (at.x, at.y)
+    };
+    let ends = [Vector3::x(), Vector3::y(), Vector3::z()].map(|axis| seen(axis * length));
+    (seen(Vector3::zeros()), ends)
 }
 
 fn put(picture: &mut RgbImage, x: f32, y: f32, colour: [u8; 3]) {
@@ -313,15 +315,18 @@ pub struct FaceOverlay {
     lost: Vec<(usize, FaceRect, usize)>,
     /// The last frame drawn, repeated for a frame that could not be read.
     last: Option<RgbImage>,
+    /// The camera the tracker sees the faces through: the points are drawn where it sees them.
+    lens: Lens,
 }
 
 impl FaceOverlay {
-    pub fn new(out: Annotated, colour: Option<ColourFrames>) -> Self {
+    pub fn new(out: Annotated, colour: Option<ColourFrames>, lens: Lens) -> Self {
         Self {
             out,
             colour,
             lost: Vec::new(),
             last: None,
+            lens,
         }
     }
 
@@ -351,7 +356,7 @@ impl FaceOverlay {
             detections,
             lost: self.lost.clone(),
         };
-        let drawn = draw_faces(picture, index, templates, estimates, &marks);
+        let drawn = draw_faces(picture, index, templates, estimates, &marks, &self.lens);
         self.out.write(index, &drawn)?;
         self.last = Some(drawn);
         Ok(())
@@ -397,7 +402,7 @@ mod tests {
             detections: vec![(3, rect(20.0, 20.0), false)],
             lost: vec![(1, rect(120.0, 60.0), 5)],
         };
-        let drawn = draw_faces(blank.clone(), 10, &[], &[], &marks);
+        let drawn = draw_faces(blank.clone(), 10, &[], &[], &marks, &Lens::WEAK);
         // The detection's rectangle (its corner) and its label below it.
         assert_eq!(drawn.get_pixel(20, 20).0, DETECTION);
         assert!((62..78).any(|y| (20..60).any(|x| drawn.get_pixel(x, y).0 == DETECTION)));
@@ -406,7 +411,7 @@ mod tests {
         assert_ne!(drawn.get_pixel(127, 60).0, LOST);
         // LOST_SHOWN frames after it was lost the mark is gone; the detection stays (it is
         // only passed for the frame it happened).
-        let later = draw_faces(blank.clone(), 5 + LOST_SHOWN, &[], &[], &marks);
+        let later = draw_faces(blank.clone(), 5 + LOST_SHOWN, &[], &[], &marks, &Lens::WEAK);
         assert_eq!(count(&later, LOST), 0);
         // Away from every mark the picture is untouched.
         assert_eq!(drawn.get_pixel(100, 150).0, [90, 90, 90]);
@@ -441,7 +446,7 @@ mod far_off_marks {
             lost: vec![(1, far, 0)],
         };
         // Returns (quickly) with the out-of-picture marks drawn nowhere.
-        let drawn = draw_faces(blank, 1, &[], &[], &marks);
+        let drawn = draw_faces(blank, 1, &[], &[], &marks, &Lens::WEAK);
         assert_eq!(drawn.get_pixel(40, 30).0, [90, 90, 90]);
         assert!(!drawn.pixels().any(|p| p.0 == LOST));
     }

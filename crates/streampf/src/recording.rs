@@ -36,6 +36,8 @@ pub struct FaceFrame<'a> {
     pub image: &'a GrayImage,
     pub templates: &'a [(usize, &'a Template)],
     pub estimates: &'a [FaceEstimate],
+    /// The camera the faces are seen through.
+    pub lens: face_tracker::likelihood::Lens,
     pub clouds: Option<FaceClouds<'a>>,
     /// (track, translation error in pixels, rotation error in degrees) against the truth.
     pub errors: &'a [(usize, f32, f32)],
@@ -138,6 +140,7 @@ mod enabled {
                 image,
                 templates,
                 estimates,
+                lens,
                 clouds,
                 errors,
             } = f;
@@ -155,7 +158,7 @@ mod enabled {
                 let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
                 let colour = rerun::Color::from_rgb(colour[0], colour[1], colour[2]);
                 if let Some((_, template)) = templates.iter().find(|(t, _)| *t == e.track) {
-                    let visible: Vec<[f32; 2]> = (posed_points(e, template).into_iter())
+                    let visible: Vec<[f32; 2]> = (posed_points(e, template, &lens).into_iter())
                         .map(|(x, y)| [x, y])
                         .collect();
                     self.stream.log(
@@ -165,7 +168,7 @@ mod enabled {
                             .with_radii([1.0]),
                     )?;
                 }
-                let (origin, ends) = head_axes(e);
+                let (origin, ends) = head_axes(e, &lens);
                 let strips: Vec<Vec<[f32; 2]>> = ends
                     .iter()
                     .map(|end| vec![[origin.0, origin.1], [end.0, end.1]])

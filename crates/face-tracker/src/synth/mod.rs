@@ -15,6 +15,7 @@ use rayon::prelude::*;
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
+use crate::likelihood::Lens;
 use crate::model::FaceModel;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
 
@@ -39,7 +40,13 @@ pub struct FaceSynthConfig {
     /// Face k is in the video from frame k·`enter_every` on (0: every face from the start).
     pub enter_every: usize,
     pub seed: u64,
+    /// The camera's focal length in pixels (the principal point the frame's middle): the heads
+    /// are seen through that pinhole. `None`: weak perspective, as the paper's videos.
+    pub focal_length: Option<f32>,
 }
+
+/// The shortest focal length a synthetic video takes, in head half-widths.
+pub const MIN_FOCAL_HALF_WIDTHS: f32 = 4.0;
 
 impl FaceSynthConfig {
     /// The paper's setting: 1024×768, four faces.
@@ -55,7 +62,16 @@ impl FaceSynthConfig {
             exit_after: None,
             enter_every: 0,
             seed: 11,
+            focal_length: None,
         }
+    }
+
+    /// The lens the heads are seen through (weak perspective for a focal length that
+    /// [`Self::validate`] refuses).
+    pub fn lens(&self) -> Lens {
+        (self.focal_length)
+            .and_then(|f| Lens::pinhole(f, self.width, self.height).ok())
+            .unwrap_or(Lens::WEAK)
     }
 
     pub fn validate(&self) -> Result<(), FaceError> {
@@ -80,6 +96,16 @@ impl FaceSynthConfig {
         }
         if !(self.max_yaw.is_finite() && self.max_yaw.abs() <= PI / 2.0) {
             return bad(format!("the yaw must be within ±90°, got {}", self.max_yaw));
+        }
+        // A head spans about ±1.5 half-widths in depth, and grows to twice its size: a camera
+        // nearer than this would have part of it at or behind its centre.
+        let nearest = MIN_FOCAL_HALF_WIDTHS * self.half_width;
+        if let Some(f) = self.focal_length
+            && !(f.is_finite() && f >= nearest)
+        {
+            return bad(format!(
+                "the focal length must be at least {nearest} px ({MIN_FOCAL_HALF_WIDTHS} head half-widths) for these heads, got {f}"
+            ));
         }
         Ok(())
     }

@@ -5,6 +5,7 @@
 use rayon::prelude::*;
 
 use super::{FaceSynthConfig, HEIGHT_RATIO};
+use crate::likelihood::Lens;
 use crate::projection::{DIMS, Pose};
 
 /// Rows per band of the renderer's parallel depth test.
@@ -87,6 +88,8 @@ pub(super) struct Splatter {
     half_height: f32,
     width: u32,
     height: u32,
+    /// The camera (weak perspective unless the video has a focal length).
+    lens: Lens,
 }
 
 /// `samples[first..first + SPLAT_LANES]`, which the padding keeps in bounds.
@@ -110,6 +113,7 @@ impl Splatter {
             half_height: config.half_width * HEIGHT_RATIO,
             width: config.width,
             height: config.height,
+            lens: config.lens(),
         }
     }
 
@@ -151,8 +155,13 @@ impl Splatter {
         samples: std::ops::Range<usize>,
         land: &mut impl FnMut(usize, f32, f32),
     ) {
+        let pinhole = !self.lens.is_weak();
         for first in samples.step_by(SPLAT_LANES) {
-            let splats = self.splat_lanes(surface, first);
+            let splats = if pinhole {
+                self.splat_lanes::<true>(surface, first)
+            } else {
+                self.splat_lanes::<false>(surface, first)
+            };
             for l in 0..SPLAT_LANES {
                 if splats.valid[l] {
                     land(splats.pixel[l] as usize, splats.depth[l], splats.value[l]);
@@ -163,9 +172,10 @@ impl Splatter {
 
     /// The splats of samples `first..first + SPLAT_LANES` of `surface` (`first` a multiple of
     /// [`SPLAT_LANES`]). A sample lands on its nearest pixel when its rotated normal faces the
-    /// camera; Lambert shading under a fixed light.
+    /// camera; Lambert shading under a fixed light. Through a pinhole when `PINHOLE` (the
+    /// arithmetic of [`Lens::apply`], without branches), else weak perspective.
     #[inline(always)]
-    fn splat_lanes(&self, surface: &HeadSurface, first: usize) -> LaneSplats {
+    fn splat_lanes<const PINHOLE: bool>(&self, surface: &HeadSurface, first: usize) -> LaneSplats {
         let r = &self.rotation;
         let (u, v, h) = (
             lanes(&surface.u, first),
@@ -203,11 +213,21 @@ impl Splatter {
             ];
             // The nearest pixel: x + 0.5 truncated is its floor wherever it is ≥ 0, the only
             // place a pixel lands (NaN fails the comparisons; `as` saturates far outside).
-            let x = rotated[0] * self.scale + self.translation[0] + 0.5;
-            let y = rotated[1] * self.scale + self.translation[1] + 0.5;
+            let mut x = rotated[0] * self.scale + self.translation[0];
+            let mut y = rotated[1] * self.scale + self.translation[1];
+            let mut near = true;
+            if PINHOLE {
+                let distance = 1.0 - rotated[2] * self.scale * self.lens.inverse_focal;
+                near = distance > Lens::MIN_DISTANCE_SHARE;
+                let [px, py] = self.lens.principal;
+                x = px + (x - px) / distance;
+                y = py + (y - py) / distance;
+            }
+            let (x, y) = (x + 0.5, y + 0.5);
             let (column, row) = (x as i32, y as i32);
             // `&`, not `&&`: no branches, so that the lanes vectorise.
-            out.valid[l] = (normal[2] >= 0.0)
+            out.valid[l] = near
+                & (normal[2] >= 0.0)
                 & (x >= 0.0)
                 & (y >= 0.0)
                 & (column < width)

@@ -18,6 +18,7 @@ use crate::error::FaceError;
 use crate::extraction::{ExtractionConfig, FaceRect};
 use crate::image::GrayImage;
 use crate::in_flight::FrameInFlight;
+use crate::likelihood::Lens;
 use crate::model::FaceModel;
 use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
@@ -70,6 +71,20 @@ pub struct FaceTrackerConfig {
     pub annealing: Annealing,
     /// The dynamics' drift before the random walk (`pf_core::batch::Motion`).
     pub motion: Motion,
+    /// The camera's focal length in pixels, its principal point the frame's middle: faces are
+    /// seen through that pinhole ([`Lens`]). `None`: weak perspective, the paper's, right for
+    /// a camera far from the faces (docs/ACCURACY.md, "The camera's lens").
+    pub focal_length: Option<f32>,
+}
+
+impl FaceTrackerConfig {
+    /// The lens faces are seen through in frames of `frame_size`.
+    pub fn lens(&self, (width, height): (u32, u32)) -> Result<Lens, FaceError> {
+        match self.focal_length {
+            None => Ok(Lens::WEAK),
+            Some(focal) => Ok(Lens::pinhole(focal, width, height)?),
+        }
+    }
 }
 
 impl Default for FaceTrackerConfig {
@@ -90,6 +105,7 @@ impl Default for FaceTrackerConfig {
             // frame's motion as a drift to 1.2 px and 2.0°.
             annealing: Annealing::survival(5, 0.5, 0.6),
             motion: Motion::ConstantVelocity { gain: 0.5 },
+            focal_length: None,
         }
     }
 }
@@ -146,6 +162,8 @@ struct Track {
 /// tracking (`add_face`, from a detector); a lost track frees its slot.
 pub struct FaceTracker {
     config: FaceTrackerConfig,
+    /// The camera, from the config's focal length and the frame's size.
+    lens: Lens,
     model: FaceModel,
     /// When set, each new face's template is built on the model warped to its landmarks.
     personaliser: Option<Arc<Personaliser>>,
@@ -259,6 +277,7 @@ impl FaceTracker {
             first_slot += slots;
         }
         Ok(Self {
+            lens: config.lens(frame_size)?,
             model: model.clone(),
             personaliser: None,
             personalised: AtomicUsize::new(0),
@@ -310,6 +329,11 @@ impl FaceTracker {
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
         self.check_nothing_in_flight("the particles are read")?;
         joined_particles(&self.shards)
+    }
+
+    /// The camera the faces are seen through ([`FaceTrackerConfig::focal_length`]).
+    pub fn lens(&self) -> Lens {
+        self.lens
     }
 
     /// The GPU the filter runs on (the first one with several; `None` on the CPU engine).

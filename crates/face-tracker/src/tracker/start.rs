@@ -161,7 +161,7 @@ impl FaceTracker {
         self.check_size((frame.width, frame.height))?;
         rect.validate(frame)?;
         let personal = self.personaliser.as_ref().and_then(|p| {
-            let fitted = p.personalise_seen(frame, rect, &self.model, view).ok();
+            let fitted = (p.personalise_seen(frame, rect, &self.model, view, &self.lens)).ok();
             let counter = if fitted.is_some() {
                 &self.personalised
             } else {
@@ -176,8 +176,15 @@ impl FaceTracker {
             (Some(p), Some(growth)) => eye_outlines(&p.landmarks, growth),
             _ => Vec::new(),
         };
-        let mut template =
-            extract_template_seen(frame, rect, model, &self.config.extraction, view, &avoid)?;
+        let mut template = extract_template_seen(
+            frame,
+            rect,
+            model,
+            &self.config.extraction,
+            view,
+            &self.lens,
+            &avoid,
+        )?;
         // The landmarks on the model's surface: the fitted ones, else the generic head's.
         let (cx, cy) = rect.centre();
         let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
@@ -188,10 +195,11 @@ impl FaceTracker {
         let fitted_on_surface = |l: &[f32; 2]| {
             let offset = [l[0] - cx, l[1] - cy];
             let frontal = || on_surface(offset[0] / hw, offset[1] / hh);
-            if view.is_frontal() {
+            if view.is_frontal() && self.lens.is_weak() {
                 return frontal();
             }
-            (view.cast(model, (hw, hh), offset).map(|(point, _)| point)).unwrap_or_else(frontal)
+            (view.cast_through(&self.lens, [cx, cy], model, (hw, hh), offset))
+                .map_or_else(frontal, |(point, _)| point)
         };
         template.landmarks = match (&personal, &self.personaliser) {
             (Some(p), _) => Some(p.landmarks.iter().map(fitted_on_surface).collect()),

@@ -170,6 +170,7 @@ fn gpu_weighting(
         1.0,
         MIN_ERROR,
         MIN_VISIBLE_SHARE,
+        pf_gpu::faces::Lens::WEAK,
     )?;
     gpu.upload_frame(ctx, &frame.data)?;
     gpu.upload_template(ctx, 0, &template.gpu_layout())?;
