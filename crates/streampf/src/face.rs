@@ -70,9 +70,9 @@ pub struct VideoArgs {
     pub video_seed: u64,
     /// The camera's horizontal field of view in degrees (1 to 170): faces are seen through a
     /// pinhole of that angle, whose perspective magnifies what is nearer the camera. Give your
-    /// camera's for real input (a webcam's is about 50-70°); the synthetic video is rendered
-    /// through it. Unset: weak perspective, the paper's, right for a camera far from the faces
-    /// (docs/ACCURACY.md, "The camera's lens").
+    /// camera's for real input (the real clips in docs/ACCURACY.md measured best at 30-70°);
+    /// the synthetic video is rendered through it. Unset: weak perspective, the paper's, right
+    /// for a camera far from the faces (docs/ACCURACY.md, "The camera's lens").
     #[arg(long, value_parser = field_of_view)]
     pub fov: Option<f32>,
 }

@@ -158,3 +158,31 @@ fn a_video_gets_the_photographed_face_model_which_turns_as_far_as_the_head() {
         "yaw spread over the widest turn {yaw_ratio}"
     );
 }
+
+/// Through a lens of the camera's field of view (`--fov`), the close camera's perspective is no
+/// longer read as turn: carphone's yaw spread came from 1.11 times the mesh's to 1.00 at 55°,
+/// its pitch spread from 1.50 to 0.96 (docs/ACCURACY.md, "The camera's lens"). The bounds ask
+/// for within 15 % of the mesh on both axes, which weak perspective misses on pitch.
+#[test]
+fn through_the_camera_s_lens_the_head_turns_and_nods_as_far_as_the_mesh_says() {
+    let Some(out) = track_carphone("carphone-lens", &["--fov", "55"]) else {
+        return;
+    };
+    let track = against_the_mesh(&out);
+    let slow = &track["smoothed"];
+    let (yaw_r, yaw_ratio) = axis(slow, "yaw");
+    assert!(yaw_r >= 0.93, "yaw r {yaw_r}");
+    assert!((0.85..=1.15).contains(&yaw_ratio), "yaw spread {yaw_ratio}");
+    let (pitch_r, pitch_ratio) = axis(slow, "pitch");
+    assert!(pitch_r >= 0.75, "pitch r {pitch_r}");
+    assert!(
+        (0.85..=1.15).contains(&pitch_ratio),
+        "pitch spread {pitch_ratio}"
+    );
+    let (roll_r, roll_ratio) = axis(slow, "roll");
+    assert!(roll_r >= 0.95, "roll r {roll_r}");
+    assert!(
+        (0.85..=1.15).contains(&roll_ratio),
+        "roll spread {roll_ratio}"
+    );
+}
