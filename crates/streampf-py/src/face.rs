@@ -87,7 +87,12 @@ pub struct FaceTracker {
     detecting: bool,
 }
 
-fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTrackerConfig> {
+fn config(
+    particles: usize,
+    seed: u64,
+    layers: Option<usize>,
+    focal_length: Option<f32>,
+) -> PyResult<FaceTrackerConfig> {
     let defaults = FaceTrackerConfig::default();
     let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
     Ok(FaceTrackerConfig {
@@ -95,8 +100,21 @@ fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTr
         best: (particles / 10).max(1),
         seed,
         annealing,
+        focal_length,
         ..defaults
     })
+}
+
+/// The focal length in pixels of a camera `fov` degrees across a `width`-pixel frame (`fov`
+/// within 1 to 170, as `face track --fov`); `None` (weak perspective) without one.
+pub(crate) fn focal_length(fov: Option<f32>, width: u32) -> PyResult<Option<f32>> {
+    let Some(fov) = fov else { return Ok(None) };
+    if !(1.0..=170.0).contains(&fov) {
+        return Err(value_error(format!(
+            "fov is the camera's horizontal field of view in degrees, 1 to 170, got {fov}"
+        )));
+    }
+    Ok(Some(width as f32 / 2.0 / (fov.to_radians() / 2.0).tan()))
 }
 
 fn rect_from(rect: (f32, f32, f32, f32)) -> PyResult<FaceRect> {
@@ -122,7 +140,7 @@ impl FaceTracker {
     #[pyo3(signature = (
         width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
-        layers = None, channel_order = "rgb", detector = "auto"
+        layers = None, channel_order = "rgb", detector = "auto", fov = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -141,6 +159,7 @@ impl FaceTracker {
         layers: Option<usize>,
         channel_order: &str,
         detector: &str,
+        fov: Option<f32>,
     ) -> PyResult<Self> {
         if width < 16 || height < 16 {
             return Err(value_error(format!(
@@ -150,7 +169,7 @@ impl FaceTracker {
         let order = ChannelOrder::parse(channel_order)?;
         let choice = Choice::parse(backend)?;
         let detector_on = DetectorChoice::parse(detector)?;
-        let config = config(particles, seed, layers)?;
+        let config = config(particles, seed, layers, focal_length(fov, width)?)?;
         let cascade = match (detect, cascade) {
             (false, None) => None,
             (false, Some(_)) => {

@@ -17,7 +17,7 @@ use crate::errors::{body, face, value_error};
 /// `frames` (F, H, W) uint8, `truth` (F, K, 7) float32 (each face's state per frame, the
 /// tracker's convention) and `rects` (K, 4) float32 (each face's rectangle in the first frame).
 #[pyfunction]
-#[pyo3(signature = (frames = 30, *, width = 640, height = 480, faces = 2, half_width = 50.0, max_yaw_deg = 50.0, occlusion = false, seed = 11))]
+#[pyo3(signature = (frames = 30, *, width = 640, height = 480, faces = 2, half_width = 50.0, max_yaw_deg = 50.0, occlusion = false, seed = 11, fov = None))]
 #[allow(clippy::too_many_arguments)]
 pub fn synthetic_faces(
     py: Python<'_>,
@@ -29,8 +29,10 @@ pub fn synthetic_faces(
     max_yaw_deg: f32,
     occlusion: bool,
     seed: u64,
+    fov: Option<f32>,
 ) -> PyResult<Bound<'_, PyDict>> {
     let config = FaceSynthConfig {
+        focal_length: crate::face::focal_length(fov, width)?,
         width,
         height,
         frames,

@@ -130,6 +130,23 @@ def test_bad_frames_are_value_errors_and_change_nothing(two_face_video, bad, mes
     np.testing.assert_array_equal(np.stack(states), expected)
 
 
+def test_a_close_camera_is_tracked_through_its_lens():
+    # Two faces through an 80° lens: through it, the bounds of the weak-perspective video; the
+    # paper's weak perspective reads the turns wrongly (tests/face_perspective.rs measures both).
+    video = streampf.synthetic_faces(16, width=320, height=240, faces=2, half_width=30.0, max_yaw_deg=40.0, fov=80.0)
+    states, _ = track(video, particles=256, backend="cpu", fov=80.0)
+    check_accuracy(video, states)
+    weak, _ = track(video, particles=256, backend="cpu")
+    rotation = lambda s: np.mean(
+        [rotation_error_deg(e, t) for e, t in zip(s.reshape(-1, 7), video["truth"].reshape(-1, 7))]
+    )
+    assert rotation(weak) > rotation(states), (rotation(weak), rotation(states))
+    with pytest.raises(ValueError, match="field of view"):
+        streampf.FaceTracker(320, 240, fov=0.0)
+    with pytest.raises(ValueError, match="field of view"):
+        streampf.synthetic_faces(2, fov=180.0)
+
+
 def test_bad_settings_and_rectangles_are_value_errors(two_face_video):
     frame = two_face_video["frames"][0]
     with pytest.raises(ValueError, match="backend"):

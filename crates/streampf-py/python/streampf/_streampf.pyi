@@ -31,7 +31,10 @@ class FaceTracker:
     (default 5; 1 is plain Condensation). ``detector``: where the detector runs, "auto" (on a
     GPU when the tracker runs on one), "cpu" or "gpu"; on the GPU it sums the cascade's features
     in f32 (the CPU, as OpenCV, in f64), so a window within rounding of a threshold may go the
-    other way: the same faces in this project's tests, several times faster.
+    other way: the same faces in this project's tests, several times faster. ``fov``: the
+    camera's horizontal field of view in degrees (1 to 170): faces are seen through a pinhole of
+    that angle instead of the paper's weak perspective, which reads a near face's turns as larger
+    than they are (docs/ACCURACY.md, "The camera's lens"); give it when you know your camera's.
 
     Thread-safe; ``step`` releases the GIL, so trackers in different threads run at once.
     """
@@ -53,6 +56,7 @@ class FaceTracker:
         layers: Optional[int] = None,
         channel_order: str = "rgb",
         detector: str = "auto",
+        fov: Optional[float] = None,
     ) -> None: ...
     @property
     def device(self) -> str:
@@ -202,9 +206,12 @@ def synthetic_faces(
     max_yaw_deg: float = 50.0,
     occlusion: bool = False,
     seed: int = 11,
+    fov: Optional[float] = None,
 ) -> Dict[str, np.ndarray]:
     """A synthetic video of textured heads: ``frames`` (F, H, W) uint8, ``truth`` (F, K, 7)
-    float32 (each face's state), ``rects`` (K, 4) float32 (the first frame's rectangles)."""
+    float32 (each face's state), ``rects`` (K, 4) float32 (the first frame's rectangles).
+    ``fov``: render through a pinhole of that horizontal field of view in degrees (default: weak
+    perspective)."""
 
 def synthetic_body(
     frames: int = 20,
