@@ -65,6 +65,22 @@ impl Lens {
         })
     }
 
+    /// The horizontal fields of view, in degrees, that [`Self::focal_length_for`] takes.
+    pub const FIELD_OF_VIEW: std::ops::RangeInclusive<f32> = 1.0..=170.0;
+
+    /// The focal length in pixels of a camera whose `width`-pixel frames span `fov` degrees
+    /// across; an error outside [`Self::FIELD_OF_VIEW`].
+    pub fn focal_length_for(fov: f32, width: u32) -> Result<f32, GpuError> {
+        if !Self::FIELD_OF_VIEW.contains(&fov) {
+            return Err(GpuError::InvalidConfig(format!(
+                "a field of view is {} to {} degrees, got {fov}",
+                Self::FIELD_OF_VIEW.start(),
+                Self::FIELD_OF_VIEW.end()
+            )));
+        }
+        Ok(width as f32 / 2.0 / (fov.to_radians() / 2.0).tan())
+    }
+
     /// Whether this is weak perspective (no focal length).
     pub fn is_weak(&self) -> bool {
         self.inverse_focal == 0.0

@@ -109,12 +109,9 @@ fn config(
 /// within 1 to 170, as `face track --fov`); `None` (weak perspective) without one.
 pub(crate) fn focal_length(fov: Option<f32>, width: u32) -> PyResult<Option<f32>> {
     let Some(fov) = fov else { return Ok(None) };
-    if !(1.0..=170.0).contains(&fov) {
-        return Err(value_error(format!(
-            "fov is the camera's horizontal field of view in degrees, 1 to 170, got {fov}"
-        )));
-    }
-    Ok(Some(width as f32 / 2.0 / (fov.to_radians() / 2.0).tan()))
+    let focal = face_tracker::likelihood::Lens::focal_length_for(fov, width)
+        .map_err(|e| value_error(format!("fov, the camera's horizontal field of view: {e}")))?;
+    Ok(Some(focal))
 }
 
 fn rect_from(rect: (f32, f32, f32, f32)) -> PyResult<FaceRect> {

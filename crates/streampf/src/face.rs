@@ -77,22 +77,27 @@ pub struct VideoArgs {
     pub fov: Option<f32>,
 }
 
-/// `--fov`: degrees, finite, within 1 to 170.
+/// `--fov`: degrees, within `Lens::FIELD_OF_VIEW`.
 fn field_of_view(text: &str) -> Result<f32, String> {
     let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
-    if (1.0..=170.0).contains(&value) {
+    let range = face_tracker::likelihood::Lens::FIELD_OF_VIEW;
+    if range.contains(&value) {
         Ok(value)
     } else {
         Err(format!(
-            "{value}: give the field of view in degrees, 1 to 170"
+            "{value}: give the field of view in degrees, {} to {}",
+            range.start(),
+            range.end()
         ))
     }
 }
 
 /// The focal length in pixels of a camera whose frames are `width` pixels wide and span `fov`
-/// degrees across.
-pub fn focal_length(fov: f32, width: u32) -> f32 {
-    width as f32 / 2.0 / (fov.to_radians() / 2.0).tan()
+/// degrees across (`--fov` is checked as it is parsed).
+fn focal_length(fov: f32, width: u32) -> anyhow::Result<f32> {
+    Ok(face_tracker::likelihood::Lens::focal_length_for(
+        fov, width,
+    )?)
 }
 
 impl VideoArgs {
@@ -112,7 +117,10 @@ impl VideoArgs {
             exit_after: None,
             enter_every: 0,
             seed: self.video_seed,
-            focal_length: self.fov.map(|fov| focal_length(fov, self.width)),
+            focal_length: self
+                .fov
+                .map(|fov| focal_length(fov, self.width))
+                .transpose()?,
         };
         config.validate()?;
         Ok(config)
@@ -1137,7 +1145,9 @@ fn build_runner(
             eye_outline_growth: (args.eye_outline_growth > 0.0).then_some(args.eye_outline_growth),
             ..defaults.extraction
         },
-        focal_length: args.video.fov.map(|fov| focal_length(fov, size.0)),
+        focal_length: (args.video.fov)
+            .map(|fov| focal_length(fov, size.0))
+            .transpose()?,
         ..defaults
     };
     let cascade = if detect {

@@ -308,6 +308,15 @@ fn bad_face_inputs_are_clear_errors() {
         ]));
         assert!(err.contains(expected), "{depth}: {err}");
     }
+    // --fov: the camera's horizontal field of view, 1 to 170 degrees.
+    for fov in ["0", "171", "NaN", "wide"] {
+        let err = failure(&streampf(&["face", "track", "--synthetic", "--fov", fov]));
+        assert!(
+            err.contains("give the field of view in degrees, 1 to 170")
+                || err.contains("invalid float"),
+            "{fov}: {err}"
+        );
+    }
     for model in ["auto", "generic"] {
         let mut args = vec!["face", "track", "--synthetic", "--face-depth", "1.1"];
         args.extend(SMALL);
