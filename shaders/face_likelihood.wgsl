@@ -4,7 +4,7 @@
 // memory); weigh_faces_packed puts four particles in a workgroup, 64 invocations each. The grid's
 // y is the face: one dispatch weighs every face of a frame (the batched form), or one dispatch
 // per face with `face_offset` (the paper's form). CPU twin:
-// face_tracker::likelihood::residual_error.
+// face_tracker::likelihood::residual_error_through (residual_error through weak perspective).
 //
 // Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty) (weak perspective, the
 // paper's), or through a pinhole (inverse_focal = 1/f > 0) that point magnified by

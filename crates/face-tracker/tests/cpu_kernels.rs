@@ -1,10 +1,12 @@
 //! The CPU path's fast forms against their definitions: the likelihood weighed LANES particles
-//! at a time against `residual_error`, one particle at a time (bit for bit); the video renderer,
+//! at a time against `residual_error`, one particle at a time (bit for bit, through weak
+//! perspective and through a pinhole); the video renderer,
 //! which keeps what frames share, against rendering each frame from nothing.
 
 use face_tracker::likelihood::{
-    LANES, residual_error, residual_errors, residual_errors_of, residual_errors_of_baseline,
-    weigh_parallel, weigh_single_thread,
+    LANES, Lens, residual_error, residual_error_through, residual_errors, residual_errors_of,
+    residual_errors_of_baseline, residual_errors_of_through, weigh_parallel,
+    weigh_parallel_through, weigh_single_thread,
 };
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
@@ -81,6 +83,40 @@ proptest! {
             let lanes = residual_errors(group, &template, &frame);
             prop_assert_eq!(bits(&lanes), bits(&one_at_a_time[..LANES]));
         }
+    }
+
+    /// The same through a pinhole (the lanes' own copy of `Lens::apply`), from a lens longer than
+    /// the frame to one that puts points at or behind the camera.
+    #[test]
+    fn lanes_weigh_as_one_particle_at_a_time_through_a_lens(
+        (width, height) in (2u32..90, 2u32..70),
+        seed in any::<u64>(),
+        focal in 5.0f32..400.0,
+        points in prop::collection::vec(
+            (prop::array::uniform3(-40.0f32..40.0), prop::array::uniform3(-1.0f32..1.0), 1.0f32..255.0),
+            1..80,
+        ),
+        states in prop::collection::vec(particle(), 0..(3 * LANES + 3)),
+    ) {
+        let frame = frame(width, height, seed);
+        let lens = Lens::pinhole(focal, width, height).unwrap();
+        let template = Template::new(
+            points
+                .into_iter()
+                .map(|(p, n, j)| FeaturePoint::new(p, unit([n[0], n[1], n[2] + 1e-2]), j))
+                .collect(),
+        )
+        .unwrap();
+        let one_at_a_time: Vec<f64> =
+            states.iter().map(|s| residual_error_through(s, &template, &frame, &lens)).collect();
+        let bits = |v: &[f64]| v.iter().map(|e| e.to_bits()).collect::<Vec<_>>();
+        let mut batched = vec![-1.0; states.len()];
+        residual_errors_of_through(&states, &template, &frame, &lens, &mut batched);
+        prop_assert_eq!(bits(&batched), bits(&one_at_a_time));
+        prop_assert_eq!(
+            bits(&weigh_parallel_through(&states, &template, &frame, &lens)),
+            bits(&one_at_a_time)
+        );
     }
 }
 

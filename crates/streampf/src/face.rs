@@ -1108,6 +1108,8 @@ fn build_runner(
     rects: &[FaceRect],
     detect: bool,
 ) -> anyhow::Result<(Runner, String)> {
+    // The built-in model: the photographed head for real input (auto) or when asked for, the
+    // generic head for the synthetic video (whose heads are the generic model) or when asked for.
     let photographed = args.heightmap.is_none()
         && matches!(
             (args.face_model, args.synthetic),
@@ -1123,14 +1125,11 @@ fn build_runner(
             }
         );
     }
+    // (clap has a --heightmap come with its --normalmap)
     let face_model = match (&args.heightmap, &args.normalmap) {
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
-        _ => match (args.face_model, args.synthetic) {
-            (FaceModelArg::Generic, _) | (FaceModelArg::Auto, true) => model()?,
-            (FaceModelArg::Photographed, _) | (FaceModelArg::Auto, false) => {
-                FaceModel::photographed_with_face_depth(MODEL_GRID, args.face_depth)?
-            }
-        },
+        _ if photographed => FaceModel::photographed_with_face_depth(MODEL_GRID, args.face_depth)?,
+        _ => model()?,
     };
     let defaults = FaceTrackerConfig::default();
     let config = FaceTrackerConfig {
