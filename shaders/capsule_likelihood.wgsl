@@ -38,14 +38,14 @@ struct CapsuleTerms {
     // v_perp.w_perp = v.w_perp: one dot product, and no cancellation (v.w - (v.u)(w.u) loses
     // digits for bones that point at the camera).
     w_perp: vec4<f32>,
-    // w = p - a, and |w|^2 - r^2 (sphere a).
+    // w = p - a (sphere a); w unused.
     wa: vec4<f32>,
-    // p - b, and |p - b|^2 - r^2 (sphere b).
+    // p - b (sphere b); w unused.
     wb: vec4<f32>,
     // p - c for the bounding sphere's centre c = (a + b) / 2, and |p - c|^2 - R^2, R = L/2 + r.
     wc: vec4<f32>,
     // x: |w_perp|^2 - r^2, the cylinder's q0, > 0 when the camera is outside the infinite
-    // cylinder; yzw unused.
+    // cylinder; y: r^2, for the discriminants (see first_nonnegative_root); zw unused.
     q0: vec4<f32>,
 }
 
@@ -71,9 +71,11 @@ var<workgroup> partial_sum: array<f32, 256>;
 var<workgroup> candidates: array<u32, 128>;
 var<workgroup> candidate_count: atomic<u32>;
 
-// The smallest root >= 0 of q2 D^2 + 2 q1 D + q0 = 0, or NO_HIT.
-fn first_nonnegative_root(q2: f32, q1: f32, q0: f32) -> f32 {
-    let disc = q1 * q1 - q2 * q0;
+// The smallest root >= 0 of q2 D^2 + 2 q1 D + q0 = 0, or NO_HIT, given its discriminant
+// disc = q1^2 - q2 q0 computed without that subtraction, which loses most of f32's digits near a
+// silhouette: q2 r^2 - |v_perp x w_perp|^2 for the cylinder, r^2 - |dir x w|^2 for a sphere
+// (Lagrange's identity; the CPU twin is body_tracker::capsule::first_nonnegative_root).
+fn first_nonnegative_root(q2: f32, q1: f32, disc: f32) -> f32 {
     if (disc < 0.0) {
         return NO_HIT;
     }
@@ -118,7 +120,8 @@ fn ray_capsule(dir: vec3<f32>, a: vec3<f32>, b: vec3<f32>, r: f32) -> f32 {
         let w_perp = w - u * dot(w, u);
         let q2 = dot(v_perp, v_perp);
         if (q2 > 0.0) {
-            let hit = first_nonnegative_root(q2, dot(v_perp, w_perp), dot(w_perp, w_perp) - r * r);
+            let c = cross(v_perp, w_perp);
+            let hit = first_nonnegative_root(q2, dot(v_perp, w_perp), q2 * r * r - dot(c, c));
             if (hit >= 0.0) {
                 let along = dot(w + dir * hit, u);
                 if (along >= 0.0 && along <= len) {
@@ -127,11 +130,16 @@ fn ray_capsule(dir: vec3<f32>, a: vec3<f32>, b: vec3<f32>, r: f32) -> f32 {
             }
         }
     }
-    let wa = cp.origin - a;
-    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, wa), dot(wa, wa) - r * r));
-    let wb = cp.origin - b;
-    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, wb), dot(wb, wb) - r * r));
+    best = keep_nearest(best, ray_sphere(dir, cp.origin - a, r * r));
+    best = keep_nearest(best, ray_sphere(dir, cp.origin - b, r * r));
     return best;
+}
+
+// The first hit Δ >= 0 on the sphere of radius^2 r2 about a centre w = origin - centre away,
+// or NO_HIT (unit dir).
+fn ray_sphere(dir: vec3<f32>, w: vec3<f32>, r2: f32) -> f32 {
+    let c = cross(dir, w);
+    return first_nonnegative_root(1.0, dot(dir, w), r2 - dot(c, c));
 }
 
 // The sum of `value` over the workgroup (valid in every invocation).
@@ -216,10 +224,10 @@ fn capsule_terms(@builtin(global_invocation_id) gid: vec3<u32>) {
     var t: CapsuleTerms;
     t.axis = vec4<f32>(u, len);
     t.w_perp = vec4<f32>(w_perp, wu);
-    t.wa = vec4<f32>(w, dot(w, w) - r * r);
-    t.wb = vec4<f32>(wb, dot(wb, wb) - r * r);
+    t.wa = vec4<f32>(w, 0.0);
+    t.wb = vec4<f32>(wb, 0.0);
     t.wc = vec4<f32>(wc, dot(wc, wc) - big_r * big_r);
-    t.q0 = vec4<f32>(dot(w_perp, w_perp) - r * r, 0.0, 0.0, 0.0);
+    t.q0 = vec4<f32>(dot(w_perp, w_perp) - r * r, r * r, 0.0, 0.0);
     terms[index] = t;
 }
 
@@ -253,7 +261,8 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
         let v_perp = dir - t.axis.xyz * vu;
         let q2 = dot(v_perp, v_perp);
         if (q2 > 0.0) {
-            let hit = first_nonnegative_root(q2, dot(dir, t.w_perp.xyz), t.q0.x);
+            let c = cross(v_perp, t.w_perp.xyz);
+            let hit = first_nonnegative_root(q2, dot(dir, t.w_perp.xyz), q2 * t.q0.y - dot(c, c));
             if (hit >= 0.0) {
                 let along = t.w_perp.w + hit * vu;
                 if (along >= 0.0 && along <= len) {
@@ -262,8 +271,8 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
             }
         }
     }
-    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, t.wa.xyz), t.wa.w));
-    best = keep_nearest(best, first_nonnegative_root(1.0, dot(dir, t.wb.xyz), t.wb.w));
+    best = keep_nearest(best, ray_sphere(dir, t.wa.xyz, t.q0.y));
+    best = keep_nearest(best, ray_sphere(dir, t.wb.xyz, t.q0.y));
     return truncated(best, depth);
 }
 
@@ -276,7 +285,8 @@ fn ray_capsule_outside(dir: vec3<f32>, t: CapsuleTerms) -> f32 {
     let v_perp = dir - t.axis.xyz * vu;
     let q2 = dot(v_perp, v_perp);
     let q1 = dot(dir, t.w_perp.xyz);
-    let disc = q1 * q1 - q2 * t.q0.x;
+    let c = cross(v_perp, t.w_perp.xyz);
+    let disc = q2 * t.q0.y - dot(c, c);
     if (disc < 0.0 || q1 >= 0.0 || q2 <= 0.0) {
         return NO_HIT;
     }
@@ -290,7 +300,8 @@ fn ray_capsule_outside(dir: vec3<f32>, t: CapsuleTerms) -> f32 {
         end = t.wa;
     }
     let s1 = dot(dir, end.xyz);
-    let s_disc = s1 * s1 - end.w;
+    let e = cross(dir, end.xyz);
+    let s_disc = t.q0.y - dot(e, e);
     if (s_disc < 0.0) {
         return NO_HIT;
     }

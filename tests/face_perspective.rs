@@ -119,7 +119,7 @@ fn smooth_frame(width: u32, height: u32, phase: f32) -> GrayImage {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 24, failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(common::property::config(24))]
 
     /// A template taken through a lens, from a face seen turned and scaled anywhere in the
     /// frame, posed by that view and projected through the lens, samples each point's gray level

@@ -11,17 +11,13 @@ use common::capsule_cases::{TAU, points, samples, sum_tolerance};
 use nalgebra::Vector3;
 use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestRunner};
+use proptest::test_runner::TestRunner;
 
 fn check(kernel: CapsuleKernel, cases: u32) {
     let Some(ctx) = common::gpu_context("capsule likelihood") else {
         return;
     };
-    let mut runner = TestRunner::new(Config {
-        cases,
-        failure_persistence: None,
-        ..Config::default()
-    });
+    let mut runner = TestRunner::new(common::property::config(cases));
     let strategy = (
         any::<u64>(),
         1usize..40,
@@ -57,7 +53,7 @@ fn check(kernel: CapsuleKernel, cases: u32) {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -98,11 +94,7 @@ fn fast_kernel_matches_cpu_for_bones_along_the_line_of_sight() {
     let Some(ctx) = common::gpu_context("capsules along the line of sight") else {
         return;
     };
-    let mut runner = TestRunner::new(Config {
-        cases: 24,
-        failure_persistence: None,
-        ..Config::default()
-    });
+    let mut runner = TestRunner::new(common::property::config(24));
     // Per capsule: its near end's offset from the axis of sight, the far end's, depth, length
     // and radius; the camera is inside the infinite cylinder when the bone's line passes
     // within the radius of the origin.
@@ -160,5 +152,5 @@ fn fast_kernel_matches_cpu_for_bones_along_the_line_of_sight() {
             );
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }

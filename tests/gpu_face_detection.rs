@@ -293,7 +293,7 @@ fn drawn_frame(photo: &GrayImage, draw: (f32, f32, f32, f32, f32, i16, u8, u64))
 #[test]
 fn gpu_detector_matches_the_cpu_on_random_frames_and_settings() {
     use proptest::prelude::*;
-    use proptest::test_runner::{Config, TestRunner};
+    use proptest::test_runner::TestRunner;
     if media::opted_out("the GPU detector on random frames") {
         return;
     }
@@ -329,11 +329,7 @@ fn gpu_detector_matches_the_cpu_on_random_frames_and_settings() {
         if frames_with_hits.get() >= 3 {
             break;
         }
-        let mut runner = TestRunner::new(Config {
-            cases: 24,
-            failure_persistence: None,
-            ..Config::default()
-        });
+        let mut runner = TestRunner::new(common::property::config(24));
         runner
             .run(
                 &(0..photos.len(), draw.clone(), settings.clone()),
@@ -382,7 +378,7 @@ fn gpu_detector_matches_the_cpu_on_random_frames_and_settings() {
                     Ok(())
                 },
             )
-            .unwrap();
+            .unwrap_or_else(common::property::report);
     }
     // Not a vacuous pass: about four frames in ten held hits when this was written.
     assert!(

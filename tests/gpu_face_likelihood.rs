@@ -25,7 +25,7 @@ use pf_core::batch::{BatchConfig, BatchShape};
 use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
 use pf_gpu::{GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestRunner};
+use proptest::test_runner::TestRunner;
 
 const SHARPNESS: f32 = 1.0;
 const SHIFT: f32 = 1e-3;
@@ -155,11 +155,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
     let Some(ctx) = common::gpu_context("face likelihood") else {
         return;
     };
-    let mut runner = TestRunner::new(Config {
-        cases,
-        failure_persistence: None,
-        ..Config::default()
-    });
+    let mut runner = TestRunner::new(common::property::config(cases));
     let strategy = (
         any::<u64>(),
         1usize..4,
@@ -238,7 +234,7 @@ fn check(dispatch: FaceDispatch, cases: u32) {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -264,11 +260,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
     let Some(ctx) = common::gpu_context("face estimate check") else {
         return;
     };
-    let mut runner = TestRunner::new(Config {
-        cases: 8,
-        failure_persistence: None,
-        ..Config::default()
-    });
+    let mut runner = TestRunner::new(common::property::config(8));
     let strategy = (
         any::<u64>(),
         1usize..5,
@@ -352,7 +344,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]

@@ -61,7 +61,7 @@ fn filter(ctx: &GpuContext, targets: usize, particles: usize, best: usize) -> Gp
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+    #![proptest_config(common::property::config(12))]
 
     #[test]
     fn sections_come_back_by_name_after_the_filters_own(

@@ -12,14 +12,10 @@ use pf_core::resample::{Metropolis, Stratified, Systematic};
 use pf_core::{PfError, Resampler, Stage};
 use pf_gpu::{GpuFilter, GpuResampler, GpuStage, NoLikelihood, TargetStats};
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestCaseError, TestRunner};
+use proptest::test_runner::{TestCaseError, TestRunner};
 
 fn runner(cases: u32) -> TestRunner {
-    TestRunner::new(Config {
-        cases,
-        failure_persistence: None,
-        ..Config::default()
-    })
+    TestRunner::new(common::property::config(cases))
 }
 
 fn shapes() -> impl Strategy<Value = BatchShape> {
@@ -80,7 +76,7 @@ fn philox_blocks_bit_exact_vs_cpu() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -111,7 +107,7 @@ fn gaussian_draws_match_cpu_within_tolerance() {
                 Ok(())
             },
         )
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 // ---- diffusion ----------------------------------------------------------------------------------
@@ -184,7 +180,7 @@ fn diffusion_matches_cpu_within_tolerance() {
                 Ok(())
             },
         )
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 // ---- normalisation ------------------------------------------------------------------------------
@@ -274,7 +270,7 @@ fn normalisation_matches_cpu_within_tolerance() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -455,7 +451,7 @@ fn check_ordered(stratified: bool, large: bool) {
                 Ok(())
             },
         )
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -564,7 +560,7 @@ fn metropolis_resampling_same_ancestors_as_cpu() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 // ---- gather and estimate ------------------------------------------------------------------------
@@ -628,7 +624,7 @@ fn gather_bit_exact_vs_cpu() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -693,7 +689,7 @@ fn weighted_mean_and_spread_match_cpu_within_tolerance() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]
@@ -754,5 +750,5 @@ fn best_weighted_mean_matches_cpu_within_tolerance() {
             }
             Ok(())
         })
-        .unwrap();
+        .unwrap_or_else(common::property::report);
 }

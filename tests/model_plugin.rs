@@ -57,7 +57,7 @@ fn inputs() -> impl Strategy<Value = (usize, usize, Vec<f32>, Vec<Ranges>)> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 12, ..ProptestConfig::default() })]
+    #![proptest_config(common::property::config(12))]
 
     #[test]
     fn range_only_model_matches_cpu_within_tolerance((targets, particles, states, observed) in inputs()) {
@@ -241,7 +241,7 @@ fn the_check_reports_a_twin_that_disagrees() {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 8, ..ProptestConfig::default() })]
+    #![proptest_config(common::property::config(8))]
 
     /// The toy model through the plug-in against its twin, angles wrapped the short way round.
     #[test]

@@ -8,6 +8,7 @@
 
 pub mod capsule_cases;
 pub mod media;
+pub mod property;
 
 /// The environment variable that lets a run without any adapter skip the GPU tests.
 pub const OPT_OUT: &str = "STREAMPF_ALLOW_NO_GPU";

@@ -20,9 +20,16 @@ pub struct Capsule {
     pub radius: f32,
 }
 
-/// The smallest root ≥ 0 of `q2 Δ² + 2 q1 Δ + q0 = 0`, if any (`q2 > 0`).
-fn first_nonnegative_root(q2: f32, q1: f32, q0: f32) -> Option<f32> {
-    let disc = q1 * q1 - q2 * q0;
+/// The smallest root ≥ 0 of `q2 Δ² + 2 q1 Δ + q0 = 0`, if any (`q2 > 0`), given its
+/// discriminant `disc` = q1² − q2·q0.
+///
+/// The caller computes `disc` without that subtraction: near a silhouette q1² and q2·q0 are
+/// both of the order of q2·|w⊥|² (the camera's distance from the axis, metres, squared) while
+/// their difference is of the order of q2·r², so f32 loses most of its digits there (a point
+/// 2.9 m away came out 0.2 mm off). Lagrange's identity gives the same difference from terms
+/// the size of the answer: for the cylinder q2·r² − |v⊥ × w⊥|², for a sphere (unit `dir`)
+/// r² − |dir × w|². The GPU kernel (shaders/capsule_likelihood.wgsl) does the same.
+fn first_nonnegative_root(q2: f32, q1: f32, disc: f32) -> Option<f32> {
     if disc < 0.0 {
         return None;
     }
@@ -43,7 +50,8 @@ pub fn ray_sphere(
     radius: f32,
 ) -> Option<f32> {
     let w = origin - centre;
-    first_nonnegative_root(1.0, dir.dot(&w), w.norm_squared() - radius * radius)
+    let disc = radius * radius - dir.cross(&w).norm_squared();
+    first_nonnegative_root(1.0, dir.dot(&w), disc)
 }
 
 /// Where the ray `origin + Δ·dir` (unit `dir`) first meets the capsule, Δ ≥ 0 (Appendix A).
@@ -64,11 +72,8 @@ pub fn ray_capsule(origin: &Vector3<f32>, dir: &Vector3<f32>, c: &Capsule) -> Op
         let q2 = v_perp.norm_squared();
         // A ray parallel to the axis never meets the side (only the spheres).
         if q2 > 0.0 {
-            let hit = first_nonnegative_root(
-                q2,
-                v_perp.dot(&w_perp),
-                w_perp.norm_squared() - c.radius * c.radius,
-            );
+            let disc = q2 * c.radius * c.radius - v_perp.cross(&w_perp).norm_squared();
+            let hit = first_nonnegative_root(q2, v_perp.dot(&w_perp), disc);
             if let Some(delta) = hit {
                 let along = (w + dir * delta).dot(&u);
                 if (0.0..=length).contains(&along) {
