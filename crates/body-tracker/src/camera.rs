@@ -55,7 +55,8 @@ impl Intrinsics {
         }
         if !finite || self.fx <= 0.0 || self.fy <= 0.0 || self.depth_scale <= 0.0 {
             return Err(BodyError::InvalidInput(format!(
-                "camera intrinsics need finite fx, fy, depth_scale > 0 and finite cx, cy: {self:?}"
+                "camera intrinsics need finite fx, fy, depth_scale > 0 and finite cx, cy; got fx {}, fy {}, cx {}, cy {}, depth_scale {}",
+                self.fx, self.fy, self.cx, self.cy, self.depth_scale
             )));
         }
         Ok(())

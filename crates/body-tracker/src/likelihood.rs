@@ -29,7 +29,8 @@ impl Rays {
         for (i, p) in points.iter().enumerate() {
             if !p.iter().all(|x| x.is_finite()) {
                 return Err(BodyError::InvalidInput(format!(
-                    "point {i} is not finite: {p:?}"
+                    "point {i} is not finite: ({}, {}, {})",
+                    p.x, p.y, p.z
                 )));
             }
             let offset = p - origin;
@@ -75,10 +76,15 @@ pub struct CapsuleLikelihoodParams {
 }
 
 impl CapsuleLikelihoodParams {
+    /// The largest τ, in metres: a scene is a few metres across, and a τ² summed over a frame's
+    /// points must stay far from f32's range on the GPU (a τ of 1e19 made every log-weight −∞).
+    pub const TAU_MAX: f32 = 100.0;
+
     pub fn new(tau: f32, sigma: f32) -> Result<Self, BodyError> {
-        if !(tau.is_finite() && tau > 0.0 && sigma.is_finite() && sigma > 0.0) {
+        if !(tau > 0.0 && tau <= Self::TAU_MAX && sigma.is_finite() && sigma > 0.0) {
             return Err(BodyError::InvalidInput(format!(
-                "tau and sigma must be finite and > 0 (got tau {tau}, sigma {sigma})"
+                "tau must be above 0 and at most {} m, and sigma finite and > 0 (got tau {tau}, sigma {sigma})",
+                Self::TAU_MAX
             )));
         }
         Ok(Self { tau, sigma })

@@ -218,7 +218,11 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Vec<Vector3<f32>>, BodyError> {
         }
     }
     if let Some(v) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
-        return Err(bad(format!("vertex {v} is not finite: {:?}", points[v])));
+        let p = points[v];
+        return Err(bad(format!(
+            "vertex {v} is not finite: ({}, {}, {})",
+            p.x, p.y, p.z
+        )));
     }
     Ok(points)
 }

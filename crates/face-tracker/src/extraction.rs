@@ -26,6 +26,13 @@ pub struct FaceRect {
     pub height: f32,
 }
 
+/// `x,y,width,height`, as a user writes a rectangle (`--face`, faces.csv).
+impl std::fmt::Display for FaceRect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{},{},{},{}", self.x, self.y, self.width, self.height)
+    }
+}
+
 impl FaceRect {
     pub fn centre(&self) -> (f32, f32) {
         (self.x + self.width / 2.0, self.y + self.height / 2.0)
@@ -33,12 +40,16 @@ impl FaceRect {
 
     /// Checks that the rectangle has a size and lies inside the frame.
     pub fn validate(&self, frame: &GrayImage) -> Result<(), FaceError> {
-        let finite = [self.x, self.y, self.width, self.height]
-            .iter()
-            .all(|v| v.is_finite());
-        if !finite || self.width < 8.0 || self.height < 8.0 {
+        let names = ["x", "y", "width", "height"];
+        let values = [self.x, self.y, self.width, self.height];
+        if let Some((name, value)) = names.iter().zip(values).find(|(_, v)| !v.is_finite()) {
             return Err(FaceError::InvalidInput(format!(
-                "a face rectangle must be at least 8x8 pixels, got {self:?}"
+                "the face rectangle {self} has {name} {value}: its values must be finite numbers"
+            )));
+        }
+        if self.width < 8.0 || self.height < 8.0 {
+            return Err(FaceError::InvalidInput(format!(
+                "a face rectangle must be at least 8x8 pixels, got {self} (x,y,width,height)"
             )));
         }
         if self.x < 0.0
@@ -47,7 +58,7 @@ impl FaceRect {
             || self.y + self.height > frame.height as f32
         {
             return Err(FaceError::InvalidInput(format!(
-                "the face rectangle {self:?} is not inside the {}x{} frame",
+                "the face rectangle {self} (x,y,width,height) is not inside the {}x{} frame",
                 frame.width, frame.height
             )));
         }
@@ -387,7 +398,7 @@ pub fn extract_template_seen(
         .collect();
     Template::new(points).map_err(|_| {
         FaceError::InvalidInput(format!(
-            "no feature points in the face rectangle {rect:?}: the region is flat (no gray-level extrema or edges)"
+            "no feature points in the face rectangle {rect} (x,y,width,height): the region is flat (no gray-level extrema or edges)"
         ))
     })
 }

@@ -28,6 +28,23 @@ impl Annotated {
         Ok(())
     }
 
+    /// Refuses an overlay directory that is the input's directory of frames: its PNGs would be
+    /// written among the frames, and read as frames by the next run.
+    pub fn check_not_input(path: &Path, input: Option<&Path>) -> anyhow::Result<()> {
+        let same = |a: &Path, b: &Path| match (a.canonicalize(), b.canonicalize()) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => false,
+        };
+        if let Some(input) = input.filter(|i| i.is_dir() && same(path, i)) {
+            bail!(
+                "--overlay {}: that is the input directory {}; its annotated PNGs would be read as frames by the next run: give another directory",
+                path.display(),
+                input.display()
+            );
+        }
+        Ok(())
+    }
+
     pub fn create(path: &Path, width: u32, height: u32, fps: f64) -> anyhow::Result<Self> {
         Self::check_path(path)?;
         if is_video_path(path) {

@@ -25,7 +25,22 @@ use nalgebra::Vector3;
 
 use crate::annotated::Annotated;
 use crate::recording::{BodyFrame, Recording};
-use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
+use crate::run_output::{
+    self, CsvStream, Interrupted, OutputLock, ResumePoint, SkipLog, clear_old_results,
+};
+
+/// `--tau`: metres, above 0 and at most `CapsuleLikelihoodParams::TAU_MAX`.
+fn tau_metres(text: &str) -> Result<f32, String> {
+    let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    let max = body_tracker::likelihood::CapsuleLikelihoodParams::TAU_MAX;
+    if value > 0.0 && value <= max {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value}: give τ in metres, above 0 and at most {max}"
+        ))
+    }
+}
 
 #[derive(Debug, Subcommand)]
 pub enum BodyCommand {
@@ -105,9 +120,12 @@ pub enum FormatArg {
 
 #[derive(Debug, Clone, Args)]
 pub struct SynthArgs {
-    /// The directory to write (created if needed).
+    /// The directory to write (created if needed): new, empty, or an earlier `body synth`'s.
     #[arg(long)]
     pub out: PathBuf,
+    /// Write into a directory that holds other files (its frames are replaced).
+    #[arg(long)]
+    pub force: bool,
     /// Frame files: PLY point clouds or 16-bit depth PNGs.
     #[arg(long, value_enum, default_value_t = FormatArg::Ply)]
     pub format: FormatArg,
@@ -148,7 +166,7 @@ pub struct TrackArgs {
     pub particles: u32,
     /// τ of the likelihood (eq. 6), in metres: a point's distance to the body counts up to this
     /// much, and a point no capsule explains costs τ².
-    #[arg(long, default_value_t = TrackerConfig::default().tau)]
+    #[arg(long, default_value_t = TrackerConfig::default().tau, value_parser = tau_metres)]
     pub tau: f32,
     /// Partitioned sampling: the first half of the annealing layers move only the trunk (the
     /// root, pelvis, spine and chest), the second half only the limbs, each from the full σ;
@@ -239,6 +257,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
         FormatArg::Ply => FrameFormat::Ply,
         FormatArg::DepthPng => FrameFormat::DepthPng,
     };
+    run_output::claim_synthetic_dir(&args.out, args.force)?;
     let bar = progress_bar(config.frames, false);
     write_synthetic(&args.out, &skeleton, &config, format, |_| bar.inc(1))
         .with_context(|| format!("writing the sequence to {}", args.out.display()))?;
@@ -247,7 +266,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
         .format
         .to_possible_value()
         .map_or_else(String::new, |v| v.get_name().to_string());
-    println!(
+    outln!(
         "wrote {} frames ({format_name}, {} capsules, {}) with ground truth to {}",
         config.frames,
         skeleton.capsule_count(),
@@ -410,6 +429,7 @@ fn open_sequence(args: &TrackArgs) -> anyhow::Result<Sequence> {
 fn track(args: &TrackArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.overlay {
         Annotated::check_path(path).context("--overlay")?;
+        Annotated::check_not_input(path, args.dir.as_deref())?;
         if args.resume && crate::video::is_video_path(path) {
             bail!(
                 "--resume cannot continue an overlay video ({}); write the overlay as PNG frames (a directory) to resume",
@@ -423,6 +443,8 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .map(|path| Recording::create(path, "streampf body track"))
         .transpose()?;
     let (source, skeleton, truth) = open_sequence(args)?;
+    // Held to the end of the run: nothing below touches --out before it is ours.
+    let _lock = OutputLock::acquire(&args.out)?;
     let frames = source
         .frames()
         .min(args.max_frames.map_or(usize::MAX, |n| n as usize));
@@ -449,14 +471,12 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         ..defaults
     };
     let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
     }
     if !args.quiet {
-        println!(
+        outln!(
             "tracking {frames} frames, {} capsules, {} particles on {backend_name}",
             skeleton.capsule_count(),
             args.particles
@@ -472,10 +492,13 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             )
         })
         .transpose()?;
+    if let Some(point) = &resume {
+        point.check_limit(args.max_frames.map(u64::from), &args.out.join(POSES_FILE))?;
+    }
     if resume.is_none() {
         clear_old_results(&args.out, &[POSES_FILE, JOINTS_FILE, ERRORS_FILE])?;
     } else if let Some(point) = resume.as_ref().filter(|_| !args.quiet) {
-        println!(
+        outln!(
             "resuming at frame {}: the frames before it are tracked again and checked against {}",
             point.frame,
             args.out.join(POSES_FILE).display()
@@ -488,7 +511,6 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
         .transpose()?;
-    run_output::install_interrupt_handler()?;
     let bar = progress_bar(frames, args.quiet);
     let mut run = BodyRun::new(&args.out)?;
     let started = Instant::now();
@@ -631,10 +653,14 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     // The overlay video is finalised whatever ended the run, so that its frames are kept.
     let closed = overlay.map_or(Ok(()), |overlay| overlay.out.finish());
     let closed = closed.and(recording.map_or(Ok(()), Recording::finish));
-    run.summary(args, started.elapsed().as_secs_f64());
     if let (Err(e), LoopEnd::Done | LoopEnd::Interrupted) = (closed, &end) {
         end = LoopEnd::Failed(e.context("finishing --overlay or --rerun"));
     }
+    run.summary(
+        args,
+        started.elapsed().as_secs_f64(),
+        matches!(end, LoopEnd::Done),
+    );
     match end {
         LoopEnd::Done => Ok(()),
         LoopEnd::Interrupted => Err(Interrupted {
@@ -642,11 +668,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             out: args.out.clone(),
         }
         .into()),
-        LoopEnd::Failed(e) => Err(e.context(format!(
-            "stopped; the {} frames before it were written to {}",
-            run.frames,
-            args.out.display()
-        ))),
+        LoopEnd::Failed(e) => Err(run_output::stopped(e, run.frames, &args.out)),
     }
 }
 
@@ -919,9 +941,10 @@ impl BodyRun {
         Ok(())
     }
 
-    fn summary(&self, args: &TrackArgs, elapsed: f64) {
+    /// `written`: whether the run ended well (a stopped one says what it wrote in its error).
+    fn summary(&self, args: &TrackArgs, elapsed: f64, written: bool) {
         let tracked = self.frames - self.skipped.frames.len();
-        println!(
+        outln!(
             "tracked {tracked} frames ({:.0} points a frame) in {elapsed:.2} s: {:.1} frames/s in the tracker{}{}",
             self.points_seen as f64 / tracked.max(1) as f64,
             tracked as f64 / self.tracking_time.max(self.gpu_time).max(1e-9),
@@ -935,16 +958,19 @@ impl BodyRun {
         if !self.errors.is_empty() {
             let mean =
                 self.errors.iter().map(|&e| f64::from(e)).sum::<f64>() / self.errors.len() as f64;
-            println!(
+            outln!(
                 "mean joint position error: {mean:.4} m over {} frames",
                 self.errors.len()
             );
-            println!(
+            outln!(
                 "truth within ±2 reported sd: {:.0}% of the pose values (about 95% for an honest spread)",
                 100.0 * self.within_two_sd as f64 / self.values_checked.max(1) as f64
             );
         }
-        println!(
+        if !written {
+            return;
+        }
+        outln!(
             "wrote poses.csv, joints.csv{}{} to {}",
             if self.errors.is_empty() {
                 ""
@@ -959,7 +985,7 @@ impl BodyRun {
             args.out.display()
         );
         if let Some(path) = &args.overlay {
-            println!("drew the frames to {}", path.display());
+            outln!("drew the frames to {}", path.display());
         }
     }
 }

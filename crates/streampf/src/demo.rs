@@ -279,7 +279,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         .map(|k| streams.stream(k, Stage::Model(0)))
         .collect();
 
-    println!(
+    outln!(
         "streampf demo: {} 7-D pose target(s) x {} particles, {} resampling, {} steps, seed {}, on {}",
         args.targets,
         args.particles,
@@ -289,7 +289,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         trackers.device()
     );
     if !args.quiet {
-        println!("step  transl.err(px)  rot.err(deg)  obs.transl.err(px)  mean ESS  resampled");
+        outln!("step  transl.err(px)  rot.err(deg)  obs.transl.err(px)  mean ESS  resampled");
     }
     let n_targets = args.targets as f32;
     let (mut sum_t, mut sum_r, mut max_t, mut max_r) = (0.0, 0.0, 0.0f32, 0.0f32);
@@ -325,15 +325,16 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         sum_obs_t += step_obs_t;
         if !args.quiet {
             let mean_ess = frame.ess.iter().sum::<f64>() / frame.ess.len() as f64;
-            println!(
+            outln!(
                 "{t:4}  {step_t:14.2}  {step_r:12.2}  {step_obs_t:18.2}  {mean_ess:8.1}  {}/{}",
-                frame.resampled, args.targets
+                frame.resampled,
+                args.targets
             );
         }
     }
     let elapsed = start.elapsed();
     let n = args.steps as f32;
-    println!(
+    outln!(
         "summary: mean translation error {:.2} px (max {:.2}), mean rotation error {:.2} deg (max {:.2}); \
          the raw observations were off by {:.2} px and {:.2} deg on average",
         sum_t / n,
@@ -345,12 +346,12 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     );
     let per_step_ms = elapsed.as_secs_f64() * 1e3 / f64::from(args.steps);
     match &trackers {
-        Trackers::Cpu(_) => println!(
+        Trackers::Cpu(_) => outln!(
             "         {per_step_ms:.3} ms per step on the CPU, all targets ({} steps in {:.2} s, observation synthesis included)",
             args.steps,
             elapsed.as_secs_f64()
         ),
-        Trackers::Gpu { .. } => println!(
+        Trackers::Gpu { .. } => outln!(
             "         {per_step_ms:.3} ms per step on the host, {:.3} ms of it the GPU step ({gpu_time_source}), all targets ({} steps in {:.2} s)",
             gpu_time.as_secs_f64() * 1e3 / f64::from(args.steps),
             args.steps,

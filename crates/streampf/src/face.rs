@@ -37,7 +37,9 @@ use crate::face_overlay::{ColourFrames, FaceOverlay};
 
 mod in_flight;
 use crate::recording::{FaceClouds, FaceFrame, Recording};
-use crate::run_output::{self, CsvStream, Interrupted, ResumePoint, SkipLog, clear_old_results};
+use crate::run_output::{
+    self, CsvStream, Interrupted, OutputLock, ResumePoint, SkipLog, clear_old_results,
+};
 use in_flight::InFlight;
 
 #[derive(Debug, Subcommand)]
@@ -75,6 +77,18 @@ pub struct VideoArgs {
     /// for a camera far from the faces (docs/ACCURACY.md, "The camera's lens").
     #[arg(long, value_parser = field_of_view)]
     pub fov: Option<f32>,
+}
+
+/// `--failure-error`: within (0, 1], as ε is (a fit's robust residual, in [0, 1)).
+fn failure_error(text: &str) -> Result<f32, String> {
+    let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if value > 0.0 && value <= 1.0 {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value}: give a fit error ε above 0 and at most 1 (ε lies in [0, 1); 1 never ends a track)"
+        ))
+    }
 }
 
 /// `--fov`: degrees, within `Lens::FIELD_OF_VIEW`.
@@ -129,8 +143,12 @@ impl VideoArgs {
 
 #[derive(Debug, Clone, Args)]
 pub struct SynthArgs {
+    /// The directory to write: new, empty, or an earlier `face synth`'s.
     #[arg(long)]
     pub out: PathBuf,
+    /// Write into a directory that holds other files (frame_*.png among them are replaced).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub video: VideoArgs,
 }
@@ -249,7 +267,7 @@ pub struct TrackArgs {
     pub save_particles: Option<PathBuf>,
     /// A track ends when its estimate's ε (the template's robust relative residual) stays above
     /// this for --failure-frames frames in a row.
-    #[arg(long, default_value_t = FaceTrackerConfig::default().failure_error)]
+    #[arg(long, default_value_t = FaceTrackerConfig::default().failure_error, value_parser = failure_error)]
     pub failure_error: f32,
     #[arg(long, default_value_t = FaceTrackerConfig::default().failure_frames as u32, value_parser = clap::value_parser!(u32).range(1..=100_000))]
     pub failure_frames: u32,
@@ -361,8 +379,7 @@ fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
 fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     let config = args.video.config()?;
     let model = model()?;
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    run_output::claim_synthetic_dir(&args.out, args.force)?;
     remove_old_frames(&args.out)?;
     let bar = crate::body::progress_bar(config.frames, false);
     let mut truth = String::from("frame,face");
@@ -394,7 +411,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     }
     write_text(&args.out.join(RECTS_FILE), &rects)?;
     write_text(&args.out.join(TRUTH_FILE), &truth)?;
-    println!(
+    outln!(
         "wrote {} frames of {}x{} with {} faces, faces.csv and ground_truth.csv to {}",
         config.frames,
         config.width,
@@ -421,7 +438,7 @@ fn remove_old_frames(dir: &Path) -> anyhow::Result<()> {
         }
     }
     if removed > 0 {
-        eprintln!(
+        errln!(
             "note: removed {removed} frames of an earlier video from {}",
             dir.display()
         );
@@ -442,6 +459,13 @@ fn parse_rect(text: &str, origin: &str) -> anyhow::Result<FaceRect> {
             values.len()
         );
     };
+    if let Some((name, value)) = ["x", "y", "width", "height"]
+        .into_iter()
+        .zip(values)
+        .find(|(_, v)| !v.is_finite())
+    {
+        bail!("{origin}: {text:?} has {name} {value}: give finite numbers x,y,width,height");
+    }
     Ok(FaceRect {
         x,
         y,
@@ -450,15 +474,17 @@ fn parse_rect(text: &str, origin: &str) -> anyhow::Result<FaceRect> {
     })
 }
 
-/// faces.csv: `x,y,width,height` per face, with or without a header line (a first line that
-/// is four numbers is a rectangle, not a header).
+/// faces.csv: `x,y,width,height` per face, with or without a header line. A first line is a
+/// header when some field of it is not a number; a line of numbers is a rectangle, checked as
+/// every other (so `1,2,3,4,0.9` is the same error with or without a header above it).
 fn read_rects(path: &Path) -> anyhow::Result<Vec<FaceRect>> {
     let text = std::fs::read_to_string(path)
         .with_context(|| format!("reading the face rectangles {}", path.display()))?;
-    let has_header = text
-        .lines()
-        .next()
-        .is_some_and(|first| parse_rect(first, "").is_err());
+    let has_header = text.lines().next().is_some_and(|first| {
+        first
+            .split(',')
+            .any(|field| field.trim().parse::<f32>().is_err())
+    });
     text.lines()
         .enumerate()
         .skip(usize::from(has_header))
@@ -649,7 +675,7 @@ fn load_personaliser(args: &TrackArgs) -> anyhow::Result<Option<Arc<Personaliser
             let default = PathBuf::from(DEFAULT_PREDICTOR);
             if !default.is_file() {
                 if !args.quiet {
-                    println!(
+                    outln!(
                         "note: no landmark model at {DEFAULT_PREDICTOR} (Debian's libdlib-data); templates use the generic face model. Install it or give --landmarks PATH to personalise them"
                     );
                 }
@@ -771,6 +797,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     if let Some(path) = &args.overlay {
         Annotated::check_path(path)?;
+        Annotated::check_not_input(path, args.input.as_deref())?;
         if args.resume && crate::video::is_video_path(path) {
             bail!(
                 "--resume cannot continue an overlay video ({}); write the overlay as PNG frames (a directory) to resume",
@@ -783,10 +810,15 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|path| Recording::create(path, "streampf face track"))
         .transpose()?;
+    // Held to the end of the run: nothing below touches --out before it is ours.
+    let _lock = OutputLock::acquire(&args.out)?;
     let resume = args
         .resume
         .then(|| ResumePoint::of(&args.out.join(STATES_FILE), &TrackRecord::states_header()))
         .transpose()?;
+    if let Some(point) = &resume {
+        point.check_limit(args.max_frames, &args.out.join(STATES_FILE))?;
+    }
     if let Some(max) = args.max_faces
         && rects.len() > max as usize
     {
@@ -809,8 +841,6 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
             .add_face(&first, r)
             .with_context(|| format!("face {i}"))?;
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
     if resume.is_none() {
         clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE, LANDMARKS_FILE])?;
     }
@@ -831,14 +861,13 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
     if !args.quiet {
         announce(args, detect, rects.len(), frames_known, size, &backend_name);
         if let Some(point) = &resume {
-            println!(
+            outln!(
                 "resuming at frame {}: the frames before it are tracked again and checked against {}",
                 point.frame,
                 args.out.join(STATES_FILE).display()
             );
         }
     }
-    run_output::install_interrupt_handler()?;
     let mut run = FaceRun {
         args,
         record: TrackRecord::create(
@@ -1047,20 +1076,23 @@ impl FaceRun<'_> {
         let closed = self.overlay.take().map_or(Ok(()), FaceOverlay::finish);
         // Flushed whatever ended the run: the recording keeps every frame it had.
         let closed = closed.and(self.recording.take().map_or(Ok(()), Recording::finish));
-        self.record
-            .summary(self.args, runner, self.frames, elapsed, &self.skipped);
+        let written = matches!(end, LoopEnd::Done);
+        self.record.summary(
+            self.args,
+            runner,
+            self.frames,
+            elapsed,
+            &self.skipped,
+            written,
+        );
         if let Runner::Auto(auto) = runner
             && let Some(why) = auto.detector_fallback()
         {
-            eprintln!("warning: the detector's GPU failed ({why}); it ran on the CPU from then on");
+            errln!("warning: the detector's GPU failed ({why}); it ran on the CPU from then on");
         }
         match end {
             LoopEnd::Failed(e) => {
-                return Err(e.context(format!(
-                    "stopped; the {} frames before it were written to {}",
-                    self.frames,
-                    self.args.out.display()
-                )));
+                return Err(run_output::stopped(e, self.frames, &self.args.out));
             }
             LoopEnd::Interrupted => {
                 closed?;
@@ -1078,7 +1110,7 @@ impl FaceRun<'_> {
         };
         let messages: Vec<&str> = source.decoder_messages().lines().collect();
         if !self.skipped.frames.is_empty() && !messages.is_empty() {
-            eprintln!(
+            errln!(
                 "FFmpeg said while decoding (last lines): {}",
                 messages[messages.len().saturating_sub(4)..].join("\n")
             );
@@ -1088,7 +1120,7 @@ impl FaceRun<'_> {
             .filter(|_| self.frames < self.args.max_frames.map_or(usize::MAX, |n| n as usize))
         {
             if self.args.allow_short {
-                eprintln!("warning: {short}");
+                errln!("warning: {short}");
             } else {
                 bail!(
                     "{short}; the {} frames decoded were tracked and written (--allow-short accepts a short video)",
@@ -1241,9 +1273,11 @@ fn announce(
         }
     };
     let length = frames.map_or("frames".to_string(), |n| format!("{n} frames"));
-    println!(
+    outln!(
         "tracking {starts} through {length} of {}x{}, {} particles each, on {backend_name}",
-        size.0, size.1, args.particles
+        size.0,
+        size.1,
+        args.particles
     );
 }
 
@@ -1464,9 +1498,11 @@ impl TrackRecord {
         frames: usize,
         elapsed: f64,
         skipped: &SkipLog,
+        // Whether the run ended well: a stopped one says what it wrote in its error instead.
+        written: bool,
     ) {
         let faces = self.tracks_seen.len();
-        println!(
+        outln!(
             "tracked {faces} face{} through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker{}, {:.1} frames/s with reading{}{}",
             if faces == 1 { "" } else { "s" },
             frames as f64 / self.tracking_time.max(self.gpu_time).max(1e-9),
@@ -1485,7 +1521,7 @@ impl TrackRecord {
         );
         let (personalised, missed) = runner.tracker().personalisation_counts();
         if personalised + missed > 0 {
-            println!(
+            outln!(
                 "face model personalised to the landmarks of {personalised} of {} template{}{}",
                 personalised + missed,
                 if personalised + missed == 1 { "" } else { "s" },
@@ -1498,7 +1534,7 @@ impl TrackRecord {
         }
         let measured = self.measured;
         if measured > 0 {
-            println!(
+            outln!(
                 "mean translation error: {:.2} px, mean rotation error: {:.2} deg ({measured} face-frames)",
                 self.translation / measured as f64,
                 self.rotation / measured as f64
@@ -1508,12 +1544,15 @@ impl TrackRecord {
                 .zip(self.within_two_sd)
                 .map(|(n, k)| format!("{n} {:.0}%", 100.0 * k as f64 / measured as f64))
                 .collect();
-            println!(
+            outln!(
                 "truth within ±2 reported sd: {} (about 95% for an honest spread)",
                 coverage.join(", ")
             );
         }
-        println!(
+        if !written {
+            return;
+        }
+        outln!(
             "wrote states.csv{}{} to {}{}",
             if self.errors.is_some() {
                 ", errors.csv"

@@ -18,6 +18,8 @@ pub enum Source {
     Images {
         files: Vec<PathBuf>,
         next: usize,
+        /// The first frame's size: a later image of another size is unreadable as a frame.
+        size: Option<(u32, u32)>,
     },
     Synthetic {
         renderer: Box<FaceVideoRenderer>,
@@ -50,14 +52,24 @@ impl Source {
                     IMAGE_EXTENSIONS.join(", ")
                 );
             }
-            return Ok(Source::Images { files, next: 0 });
+            return Ok(Source::Images {
+                files,
+                next: 0,
+                size: None,
+            });
         }
         if !path.exists() {
             bail!("{}: no such file or directory", path.display());
         }
+        if !path.is_file() {
+            bail!(
+                "{}: not a video file (a device, a pipe or a directory)",
+                path.display()
+            );
+        }
         if !is_video_path(path) {
             // FFmpeg reads more than the usual extensions; let it try and say what is wrong.
-            eprintln!(
+            errln!(
                 "note: {} has no usual video extension; trying FFmpeg on it",
                 path.display()
             );
@@ -95,12 +107,12 @@ impl Source {
     /// not an image: the run may skip it) from a source that cannot go on (an error).
     pub fn read_next(&mut self) -> anyhow::Result<FrameRead> {
         match self {
-            Source::Images { files, next } => {
+            Source::Images { files, next, size } => {
                 let Some(path) = files.get(*next) else {
                     return Ok(FrameRead::End);
                 };
                 *next += 1;
-                Ok(FrameRead::load(path))
+                Ok(FrameRead::load(path).of_size(size, path))
             }
             Source::Synthetic { renderer, next } => {
                 if *next >= renderer.config().frames {
@@ -127,14 +139,19 @@ impl Source {
     pub fn read_batch(&mut self, max: usize) -> Vec<anyhow::Result<FrameRead>> {
         let count = max.clamp(1, rayon::current_num_threads().clamp(1, Self::BATCH));
         match self {
-            Source::Images { files, next } => {
+            Source::Images { files, next, size } => {
                 let end = (*next + count).min(files.len());
                 if *next >= end {
                     return vec![Ok(FrameRead::End)];
                 }
-                let reads = files[*next..end]
+                let loaded: Vec<FrameRead> = files[*next..end]
                     .par_iter()
-                    .map(|path| Ok(FrameRead::load(path)))
+                    .map(|p| FrameRead::load(p))
+                    .collect();
+                let reads = loaded
+                    .into_iter()
+                    .zip(&files[*next..end])
+                    .map(|(read, path)| Ok(read.of_size(size, path)))
                     .collect();
                 *next = end;
                 reads
@@ -194,6 +211,25 @@ impl FrameRead {
             Ok(image) => FrameRead::Frame(image),
             Err(e) => FrameRead::Unreadable(e.into()),
         }
+    }
+
+    /// An image of a size other than the first frame's is unreadable as a frame (skipped with a
+    /// warning, or an error with --strict) instead of stopping the run; the first frame read
+    /// sets `size`.
+    fn of_size(self, size: &mut Option<(u32, u32)>, path: &Path) -> Self {
+        let FrameRead::Frame(image) = self else {
+            return self;
+        };
+        let (width, height) = *size.get_or_insert((image.width, image.height));
+        if (image.width, image.height) == (width, height) {
+            return FrameRead::Frame(image);
+        }
+        FrameRead::Unreadable(anyhow::anyhow!(
+            "{}: {}x{}, not the first frame's {width}x{height}",
+            path.display(),
+            image.width,
+            image.height
+        ))
     }
 }
 

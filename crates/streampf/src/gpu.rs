@@ -40,18 +40,18 @@ pub fn all(allow_software: bool) -> anyhow::Result<Vec<GpuContext>> {
 pub fn preferred(allow_software: bool, quiet: bool) -> Option<GpuContext> {
     match GpuContext::new(&options(allow_software)) {
         Ok(ctx) => Some(ctx),
-        Err(GpuError::OnlySoftwareAdapters { names }) => {
+        // One short line: it is said on every run of a machine without a GPU.
+        Err(GpuError::OnlySoftwareAdapters { .. }) => {
             if !quiet {
-                eprintln!(
-                    "no hardware GPU, only software adapters ({names}); tracking on the CPU \
-                     (--backend gpu --allow-software tracks on a software adapter)"
+                errln!(
+                    "no hardware GPU; tracking on the CPU (--backend gpu --allow-software uses a software one)"
                 );
             }
             None
         }
-        Err(err) => {
+        Err(_) => {
             if !quiet {
-                eprintln!("no hardware GPU ({err}); tracking on the CPU");
+                errln!("no usable GPU; tracking on the CPU (`streampf devices` says why)");
             }
             None
         }

@@ -2,6 +2,8 @@
 //! (`main.rs`) calls [`cli_main`]; [`run_embedded`] runs the same commands inside another
 //! program (the Python package's `track_video`), without touching its signal handlers.
 
+#[macro_use]
+mod console;
 mod annotated;
 mod body;
 mod demo;
@@ -64,24 +66,67 @@ struct ConfigArgs {
 
 /// The `streampf` binary: parses the process's command line, runs the command, and turns the
 /// result into the exit status (130 for an interrupted run).
+///
+/// An error is one line on stderr (`Error: what: why`), never a stack trace: errors that reach
+/// here are the user's input or the machine's state, and a bug panics instead.
 pub fn cli_main() -> std::process::ExitCode {
     quiet_mesa_device_selection();
     let cli = match parse_command_line() {
         Ok(cli) => cli,
         Err(e) => {
-            eprintln!("Error: {e:?}");
+            report_error(&e);
             return std::process::ExitCode::FAILURE;
         }
     };
-    match run(cli) {
+    // A track run keeps what it wrote when stopped: the handler goes in before the models load
+    // and the video opens (seconds on a cold start), so that an early SIGTERM is a stop too.
+    if cli.command.writes_results()
+        && let Err(e) = run_output::install_interrupt_handler()
+    {
+        report_error(&e);
+        return std::process::ExitCode::FAILURE;
+    }
+    let status = match run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             if let Some(interrupted) = e.downcast_ref::<run_output::Interrupted>() {
-                eprintln!("{interrupted}");
+                errln!("{interrupted}");
                 return std::process::ExitCode::from(run_output::INTERRUPTED_EXIT as u8);
             }
-            eprintln!("Error: {e:?}");
+            report_error(&e);
             std::process::ExitCode::FAILURE
+        }
+    };
+    // A closed stdout ends quietly; a failing one (a full disk) is an error of its own, reported
+    // after the run has closed its files.
+    match console::stdout_failure() {
+        Some(e) => {
+            errln!("Error: writing to standard output: {e}");
+            std::process::ExitCode::FAILURE
+        }
+        None => status,
+    }
+}
+
+/// Prints `e` and its causes on one line.
+fn report_error(e: &anyhow::Error) {
+    errln!("Error: {}", one_line_message(e));
+}
+
+/// `e` and its causes joined by ": " (anyhow's `{:#}`, which never prints a backtrace), without
+/// clap's own "error: " prefix where a clap message is inside.
+fn one_line_message(e: &anyhow::Error) -> String {
+    let text = format!("{e:#}");
+    text.strip_prefix("error: ").unwrap_or(&text).to_string()
+}
+
+impl Command {
+    /// Whether the command writes result files that an interrupt must not lose.
+    fn writes_results(&self) -> bool {
+        match self {
+            Command::Face { command } => matches!(command, face::FaceCommand::Track(_)),
+            Command::Body { command } => matches!(command, body::BodyCommand::Track(_)),
+            Command::Devices | Command::Demo(_) | Command::Config(_) => false,
         }
     }
 }
@@ -89,7 +134,7 @@ pub fn cli_main() -> std::process::ExitCode {
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Config(_) => {
-            print!("{}", settings::default_settings(&Cli::command()));
+            out!("{}", settings::default_settings(&Cli::command()));
             Ok(())
         }
         Command::Devices => devices::run(),
@@ -123,14 +168,14 @@ where
     let command = Cli::command();
     let settings::WithSettings { argv, file } = settings::with_config_file(&command, argv)?;
     let matches = command.try_get_matches_from(argv).map_err(|e| {
-        let message = e.render().to_string();
+        let message = clap_message(&e);
         UsageError(match file {
             Some(file) => format!(
                 "{}\n(the options above include the settings of {})",
-                message.trim_end(),
+                message,
                 file.display()
             ),
-            None => message.trim_end().to_string(),
+            None => message,
         })
     })?;
     run(Cli::from_arg_matches(&matches)?)
@@ -152,12 +197,19 @@ fn parse_command_line() -> anyhow::Result<Cli> {
         // A bad value in the file: clap's message names the option, this names the file.
         (Err(e), Some(file)) if e.use_stderr() => anyhow::bail!(
             "{}\n(the options above include the settings of {})",
-            e.render().to_string().trim_end(),
+            clap_message(&e),
             file.display()
         ),
         (Err(e), _) => e.exit(),
     };
     Ok(Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit()))
+}
+
+/// clap's message for `e` without its "error: " prefix (the caller's report adds "Error: ").
+fn clap_message(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    let text = text.trim_end();
+    text.strip_prefix("error: ").unwrap_or(text).to_string()
 }
 
 /// Mesa's Vulkan device-selection layer prints "XDG_RUNTIME_DIR is invalid or not set" on a

@@ -37,10 +37,10 @@ pub fn install_interrupt_handler() -> anyhow::Result<()> {
     }
     ctrlc::set_handler(|| {
         if STOP_REQUESTED.swap(true, Ordering::SeqCst) {
-            eprintln!("\nstopped at once (second interrupt)");
+            errln!("\nstopped at once (second interrupt)");
             std::process::exit(INTERRUPTED_EXIT);
         }
-        eprintln!("\ninterrupted: finishing the current frame and closing the files (interrupt again to stop at once)");
+        errln!("\ninterrupted: finishing the current frame and closing the files (interrupt again to stop at once)");
     })
     .context("installing the Ctrl-C handler")
 }
@@ -80,12 +80,44 @@ pub struct Interrupted {
 ///
 /// A resumed run ([`CsvStream::resume`]) first re-makes the rows the file already holds: each is
 /// checked against the file instead of written, so that a run whose inputs or settings differ
-/// from the interrupted one's is refused at the first row that differs.
+/// from the interrupted one's is refused ([`ResumeRefused`]) at the first row that differs. The
+/// file is not touched until every kept row has been made again: a refused resume leaves every
+/// byte as it was.
 pub struct CsvStream {
     path: PathBuf,
-    out: BufWriter<File>,
+    /// None while a resumed run replays the file's rows.
+    out: Option<BufWriter<File>>,
     /// Rows already in the file that the resumed run must make again, in order.
     expected: std::collections::VecDeque<String>,
+    /// A resumed file's header and kept rows: written over the file (dropping the rows of the
+    /// frame the resumed run starts at, which may have been cut) before its first new row.
+    rewrite: Option<String>,
+}
+
+/// A `--resume` refused because the resumed run made a row that differs from the file's: the
+/// inputs or settings differ. Nothing was written.
+#[derive(Debug, Clone, thiserror::Error)]
+#[error(
+    "--resume refused: this run's row differs from the interrupted run's in {} (frame {frame}): the inputs or settings differ; give the same ones, or start over without --resume (nothing was changed)\n  before: {before}\n  now:    {now}",
+    path.display()
+)]
+pub struct ResumeRefused {
+    pub path: PathBuf,
+    pub frame: String,
+    pub before: String,
+    pub now: String,
+}
+
+/// The error of a run that stopped on `e` after writing `frames` frames to `out`; a refused
+/// resume as it is (it wrote nothing, and says so).
+pub fn stopped(e: anyhow::Error, frames: usize, out: &Path) -> anyhow::Error {
+    if let Some(refused) = e.downcast_ref::<ResumeRefused>() {
+        return anyhow::Error::new(refused.clone());
+    }
+    e.context(format!(
+        "stopped; the {frames} frames before it were written to {}",
+        out.display()
+    ))
 }
 
 /// Where an interrupted run's files let a resumed one continue.
@@ -119,6 +151,19 @@ impl ResumePoint {
             .unwrap_or(0);
         Ok(Self { frame })
     }
+
+    /// Refuses a resume that would end before it wrote anything: a `limit` (--max-frames) at or
+    /// below the resume point would only re-check frames the file already holds.
+    pub fn check_limit(&self, limit: Option<u64>, path: &Path) -> anyhow::Result<()> {
+        match limit {
+            Some(limit) if limit as usize <= self.frame => bail!(
+                "--resume: {} already holds frames 0 to {}; --max-frames {limit} would end before the first frame to write (give a larger --max-frames, or none, to continue the run)",
+                path.display(),
+                self.frame
+            ),
+            _ => Ok(()),
+        }
+    }
 }
 
 impl CsvStream {
@@ -127,8 +172,9 @@ impl CsvStream {
         let file = File::create(path).with_context(|| format!("creating {}", path.display()))?;
         let mut stream = Self {
             path: path.to_path_buf(),
-            out: BufWriter::new(file),
+            out: Some(BufWriter::new(file)),
             expected: Default::default(),
+            rewrite: None,
         };
         stream.row(header)?;
         stream.end_frame()?;
@@ -136,7 +182,8 @@ impl CsvStream {
     }
 
     /// Reopens an interrupted run's `path` at `from`: its rows of earlier frames are kept (and
-    /// will be checked as the resumed run makes them again), later ones are dropped.
+    /// will be checked as the resumed run makes them again), later ones are dropped when the
+    /// first new row is written. Reads the file and changes nothing.
     pub fn resume(path: &Path, header: &str, from: &ResumePoint) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("--resume: reading {}", path.display()))?;
@@ -154,23 +201,16 @@ impl CsvStream {
             })
             .map(str::to_string)
             .collect();
-        // Rewritten whole and renamed over the old file: a stop here leaves one or the other.
-        let staged = path.with_extension("csv.resume");
         let mut body = format!("{header}\n");
         kept.iter().for_each(|l| {
             body.push_str(l);
             body.push('\n');
         });
-        std::fs::write(&staged, body).with_context(|| format!("writing {}", staged.display()))?;
-        std::fs::rename(&staged, path).with_context(|| format!("replacing {}", path.display()))?;
-        let file = std::fs::OpenOptions::new()
-            .append(true)
-            .open(path)
-            .with_context(|| format!("opening {}", path.display()))?;
         Ok(Self {
             path: path.to_path_buf(),
-            out: BufWriter::new(file),
+            out: None,
             expected: kept.into(),
+            rewrite: Some(body),
         })
     }
 
@@ -178,21 +218,49 @@ impl CsvStream {
     pub fn row(&mut self, line: &str) -> anyhow::Result<()> {
         if let Some(kept) = self.expected.pop_front() {
             if kept != line {
-                bail!(
-                    "--resume: this run's row differs from the interrupted run's in {}: the inputs or settings differ (give the same ones, or start over without --resume)\n  before: {kept}\n  now:    {line}",
-                    self.path.display()
-                );
+                return Err(ResumeRefused {
+                    path: self.path.clone(),
+                    frame: line.split(',').next().unwrap_or_default().to_string(),
+                    before: kept,
+                    now: line.to_string(),
+                }
+                .into());
             }
             return Ok(());
         }
-        writeln!(self.out, "{line}").with_context(|| format!("writing {}", self.path.display()))
+        let out = self.writer()?;
+        writeln!(out, "{line}").with_context(|| format!("writing {}", self.path.display()))
+    }
+
+    /// The file to append to; a resumed file is first cut back to its kept rows.
+    fn writer(&mut self) -> anyhow::Result<&mut BufWriter<File>> {
+        if self.out.is_none() {
+            let body = self.rewrite.take().unwrap_or_default();
+            // Rewritten whole and renamed over the old file: a stop here leaves one or the other.
+            let staged = self.path.with_extension("csv.resume");
+            std::fs::write(&staged, body)
+                .with_context(|| format!("writing {}", staged.display()))?;
+            std::fs::rename(&staged, &self.path)
+                .with_context(|| format!("replacing {}", self.path.display()))?;
+            let file = std::fs::OpenOptions::new()
+                .append(true)
+                .open(&self.path)
+                .with_context(|| format!("opening {}", self.path.display()))?;
+            self.out = Some(BufWriter::new(file));
+        }
+        self.out
+            .as_mut()
+            .with_context(|| format!("writing {}", self.path.display()))
     }
 
     /// Flushes the rows written so far to the file.
     pub fn end_frame(&mut self) -> anyhow::Result<()> {
-        self.out
-            .flush()
-            .with_context(|| format!("writing {}", self.path.display()))
+        match self.out.as_mut() {
+            Some(out) => out
+                .flush()
+                .with_context(|| format!("writing {}", self.path.display())),
+            None => Ok(()),
+        }
     }
 }
 
@@ -210,6 +278,91 @@ pub fn clear_old_results(dir: &Path, names: &[&str]) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// The lock file a run holds in its output directory (see [`OutputLock`]).
+pub const LOCK_FILE: &str = ".streampf.lock";
+
+/// An advisory lock on a run's output directory, held until the run ends: a second run into the
+/// same `--out` (or a `--resume` of a run still going) is refused instead of mixing or cutting
+/// the first run's files. The lock is the operating system's (`flock`), so a run that died
+/// leaves no lock behind, only the file, which the next run takes over. The file holds the
+/// holder's pid, for the refusal's message; it is never removed (removing it would let two runs
+/// lock two different files of that name).
+pub struct OutputLock {
+    _file: File,
+}
+
+impl OutputLock {
+    /// Creates `dir` if needed and locks it; an error naming the directory and the holder's pid
+    /// when another run holds it.
+    pub fn acquire(dir: &Path) -> anyhow::Result<Self> {
+        use std::io::{Read, Seek};
+        std::fs::create_dir_all(dir).with_context(|| match dir.is_file() {
+            true => format!("--out {}: a file is there, not a directory", dir.display()),
+            false => format!("creating the output directory {}", dir.display()),
+        })?;
+        let path = dir.join(LOCK_FILE);
+        let mut file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(&path)
+            .with_context(|| format!("opening the lock file {}", path.display()))?;
+        match file.try_lock() {
+            Ok(()) => {}
+            Err(std::fs::TryLockError::WouldBlock) => {
+                let mut holder = String::new();
+                let _ = file.read_to_string(&mut holder);
+                let holder = match holder.trim() {
+                    "" => "another streampf run".to_string(),
+                    pid => format!("another streampf run (pid {pid})"),
+                };
+                bail!(
+                    "{}: {holder} is writing its results there; wait for it to end or give another --out",
+                    dir.display()
+                );
+            }
+            Err(std::fs::TryLockError::Error(e)) => {
+                return Err(e).with_context(|| format!("locking {}", path.display()));
+            }
+        }
+        file.set_len(0)
+            .and_then(|()| file.rewind())
+            .and_then(|()| writeln!(file, "{}", std::process::id()))
+            .with_context(|| format!("writing the lock file {}", path.display()))?;
+        Ok(Self { _file: file })
+    }
+}
+
+/// The marker file of a directory that `face synth` or `body synth` wrote.
+pub const SYNTHETIC_MARKER: &str = ".streampf-synthetic";
+
+/// Makes `dir` ready for a synthetic video: a new or empty directory, or one an earlier
+/// `synth` wrote (it holds [`SYNTHETIC_MARKER`]), whose old frames the new video replaces. A
+/// directory holding anything else is the user's (their own `frame_*.png`, other images that a
+/// later run would read as frames) and is refused unless `force`.
+pub fn claim_synthetic_dir(dir: &Path, force: bool) -> anyhow::Result<()> {
+    if dir.is_file() {
+        bail!("--out {}: a file is there, not a directory", dir.display());
+    }
+    if dir.is_dir() && !dir.join(SYNTHETIC_MARKER).exists() && !force {
+        let mut entries =
+            std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))?;
+        if let Some(entry) = entries.next() {
+            let name = entry
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .unwrap_or_default();
+            bail!(
+                "--out {}: the directory holds files that streampf did not write (such as {name}); give a new or empty directory, or --force to write the video among them",
+                dir.display()
+            );
+        }
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    std::fs::write(dir.join(SYNTHETIC_MARKER), "written by streampf synth\n")
+        .with_context(|| format!("writing {}", dir.join(SYNTHETIC_MARKER).display()))
 }
 
 /// The file that lists the frames a run skipped, and why.
@@ -238,7 +391,7 @@ impl SkipLog {
     /// Warns about `frame` and writes its row.
     pub fn record(&mut self, frame: usize, error: &anyhow::Error) -> anyhow::Result<()> {
         let reason = format!("{error:#}");
-        eprintln!("warning: skipping frame {frame}: {reason}");
+        errln!("warning: skipping frame {frame}: {reason}");
         if self.file.is_none() {
             self.file = Some(CsvStream::create(&self.path, "frame,reason")?);
         }

@@ -160,18 +160,60 @@ fn options_from_table(
                 (true, toml::Value::Boolean(true)) => options.push(format!("--{key}").into()),
                 (true, toml::Value::Boolean(false)) => {}
                 (true, other) => bail!("`{key}` is a switch: true or false, not {other}"),
-                (false, toml::Value::String(text)) => {
-                    options.push(format!("--{key}={text}").into())
+                (false, value) => {
+                    check_value_type(key, arg, value)?;
+                    let text = match value {
+                        toml::Value::String(text) => text.clone(),
+                        other => other.to_string(),
+                    };
+                    options.push(format!("--{key}={text}").into());
                 }
-                (
-                    false,
-                    toml::Value::Integer(_) | toml::Value::Float(_) | toml::Value::Boolean(_),
-                ) => options.push(format!("--{key}={value}").into()),
-                (false, other) => bail!("`{key}` takes a value, not {other}"),
             }
         }
     }
     Ok(options)
+}
+
+/// What TOML type a setting's value must have: the type its option parses into. A number
+/// written as a string (`particles = "200"`) or a path written as a number (`out = 5`) is a
+/// mistake in the file, reported as one instead of being read as the text it would be on a
+/// command line.
+fn check_value_type(key: &str, arg: &clap::Arg, value: &toml::Value) -> anyhow::Result<()> {
+    use std::any::TypeId;
+    let parses_into = arg.get_value_parser().type_id();
+    let integer = [
+        TypeId::of::<u8>(),
+        TypeId::of::<u16>(),
+        TypeId::of::<u32>(),
+        TypeId::of::<u64>(),
+        TypeId::of::<usize>(),
+        TypeId::of::<i32>(),
+        TypeId::of::<i64>(),
+    ]
+    .into_iter()
+    .any(|t| parses_into == t);
+    let float = parses_into == TypeId::of::<f32>() || parses_into == TypeId::of::<f64>();
+    let switch = parses_into == TypeId::of::<bool>();
+    let fits = match value {
+        toml::Value::Integer(_) => integer || float,
+        toml::Value::Float(_) => float,
+        toml::Value::Boolean(_) => switch,
+        toml::Value::String(_) => !(integer || float || switch),
+        _ => false,
+    };
+    if fits {
+        return Ok(());
+    }
+    let expected = if integer {
+        "a whole number"
+    } else if float {
+        "a number"
+    } else if switch {
+        "true or false"
+    } else {
+        "text in quotes"
+    };
+    bail!("`{key}` takes {expected}, not {value}")
 }
 
 /// Puts `options` straight after the subcommand's own name (`face track`), ahead of anything

@@ -36,6 +36,8 @@ pub struct VideoInfo {
     pub fps: Option<f64>,
     /// Frames in the stream, when the container says.
     pub frames: Option<usize>,
+    /// The stream's duration in seconds, when the container says.
+    pub duration: Option<f64>,
 }
 
 /// Parses ffprobe's `key=value` lines (`-of default=noprint_wrappers=1`).
@@ -59,11 +61,15 @@ pub fn parse_probe(text: &str) -> anyhow::Result<VideoInfo> {
     let frames = value("nb_frames")
         .and_then(|v| v.parse::<usize>().ok())
         .filter(|&n| n > 0);
+    let duration = value("duration")
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|d| d.is_finite() && *d > 0.0);
     Ok(VideoInfo {
         width: size("width")?,
         height: size("height")?,
         fps,
         frames,
+        duration,
     })
 }
 
@@ -127,14 +133,20 @@ fn frame_times_and_errors(
 
 /// Asks ffprobe for the size, rate and length of `path`'s first video stream.
 pub fn probe(path: &Path) -> anyhow::Result<VideoInfo> {
-    if !path.is_file() {
+    if !path.exists() {
         bail!("{}: no such video file", path.display());
+    }
+    if !path.is_file() {
+        bail!(
+            "{}: not a video file (a device, a pipe or a directory)",
+            path.display()
+        );
     }
     let what = format!("reading {}", path.display());
     let output = spawn(
         Command::new("ffprobe")
             .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
-            .arg("stream=width,height,r_frame_rate,nb_frames")
+            .arg("stream=width,height,r_frame_rate,nb_frames,duration")
             .args(["-of", "default=noprint_wrappers=1"])
             .arg(path)
             .stdin(Stdio::null())
@@ -199,9 +211,38 @@ pub enum VideoRead {
 #[derive(Debug, Clone)]
 pub struct ShortEnd {
     pub decoded: usize,
+    /// The container's frame count.
     pub expected: usize,
+    /// The frames the stream's duration holds at its frame rate, when both are known.
+    pub by_duration: Option<usize>,
     /// What FFmpeg said (may be empty).
     pub message: String,
+}
+
+impl ShortEnd {
+    /// Whether the evidence says the file is damaged: FFmpeg reported an error, or more frames
+    /// are missing than a container's count is off by for a healthy file (more than 2 frames
+    /// and more than 1 %). A container's count is an estimate (edit lists, B-frame delay, a
+    /// duration × rate rounded), so an ordinary clip may announce a frame or two more than it
+    /// holds.
+    pub fn is_damage(&self) -> bool {
+        let missing = self.expected.saturating_sub(self.decoded);
+        let many_missing = missing > 2 && missing * 100 > self.expected;
+        // An edit list that starts the video late keeps the count of every sample but shortens
+        // the duration: a stream as long as its duration says is whole.
+        let as_long_as_its_duration = self
+            .by_duration
+            .is_some_and(|frames| self.decoded + 1 >= frames);
+        !self.message.trim().is_empty() || (many_missing && !as_long_as_its_duration)
+    }
+
+    /// The note for a shortfall that is not damage.
+    pub fn as_estimate(&self) -> String {
+        format!(
+            "the video held {} frames where its container announces {} (a container's count is an estimate; FFmpeg reported no error)",
+            self.decoded, self.expected
+        )
+    }
 }
 
 impl std::fmt::Display for ShortEnd {
@@ -259,6 +300,7 @@ impl VideoReader {
             height,
             fps: None,
             frames: None,
+            duration: None,
         };
         Self::start(
             device.display().to_string(),
@@ -399,11 +441,18 @@ impl VideoReader {
         // Frames found undecodable count as read: only frames missing at the end make it short.
         let accounted = self.decoded.max(self.next_index);
         if let Some(expected) = self.info.frames.filter(|&n| accounted < n) {
-            self.short = Some(ShortEnd {
+            let short = ShortEnd {
                 decoded: accounted,
                 expected,
+                by_duration: (self.info.duration.zip(self.info.fps))
+                    .map(|(seconds, fps)| (seconds * fps).round() as usize),
                 message: message.clone(),
-            });
+            };
+            if short.is_damage() {
+                self.short = Some(short);
+            } else {
+                errln!("note: {}", short.as_estimate());
+            }
         }
         self.messages = message;
         Ok(None)
@@ -561,15 +610,17 @@ mod tests {
 
     #[test]
     fn probe_answers_parse_in_any_order() {
-        let info =
-            parse_probe("nb_frames=270\nwidth=720\nr_frame_rate=2997/125\nheight=528\n").unwrap();
+        let info = parse_probe(
+            "nb_frames=270\nwidth=720\nr_frame_rate=2997/125\nheight=528\nduration=11.26\n",
+        )
+        .unwrap();
         assert_eq!(
-            (info.width, info.height, info.frames),
-            (720, 528, Some(270))
+            (info.width, info.height, info.frames, info.duration),
+            (720, 528, Some(270), Some(11.26))
         );
         assert!((info.fps.unwrap() - 23.976).abs() < 1e-3);
         let webm = parse_probe("width=64\nheight=48\nr_frame_rate=0/0\nnb_frames=N/A\n").unwrap();
-        assert_eq!((webm.fps, webm.frames), (None, None));
+        assert_eq!((webm.fps, webm.frames, webm.duration), (None, None, None));
         for bad in [
             "",
             "width=0\nheight=10",
@@ -578,6 +629,26 @@ mod tests {
         ] {
             assert!(parse_probe(bad).is_err(), "{bad:?}");
         }
+    }
+
+    #[test]
+    fn only_evidence_of_damage_makes_a_short_video_an_error() {
+        let short = |decoded, expected, by_duration, message: &str| ShortEnd {
+            decoded,
+            expected,
+            by_duration,
+            message: message.into(),
+        };
+        // A container's count off by a frame or two, or by 1 % of a long video: an estimate.
+        assert!(!short(123, 124, None, "").is_damage());
+        assert!(!short(18, 20, None, "").is_damage());
+        assert!(!short(990, 1000, None, "").is_damage());
+        // An edit list: every sample counted, the stream as long as its duration.
+        assert!(!short(90, 100, Some(90), "").is_damage());
+        // More missing, or a decoder's error, is damage.
+        assert!(short(17, 20, None, "").is_damage());
+        assert!(short(30, 60, Some(60), "").is_damage());
+        assert!(short(123, 124, None, "Invalid NAL unit size").is_damage());
     }
 
     #[test]

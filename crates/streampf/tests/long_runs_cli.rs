@@ -280,6 +280,57 @@ fn a_video_cut_short_is_a_warning_and_a_non_zero_exit() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A healthy video whose container announces one frame more than it shows: an mp4 remuxed to
+/// start a frame late keeps every sample in its count (an edit list hides the first), as phone
+/// and webcam clips often do. A note, not a failed run.
+#[test]
+fn a_container_that_miscounts_a_healthy_video_is_a_note() {
+    if media_opted_out() {
+        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+        return;
+    }
+    let dir = scratch("miscounted-video");
+    let full = encoded_synthetic_video(
+        &dir,
+        "20",
+        "full.mp4",
+        &["-c:v", "libx264", "-pix_fmt", "yuv420p"],
+    );
+    let remuxed = dir.join("remuxed.mp4");
+    let copied = Command::new("ffmpeg")
+        .args(["-nostdin", "-v", "error", "-y", "-ss", "0.04", "-i"])
+        .arg(&full)
+        .args(["-c", "copy"])
+        .arg(&remuxed)
+        .status()
+        .unwrap();
+    assert!(copied.success());
+    let out = dir.join("out");
+    let run = streampf(&[
+        "face",
+        "track",
+        remuxed.to_str().unwrap(),
+        "--face",
+        "100,60,120,120",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    ok(&run);
+    let note = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        note.contains("note: the video held 19 frames where its container announces 20"),
+        "{note}"
+    );
+    assert_eq!(
+        frames_of(&out.join("states.csv"), STATES_COLUMNS),
+        (0..19).collect::<Vec<_>>()
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn a_headless_run_prints_no_mesa_noise() {
     // As a user runs it: no NODEVICE_SELECT, no XDG_RUNTIME_DIR; the GPU path opens Mesa's

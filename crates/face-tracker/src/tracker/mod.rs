@@ -242,6 +242,12 @@ impl FaceTracker {
                 "a tracker needs room for at least one face".into(),
             ));
         }
+        if !(config.failure_error > 0.0 && config.failure_error <= 1.0) {
+            return Err(FaceError::InvalidInput(format!(
+                "failure_error must be within (0, 1] (a fit's ε lies in [0, 1); 1 never ends a track), got {}",
+                config.failure_error
+            )));
+        }
         if !(config.sharpness.is_finite() && config.sharpness >= 0.0) {
             return Err(FaceError::InvalidInput(format!(
                 "sharpness must be finite and >= 0, got {}",
