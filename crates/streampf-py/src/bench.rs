@@ -10,7 +10,7 @@ use pyo3::prelude::*;
 
 use crate::arrays::{contiguous, to_numpy};
 use crate::backend::{Choice, face_backend, open};
-use crate::errors::{face, value_error};
+use crate::errors::{face, value_error, whole};
 
 /// Tracks `frames` (F, H, W) uint8 from `rects` with the Rust API alone, as `FaceTracker` with
 /// the same settings would, and returns each `step`'s wall time in seconds (F,). The frames are
@@ -21,11 +21,13 @@ pub fn _rust_face_step_times<'py>(
     py: Python<'py>,
     frames: &Bound<'py, PyAny>,
     rects: Vec<(f32, f32, f32, f32)>,
-    particles: usize,
+    particles: i128,
     backend: &str,
     allow_software: bool,
-    seed: u64,
+    seed: i128,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let particles: usize = whole("particles", particles)?;
+    let seed: u64 = whole("seed", seed)?;
     let array = contiguous::<u8>(frames, "frames", "uint8")?;
     let shape = array.shape().to_vec();
     let [count, height, width] = shape[..] else {

@@ -12,7 +12,7 @@ use pyo3::types::PyDict;
 
 use crate::arrays::{check_shape, contiguous, finite_f32, to_numpy};
 use crate::backend::{Choice, body_backend, open};
-use crate::errors::{body, runtime_error, value_error};
+use crate::errors::{body, runtime_error, value_error, whole, whole_opt};
 
 /// Tracks one body in depth frames: N×3 `float32` points (camera frame: x right, y up, z
 /// forward, metres) or 16-bit depth images with their intrinsics.
@@ -60,15 +60,19 @@ impl BodyTracker {
     fn new(
         py: Python<'_>,
         initial_pose: Option<&Bound<'_, PyAny>>,
-        capsules: usize,
+        capsules: i128,
         skeleton: Option<std::path::PathBuf>,
-        particles: usize,
+        particles: i128,
         backend: &str,
         allow_software: bool,
-        seed: u64,
-        layers: Option<usize>,
+        seed: i128,
+        layers: Option<i128>,
         partitioned: bool,
     ) -> PyResult<Self> {
+        let capsules: usize = whole("capsules", capsules)?;
+        let particles: usize = whole("particles", particles)?;
+        let seed: u64 = whole("seed", seed)?;
+        let layers: Option<usize> = whole_opt("layers", layers)?;
         let choice = Choice::parse(backend)?;
         let skeleton = load_skeleton(capsules, skeleton)?;
         let start = match initial_pose {

@@ -13,6 +13,23 @@ pub fn value_error(message: impl Into<String>) -> PyErr {
     PyValueError::new_err(message.into())
 }
 
+/// A whole-number argument `name` in the type the library takes. The arguments are taken from
+/// Python as any int (`i128`) and converted here, because PyO3's own conversion to an unsigned
+/// type raises OverflowError ("can't convert negative int to unsigned") for `particles=-5`,
+/// naming neither the argument nor what it takes; this raises the ValueError that every other
+/// bad value gets.
+pub fn whole<T: TryFrom<i128>>(name: &str, value: i128) -> pyo3::PyResult<T> {
+    T::try_from(value).map_err(|_| match value < 0 {
+        true => value_error(format!("{name} must be a whole number >= 0, got {value}")),
+        false => value_error(format!("{name} is too large: {value}")),
+    })
+}
+
+/// [`whole`] for an optional argument (None stays None).
+pub fn whole_opt<T: TryFrom<i128>>(name: &str, value: Option<i128>) -> pyo3::PyResult<Option<T>> {
+    value.map(|v| whole(name, v)).transpose()
+}
+
 pub fn runtime_error(message: impl Into<String>) -> PyErr {
     PyRuntimeError::new_err(message.into())
 }

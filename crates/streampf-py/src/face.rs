@@ -15,7 +15,7 @@ use pyo3::types::PyDict;
 
 use crate::arrays::{ChannelOrder, contiguous, gray_frame, to_numpy};
 use crate::backend::{Choice, face_backend, open};
-use crate::errors::{face, runtime_error, value_error};
+use crate::errors::{face, runtime_error, value_error, whole, whole_opt};
 
 /// Debian's opencv-data puts OpenCV's cascades here (the command line's default too).
 const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
@@ -142,22 +142,30 @@ impl FaceTracker {
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
-        width: u32,
-        height: u32,
-        max_faces: usize,
-        particles: usize,
+        width: i128,
+        height: i128,
+        max_faces: i128,
+        particles: i128,
         detect: bool,
         cascade: Option<std::path::PathBuf>,
-        detect_every: usize,
-        min_face: u32,
+        detect_every: i128,
+        min_face: i128,
         backend: &str,
         allow_software: bool,
-        seed: u64,
-        layers: Option<usize>,
+        seed: i128,
+        layers: Option<i128>,
         channel_order: &str,
         detector: &str,
         fov: Option<f32>,
     ) -> PyResult<Self> {
+        let width: u32 = whole("width", width)?;
+        let height: u32 = whole("height", height)?;
+        let max_faces: usize = whole("max_faces", max_faces)?;
+        let particles: usize = whole("particles", particles)?;
+        let detect_every: usize = whole("detect_every", detect_every)?;
+        let min_face: u32 = whole("min_face", min_face)?;
+        let seed: u64 = whole("seed", seed)?;
+        let layers: Option<usize> = whole_opt("layers", layers)?;
         if width < 16 || height < 16 {
             return Err(value_error(format!(
                 "frames must be at least 16x16 pixels, got {width}x{height}"

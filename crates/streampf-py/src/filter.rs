@@ -16,7 +16,7 @@ use pyo3::types::{PyDict, PyTuple};
 
 use crate::arrays::{check_finite, contiguous, finite_f32, to_numpy};
 use crate::backend::{Choice, open};
-use crate::errors::{gpu, pf, runtime_error, value_error};
+use crate::errors::{gpu, pf, runtime_error, value_error, whole, whole_opt};
 
 enum Engine {
     /// The model's WGSL, the whole step on the GPU.
@@ -98,17 +98,20 @@ impl ParticleFilter {
         sigma: Vec<f32>,
         wgsl: Option<String>,
         likelihood: Option<Py<PyAny>>,
-        observation_size: Option<usize>,
+        observation_size: Option<i128>,
         constants: Option<&Bound<'_, PyAny>>,
         name: &str,
         angular: Option<Vec<bool>>,
         bounds: Option<(Vec<f32>, Vec<f32>)>,
         resampler: &str,
-        layers: usize,
-        seed: u64,
+        layers: i128,
+        seed: i128,
         backend: &str,
         allow_software: bool,
     ) -> PyResult<Self> {
+        let observation_size: Option<usize> = whole_opt("observation_size", observation_size)?;
+        let layers: usize = whole("layers", layers)?;
+        let seed: u64 = whole("seed", seed)?;
         let (dims, values) = finite_f32(initial, &[None, None, None], "initial")?;
         let shape = BatchShape::new(dims[0], dims[1], dims[2]).map_err(pf)?;
         let mut config = BatchConfig::new(shape, seed, sigma);

@@ -11,7 +11,7 @@ use pyo3::types::PyDict;
 
 use crate::arrays::to_numpy;
 use crate::body::joints_array;
-use crate::errors::{body, face, value_error};
+use crate::errors::{body, face, value_error, whole};
 
 /// A synthetic video of textured heads that move, turn and change lighting: a dict with
 /// `frames` (F, H, W) uint8, `truth` (F, K, 7) float32 (each face's state per frame, the
@@ -21,16 +21,21 @@ use crate::errors::{body, face, value_error};
 #[allow(clippy::too_many_arguments)]
 pub fn synthetic_faces(
     py: Python<'_>,
-    frames: usize,
-    width: u32,
-    height: u32,
-    faces: usize,
+    frames: i128,
+    width: i128,
+    height: i128,
+    faces: i128,
     half_width: f32,
     max_yaw_deg: f32,
     occlusion: bool,
-    seed: u64,
+    seed: i128,
     fov: Option<f32>,
 ) -> PyResult<Bound<'_, PyDict>> {
+    let frames: usize = whole("frames", frames)?;
+    let width: u32 = whole("width", width)?;
+    let height: u32 = whole("height", height)?;
+    let faces: usize = whole("faces", faces)?;
+    let seed: u64 = whole("seed", seed)?;
     let config = FaceSynthConfig {
         focal_length: crate::face::focal_length(fov, width)?,
         width,
@@ -97,13 +102,18 @@ pub fn synthetic_faces(
 #[pyo3(signature = (frames = 20, *, width = 160, height = 120, motion = "walk-wave", capsules = 19, seed = 7))]
 pub fn synthetic_body<'py>(
     py: Python<'py>,
-    frames: usize,
-    width: u32,
-    height: u32,
+    frames: i128,
+    width: i128,
+    height: i128,
     motion: &str,
-    capsules: usize,
-    seed: u64,
+    capsules: i128,
+    seed: i128,
 ) -> PyResult<Bound<'py, PyDict>> {
+    let frames: usize = whole("frames", frames)?;
+    let width: u32 = whole("width", width)?;
+    let height: u32 = whole("height", height)?;
+    let capsules: usize = whole("capsules", capsules)?;
+    let seed: u64 = whole("seed", seed)?;
     if frames == 0 {
         return Err(value_error("frames must be at least 1"));
     }

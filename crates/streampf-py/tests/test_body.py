@@ -74,6 +74,8 @@ def test_bad_inputs_are_value_errors(walk):
     nan_pose[4] = np.nan
     with pytest.raises(ValueError, match="non-finite"):
         streampf.BodyTracker(nan_pose, backend="cpu")
+    with pytest.raises(ValueError, match="particles must be a whole number >= 0, got -5"):
+        streampf.BodyTracker(pose, particles=-5, backend="cpu")
     tracker = streampf.BodyTracker(pose, particles=16, backend="cpu")
     points = walk["points"][0]
     bad_points = points.copy()

@@ -153,6 +153,14 @@ def test_bad_settings_and_rectangles_are_value_errors(two_face_video):
         streampf.FaceTracker(320, 240, backend="tpu")
     with pytest.raises(ValueError, match="particles"):
         streampf.FaceTracker(320, 240, particles=0)
+    # Negative and huge counts: a ValueError naming the argument, not PyO3's OverflowError.
+    for name, bad in [("particles", -5), ("max_faces", -1), ("seed", -1)]:
+        with pytest.raises(ValueError, match=f"{name} must be a whole number >= 0, got {bad}"):
+            streampf.FaceTracker(320, 240, **{name: bad})
+    with pytest.raises(ValueError, match="width is too large"):
+        streampf.FaceTracker(2**40, 240)
+    with pytest.raises(ValueError, match="frames must be a whole number >= 0"):
+        streampf.synthetic_faces(-3)
     with pytest.raises(ValueError, match="channel_order"):
         streampf.FaceTracker(320, 240, channel_order="yuv")
     tracker = streampf.FaceTracker(320, 240, max_faces=1, particles=64, backend="cpu")

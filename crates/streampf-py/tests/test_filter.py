@@ -131,6 +131,8 @@ def test_bad_construction_is_a_value_error():
         streampf.ParticleFilter(initial[0], sigma=[0.1, 0.1], likelihood=python_likelihood)
     with pytest.raises(ValueError, match="dtype float32"):
         streampf.ParticleFilter(initial.astype(np.float64), sigma=[0.1, 0.1], likelihood=python_likelihood)
+    with pytest.raises(ValueError, match="seed must be a whole number >= 0, got -1"):
+        streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=python_likelihood, seed=-1)
     with pytest.raises(ValueError, match="resampler"):
         streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=python_likelihood, resampler="best")
     with pytest.raises(ValueError, match="WGSL model runs on the GPU"):
