@@ -44,8 +44,10 @@ struct CapsuleTerms {
     wb: vec4<f32>,
     // p - c for the bounding sphere's centre c = (a + b) / 2, and |p - c|^2 - R^2, R = L/2 + r.
     wc: vec4<f32>,
-    // x: |w_perp|^2 - r^2, the cylinder's q0, > 0 when the camera is outside the infinite
-    // cylinder; y: r^2, for the discriminants (see first_nonnegative_root); zw unused.
+    // x: r^2, negated when the camera lies inside the infinite cylinder (the cylinder's
+    // q0 = |w_perp|^2 - r^2 <= 0: the same for every ray, read with the terms a pair needs
+    // anyway); yzw: n = w_perp x u, whose dot with the ray's direction gives the cylinder's
+    // discriminant as q2 r^2 - (dir.n)^2 (see first_nonnegative_root) in one dot product.
     q0: vec4<f32>,
 }
 
@@ -73,8 +75,9 @@ var<workgroup> candidate_count: atomic<u32>;
 
 // The smallest root >= 0 of q2 D^2 + 2 q1 D + q0 = 0, or NO_HIT, given its discriminant
 // disc = q1^2 - q2 q0 computed without that subtraction, which loses most of f32's digits near a
-// silhouette: q2 r^2 - |v_perp x w_perp|^2 for the cylinder, r^2 - |dir x w|^2 for a sphere
-// (Lagrange's identity; the CPU twin is body_tracker::capsule::first_nonnegative_root).
+// silhouette: q2 r^2 - (dir.(w_perp x u))^2 for the cylinder (|v_perp x w_perp|^2 by Lagrange's
+// identity, and v_perp x w_perp is along u), r^2 - |dir x w|^2 for a sphere (the CPU twin is
+// body_tracker::capsule::first_nonnegative_root).
 fn first_nonnegative_root(q2: f32, q1: f32, disc: f32) -> f32 {
     if (disc < 0.0) {
         return NO_HIT;
@@ -120,8 +123,8 @@ fn ray_capsule(dir: vec3<f32>, a: vec3<f32>, b: vec3<f32>, r: f32) -> f32 {
         let w_perp = w - u * dot(w, u);
         let q2 = dot(v_perp, v_perp);
         if (q2 > 0.0) {
-            let c = cross(v_perp, w_perp);
-            let hit = first_nonnegative_root(q2, dot(v_perp, w_perp), q2 * r * r - dot(c, c));
+            let n = dot(dir, cross(w_perp, u));
+            let hit = first_nonnegative_root(q2, dot(v_perp, w_perp), q2 * r * r - n * n);
             if (hit >= 0.0) {
                 let along = dot(w + dir * hit, u);
                 if (along >= 0.0 && along <= len) {
@@ -227,7 +230,8 @@ fn capsule_terms(@builtin(global_invocation_id) gid: vec3<u32>) {
     t.wa = vec4<f32>(w, 0.0);
     t.wb = vec4<f32>(wb, 0.0);
     t.wc = vec4<f32>(wc, dot(wc, wc) - big_r * big_r);
-    t.q0 = vec4<f32>(dot(w_perp, w_perp) - r * r, r * r, 0.0, 0.0);
+    let outside = dot(w_perp, w_perp) - r * r > 0.0;
+    t.q0 = vec4<f32>(select(-r * r, r * r, outside), cross(w_perp, u));
     terms[index] = t;
 }
 
@@ -254,6 +258,7 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
     if (t.q0.x > 0.0) {
         return truncated(ray_capsule_outside(dir, t), depth);
     }
+    let r2 = abs(t.q0.x);
     var best = NO_HIT;
     let len = t.axis.w;
     if (len > 0.0) {
@@ -261,8 +266,8 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
         let v_perp = dir - t.axis.xyz * vu;
         let q2 = dot(v_perp, v_perp);
         if (q2 > 0.0) {
-            let c = cross(v_perp, t.w_perp.xyz);
-            let hit = first_nonnegative_root(q2, dot(dir, t.w_perp.xyz), q2 * t.q0.y - dot(c, c));
+            let n = dot(dir, t.q0.yzw);
+            let hit = first_nonnegative_root(q2, dot(dir, t.w_perp.xyz), q2 * r2 - n * n);
             if (hit >= 0.0) {
                 let along = t.w_perp.w + hit * vu;
                 if (along >= 0.0 && along <= len) {
@@ -271,8 +276,8 @@ fn ray_capsule_fast(dir: vec3<f32>, depth: f32, k: u32) -> f32 {
             }
         }
     }
-    best = keep_nearest(best, ray_sphere(dir, t.wa.xyz, t.q0.y));
-    best = keep_nearest(best, ray_sphere(dir, t.wb.xyz, t.q0.y));
+    best = keep_nearest(best, ray_sphere(dir, t.wa.xyz, r2));
+    best = keep_nearest(best, ray_sphere(dir, t.wb.xyz, r2));
     return truncated(best, depth);
 }
 
@@ -285,8 +290,8 @@ fn ray_capsule_outside(dir: vec3<f32>, t: CapsuleTerms) -> f32 {
     let v_perp = dir - t.axis.xyz * vu;
     let q2 = dot(v_perp, v_perp);
     let q1 = dot(dir, t.w_perp.xyz);
-    let c = cross(v_perp, t.w_perp.xyz);
-    let disc = q2 * t.q0.y - dot(c, c);
+    let n = dot(dir, t.q0.yzw);
+    let disc = q2 * t.q0.x - n * n;
     if (disc < 0.0 || q1 >= 0.0 || q2 <= 0.0) {
         return NO_HIT;
     }
@@ -301,7 +306,7 @@ fn ray_capsule_outside(dir: vec3<f32>, t: CapsuleTerms) -> f32 {
     }
     let s1 = dot(dir, end.xyz);
     let e = cross(dir, end.xyz);
-    let s_disc = t.q0.y - dot(e, e);
+    let s_disc = t.q0.x - dot(e, e);
     if (s_disc < 0.0) {
         return NO_HIT;
     }

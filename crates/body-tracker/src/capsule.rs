@@ -72,7 +72,10 @@ pub fn ray_capsule(origin: &Vector3<f32>, dir: &Vector3<f32>, c: &Capsule) -> Op
         let q2 = v_perp.norm_squared();
         // A ray parallel to the axis never meets the side (only the spheres).
         if q2 > 0.0 {
-            let disc = q2 * c.radius * c.radius - v_perp.cross(&w_perp).norm_squared();
+            // |v⊥ × w⊥|², as (dir · (w⊥ × u))²: both lie across the axis, so their cross
+            // product runs along it (the GPU keeps w⊥ × u per capsule: one dot product a ray).
+            let n = dir.dot(&w_perp.cross(&u));
+            let disc = q2 * c.radius * c.radius - n * n;
             let hit = first_nonnegative_root(q2, v_perp.dot(&w_perp), disc);
             if let Some(delta) = hit {
                 let along = (w + dir * delta).dot(&u);
