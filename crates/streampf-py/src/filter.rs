@@ -7,7 +7,6 @@ use std::sync::{Mutex, TryLockError};
 use numpy::PyUntypedArrayMethods;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
-use pf_core::resample::Metropolis;
 use pf_core::{PfError, Resampler, ResamplerKind};
 use pf_gpu::model::{ModelSource, RawModelFilter};
 use pf_gpu::{GpuContext, GpuResampler};
@@ -70,16 +69,12 @@ fn from_batch_layout(values: &[f32], shape: &BatchShape) -> Vec<f32> {
     out
 }
 
+/// `resampler=`: a name of `pf_core::ResamplerKind` that the GPU runs (`GpuResampler::KINDS`).
 fn gpu_resampler(name: &str) -> PyResult<GpuResampler> {
-    match name {
-        "systematic" => Ok(GpuResampler::Systematic),
-        "stratified" => Ok(GpuResampler::Stratified),
-        "metropolis" => Ok(GpuResampler::Metropolis(Metropolis::DEFAULT_STEPS)),
-        other => Err(value_error(format!(
-            "the GPU resamples with \"systematic\", \"stratified\" or \"metropolis\", not {other:?} \
-             (the CPU path also has multinomial, residual and rejection)"
-        ))),
-    }
+    let kind: ResamplerKind = name
+        .parse()
+        .map_err(|e: pf_core::PfError| value_error(format!("resampler: {e}")))?;
+    GpuResampler::for_kind(kind).map_err(|e| value_error(format!("resampler: {e}")))
 }
 
 #[pymethods]

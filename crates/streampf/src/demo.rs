@@ -128,16 +128,7 @@ impl Trackers {
                 .context("building the filters")?;
             return Ok(Trackers::Cpu(filters));
         }
-        let resampler = match args.resampler {
-            ResamplerKind::Systematic => GpuResampler::Systematic,
-            ResamplerKind::Stratified => GpuResampler::Stratified,
-            ResamplerKind::Metropolis => {
-                GpuResampler::Metropolis(pf_core::resample::Metropolis::DEFAULT_STEPS)
-            }
-            other => bail!(
-                "--resampler {other} does not run on the GPU; use systematic, stratified or metropolis"
-            ),
-        };
+        let resampler = GpuResampler::for_kind(args.resampler).context("--resampler")?;
         let options = ContextOptions {
             allow_software: args.allow_software,
             ..ContextOptions::default()

@@ -167,7 +167,12 @@ fn gpu_demo_refuses_what_the_gpu_cannot_do() {
     ]);
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("does not run on the GPU"), "{err}");
+    assert!(
+        err.contains(
+            "--resampler: the GPU resamples with systematic, stratified, metropolis, not rejection"
+        ),
+        "{err}"
+    );
     let out = streampf(&["demo", "--allow-software"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--gpu"));

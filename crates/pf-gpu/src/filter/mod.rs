@@ -5,6 +5,7 @@
 //!
 //! CPU twin: `pf_core::batch::BatchFilter` (same layout, same counter-based random numbers).
 
+use pf_core::ResamplerKind;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape};
 
@@ -38,6 +39,45 @@ pub enum GpuResampler {
     Stratified,
     /// Metropolis with this many steps.
     Metropolis(u32),
+}
+
+impl GpuResampler {
+    /// The schemes of `pf_core::ResamplerKind` that the GPU runs: the one list that the command
+    /// line, Python and the figures read.
+    pub const KINDS: [ResamplerKind; 3] = [
+        ResamplerKind::Systematic,
+        ResamplerKind::Stratified,
+        ResamplerKind::Metropolis,
+    ];
+
+    /// The GPU's twin of `kind` (Metropolis with its default steps, as `ResamplerKind::build`);
+    /// an error naming the schemes the GPU runs for one it does not.
+    pub fn for_kind(kind: ResamplerKind) -> Result<Self, GpuError> {
+        match kind {
+            ResamplerKind::Systematic => Ok(GpuResampler::Systematic),
+            ResamplerKind::Stratified => Ok(GpuResampler::Stratified),
+            ResamplerKind::Metropolis => Ok(GpuResampler::Metropolis(
+                pf_core::resample::Metropolis::DEFAULT_STEPS,
+            )),
+            other => {
+                let names = |kinds: &mut dyn Iterator<Item = ResamplerKind>| {
+                    kinds
+                        .map(ResamplerKind::name)
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                };
+                Err(GpuError::InvalidConfig(format!(
+                    "the GPU resamples with {}, not {other} (the CPU also has {})",
+                    names(&mut Self::KINDS.into_iter()),
+                    names(
+                        &mut ResamplerKind::ALL
+                            .into_iter()
+                            .filter(|k| !Self::KINDS.contains(k))
+                    )
+                )))
+            }
+        }
+    }
 }
 
 /// One stage of the step, for running stages alone ([`GpuFilter::run_stages`]).
