@@ -81,7 +81,7 @@ fn forward_kinematics_matches_cpu_within_tolerance() {
                 ];
                 let have = [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]];
                 for (w, h) in want.iter().zip(&have) {
-                    // DESIGN.md: 1e-4 relative, or 1e-5 absolute near zero.
+                    // The tolerance policy (ARCHITECTURE.md): 1e-4 relative, or 1e-5 absolute near zero.
                     prop_assert!(
                         (w - h).abs() <= 1e-4 * w.abs() + 1e-5,
                         "sample {s} capsule {c}: GPU {have:?} vs CPU {want:?}"
@@ -113,7 +113,7 @@ fn body_likelihood_matches_cpu_within_tolerance() {
 }
 
 /// A case that once failed: one ray 2.6 mm from a capsule at 2.6 m, its sum of 7e-6 off by
-/// 4.6e-7 in f32 (more than the rounding model's 3e-5 of the depth; within DESIGN.md's 1e-5
+/// 4.6e-7 in f32 (more than the rounding model's 3e-5 of the depth; within the tolerance policy's 1e-5
 /// absolute near zero).
 #[test]
 fn body_likelihood_matches_cpu_for_one_ray_near_a_capsule() {

@@ -2,7 +2,7 @@
 //! random skeleton poses and point sets, with points behind the camera, rays tangent to
 //! capsules and zero-length bones.
 //!
-//! Tolerance: `common::capsule_cases` (DESIGN.md).
+//! Tolerance: `common::capsule_cases` (the tolerance policy in ARCHITECTURE.md).
 
 mod common;
 

@@ -3,7 +3,7 @@
 //! through weak perspective or a pinhole (from a long lens to one that puts points at or behind
 //! the camera).
 //!
-//! Tolerance (DESIGN.md): ε agrees to 1e-4 relative plus 1e-5, plus what each point's ρ can move
+//! Tolerance (the tolerance policy in ARCHITECTURE.md): ε agrees to 1e-4 relative plus 1e-5, plus what each point's ρ can move
 //! when its projection moves by 1e-3 px (f32 rounding of the projection is ~1e-4 px at these
 //! sizes; bilinear sampling is continuous, so this bounds the change in I), all over the number of
 //! visible points. Two flips are allowed and counted: a point within 1e-3 px of the frame's edge

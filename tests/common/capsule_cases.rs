@@ -1,5 +1,5 @@
 //! Random capsule-likelihood cases shared by the GPU tests: poses of the default human, point
-//! sets with the hard cases, and the tolerance of DESIGN.md for a sample's sum M_j.
+//! sets with the hard cases, and the tolerance policy (ARCHITECTURE.md, "How close a kernel and its twin must be") for a sample's sum M_j.
 //!
 //! Tolerance: the sums agree to 1e-4 relative, plus what an f32 error of 3e-5 of each point's
 //! depth in its distance adds to its square (f32 geometry and partial sums against the
@@ -138,7 +138,7 @@ pub fn sum_tolerance(caps: &[Capsule], rays: &Rays, want: f64) -> (f64, usize) {
             2.0 * di * delta + delta * delta
         })
         .sum();
-    // DESIGN.md: 1e-4 relative, or 1e-5 absolute near zero (a sum of a few points close to
+    // The tolerance policy (ARCHITECTURE.md): 1e-4 relative, or 1e-5 absolute near zero (a sum of a few points close to
     // the capsules, where the rounding above can be exceeded by a ray near a silhouette).
     let tol = (1e-4 * want).max(1e-5) + rounding + grazing as f64 * f64::from(TAU * TAU);
     (tol, grazing)
