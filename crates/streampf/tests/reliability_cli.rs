@@ -630,3 +630,51 @@ fn a_run_stopped_by_a_bad_frame_says_what_it_wrote_and_no_more() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// docs/RELIABILITY.md's table names the test that keeps each row true: each must exist.
+#[test]
+fn every_test_the_reliability_table_names_exists() {
+    let crate_dir = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let doc = std::fs::read_to_string(crate_dir.join("../../docs/RELIABILITY.md")).unwrap();
+    let source = |file: &str| {
+        let path = match file {
+            "video" => crate_dir.join("src/video.rs"),
+            test => crate_dir.join(format!("tests/{test}.rs")),
+        };
+        std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    };
+    let mut named = 0;
+    for row in doc
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| class"))
+    {
+        let last = row
+            .trim_end_matches('|')
+            .rsplit('|')
+            .next()
+            .unwrap_or_default();
+        let mut file = String::new();
+        for token in last.split('`').skip(1).step_by(2) {
+            if token.contains('/') || token.contains('.') {
+                continue; // a path (the Python tests), not a Rust test
+            }
+            let name = match token.split_once("::") {
+                Some((f, rest)) => {
+                    file = f.to_string();
+                    rest.rsplit("::").next().unwrap_or(rest)
+                }
+                None => token,
+            };
+            assert!(!file.is_empty(), "{row}: {token} names no file");
+            assert!(
+                source(&file).contains(&format!("fn {name}(")),
+                "docs/RELIABILITY.md names {file}::{name}, which does not exist"
+            );
+            named += 1;
+        }
+    }
+    assert!(
+        named >= 15,
+        "only {named} tests named: is the table still read right?"
+    );
+}
