@@ -134,9 +134,10 @@ impl Skeleton {
             let dir = Vector3::from(bone.direction);
             let norm = dir.norm();
             if !(norm.is_finite() && norm > 0.0) {
+                let [x, y, z] = bone.direction;
                 return bad(format!(
-                    "bone {:?} has direction {:?}",
-                    bone.name, bone.direction
+                    "bone {:?} has direction ({x}, {y}, {z}): it must be finite and not zero",
+                    bone.name
                 ));
             }
             if !bone.offset.iter().all(|x| x.is_finite()) {
