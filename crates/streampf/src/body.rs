@@ -892,9 +892,6 @@ impl BodyRun {
             let error = mean_joint_error(skeleton, &result.pose, &truth[frame])?;
             joint_error = Some(error);
             out.row(&csv_row(frame, &[error]))?;
-            out.end_frame()?;
-            self.errors.push(error);
-            self.count_coverage(&result.pose, &result.spread, &truth[frame]);
         }
         if let Some(recording) = recording {
             let (shape, states, _) = tracker.particles()?;
@@ -914,8 +911,17 @@ impl BodyRun {
             let truth = truth.map(|t| t[frame].as_slice());
             overlay.draw(frame, skeleton, points, &result.pose, truth)?;
         }
-        files.poses.end_frame()?;
-        files.joints.end_frame()?;
+        match files.errors.as_mut() {
+            Some(errors) => {
+                CsvStream::end_frame_in_all(&mut [&mut files.poses, &mut files.joints, errors])?
+            }
+            None => CsvStream::end_frame_in_all(&mut [&mut files.poses, &mut files.joints])?,
+        }
+        // Counted once the frame is in the files (a frame that failed to write is dropped).
+        if let (Some(truth), Some(error)) = (truth, joint_error) {
+            self.errors.push(error);
+            self.count_coverage(&result.pose, &result.spread, &truth[frame]);
+        }
         self.frames += 1;
         Ok(())
     }

@@ -1443,6 +1443,33 @@ impl TrackRecord {
         status: &str,
         truth: Option<&Vec<[f32; DIMS]>>,
     ) -> anyhow::Result<()> {
+        // A frame whose rows fail to write is dropped from the files (CsvStream), and from the
+        // summary's error statistics with it.
+        let before = (
+            self.translation,
+            self.rotation,
+            self.measured,
+            self.within_two_sd,
+        );
+        let written = self.add_rows(frame, estimates, status, truth);
+        if written.is_err() {
+            (
+                self.translation,
+                self.rotation,
+                self.measured,
+                self.within_two_sd,
+            ) = before;
+        }
+        written
+    }
+
+    fn add_rows(
+        &mut self,
+        frame: usize,
+        estimates: &[FaceEstimate],
+        status: &str,
+        truth: Option<&Vec<[f32; DIMS]>>,
+    ) -> anyhow::Result<()> {
         let timestamp = self.timestamp(frame);
         if estimates.is_empty() {
             // No face this frame: a row that says so, its estimate's columns empty.
@@ -1486,8 +1513,10 @@ impl TrackRecord {
                 }
             }
         }
-        self.states.end_frame()?;
-        self.errors.as_mut().map_or(Ok(()), CsvStream::end_frame)
+        match self.errors.as_mut() {
+            Some(errors) => CsvStream::end_frame_in_all(&mut [&mut self.states, errors]),
+            None => self.states.end_frame(),
+        }
     }
 
     /// Prints the summary of what was tracked and written.

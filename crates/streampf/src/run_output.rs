@@ -92,6 +92,25 @@ pub struct CsvStream {
     /// A resumed file's header and kept rows: written over the file (dropping the rows of the
     /// frame the resumed run starts at, which may have been cut) before its first new row.
     rewrite: Option<String>,
+    /// The file's length at the last finished frame.
+    committed: u64,
+    /// Bytes of rows written since then (buffered, or partly on disk).
+    pending: u64,
+}
+
+/// A frame that was not finished (its rows failed to write: a full disk) leaves nothing: its rows
+/// are dropped and the file cut back to the last finished frame, so that the file never ends in
+/// half a row.
+impl Drop for CsvStream {
+    fn drop(&mut self) {
+        if self.pending == 0 {
+            return;
+        }
+        if let Some(out) = self.out.take() {
+            let (file, _unwritten) = out.into_parts();
+            let _ = file.set_len(self.committed);
+        }
+    }
 }
 
 /// A `--resume` refused because the resumed run made a row that differs from the file's: the
@@ -175,6 +194,8 @@ impl CsvStream {
             out: Some(BufWriter::new(file)),
             expected: Default::default(),
             rewrite: None,
+            committed: 0,
+            pending: 0,
         };
         stream.row(header)?;
         stream.end_frame()?;
@@ -211,6 +232,8 @@ impl CsvStream {
             out: None,
             expected: kept.into(),
             rewrite: Some(body),
+            committed: 0,
+            pending: 0,
         })
     }
 
@@ -228,6 +251,7 @@ impl CsvStream {
             }
             return Ok(());
         }
+        self.pending += line.len() as u64 + 1;
         let out = self.writer()?;
         writeln!(out, "{line}").with_context(|| format!("writing {}", self.path.display()))
     }
@@ -236,6 +260,7 @@ impl CsvStream {
     fn writer(&mut self) -> anyhow::Result<&mut BufWriter<File>> {
         if self.out.is_none() {
             let body = self.rewrite.take().unwrap_or_default();
+            self.committed = body.len() as u64;
             // Rewritten whole and renamed over the old file: a stop here leaves one or the other.
             let staged = self.path.with_extension("csv.resume");
             std::fs::write(&staged, body)
@@ -253,13 +278,51 @@ impl CsvStream {
             .with_context(|| format!("writing {}", self.path.display()))
     }
 
-    /// Flushes the rows written so far to the file.
+    /// Flushes the rows written so far to the file: the frame is finished.
     pub fn end_frame(&mut self) -> anyhow::Result<()> {
+        self.flush()?;
+        self.committed += std::mem::take(&mut self.pending);
+        Ok(())
+    }
+
+    /// Ends a frame in several files at once (a frame's states and errors, poses and joints):
+    /// the frame counts as written only when every file took it; otherwise each is cut back to
+    /// the frame before, so that the files always hold the same frames.
+    pub fn end_frame_in_all(files: &mut [&mut CsvStream]) -> anyhow::Result<()> {
+        if let Err(e) = files.iter_mut().try_for_each(|f| f.flush()) {
+            files.iter_mut().for_each(|f| f.drop_unfinished_frame());
+            return Err(e);
+        }
+        for f in files.iter_mut() {
+            f.committed += std::mem::take(&mut f.pending);
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> anyhow::Result<()> {
         match self.out.as_mut() {
             Some(out) => out
                 .flush()
                 .with_context(|| format!("writing {}", self.path.display())),
             None => Ok(()),
+        }
+    }
+
+    /// Drops the rows written since the last finished frame, from the buffer and the file.
+    fn drop_unfinished_frame(&mut self) {
+        if self.pending == 0 {
+            return;
+        }
+        self.pending = 0;
+        if let Some(out) = self.out.take() {
+            let (file, _unwritten) = out.into_parts();
+            let _ = file.set_len(self.committed);
+            // Appending goes on at the new end (the file was opened to append, or is reopened).
+            self.out = std::fs::OpenOptions::new()
+                .append(true)
+                .open(&self.path)
+                .ok()
+                .map(BufWriter::new);
         }
     }
 }
@@ -418,5 +481,74 @@ impl SkipLog {
                 )
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn scratch(name: &str) -> PathBuf {
+        let dir = std::env::temp_dir().join(format!("streampf-run-output-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        dir.join(name)
+    }
+
+    /// A stream whose file is /dev/full: every flush fails, as on a full disk.
+    fn full_disk() -> CsvStream {
+        let file = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/dev/full")
+            .expect("the test needs Linux's /dev/full");
+        CsvStream {
+            path: PathBuf::from("/dev/full"),
+            out: Some(BufWriter::new(file)),
+            expected: Default::default(),
+            rewrite: None,
+            committed: 0,
+            pending: 0,
+        }
+    }
+
+    #[test]
+    fn an_unfinished_frame_never_stays_in_the_file() {
+        let path = scratch("unfinished.csv");
+        let mut stream = CsvStream::create(&path, "frame,value").unwrap();
+        stream.row("0,1.5").unwrap();
+        stream.end_frame().unwrap();
+        stream.row("1,2.5").unwrap();
+        stream.row("1,3.5").unwrap();
+        drop(stream);
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "frame,value\n0,1.5\n"
+        );
+        std::fs::remove_file(&path).unwrap();
+    }
+
+    #[test]
+    fn a_frame_one_file_cannot_take_is_dropped_from_every_file() {
+        let path = scratch("together.csv");
+        let mut states = CsvStream::create(&path, "frame,value").unwrap();
+        states.row("0,1.5").unwrap();
+        states.end_frame().unwrap();
+        let mut errors = full_disk();
+        states.row("1,2.5").unwrap();
+        errors.row("1,0.25").unwrap();
+        let failed = CsvStream::end_frame_in_all(&mut [&mut states, &mut errors]);
+        assert!(failed.is_err());
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "frame,value\n0,1.5\n"
+        );
+        // The stream goes on from the frame before: the next frame is appended after it.
+        states.row("1,9.5").unwrap();
+        states.end_frame().unwrap();
+        drop(states);
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "frame,value\n0,1.5\n1,9.5\n"
+        );
+        std::fs::remove_file(&path).unwrap();
     }
 }

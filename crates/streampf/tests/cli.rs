@@ -168,9 +168,10 @@ fn gpu_demo_refuses_what_the_gpu_cannot_do() {
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains(
-            "--resampler: the GPU resamples with systematic, stratified, metropolis, not rejection"
-        ),
+        err.contains("--resampler")
+            && err.contains(
+                "the GPU resamples with systematic, stratified, metropolis, not rejection"
+            ),
         "{err}"
     );
     let out = streampf(&["demo", "--allow-software"]);

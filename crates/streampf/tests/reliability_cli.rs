@@ -639,6 +639,7 @@ fn every_test_the_reliability_table_names_exists() {
     let source = |file: &str| {
         let path = match file {
             "video" => crate_dir.join("src/video.rs"),
+            "run_output" => crate_dir.join("src/run_output.rs"),
             test => crate_dir.join(format!("tests/{test}.rs")),
         };
         std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
