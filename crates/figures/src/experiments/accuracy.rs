@@ -73,9 +73,10 @@ pub fn face(run: &mut Run) -> anyhow::Result<Figure> {
         let config = FaceTrackerConfig {
             particles,
             best: particles / 10,
-            // γ = 0 weighs every particle the same; an ε threshold over 1 never ends a track.
+            // γ = 0 weighs every particle the same; an ε threshold of 1 never ends a track
+            // (ε < 1 always).
             sharpness: if flat { 0.0 } else { 8.0 },
-            failure_error: if flat { 2.0 } else { 0.12 },
+            failure_error: if flat { 1.0 } else { 0.12 },
             annealing: if plain {
                 Annealing::none()
             } else {
