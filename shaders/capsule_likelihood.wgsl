@@ -46,7 +46,7 @@ struct CapsuleTerms {
     wc: vec4<f32>,
     // x: r^2, negated when the camera lies inside the infinite cylinder (the cylinder's
     // q0 = |w_perp|^2 - r^2 <= 0: the same for every ray, read with the terms a pair needs
-    // anyway); yzw: n = w_perp x u, whose dot with the ray's direction gives the cylinder's
+    // anyway) or the bone has no length; yzw: n = w_perp x u, whose dot with the ray's direction gives the cylinder's
     // discriminant as q2 r^2 - (dir.n)^2 (see first_nonnegative_root) in one dot product.
     q0: vec4<f32>,
 }
@@ -230,7 +230,9 @@ fn capsule_terms(@builtin(global_invocation_id) gid: vec3<u32>) {
     t.wa = vec4<f32>(w, 0.0);
     t.wb = vec4<f32>(wb, 0.0);
     t.wc = vec4<f32>(wc, dot(wc, wc) - big_r * big_r);
-    let outside = dot(w_perp, w_perp) - r * r > 0.0;
+    // A zero-length bone is a sphere: its degenerate axis (u = 0) makes n = 0, which is no
+    // cylinder's, so it takes the general branch (which solves only the end spheres there).
+    let outside = len > 0.0 && dot(w_perp, w_perp) - r * r > 0.0;
     t.q0 = vec4<f32>(select(-r * r, r * r, outside), cross(w_perp, u));
     terms[index] = t;
 }

@@ -90,7 +90,6 @@ fn invalid_shapes_are_typed_errors() {
 /// points on, in front of and behind them: the fast kernel against Listing 1.2.
 #[test]
 fn fast_kernel_matches_cpu_for_bones_along_the_line_of_sight() {
-    use body_tracker::capsule::Capsule;
     let Some(ctx) = common::gpu_context("capsules along the line of sight") else {
         return;
     };
@@ -110,47 +109,81 @@ fn fast_kernel_matches_cpu_for_bones_along_the_line_of_sight() {
         proptest::collection::vec((-0.2f32..0.2, -0.2f32..0.2, -0.3f32..0.3), 1..300),
     );
     runner
-        .run(&strategy, |(specs, offsets)| {
-            let caps: Vec<Capsule> = specs
-                .iter()
-                .map(|&((ax, ay), (bx, by), depth, length, radius)| {
-                    let a = Vector3::new(ax, ay, depth);
-                    // Along the line from the camera through a, bent by (bx, by).
-                    let b = a + (a.normalize() + Vector3::new(bx, by, 0.0)).normalize() * length;
-                    Capsule { a, b, radius }
-                })
-                .collect();
-            // Points near each capsule's near end, in front of it and behind it.
-            let pts: Vec<Vector3<f32>> = offsets
-                .iter()
-                .enumerate()
-                .map(|(n, &(x, y, dz))| caps[n % caps.len()].a + Vector3::new(x, y, dz))
-                .filter(|p| p.z > 0.1)
-                .collect();
-            prop_assume!(!pts.is_empty());
-            let rays = Rays::through(Vector3::zeros(), &pts).unwrap();
-            let want = listing_1_2(std::slice::from_ref(&caps), &rays, TAU)[0];
-            let gpu = CapsuleLikelihoodGpu::new(
-                &ctx,
-                CapsuleKernel::Fast,
-                1,
-                pts.len(),
-                caps.len(),
-                [0.0; 3],
-                TAU,
-            )
-            .unwrap();
-            gpu.upload_rays(&ctx, &rays.gpu_layout()).unwrap();
-            let mut flat = Vec::new();
-            capsules_gpu_layout(&caps, &mut flat);
-            gpu.upload_capsules(&ctx, &flat).unwrap();
-            let got = f64::from(gpu.evaluate(&ctx).unwrap()[0]);
-            let (tol, grazing) = sum_tolerance(&caps, &rays, want);
-            prop_assert!(
-                (got - want).abs() <= tol,
-                "GPU {got} vs CPU {want} ({grazing} grazing rays, tolerance {tol})"
-            );
-            Ok(())
-        })
+        .run(&strategy, |case| line_of_sight_sums_agree(&ctx, case))
         .unwrap_or_else(common::property::report);
+}
+
+/// A zero-length bone (a sphere) seen by rays near its silhouette: the fast kernel once took its
+/// degenerate axis for a cylinder's and hit it wherever a ray passed (a case the long run drew,
+/// reduced to its capsule and its first three points).
+#[test]
+fn fast_kernel_matches_cpu_for_a_zero_length_bone() {
+    let Some(ctx) = common::gpu_context("a zero-length bone") else {
+        return;
+    };
+    line_of_sight_sums_agree(
+        &ctx,
+        (
+            vec![((0.0, -0.07082491), (0.0, 0.0), 1.0, 0.0, 0.052282095)],
+            vec![
+                (0.051772438, 1.7561881e-6, 0.05403482),
+                (-0.11165298, -0.17859092, -0.11616045),
+                (0.12569602, -0.026407292, 0.13774376),
+            ],
+        ),
+    )
+    .unwrap();
+}
+
+/// One capsule per spec (near end's offset from the axis of sight, the far end's, depth, length,
+/// radius) and points offset from their near ends: the fast kernel's sum against Listing 1.2.
+#[allow(clippy::type_complexity)]
+fn line_of_sight_sums_agree(
+    ctx: &pf_gpu::GpuContext,
+    (specs, offsets): (
+        Vec<((f32, f32), (f32, f32), f32, f32, f32)>,
+        Vec<(f32, f32, f32)>,
+    ),
+) -> Result<(), proptest::test_runner::TestCaseError> {
+    use body_tracker::capsule::Capsule;
+    let caps: Vec<Capsule> = specs
+        .iter()
+        .map(|&((ax, ay), (bx, by), depth, length, radius)| {
+            let a = Vector3::new(ax, ay, depth);
+            // Along the line from the camera through a, bent by (bx, by).
+            let b = a + (a.normalize() + Vector3::new(bx, by, 0.0)).normalize() * length;
+            Capsule { a, b, radius }
+        })
+        .collect();
+    // Points near each capsule's near end, in front of it and behind it.
+    let pts: Vec<Vector3<f32>> = offsets
+        .iter()
+        .enumerate()
+        .map(|(n, &(x, y, dz))| caps[n % caps.len()].a + Vector3::new(x, y, dz))
+        .filter(|p| p.z > 0.1)
+        .collect();
+    prop_assume!(!pts.is_empty());
+    let rays = Rays::through(Vector3::zeros(), &pts).unwrap();
+    let want = listing_1_2(std::slice::from_ref(&caps), &rays, TAU)[0];
+    let gpu = CapsuleLikelihoodGpu::new(
+        &ctx,
+        CapsuleKernel::Fast,
+        1,
+        pts.len(),
+        caps.len(),
+        [0.0; 3],
+        TAU,
+    )
+    .unwrap();
+    gpu.upload_rays(&ctx, &rays.gpu_layout()).unwrap();
+    let mut flat = Vec::new();
+    capsules_gpu_layout(&caps, &mut flat);
+    gpu.upload_capsules(&ctx, &flat).unwrap();
+    let got = f64::from(gpu.evaluate(&ctx).unwrap()[0]);
+    let (tol, grazing) = sum_tolerance(&caps, &rays, want);
+    prop_assert!(
+        (got - want).abs() <= tol,
+        "GPU {got} vs CPU {want} ({grazing} grazing rays, tolerance {tol})"
+    );
+    Ok(())
 }
