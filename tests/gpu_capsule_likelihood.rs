@@ -166,7 +166,7 @@ fn line_of_sight_sums_agree(
     let rays = Rays::through(Vector3::zeros(), &pts).unwrap();
     let want = listing_1_2(std::slice::from_ref(&caps), &rays, TAU)[0];
     let gpu = CapsuleLikelihoodGpu::new(
-        &ctx,
+        ctx,
         CapsuleKernel::Fast,
         1,
         pts.len(),
@@ -175,11 +175,11 @@ fn line_of_sight_sums_agree(
         TAU,
     )
     .unwrap();
-    gpu.upload_rays(&ctx, &rays.gpu_layout()).unwrap();
+    gpu.upload_rays(ctx, &rays.gpu_layout()).unwrap();
     let mut flat = Vec::new();
     capsules_gpu_layout(&caps, &mut flat);
-    gpu.upload_capsules(&ctx, &flat).unwrap();
-    let got = f64::from(gpu.evaluate(&ctx).unwrap()[0]);
+    gpu.upload_capsules(ctx, &flat).unwrap();
+    let got = f64::from(gpu.evaluate(ctx).unwrap()[0]);
     let (tol, grazing) = sum_tolerance(&caps, &rays, want);
     prop_assert!(
         (got - want).abs() <= tol,
