@@ -231,25 +231,6 @@ pub fn run(command: &BodyCommand) -> anyhow::Result<()> {
     }
 }
 
-pub(crate) fn progress_bar(frames: usize, quiet: bool) -> indicatif::ProgressBar {
-    if quiet {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(frames as u64);
-    // The rate with one decimal (indicatif's own shows four) and the time left.
-    if let Ok(style) = indicatif::ProgressStyle::with_template(
-        "{bar:40} {pos}/{len} frames {rate} {eta} left {msg}",
-    ) {
-        bar.set_style(style.with_key(
-            "rate",
-            |state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
-                let _ = write!(w, "{:.1} frames/s", state.per_sec());
-            },
-        ));
-    }
-    bar
-}
-
 fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     let config = args.sequence.config()?;
     let skeleton = args.sequence.skeleton()?;
@@ -258,7 +239,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
         FormatArg::DepthPng => FrameFormat::DepthPng,
     };
     run_output::claim_synthetic_dir(&args.out, args.force)?;
-    let bar = progress_bar(config.frames, false);
+    let bar = crate::console::progress_bar(config.frames, false);
     write_synthetic(&args.out, &skeleton, &config, format, |_| bar.inc(1))
         .with_context(|| format!("writing the sequence to {}", args.out.display()))?;
     bar.finish_and_clear();
@@ -511,7 +492,7 @@ fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
         .transpose()?;
-    let bar = progress_bar(frames, args.quiet);
+    let bar = crate::console::progress_bar(frames, args.quiet);
     let mut run = BodyRun::new(&args.out)?;
     let started = Instant::now();
     let mut end = LoopEnd::Done;
@@ -788,7 +769,7 @@ impl BodyRun {
         let step_started = Instant::now();
         let result = tracker.step_prepared(prepared)?;
         self.tracking_time += step_started.elapsed().as_secs_f64();
-        self.gpu_time += crate::face::gpu_seconds(tracker.last_gpu_time());
+        self.gpu_time += crate::gpu::gpu_seconds(tracker.last_gpu_time());
         let outputs = (save_particles, (overlay, recording));
         self.write_frame(
             outputs, tracker, skeleton, files, frame, points, result, truth,
@@ -816,7 +797,7 @@ impl BodyRun {
             let started = Instant::now();
             let finished = tracker.finish();
             self.tracking_time += started.elapsed().as_secs_f64();
-            self.gpu_time += crate::face::gpu_seconds(tracker.last_gpu_time());
+            self.gpu_time += crate::gpu::gpu_seconds(tracker.last_gpu_time());
             let result = finished?.context("the frame was not in flight")?;
             let overlay = overlay.filter(|_| frame >= resume_from);
             let outputs = (None, (overlay, None));

@@ -48,6 +48,27 @@ pub fn stdout_failure() -> Option<std::io::Error> {
     STDOUT_FAILURE.lock().ok()?.take()
 }
 
+/// The progress bar of a run of `frames` frames on stderr (hidden when `quiet`): the rate with
+/// one decimal and the time left.
+pub(crate) fn progress_bar(frames: usize, quiet: bool) -> indicatif::ProgressBar {
+    if quiet {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    // The rate with one decimal (indicatif's own shows four) and the time left.
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{bar:40} {pos}/{len} frames {rate} {eta} left {msg}",
+    ) {
+        bar.set_style(style.with_key(
+            "rate",
+            |state: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+                let _ = write!(w, "{:.1} frames/s", state.per_sec());
+            },
+        ));
+    }
+    bar
+}
+
 /// `println!` that never panics (see the module doc).
 macro_rules! outln {
     () => { $crate::console::write_stdout(format_args!("\n")) };

@@ -381,7 +381,7 @@ fn synth(args: &SynthArgs) -> anyhow::Result<()> {
     let model = model()?;
     run_output::claim_synthetic_dir(&args.out, args.force)?;
     remove_old_frames(&args.out)?;
-    let bar = crate::body::progress_bar(config.frames, false);
+    let bar = crate::console::progress_bar(config.frames, false);
     let mut truth = String::from("frame,face");
     for n in STATE_NAMES {
         truth.push(',');
@@ -584,11 +584,6 @@ fn colour_frames(
         }
         _ => None,
     })
-}
-
-/// The GPU's own seconds for a step (0 on the CPU).
-pub(crate) fn gpu_seconds(time: Option<pf_gpu::GpuTime>) -> f64 {
-    time.map_or(0.0, |t| t.duration().as_secs_f64())
 }
 
 /// How tracks start: from rectangles given at the first frame, or from the detector thread.
@@ -938,7 +933,7 @@ impl FaceRun<'_> {
         limit: usize,
         frames_known: Option<usize>,
     ) -> LoopEnd {
-        let bar = crate::body::progress_bar(frames_known.unwrap_or(0), self.args.quiet);
+        let bar = crate::console::progress_bar(frames_known.unwrap_or(0), self.args.quiet);
         let mut stream = InFlight::for_run(runner, self.args);
         self.record.frames_in_flight = stream.is_some();
         let mut next = FrameRead::Frame(first);
@@ -1000,7 +995,7 @@ impl FaceRun<'_> {
         let step_started = Instant::now();
         let (estimates, detections) = runner.step(image)?;
         self.record.tracking_time += step_started.elapsed().as_secs_f64();
-        self.record.gpu_time += gpu_seconds(runner.tracker().last_gpu_time());
+        self.record.gpu_time += crate::gpu::gpu_seconds(runner.tracker().last_gpu_time());
         self.write_frame(runner, frame, image, estimates, detections)
     }
 

@@ -57,3 +57,8 @@ pub fn preferred(allow_software: bool, quiet: bool) -> Option<GpuContext> {
         }
     }
 }
+
+/// The GPU's own seconds for a step (0 on the CPU).
+pub(crate) fn gpu_seconds(time: Option<pf_gpu::GpuTime>) -> f64 {
+    time.map_or(0.0, |t| t.duration().as_secs_f64())
+}

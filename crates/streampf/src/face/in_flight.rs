@@ -89,7 +89,7 @@ impl FaceRun<'_> {
             let started = Instant::now();
             let finished = tracker(runner)?.finish();
             self.record.tracking_time += started.elapsed().as_secs_f64();
-            self.record.gpu_time += super::gpu_seconds(runner.tracker().last_gpu_time());
+            self.record.gpu_time += crate::gpu::gpu_seconds(runner.tracker().last_gpu_time());
             let estimates = finished?.context("the frame was not in flight")?;
             self.write_frame(runner, frame, &image, estimates, Vec::new())
         };
