@@ -17,9 +17,6 @@ use crate::arrays::{ChannelOrder, contiguous, gray_frame, to_numpy};
 use crate::backend::{Choice, face_backend, open};
 use crate::errors::{face, runtime_error, value_error, whole, whole_opt};
 
-/// Debian's opencv-data puts OpenCV's cascades here (the command line's default too).
-const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
-
 /// `detector=`: where the detector runs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum DetectorChoice {
@@ -181,7 +178,7 @@ impl FaceTracker {
                 return Err(value_error("cascade is given but detect is False"));
             }
             (true, path) => {
-                let path = path.unwrap_or_else(|| DEFAULT_CASCADE.into());
+                let path = path.unwrap_or_else(|| face_tracker::detect::DEFAULT_CASCADE.into());
                 if !path.exists() {
                     return Err(pyo3::exceptions::PyFileNotFoundError::new_err(format!(
                         "the face detector's cascade {} is missing: install Debian's \

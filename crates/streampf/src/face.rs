@@ -15,7 +15,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
-use face_tracker::detect::{Cascade, DetectConfig, FaceDetector, GpuCascade};
+use face_tracker::detect::{Cascade, DEFAULT_CASCADE, DetectConfig, FaceDetector, GpuCascade};
 use face_tracker::extraction::{ExtractionConfig, FaceRect};
 use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::model::FaceModel;
@@ -358,8 +358,6 @@ pub fn run(command: &FaceCommand) -> anyhow::Result<()> {
 const RECTS_FILE: &str = "faces.csv";
 /// Faces tracked at once with the detector unless --max-faces says otherwise.
 const DEFAULT_MAX_FACES: u32 = 8;
-/// Debian's opencv-data puts OpenCV's cascades here.
-const DEFAULT_CASCADE: &str = "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
 const TRUTH_FILE: &str = "ground_truth.csv";
 const STATES_FILE: &str = "states.csv";
 const ERRORS_FILE: &str = "errors.csv";

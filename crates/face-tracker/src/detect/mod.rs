@@ -24,6 +24,11 @@ pub use gpu::GpuCascade;
 use crate::error::FaceError;
 use crate::image::GrayImage;
 
+/// Where Debian's opencv-data puts OpenCV's frontal-face cascade, the detector's default for the
+/// command line and the Python package alike.
+pub const DEFAULT_CASCADE: &str =
+    "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
+
 /// A detected face: a rectangle in frame pixels, and how many raw hits it groups.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Detection {
