@@ -28,14 +28,24 @@ fn draws(quick: bool) -> u64 {
     if quick { 5 } else { 20 }
 }
 
-const GPU_RESAMPLERS: [(&str, GpuResampler); 3] = [
-    ("GPU systematic", GpuResampler::Systematic),
-    ("GPU stratified", GpuResampler::Stratified),
-    ("GPU Metropolis (B = 32)", GpuResampler::Metropolis(32)),
-];
+/// Every resampler the GPU runs (`GpuResampler::KINDS`), with its series' name.
+fn gpu_resamplers() -> Vec<(String, GpuResampler)> {
+    GpuResampler::KINDS
+        .into_iter()
+        .filter_map(|kind| GpuResampler::for_kind(kind).ok())
+        .map(|resampler| {
+            let name = match resampler {
+                GpuResampler::Metropolis(steps) => format!("GPU Metropolis (B = {steps})"),
+                GpuResampler::Systematic => "GPU systematic".to_string(),
+                GpuResampler::Stratified => "GPU stratified".to_string(),
+            };
+            (name, resampler)
+        })
+        .collect()
+}
 
 pub fn steps(quick: bool) -> u64 {
-    (ResamplerKind::ALL.len() + GPU_RESAMPLERS.len()) as u64 * sizes(quick).len() as u64
+    (ResamplerKind::ALL.len() + GpuResampler::KINDS.len()) as u64 * sizes(quick).len() as u64
 }
 
 /// Weights of a Gaussian likelihood over a Gaussian cloud (mean/max ≈ 0.3, the shape a tracker
@@ -121,12 +131,12 @@ pub fn run(run: &mut Run) -> anyhow::Result<Figure> {
                 .points
                 .push(summarise(x, spreads));
         }
-        for (name, resampler) in GPU_RESAMPLERS {
+        for (name, resampler) in gpu_resamplers() {
             run.step(&format!("resamplers: {name} at N = {n}"));
             let Some(ctx) = run.gpu else { continue };
             let (t, s) = gpu_resampler(ctx, run, resampler, &states, &w, x)?;
-            time.series_mut(name, "gpu").points.push(t.scaled(1e3));
-            spread.series_mut(name, "").points.push(s);
+            time.series_mut(&name, "gpu").points.push(t.scaled(1e3));
+            spread.series_mut(&name, "").points.push(s);
         }
     }
     Ok(Figure {
