@@ -2,7 +2,7 @@
 
 use std::sync::Mutex;
 
-use face_tracker::detect::{Cascade, DetectConfig, FaceDetector, GpuCascade};
+use face_tracker::detect::{Cascade, DetectConfig, DetectorPlacement, FaceDetector, GpuCascade};
 use face_tracker::extraction::FaceRect;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{pitch_yaw_roll_degrees, rotation_quaternion};
@@ -16,28 +16,6 @@ use pyo3::types::PyDict;
 use crate::arrays::{ChannelOrder, contiguous, gray_frame, to_numpy};
 use crate::backend::{Choice, face_backend, open};
 use crate::errors::{face, runtime_error, value_error, whole, whole_opt};
-
-/// `detector=`: where the detector runs.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum DetectorChoice {
-    /// On a GPU when the tracker runs on one.
-    Auto,
-    Cpu,
-    Gpu,
-}
-
-impl DetectorChoice {
-    fn parse(name: &str) -> PyResult<Self> {
-        match name {
-            "auto" => Ok(Self::Auto),
-            "cpu" => Ok(Self::Cpu),
-            "gpu" => Ok(Self::Gpu),
-            other => Err(value_error(format!(
-                "detector must be \"auto\", \"cpu\" or \"gpu\", got {other:?}"
-            ))),
-        }
-    }
-}
 
 /// The tracker behind the Python object: faces from the caller's rectangles only, or from the
 /// detector as well.
@@ -170,7 +148,9 @@ impl FaceTracker {
         }
         let order = ChannelOrder::parse(channel_order)?;
         let choice = Choice::parse(backend)?;
-        let detector_on = DetectorChoice::parse(detector)?;
+        let detector_on: DetectorPlacement = detector
+            .parse()
+            .map_err(|e: face_tracker::FaceError| value_error(e.to_string()))?;
         let config = config(particles, seed, layers, focal_length(fov, width)?)?;
         let cascade = match (detect, cascade) {
             (false, None) => None,
@@ -201,11 +181,7 @@ impl FaceTracker {
                 .collect::<Vec<_>>()
                 .join(", "),
         };
-        let on_gpu = match detector_on {
-            DetectorChoice::Cpu => false,
-            DetectorChoice::Gpu => true,
-            DetectorChoice::Auto => !matches!(backend, face_tracker::FaceBackend::Cpu),
-        };
+        let on_gpu = detector_on.runs_on_gpu(&backend);
         let detector = match cascade {
             Some(cascade) if on_gpu => {
                 let ctx = open(py, Choice::Gpu, allow_software)?

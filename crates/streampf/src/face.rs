@@ -15,7 +15,9 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use body_tracker::sequence::read_numeric_csv;
 use clap::{Args, Subcommand, ValueEnum};
-use face_tracker::detect::{Cascade, DEFAULT_CASCADE, DetectConfig, FaceDetector, GpuCascade};
+use face_tracker::detect::{
+    Cascade, DEFAULT_CASCADE, DetectConfig, DetectorPlacement, FaceDetector, GpuCascade,
+};
 use face_tracker::extraction::{ExtractionConfig, FaceRect};
 use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::model::FaceModel;
@@ -687,11 +689,12 @@ fn open_detector(
     cascade: Cascade,
     backend: &FaceBackend,
 ) -> anyhow::Result<FaceDetector> {
-    let on_gpu = match args.detector {
-        DetectorArg::Cpu => false,
-        DetectorArg::Gpu => true,
-        DetectorArg::Auto => !matches!(backend, FaceBackend::Cpu),
+    let placement = match args.detector {
+        DetectorArg::Auto => DetectorPlacement::Auto,
+        DetectorArg::Cpu => DetectorPlacement::Cpu,
+        DetectorArg::Gpu => DetectorPlacement::Gpu,
     };
+    let on_gpu = placement.runs_on_gpu(backend);
     if !on_gpu {
         return Ok(FaceDetector::Cpu(cascade));
     }

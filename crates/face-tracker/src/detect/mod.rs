@@ -29,6 +29,42 @@ use crate::image::GrayImage;
 pub const DEFAULT_CASCADE: &str =
     "/usr/share/opencv4/haarcascades/haarcascade_frontalface_alt2.xml";
 
+/// Where the detector runs (`face track --detector`, Python's `detector=`): the one rule for
+/// both.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DetectorPlacement {
+    /// On a GPU when the tracker runs on one, else on the CPU.
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+impl DetectorPlacement {
+    /// Whether the detector goes on a GPU beside a tracker on `backend`.
+    pub fn runs_on_gpu(self, backend: &crate::FaceBackend) -> bool {
+        match self {
+            DetectorPlacement::Cpu => false,
+            DetectorPlacement::Gpu => true,
+            DetectorPlacement::Auto => !matches!(backend, crate::FaceBackend::Cpu),
+        }
+    }
+}
+
+impl std::str::FromStr for DetectorPlacement {
+    type Err = FaceError;
+
+    fn from_str(name: &str) -> Result<Self, FaceError> {
+        match name {
+            "auto" => Ok(DetectorPlacement::Auto),
+            "cpu" => Ok(DetectorPlacement::Cpu),
+            "gpu" => Ok(DetectorPlacement::Gpu),
+            other => Err(FaceError::InvalidInput(format!(
+                "detector must be \"auto\", \"cpu\" or \"gpu\", got {other:?}"
+            ))),
+        }
+    }
+}
+
 /// A detected face: a rectangle in frame pixels, and how many raw hits it groups.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Detection {
@@ -442,4 +478,26 @@ pub fn group(hits: &[Detection], min_neighbors: usize) -> Vec<Detection> {
         })
         .copied()
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DetectorPlacement;
+    use crate::FaceBackend;
+
+    #[test]
+    fn the_detector_goes_where_it_is_told_and_beside_a_cpu_tracker_by_default() {
+        assert!(!DetectorPlacement::Auto.runs_on_gpu(&FaceBackend::Cpu));
+        assert!(!DetectorPlacement::Cpu.runs_on_gpu(&FaceBackend::Cpu));
+        assert!(DetectorPlacement::Gpu.runs_on_gpu(&FaceBackend::Cpu));
+        for (name, placement) in [
+            ("auto", DetectorPlacement::Auto),
+            ("cpu", DetectorPlacement::Cpu),
+            ("gpu", DetectorPlacement::Gpu),
+        ] {
+            assert_eq!(name.parse::<DetectorPlacement>().ok(), Some(placement));
+        }
+        let err = "tpu".parse::<DetectorPlacement>().unwrap_err().to_string();
+        assert!(err.contains("detector must be") && err.contains("tpu"), "{err}");
+    }
 }
