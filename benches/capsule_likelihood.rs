@@ -13,11 +13,11 @@ mod common;
 
 use body_tracker::benchmark_scene::{perturbed_samples, raster_cloud};
 use body_tracker::capsule::Capsule;
+use body_tracker::likelihood::gpu::{CapsuleKernel, CapsuleLikelihoodGpu};
 use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2, parallel_over_samples};
 use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use pf_gpu::GpuContext;
-use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
 
 const K: usize = 48;
 const TAU: f32 = 0.1;
@@ -104,7 +104,7 @@ fn bench_upload(c: &mut Criterion, ctx: &GpuContext) {
     });
     // The host's share alone: the Morton order and the tile cones.
     group.bench_function(BenchmarkId::new("host_preparation", i), |b| {
-        b.iter(|| std::hint::black_box(pf_gpu::capsules::prepare_rays(&rays)))
+        b.iter(|| std::hint::black_box(body_tracker::likelihood::gpu::prepare_rays(&rays)))
     });
     group.finish();
 }

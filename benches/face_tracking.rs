@@ -18,7 +18,7 @@ mod common;
 use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use face_tracker::extraction::FaceRect;
-use face_tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
+use face_tracker::likelihood::gpu::{FaceDispatch, FaceLikelihoodGpu};
 use face_tracker::likelihood::{
     MIN_ERROR, MIN_VISIBLE_SHARE, residual_errors_of_baseline, weigh_parallel, weigh_single_thread,
 };
@@ -27,9 +27,9 @@ use face_tracker::projection::DIMS;
 use face_tracker::synth::{
     FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect, render_frame,
 };
+use face_tracker::tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
-use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
 use pf_gpu::stream::DeviceStream;
 use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 
@@ -136,7 +136,7 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
             1.0,
             MIN_ERROR,
             MIN_VISIBLE_SHARE,
-            pf_gpu::faces::Lens::WEAK,
+            face_tracker::likelihood::Lens::WEAK,
         )
         .unwrap();
         gpu.upload_frame(ctx, &frame.data).unwrap();
@@ -363,7 +363,7 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
         1.0,
         MIN_ERROR,
         MIN_VISIBLE_SHARE,
-        pf_gpu::faces::Lens::WEAK,
+        face_tracker::likelihood::Lens::WEAK,
     )
     .unwrap();
     let floats: Vec<f32> = frame.data.iter().map(|&v| f32::from(v)).collect();

@@ -11,12 +11,12 @@
 mod common;
 
 use face_tracker::extraction::FaceRect;
-use face_tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{RX, RY, RZ, SCALE, TX, TY};
 use face_tracker::synth::{
     FaceSynthConfig, FaceVideoRenderer, HEIGHT_RATIO, face_state, initial_rect,
 };
+use face_tracker::tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::tracker::pose_errors;
 use face_tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 

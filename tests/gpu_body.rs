@@ -1,15 +1,16 @@
-//! Forward kinematics and the whole body likelihood on the GPU (`pf_gpu::body`) against the CPU
+//! Forward kinematics and the whole body likelihood on the GPU (`body_tracker::skeleton::gpu`) against the CPU
 //! (`Skeleton::capsules`, Listing 1.2), and the split over several GPU contexts against one.
 
 mod common;
 
 use body_tracker::human::human_skeleton;
 use body_tracker::likelihood::{Rays, listing_1_2};
+use body_tracker::skeleton::gpu::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
 use body_tracker::skeleton::{Skeleton, SkeletonSpec};
 use common::capsule_cases::{TAU, points, random_pose, sum_tolerance};
 use common::property::check_cases;
 use nalgebra::Vector3;
-use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
+use pf_gpu::model::agrees;
 use proptest::prelude::*;
 
 /// The default human with `capsules` capsules, and with bone `zero` made zero-length if given.
@@ -81,9 +82,8 @@ fn forward_kinematics_matches_cpu_within_tolerance() {
                 ];
                 let have = [a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]];
                 for (w, h) in want.iter().zip(&have) {
-                    // The tolerance policy (ARCHITECTURE.md): 1e-4 relative, or 1e-5 absolute near zero.
                     prop_assert!(
-                        (w - h).abs() <= 1e-4 * w.abs() + 1e-5,
+                        agrees(f64::from(*h), f64::from(*w)),
                         "sample {s} capsule {c}: GPU {have:?} vs CPU {want:?}"
                     );
                 }

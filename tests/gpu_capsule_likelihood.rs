@@ -6,10 +6,10 @@
 
 mod common;
 
+use body_tracker::likelihood::gpu::{CapsuleKernel, CapsuleLikelihoodGpu};
 use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2};
 use common::capsule_cases::{TAU, points, samples, sum_tolerance};
 use nalgebra::Vector3;
-use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
 use proptest::prelude::*;
 use proptest::test_runner::TestRunner;
 

@@ -1,4 +1,4 @@
-//! The detector on the GPU (`face_tracker::detect::GpuCascade`, `shaders/haar_cascade.wgsl`)
+//! The detector on the GPU (`face_tracker::detect::GpuCascade`, `shaders/face/detect.wgsl`)
 //! against its CPU twin (`Cascade`): the same raw window hits up to f32 rounding at a threshold
 //! (the GPU sums features in f32, the CPU in f64), the same grouped faces, on real photographs
 //! with all four frontal cascades of opencv-data, on frames drawn at random from them with random

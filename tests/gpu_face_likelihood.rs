@@ -15,6 +15,7 @@
 
 mod common;
 
+use face_tracker::likelihood::gpu::{FaceDispatch, FaceLikelihoodGpu};
 use face_tracker::likelihood::{
     Lens, MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error, residual_error_through, rho,
 };
@@ -22,7 +23,6 @@ use face_tracker::projection::{DIMS, Pose};
 use face_tracker::{FeaturePoint, GrayImage, Template};
 use nalgebra::Vector3;
 use pf_core::batch::{BatchConfig, BatchShape};
-use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
 use pf_gpu::{GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 use proptest::prelude::*;
 use proptest::test_runner::TestRunner;
@@ -148,7 +148,7 @@ fn tolerance(
         return 1.0;
     }
     let denominator = visible.saturating_sub(flips).max(1) as f64;
-    1e-4 * want + 1e-5 + spread / denominator + flips as f64 / denominator
+    pf_gpu::model::tolerance(want) + spread / denominator + flips as f64 / denominator
 }
 
 fn check(dispatch: FaceDispatch, cases: u32) {

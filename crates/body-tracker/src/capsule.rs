@@ -28,7 +28,7 @@ pub struct Capsule {
 /// their difference is of the order of q2·r², so f32 loses most of its digits there (a point
 /// 2.9 m away came out 0.2 mm off). Lagrange's identity gives the same difference from terms
 /// the size of the answer: for the cylinder q2·r² − |v⊥ × w⊥|², for a sphere (unit `dir`)
-/// r² − |dir × w|². The GPU kernel (shaders/capsule_likelihood.wgsl) does the same.
+/// r² − |dir × w|². The GPU kernel (`shaders/body/likelihood.wgsl`) does the same.
 fn first_nonnegative_root(q2: f32, q1: f32, disc: f32) -> Option<f32> {
     if disc < 0.0 {
         return None;

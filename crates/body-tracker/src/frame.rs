@@ -1,13 +1,13 @@
 //! A frame's host preparation, apart from the filter's step: thinning the points, their rays
 //! from the camera, and for a GPU tracker the rays padded, in Morton order and with their tile
-//! cones (`pf_gpu::body::prepare_body_rays`). It needs nothing of the filter's state, so a
+//! cones (`crate::skeleton::gpu::prepare_body_rays`). It needs nothing of the filter's state, so a
 //! reader thread can prepare frame t + 1 while the GPU steps frame t
 //! ([`crate::BodyTracker::preparer`], [`crate::BodyTracker::step_prepared`]).
 
 use std::borrow::Cow;
 
+use crate::likelihood::gpu::PreparedRays;
 use nalgebra::Vector3;
-use pf_gpu::capsules::PreparedRays;
 
 use crate::error::BodyError;
 use crate::likelihood::Rays;
@@ -45,7 +45,7 @@ impl FramePreparer {
         let points = self.thinned(points);
         let rays = Rays::through(Vector3::zeros(), &points)?;
         let gpu_rays = if self.on_gpu {
-            Some(pf_gpu::body::prepare_body_rays(
+            Some(crate::skeleton::gpu::prepare_body_rays(
                 &rays.gpu_layout(),
                 self.max_points,
             )?)

@@ -8,24 +8,22 @@
 //! - [`capsule`]: the ray–capsule intersection of the paper's Appendix A and the truncated metric
 //!   (eq. 6);
 //! - [`likelihood`]: the log-likelihood (eq. 3) with Listing 1.2's single-thread loop (the
-//!   reference and speed baseline) and a rayon version over samples (the GPU kernels are in
-//!   `pf_gpu::capsules` and `pf_gpu::body`, fed by [`Skeleton::gpu_bones`]);
+//!   reference and speed baseline) and a rayon version over samples (beside it its GPU launcher
+//!   [`likelihood::gpu`]; the kinematics' in [`skeleton::gpu`], fed by [`Skeleton::gpu_bones`]);
 //! - [`camera`], [`ply`], [`sequence`]: depth cameras and 16-bit depth PNGs, PLY point clouds,
 //!   sequence directories with ground truth, CSV output;
 //! - [`benchmark_scene`]: the points and pose samples of the paper's speed figures;
 //! - [`synth`]: synthetic sequences (walking, arm waving) with noise, dropout, outliers and
 //!   self-occlusion;
-//! - [`tracker`]: the particle filter over θ on the CPU, one GPU, or several GPUs ([`islands`]:
+//! - [`tracker`]: the particle filter over θ on the CPU, one GPU, or several GPUs ([`tracker::islands`]:
 //!   one island of the samples per GPU).
 
 pub mod benchmark_scene;
 pub mod camera;
 pub mod capsule;
 pub mod error;
-mod filter;
 pub mod frame;
 pub mod human;
-pub mod islands;
 pub mod likelihood;
 pub mod overlay;
 pub mod ply;

@@ -12,7 +12,7 @@
 use crate::error::FaceError;
 use crate::image::{FloatImage, GrayImage, Image, Level};
 use crate::landmarks::ibug68;
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 use crate::model::FaceModel;
 use crate::template::{FeaturePoint, MIN_GRAY, Template};
 use crate::view::View;

@@ -9,12 +9,13 @@
 //!   sub-image at t0 (gray-level extrema and LoG boundary dipoles); [`model`]: the face model
 //!   (heightmap + normalmap) that gives each point its depth and normal;
 //! - [`likelihood`]: the robust relative residual ε and π ∝ 1/ε on the CPU (one thread: the
-//!   Fig. 6 baseline; and rayon); the GPU kernels are in `pf_gpu::faces`;
+//!   Fig. 6 baseline; and rayon) and beside it its GPU launcher, [`likelihood::gpu`]
+//!   (`shaders/face/likelihood.wgsl`);
 //! - [`image`]: gray frames with bilinear sampling;
 //! - [`synth`]: synthetic videos of textured heads with ground truth;
 //! - [`tracker`]: several faces at once, each its own filter, on the CPU, a GPU or several GPUs
-//!   ([`shards`]), with failure detection; slots free when a track is lost and take new faces;
-//!   [`in_flight`]: two frames in flight on the GPUs (`submit` / `finish`);
+//!   ([`tracker::shards`]), with failure detection; slots free when a track is lost and take new faces;
+//!   [`tracker::in_flight`]: two frames in flight on the GPUs (`submit` / `finish`);
 //! - [`detect`]: Viola–Jones face detection with OpenCV's Haar cascades;
 //! - [`landmarks`]: dlib's 68-point shape predictor, read and run in Rust; [`personal`]: the
 //!   face model warped to a face's landmarks (the personalised model);
@@ -25,14 +26,13 @@ pub mod detect;
 pub mod error;
 pub mod extraction;
 pub mod image;
-pub mod in_flight;
 pub mod landmarks;
+pub mod lens;
 pub mod likelihood;
 mod mesh_head;
 pub mod model;
 pub mod personal;
 pub mod projection;
-pub mod shards;
 pub mod synth;
 pub mod template;
 pub mod tracker;

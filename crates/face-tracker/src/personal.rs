@@ -20,7 +20,7 @@ use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
 use crate::landmarks::{Landmarks, ShapePredictor, ibug68, similarity};
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 use crate::model::{BROW_RIDGE_V, FaceModel, NOSE_TIP_V};
 use crate::synth::HEIGHT_RATIO;
 use crate::view::View;

@@ -7,7 +7,7 @@
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector2, Vector3};
 
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 
 /// Indices into the state.
 pub const TX: usize = 0;

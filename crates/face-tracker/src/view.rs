@@ -9,7 +9,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 use crate::model::FaceModel;
 
 /// The scale and rotation a face is seen with: S maps the model's units to pixels.

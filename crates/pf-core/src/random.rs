@@ -186,7 +186,7 @@ pub fn philox4x32_10(counter: [u32; 4], key: [u32; 2]) -> [u32; 4] {
 }
 
 /// `-2 ln(u)` for `u = ((word >> 8) + 1) / 2^24` in (0, 1]; near u = 1 the same series as the
-/// WGSL twin (`shaders/philox.wgsl`), so that both round alike.
+/// WGSL twin (`shaders/engine/philox.wgsl`), so that both round alike.
 pub fn minus_two_log_unit(word: u32) -> f64 {
     let u = f64::from((word >> 8) + 1) * (1.0 / 16_777_216.0);
     let v = 1.0 - u;
@@ -199,7 +199,7 @@ pub fn minus_two_log_unit(word: u32) -> f64 {
 
 /// The counter-based standard normal draw of dimension `dim` of `particle` at `step`: Box–Muller
 /// on lanes 2(dim % 2), 2(dim % 2) + 1 of Philox block `[particle, dim / 2, step]`. The CPU twin of
-/// `counter_gaussian` in `shaders/philox.wgsl` (24-bit uniforms, which f32 holds exactly).
+/// `counter_gaussian` in `shaders/engine/philox.wgsl` (24-bit uniforms, which f32 holds exactly).
 pub fn counter_gaussian(key: [u32; 2], particle: u32, dim: u32, step: u64) -> f64 {
     let block = philox4x32_10([particle, dim / 2, step as u32, (step >> 32) as u32], key);
     let (w0, w1) = if dim.is_multiple_of(2) {

@@ -1,4 +1,6 @@
-//! WGSL kernels: sources from `shaders/` (include_str!), checked by naga, built into pipelines.
+//! WGSL kernels: the engine's sources from `shaders/engine/` (include_str!), checked by naga,
+//! built into pipelines. A tracker's kernels live in `shaders/<tracker>/` and are launched from
+//! its own crate through the same [`Kernel`].
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -7,36 +9,27 @@ use crate::error::GpuError;
 /// stage files (see [`stage_source`]).
 pub mod sources {
     /// Philox4x32-10 and counter-based Gaussians (a library).
-    pub const PHILOX: &str = include_str!("../../../shaders/philox.wgsl");
+    pub const PHILOX: &str = include_str!("../../../shaders/engine/philox.wgsl");
     /// `Params`, `TargetStats` and helpers shared by the stages (a library).
-    pub const COMMON: &str = include_str!("../../../shaders/common.wgsl");
+    pub const COMMON: &str = include_str!("../../../shaders/engine/common.wgsl");
     /// The diffusion stage.
-    pub const DIFFUSE: &str = include_str!("../../../shaders/diffuse.wgsl");
+    pub const DIFFUSE: &str = include_str!("../../../shaders/engine/diffuse.wgsl");
     /// The normalisation stage.
-    pub const NORMALISE: &str = include_str!("../../../shaders/normalise.wgsl");
+    pub const NORMALISE: &str = include_str!("../../../shaders/engine/normalise.wgsl");
     /// The resamplers.
-    pub const RESAMPLE: &str = include_str!("../../../shaders/resample.wgsl");
+    pub const RESAMPLE: &str = include_str!("../../../shaders/engine/resample.wgsl");
     /// The gather stage.
-    pub const GATHER: &str = include_str!("../../../shaders/gather.wgsl");
+    pub const GATHER: &str = include_str!("../../../shaders/engine/gather.wgsl");
     /// The estimates.
-    pub const ESTIMATE: &str = include_str!("../../../shaders/estimate.wgsl");
+    pub const ESTIMATE: &str = include_str!("../../../shaders/engine/estimate.wgsl");
     /// The hand-written toy likelihood.
-    pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/toy_likelihood.wgsl");
+    pub const TOY_LIKELIHOOD: &str = include_str!("../../../shaders/engine/toy_likelihood.wgsl");
     /// Philox blocks and Gaussian draws for the bit-exact tests.
-    pub const RANDOM: &str = include_str!("../../../shaders/random.wgsl");
-    /// The body paper's capsule likelihood (paper layout and fast kernel).
-    pub const CAPSULE_LIKELIHOOD: &str = include_str!("../../../shaders/capsule_likelihood.wgsl");
-    /// The body's forward kinematics and log-likelihood.
-    pub const BODY_KINEMATICS: &str = include_str!("../../../shaders/body_kinematics.wgsl");
-    /// The face likelihood.
-    pub const FACE_LIKELIHOOD: &str = include_str!("../../../shaders/face_likelihood.wgsl");
-    /// The Viola–Jones detector (its launcher is `face_tracker::detect::gpu`).
-    pub const HAAR_CASCADE: &str = include_str!("../../../shaders/haar_cascade.wgsl");
+    pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 7] = [
+    pub const STAGES: [(&str, &str); 6] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
-        ("face_likelihood.wgsl", FACE_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
         ("resample.wgsl", RESAMPLE),
@@ -87,15 +80,10 @@ pub fn wgsl_struct_layout(source: &str, name: &str) -> Result<(u32, Vec<(String,
     Ok((layouter[handle].size, fields))
 }
 
-/// Test helper: the Rust mirror of a WGSL struct has its size, and each WGSL member (padding
-/// aside) sits at the offset of the Rust field of the same name (`fields`: name, `offset_of!`).
-#[cfg(test)]
-pub(crate) fn assert_mirrors_wgsl(
-    source: &str,
-    name: &str,
-    rust_size: usize,
-    fields: &[(&str, usize)],
-) {
+/// Test helper (for the engine's and the trackers' tests): the Rust mirror of a WGSL struct has
+/// its size, and each WGSL member (padding aside) sits at the offset of the Rust field of the same
+/// name (`fields`: name, `offset_of!`). Panics, naming the member, when it does not.
+pub fn assert_mirrors_wgsl(source: &str, name: &str, rust_size: usize, fields: &[(&str, usize)]) {
     let (size, members) = wgsl_struct_layout(source, name).unwrap();
     assert_eq!(
         size as usize, rust_size,
@@ -210,7 +198,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_stage_kernel_parses_and_validates() {
+    fn every_engine_stage_parses_and_validates() {
         for (file, stage) in sources::STAGES {
             if let Err(message) = validate_wgsl(&stage_source(stage)) {
                 panic!("{file}:\n{message}");
@@ -220,151 +208,6 @@ mod tests {
         if let Err(message) = validate_wgsl(&random) {
             panic!("random.wgsl:\n{message}");
         }
-        if let Err(message) = validate_wgsl(sources::CAPSULE_LIKELIHOOD) {
-            panic!("capsule_likelihood.wgsl:\n{message}");
-        }
-        if let Err(message) = validate_wgsl(sources::BODY_KINEMATICS) {
-            panic!("body_kinematics.wgsl:\n{message}");
-        }
-        if let Err(message) = validate_wgsl(sources::HAAR_CASCADE) {
-            panic!("haar_cascade.wgsl:\n{message}");
-        }
-    }
-
-    #[test]
-    fn every_wgsl_file_in_shaders_is_covered() {
-        // A new shader file must be added to the validated list (and to ARCHITECTURE.md).
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shaders");
-        let mut on_disk: Vec<String> = std::fs::read_dir(&dir)
-            .unwrap()
-            .filter_map(|e| e.ok())
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|n| n.ends_with(".wgsl"))
-            .collect();
-        on_disk.sort();
-        let mut known: Vec<String> = sources::STAGES.iter().map(|(f, _)| f.to_string()).collect();
-        known.extend(
-            [
-                "philox.wgsl",
-                "common.wgsl",
-                "random.wgsl",
-                "capsule_likelihood.wgsl",
-                "body_kinematics.wgsl",
-                "haar_cascade.wgsl",
-            ]
-            .map(String::from),
-        );
-        known.sort();
-        assert_eq!(on_disk, known);
-    }
-
-    /// Every shader file with the libraries it is compiled with.
-    fn every_module() -> Vec<(&'static str, String)> {
-        let mut modules: Vec<(&str, String)> = sources::STAGES
-            .iter()
-            .map(|(file, stage)| (*file, stage_source(stage)))
-            .collect();
-        modules.push(("random.wgsl", [sources::PHILOX, sources::RANDOM].join("\n")));
-        modules.push((
-            "capsule_likelihood.wgsl",
-            sources::CAPSULE_LIKELIHOOD.into(),
-        ));
-        modules.push(("body_kinematics.wgsl", sources::BODY_KINEMATICS.into()));
-        modules.push(("haar_cascade.wgsl", sources::HAAR_CASCADE.into()));
-        modules
-    }
-
-    #[test]
-    fn architecture_kernel_table_names_every_entry_point() {
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../ARCHITECTURE.md");
-        let doc = std::fs::read_to_string(&path).unwrap();
-        let table = doc
-            .split("## Kernels")
-            .nth(1)
-            .and_then(|s| s.split("\n## ").next())
-            .expect("ARCHITECTURE.md has a Kernels section");
-        let mut missing = Vec::new();
-        for (file, source) in every_module() {
-            let module = wgpu::naga::front::wgsl::parse_str(&source).unwrap();
-            for entry in &module.entry_points {
-                let named = table.lines().any(|l| {
-                    l.starts_with(&format!("| `{file}`"))
-                        && l.contains(&format!("`{}`", entry.name))
-                });
-                if !named {
-                    missing.push(format!("{file}: {}", entry.name));
-                }
-            }
-        }
-        assert!(
-            missing.is_empty(),
-            "ARCHITECTURE.md's kernel table lacks {missing:?}"
-        );
-    }
-
-    /// The Rust items a shader's comments name (`pf_core::batch::diffuse`, `a::{b, c}`): the
-    /// last segment of each path.
-    fn named_items(comment: &str) -> Vec<String> {
-        let mut names = Vec::new();
-        for start in ["pf_core::", "pf_gpu::", "body_tracker::", "face_tracker::"] {
-            for (at, _) in comment.match_indices(start) {
-                let rest = &comment[at..];
-                let end = rest
-                    .find(|c: char| !(c.is_alphanumeric() || c == '_' || c == ':'))
-                    .unwrap_or(rest.len());
-                let path = rest[..end].trim_end_matches(':');
-                if rest[end..].starts_with('{') && path.len() < end {
-                    let group = &rest[end + 1..rest.find('}').unwrap_or(rest.len())];
-                    names.extend(group.split(',').map(|n| n.trim().to_string()));
-                } else if let Some(last) = path.rsplit("::").next() {
-                    names.push(last.to_string());
-                }
-            }
-        }
-        names
-    }
-
-    #[test]
-    fn every_rust_item_a_shader_names_exists() {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-        let mut code = String::new();
-        let mut files = Vec::new();
-        for krate in ["pf-core", "pf-gpu", "body-tracker", "face-tracker"] {
-            let mut stack = vec![root.join("crates").join(krate).join("src")];
-            while let Some(dir) = stack.pop() {
-                for entry in std::fs::read_dir(&dir).unwrap().flatten() {
-                    let path = entry.path();
-                    if path.is_dir() {
-                        stack.push(path);
-                    } else {
-                        files.push(path.file_stem().unwrap().to_string_lossy().into_owned());
-                        code.push_str(&std::fs::read_to_string(&path).unwrap());
-                    }
-                }
-            }
-        }
-        let mut missing = Vec::new();
-        for entry in std::fs::read_dir(root.join("shaders")).unwrap().flatten() {
-            let source = std::fs::read_to_string(entry.path()).unwrap();
-            let comments: String = source
-                .lines()
-                .filter_map(|l| l.trim_start().strip_prefix("//"))
-                .collect::<Vec<_>>()
-                .join(" ");
-            for name in named_items(&comments) {
-                let defined = ["fn ", "struct ", "enum ", "trait ", "mod ", "type "]
-                    .iter()
-                    .any(|kind| code.contains(&format!("{kind}{name}")))
-                    || files.contains(&name);
-                if !defined {
-                    missing.push(format!("{}: {name}", entry.file_name().to_string_lossy()));
-                }
-            }
-        }
-        assert!(
-            missing.is_empty(),
-            "shader comments name items that do not exist: {missing:?}"
-        );
     }
 
     #[test]

@@ -4,8 +4,10 @@
 //! The runtime that runs a whole filter step on the GPU for many targets at once: adapter choice
 //! ([`list_adapters`], [`GpuContext`] with the adapter's real limits), typed device streams, WGSL
 //! kernels from `shaders/`, the generic stages (diffuse, normalise, estimate, resample; [`filter`])
-//! each with a CPU twin in `pf-core`, and the launchers of the trackers' likelihoods over plain
-//! layouts ([`capsules`], [`body`], [`faces`]).
+//! each with a CPU twin in `pf-core`, and the seam a model's likelihood plugs into
+//! ([`GpuLikelihood`], or WGSL through [`model`]). The trackers' kernels are launched from their
+//! own crates (`face_tracker::likelihood::gpu`, `body_tracker::likelihood::gpu`, …) through the
+//! same [`Kernel`] and streams.
 //!
 //! Adapter choice honours `WGPU_BACKEND` and `WGPU_ADAPTER_NAME`.
 
@@ -14,11 +16,8 @@ pub mod error;
 
 pub use adapters::{AdapterSummary, list_adapters};
 pub use error::{GpuError, NO_ADAPTER_HELP};
-pub mod body;
-pub mod capsules;
 pub mod context;
 pub mod engine;
-pub mod faces;
 pub mod filter;
 pub mod kernels;
 pub mod model;

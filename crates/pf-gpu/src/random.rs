@@ -1,4 +1,4 @@
-//! Counter-based random numbers on the GPU (`shaders/random.wgsl`): raw Philox4x32-10 blocks and
+//! Counter-based random numbers on the GPU (`shaders/engine/random.wgsl`): raw Philox4x32-10 blocks and
 //! Gaussian draws. The filter stages compute the same numbers inline; this launcher exists so that
 //! the generator can be checked against its CPU twin bit for bit.
 

@@ -1,5 +1,5 @@
-//! The detector on the GPU: the launcher of `shaders/haar_cascade.wgsl`, whose CPU twin is
-//! [`Cascade::window_hits`] (`scan` and `run_at` in this module's parent).
+//! The detector on the GPU: the launcher of `shaders/face/detect.wgsl` ([`super::SHADER`]), whose
+//! CPU twin is [`Cascade::window_hits`] (`scan` and `run_at` in this module's parent).
 //!
 //! The host shrinks the frame to the pyramid's levels (the CPU detector's own bilinear resize,
 //! so both see the same pixels) and uploads them, 8-bit, four to a word; one submission then
@@ -24,7 +24,7 @@ use super::{Cascade, DetectConfig, Detection, PyramidLevel, group, resize_into};
 use crate::error::FaceError;
 use crate::image::GrayImage;
 
-use pf_gpu::kernels::sources::HAAR_CASCADE as SOURCE;
+use super::SHADER as SOURCE;
 
 /// Invocations per workgroup of every pass (`@workgroup_size` in the shader).
 const WORKGROUP: u32 = 64;

@@ -21,6 +21,10 @@ use compiled::{CompiledCascade, LevelFeatures};
 pub use detector::FaceDetector;
 pub use gpu::GpuCascade;
 
+/// The WGSL of the Viola–Jones detector, launched by [`gpu::GpuCascade`]; [`Cascade::window_hits`]
+/// is its CPU twin.
+pub const SHADER: &str = include_str!("../../../../shaders/face/detect.wgsl");
+
 use crate::error::FaceError;
 use crate::image::GrayImage;
 
@@ -498,6 +502,9 @@ mod tests {
             assert_eq!(name.parse::<DetectorPlacement>().ok(), Some(placement));
         }
         let err = "tpu".parse::<DetectorPlacement>().unwrap_err().to_string();
-        assert!(err.contains("detector must be") && err.contains("tpu"), "{err}");
+        assert!(
+            err.contains("detector must be") && err.contains("tpu"),
+            "{err}"
+        );
     }
 }

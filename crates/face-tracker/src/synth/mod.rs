@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 use crate::model::FaceModel;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
 

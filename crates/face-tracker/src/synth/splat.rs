@@ -5,7 +5,7 @@
 use rayon::prelude::*;
 
 use super::{FaceSynthConfig, HEIGHT_RATIO};
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 use crate::projection::{DIMS, Pose};
 
 /// Rows per band of the renderer's parallel depth test.

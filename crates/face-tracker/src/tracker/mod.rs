@@ -9,26 +9,28 @@
 //! (eq. 14). A track ends when the estimate's ε stays above a threshold for n frames in a row, or
 //! when the face's centre leaves the frame; its slot is then free for a new face.
 
+use crate::likelihood::gpu::FaceDispatch;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, Motion};
-use pf_gpu::faces::FaceDispatch;
 use pf_gpu::{GpuContext, GpuTime};
 
 use crate::error::FaceError;
 use crate::extraction::{ExtractionConfig, FaceRect};
 use crate::image::GrayImage;
-use crate::in_flight::FrameInFlight;
-use crate::likelihood::Lens;
+use crate::lens::Lens;
 use crate::model::FaceModel;
 use crate::personal::Personaliser;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
-use crate::shards::ShardStep;
-use crate::shards::{FrameRef, Shard, joined_particles, shard_sizes, step_all};
 use crate::template::Template;
+use in_flight::FrameInFlight;
+use shards::ShardStep;
+use shards::{FrameRef, Shard, joined_particles, shard_sizes, step_all};
 use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::AtomicUsize;
 
+pub mod in_flight;
+pub mod shards;
 mod start;
 use start::RECENT_ESTIMATES;
 pub use start::Restart;
@@ -41,7 +43,7 @@ pub enum FaceBackend {
     Cpu,
     Gpu(Box<GpuContext>),
     /// The slots split over several GPUs, each running the whole step for its share
-    /// ([`crate::shards`]).
+    /// ([`shards`]).
     Gpus(Vec<GpuContext>),
 }
 
@@ -178,7 +180,7 @@ pub struct FaceTracker {
     pub(crate) shards: Vec<Shard>,
     /// The last step's GPU time (GPU engines only; the longest of the GPUs').
     last_time: Option<GpuTime>,
-    /// Frames submitted and not yet finished, oldest first ([`crate::in_flight`]).
+    /// Frames submitted and not yet finished, oldest first ([`in_flight`]).
     pub(crate) in_flight: VecDeque<FrameInFlight>,
 }
 

@@ -11,9 +11,9 @@
 use anyhow::Context;
 use body_tracker::Capsule;
 use body_tracker::benchmark_scene::{perturbed_samples, raster_cloud};
+use body_tracker::likelihood::gpu::{CapsuleKernel, CapsuleLikelihoodGpu};
 use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2, parallel_over_samples};
 use pf_gpu::GpuContext;
-use pf_gpu::capsules::{CapsuleKernel, CapsuleLikelihoodGpu};
 
 use super::{Run, cores};
 use crate::paper;

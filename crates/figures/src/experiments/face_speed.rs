@@ -5,13 +5,13 @@
 
 use anyhow::Context;
 use face_tracker::extraction::{FaceRect, extract_template};
+use face_tracker::likelihood::gpu::{FaceDispatch, FaceLikelihoodGpu};
 use face_tracker::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, weigh_parallel, weigh_single_thread};
 use face_tracker::model::FaceModel;
 use face_tracker::projection::DIMS;
 use face_tracker::synth::{FaceSynthConfig, face_state, initial_rect, render_frame};
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
-use pf_gpu::faces::{FaceDispatch, FaceLikelihoodGpu};
 use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 
 use super::{Run, cores, one_thread};
@@ -170,7 +170,7 @@ fn gpu_weighting(
         1.0,
         MIN_ERROR,
         MIN_VISIBLE_SHARE,
-        pf_gpu::faces::Lens::WEAK,
+        face_tracker::likelihood::Lens::WEAK,
     )?;
     gpu.upload_frame(ctx, &frame.data)?;
     gpu.upload_template(ctx, 0, &template.gpu_layout())?;

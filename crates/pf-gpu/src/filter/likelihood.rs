@@ -13,7 +13,7 @@ use pf_core::batch::BatchShape;
 pub struct LikelihoodInputs<'a> {
     /// Targets × particles × dimensions.
     pub shape: BatchShape,
-    /// The frame parameters (uniform buffer, `Params` of `shaders/common.wgsl`).
+    /// The frame parameters (uniform buffer, `Params` of `shaders/engine/common.wgsl`).
     pub params: &'a wgpu::Buffer,
     /// States, `[(t·D + d)·M + m]`, already diffused when the likelihood runs.
     pub states: &'a DeviceStream<f32>,

@@ -1,10 +1,10 @@
-//! The plain `#[repr(C)]` mirrors of `shaders/common.wgsl`'s `Params` and `TargetStats`,
+//! The plain `#[repr(C)]` mirrors of `shaders/engine/common.wgsl`'s `Params` and `TargetStats`,
 //! checked field by field against naga's layout of their WGSL twins.
 
 use bytemuck::{Pod, Zeroable};
 use pf_core::PfError;
 
-/// The per-frame parameters, `Params` in `shaders/common.wgsl`.
+/// The per-frame parameters, `Params` in `shaders/engine/common.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 pub struct FrameParams {
@@ -42,7 +42,7 @@ pub struct FrameParams {
     pub layer: u32,
 }
 
-/// Per-target results, `TargetStats` in `shaders/common.wgsl`.
+/// Per-target results, `TargetStats` in `shaders/engine/common.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Default, Pod, Zeroable)]
 pub struct TargetStats {

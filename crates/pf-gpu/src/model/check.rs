@@ -19,6 +19,13 @@ pub const RELATIVE_TOLERANCE: f64 = 1e-4;
 /// Absolute tolerance near zero.
 pub const ABSOLUTE_TOLERANCE: f64 = 1e-5;
 
+/// How far a GPU value may be from its CPU twin `cpu` before anything else a test allows for
+/// (the project's tolerance policy: [`RELATIVE_TOLERANCE`] of the value, or [`ABSOLUTE_TOLERANCE`]
+/// near zero). A test that bounds a sum adds what its inputs' rounding can move it by.
+pub fn tolerance(cpu: f64) -> f64 {
+    (RELATIVE_TOLERANCE * cpu.abs()).max(ABSOLUTE_TOLERANCE)
+}
+
 /// Whether `gpu` agrees with `cpu` within the tolerance (NaN agrees only with NaN).
 pub fn agrees(gpu: f64, cpu: f64) -> bool {
     if gpu.is_nan() || cpu.is_nan() {
@@ -27,8 +34,7 @@ pub fn agrees(gpu: f64, cpu: f64) -> bool {
     if gpu.is_infinite() || cpu.is_infinite() {
         return gpu == cpu;
     }
-    let diff = (gpu - cpu).abs();
-    diff <= ABSOLUTE_TOLERANCE || diff <= RELATIVE_TOLERANCE * cpu.abs()
+    (gpu - cpu).abs() <= tolerance(cpu)
 }
 
 /// One value that disagrees.

@@ -20,7 +20,7 @@
 //! Names the engine declares, not to be reused: `params`, `states`, `log_likelihood_out`,
 //! `observations`, `constants`, `diffusion_keys`, `load_state`, `model_measure`,
 //! `model_propagate`, `State`, `DIMS`, `Params`, `TargetStats`, and the helpers of
-//! `shaders/common.wgsl` and `shaders/philox.wgsl`.
+//! `shaders/engine/common.wgsl` and `shaders/engine/philox.wgsl`.
 //!
 //! [`ModelFilter`] is a [`GpuFilter`] built with its model (prepared once, never stale);
 //! [`check_against_cpu`] checks a model against its CPU twin ([`pf_core::plugin::CpuModel`]).
@@ -29,7 +29,7 @@ mod check;
 
 pub use check::{
     ABSOLUTE_TOLERANCE, CheckInputs, Mismatch, ModelCheck, RELATIVE_TOLERANCE, agrees,
-    check_against_cpu,
+    check_against_cpu, tolerance,
 };
 
 use std::marker::PhantomData;

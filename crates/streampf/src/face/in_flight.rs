@@ -2,13 +2,13 @@
 //! frame t and writes its results. Used where nothing between two frames needs the filters:
 //! faces from rectangles (no detector starting or restarting tracks), no particles read back
 //! (`--save-particles`, `--rerun`), a GPU backend. The results are those of one frame at a
-//! time, bit for bit ([`face_tracker::in_flight`]).
+//! time, bit for bit ([`face_tracker::tracker::in_flight`]).
 
 use std::collections::VecDeque;
 use std::time::Instant;
 
 use anyhow::Context;
-use face_tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
+use face_tracker::tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::{FaceTracker, GrayImage};
 
 use super::{FaceRun, Runner, TrackArgs};

@@ -16,6 +16,12 @@ use serde::{Deserialize, Serialize};
 use crate::capsule::Capsule;
 use crate::error::BodyError;
 
+pub mod gpu;
+
+/// The WGSL of the forward kinematics and the body's log-likelihood, launched by
+/// [`gpu::BodyLikelihoodGpu`]; [`Skeleton::capsules`] is the kinematics' CPU twin.
+pub const SHADER: &str = include_str!("../../../../shaders/body/skeleton.wgsl");
+
 /// A rotation axis of a joint.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -362,8 +368,8 @@ impl Skeleton {
         Ok(out)
     }
 
-    /// The bones in the layout of pf-gpu's kinematics kernel (`shaders/body_kinematics.wgsl`).
-    pub fn gpu_bones(&self) -> Vec<pf_gpu::body::GpuBone> {
+    /// The bones in the layout of the kinematics kernel (`shaders/body/skeleton.wgsl`).
+    pub fn gpu_bones(&self) -> Vec<gpu::GpuBone> {
         self.bones
             .iter()
             .enumerate()
@@ -377,11 +383,11 @@ impl Skeleton {
                     };
                     packed | (code << (2 * k))
                 });
-                pf_gpu::body::GpuBone {
+                gpu::GpuBone {
                     offset: bone.offset,
                     radius: bone.radius,
                     extent: [extent.x, extent.y, extent.z],
-                    parent: self.parents[i].map_or(pf_gpu::body::NO_PARENT, |p| p as u32),
+                    parent: self.parents[i].map_or(gpu::NO_PARENT, |p| p as u32),
                     joint: [bone.joint.len() as u32, self.first_angle[i] as u32, axes, 0],
                 }
             })

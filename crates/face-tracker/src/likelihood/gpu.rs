@@ -1,17 +1,20 @@
-//! The launcher of the face paper's sparse-template likelihood (`shaders/face_likelihood.wgsl`)
+//! The launcher of the face paper's sparse-template likelihood (`shaders/face/likelihood.wgsl`, [`super::SHADER`])
 //! over plain layouts: the frame as 8-bit gray levels (four to a `u32`, a quarter of the bytes an
 //! f32 frame would upload), and per face up to `max_points` feature
 //! points as two `[f32; 4]` each, (P, J) and (N, 0). It is a [`GpuLikelihood`]: inside the GPU
 //! filter it reads the particles where they are and writes log π = −sharpness·ln ε, and it keeps
-//! ε per particle for failure detection. CPU twin: `face_tracker::likelihood::residual_error`.
+//! ε per particle for failure detection. CPU twin: [`super::residual_error`], in this module's parent.
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::context::GpuContext;
-use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
-use crate::kernels::{Kernel, sources, stage_source};
-use crate::stream::DeviceStream;
+use pf_gpu::GpuContext;
+use pf_gpu::GpuError;
+use pf_gpu::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
+use pf_gpu::kernels::{Kernel, stage_source};
+use pf_gpu::stream::DeviceStream;
+use pf_gpu::wgpu;
+
+use crate::lens::Lens;
 
 /// How the faces of a frame are dispatched.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -24,106 +27,6 @@ pub enum FaceDispatch {
     /// Four particles per workgroup, 64 invocations each looping over the points, every face in
     /// one dispatch: the tracker's choice.
     Packed,
-}
-
-/// The camera a face is seen through: weak perspective (the face paper's: a point's image is
-/// S·R₂ₓ₃·P + T whatever its depth), or a pinhole whose focal length is f pixels, the principal
-/// point at `principal`. Through a pinhole a point lying d pixels nearer the camera than the
-/// face's centre is magnified f/(f − d) about the principal point: at a webcam's range the
-/// side of a face that turns towards the camera grows and moves out, which weak perspective reads
-/// as a larger turn. `through_lens` in `shaders/face_likelihood.wgsl` is the GPU's copy of
-/// [`Lens::apply`].
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Lens {
-    /// 1/f (0: weak perspective).
-    pub inverse_focal: f32,
-    /// Where the camera's axis meets the frame (pixels).
-    pub principal: [f32; 2],
-}
-
-impl Lens {
-    /// Weak perspective: images are not magnified by depth.
-    pub const WEAK: Lens = Lens {
-        inverse_focal: 0.0,
-        principal: [0.0, 0.0],
-    };
-
-    /// A pinhole of focal length `focal` pixels whose principal point is the middle of a
-    /// `width × height` frame.
-    pub fn pinhole(focal: f32, width: u32, height: u32) -> Result<Self, GpuError> {
-        if !(focal.is_finite() && focal > 0.0) {
-            return Err(GpuError::InvalidConfig(format!(
-                "a focal length must be finite and positive (pixels), got {focal}"
-            )));
-        }
-        Ok(Self {
-            inverse_focal: 1.0 / focal,
-            principal: [
-                (width.max(1) - 1) as f32 / 2.0,
-                (height.max(1) - 1) as f32 / 2.0,
-            ],
-        })
-    }
-
-    /// The horizontal fields of view, in degrees, that [`Self::focal_length_for`] takes.
-    pub const FIELD_OF_VIEW: std::ops::RangeInclusive<f32> = 1.0..=170.0;
-
-    /// The focal length in pixels of a camera whose `width`-pixel frames span `fov` degrees
-    /// across; an error outside [`Self::FIELD_OF_VIEW`].
-    pub fn focal_length_for(fov: f32, width: u32) -> Result<f32, GpuError> {
-        if !Self::FIELD_OF_VIEW.contains(&fov) {
-            return Err(GpuError::InvalidConfig(format!(
-                "a field of view is {} to {} degrees, got {fov}",
-                Self::FIELD_OF_VIEW.start(),
-                Self::FIELD_OF_VIEW.end()
-            )));
-        }
-        Ok(width as f32 / 2.0 / (fov.to_radians() / 2.0).tan())
-    }
-
-    /// Whether this is weak perspective (no focal length).
-    pub fn is_weak(&self) -> bool {
-        self.inverse_focal == 0.0
-    }
-
-    /// Where a point is seen whose weak-perspective image is `weak` (S·R₂ₓ₃·P + T) and which
-    /// lies `depth` pixels nearer the camera than the face's centre (S·(R·P)_z): `weak` itself
-    /// through weak perspective, else magnified f/(f − depth) about the principal point. `None`
-    /// for a point at or behind the camera's centre (within [`Self::MIN_DISTANCE_SHARE`] of f).
-    #[inline]
-    pub fn apply(&self, weak: [f32; 2], depth: f32) -> Option<[f32; 2]> {
-        if self.is_weak() {
-            return Some(weak);
-        }
-        let distance = 1.0 - depth * self.inverse_focal;
-        #[allow(clippy::neg_cmp_op_on_partial_ord)]
-        if !(distance > Self::MIN_DISTANCE_SHARE) {
-            return None;
-        }
-        let [px, py] = self.principal;
-        Some([
-            px + (weak[0] - px) / distance,
-            py + (weak[1] - py) / distance,
-        ])
-    }
-
-    /// The inverse of [`Self::apply`] at a known depth: the weak-perspective image of a point
-    /// seen at `image` that lies `depth` nearer the camera than the face's centre.
-    pub fn unapply(&self, image: [f32; 2], depth: f32) -> [f32; 2] {
-        if self.is_weak() {
-            return image;
-        }
-        let distance = 1.0 - depth * self.inverse_focal;
-        let [px, py] = self.principal;
-        [
-            px + (image[0] - px) * distance,
-            py + (image[1] - py) * distance,
-        ]
-    }
-
-    /// A point nearer the camera than 1 − this share of the focal length (of the face's
-    /// distance, in the focal length's units) is not imaged: it is at or behind the camera.
-    pub const MIN_DISTANCE_SHARE: f32 = 0.05;
 }
 
 /// Particles per workgroup of the packed kernel (`PACKED` in the shader).
@@ -228,16 +131,11 @@ impl FaceLikelihoodGpu {
             FaceDispatch::Packed => "weigh_faces_packed",
             _ => "weigh_faces",
         };
-        let kernel = Kernel::new(
-            ctx,
-            "face likelihood",
-            &stage_source(sources::FACE_LIKELIHOOD),
-            entry,
-        )?;
+        let kernel = Kernel::new(ctx, "face likelihood", &stage_source(super::SHADER), entry)?;
         let estimate_kernel = Kernel::new(
             ctx,
             "face estimate check",
-            &stage_source(sources::FACE_LIKELIHOOD),
+            &stage_source(super::SHADER),
             "weigh_estimates",
         )?;
         let offsets: Vec<u32> = match dispatch {
@@ -260,7 +158,7 @@ impl FaceLikelihoodGpu {
                     principal_y: lens.principal[1],
                     _pad: [0; 2],
                 };
-                crate::stream::uniform_buffer(ctx, "face likelihood params", &value)
+                pf_gpu::stream::uniform_buffer(ctx, "face likelihood params", &value)
             })
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
@@ -448,7 +346,7 @@ mod layout_tests {
     use std::mem::{offset_of, size_of};
 
     use super::FaceParams;
-    use crate::kernels::{assert_mirrors_wgsl, sources, stage_source};
+    use pf_gpu::kernels::{assert_mirrors_wgsl, stage_source};
 
     #[test]
     fn face_params_mirror_their_wgsl_layout() {
@@ -456,7 +354,7 @@ mod layout_tests {
             ($t:ty: $($f:ident),*) => { [$((stringify!($f), offset_of!($t, $f))),*] };
         }
         assert_mirrors_wgsl(
-            &stage_source(sources::FACE_LIKELIHOOD),
+            &stage_source(crate::likelihood::SHADER),
             "FaceParams",
             size_of::<FaceParams>(),
             &fields!(FaceParams: width, height, max_points, face_offset, sharpness, min_error,

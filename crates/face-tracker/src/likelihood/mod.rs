@@ -19,8 +19,13 @@ use rayon::prelude::*;
 
 #[cfg(target_arch = "x86_64")]
 mod gather;
+pub mod gpu;
 
-pub use pf_gpu::faces::Lens;
+pub use crate::lens::Lens;
+
+/// The WGSL of the face likelihood, launched by [`gpu::FaceLikelihoodGpu`]; this module's
+/// functions are its CPU twin.
+pub const SHADER: &str = include_str!("../../../../shaders/face/likelihood.wgsl");
 
 use crate::image::GrayImage;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};

@@ -2,16 +2,17 @@
 //! the piece the tracker runs once, or once per island with several GPUs. A frame reaches it
 //! prepared ([`crate::frame`]); on a GPU only the rays are uploaded.
 
+use crate::skeleton::gpu::{BodyLikelihoodConfig, BodyLikelihoodGpu};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
-use pf_gpu::body::{BodyLikelihoodConfig, BodyLikelihoodGpu};
+use pf_core::random::part_seed;
 use pf_gpu::engine::{EngineReport, FilterEngine};
 use pf_gpu::{GpuContext, NoLikelihood, PendingStep};
 use rayon::prelude::*;
 
+use super::TrackerConfig;
 use crate::error::BodyError;
 use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
-use crate::tracker::TrackerConfig;
 
 /// How the particles are weighed, beside the filter's engine.
 pub(crate) enum Measure {
@@ -45,7 +46,7 @@ pub struct FilterStep {
 pub(crate) struct Frame<'a> {
     pub(crate) rays: &'a Rays,
     /// The rays as the GPU likelihood uploads them (`None` on the CPU engine).
-    pub(crate) gpu_rays: Option<&'a pf_gpu::capsules::PreparedRays>,
+    pub(crate) gpu_rays: Option<&'a crate::likelihood::gpu::PreparedRays>,
     pub(crate) params: CapsuleLikelihoodParams,
     /// σ scaled to the frame's number of points.
     pub(crate) sigma: f32,
@@ -141,6 +142,11 @@ impl Filter {
     }
 }
 
+/// Island `island`'s seed: island 0 keeps the tracker's (so one island is the one-GPU filter).
+pub(crate) fn island_seed(seed: u64, island: usize) -> u64 {
+    part_seed(seed, island)
+}
+
 /// One filter of `config.particles` samples around `initial_pose`, on the CPU (`ctx` `None`) or
 /// a GPU; island `island` draws its own random numbers (island 0 those of a lone filter).
 pub(crate) fn new_filter(
@@ -151,7 +157,7 @@ pub(crate) fn new_filter(
     island: usize,
 ) -> Result<Filter, BodyError> {
     let dims = skeleton.dofs();
-    let seed = crate::islands::island_seed(config.seed, island);
+    let seed = island_seed(config.seed, island);
     let shape = BatchShape::new(1, config.particles, dims)?;
     let mut sigma = vec![config.joint_sigma; dims];
     sigma[..3].fill(config.translation_sigma);
@@ -172,7 +178,7 @@ pub(crate) fn new_filter(
         ess_threshold: f64::INFINITY,
         best: 0,
         annealing: if config.partitioned {
-            crate::tracker::partitioned_schedule(skeleton, &config.annealing)?
+            super::partitioned_schedule(skeleton, &config.annealing)?
         } else {
             config.annealing.clone()
         },

@@ -1,7 +1,8 @@
 // Forward kinematics of an articulated skeleton on the GPU, so that a tracking frame uploads only
 // its points: the pose samples already live on the GPU (the filter's state buffer), and this
-// kernel turns each into its capsules for capsule_likelihood.wgsl. A second entry turns the
-// likelihood's sums into log-likelihoods. CPU twin: body_tracker::Skeleton::capsules.
+// kernel turns each into its capsules for body/likelihood.wgsl. A second entry turns the
+// likelihood's sums into log-likelihoods. CPU twin: body_tracker::Skeleton::capsules. Launcher:
+// body_tracker::skeleton::gpu::BodyLikelihoodGpu.
 //
 // Conventions (body_tracker::skeleton): the root's frame is origin (t0, t1, t2) and rotation
 // Rz(t5) Ry(t4) Rx(t3); a child's origin is o_parent + R_parent offset and its rotation

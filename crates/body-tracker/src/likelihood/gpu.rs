@@ -1,15 +1,19 @@
-//! The launcher of the body paper's ray-cast capsule likelihood (`shaders/capsule_likelihood.wgsl`)
-//! over plain layouts: rays `[dir.x, dir.y, dir.z, depth]` and, per sample, per capsule, two
+//! The launcher of the body paper's ray-cast capsule likelihood (`shaders/body/likelihood.wgsl`,
+//! [`SHADER`]) over plain layouts: rays `[dir.x, dir.y, dir.z, depth]` and, per sample, per capsule, two
 //! `[f32; 4]`: `[a.x, a.y, a.z, r]`, `[b.x, b.y, b.z, 0]`. It returns M_j = Σ_i (min_k d_ik)² per
-//! sample. CPU twin: `body_tracker::likelihood::listing_1_2`.
+//! sample. CPU twin: [`super::listing_1_2`] (and [`super::culled_sum_of_squared_distances`],
+//! the fast kernel's culling), in this module's parent.
 
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 
-use crate::context::GpuContext;
-use crate::error::GpuError;
-use crate::kernels::{Kernel, sources};
-use crate::stream::{DeviceStream, Readback};
+use pf_gpu::GpuContext;
+use pf_gpu::GpuError;
+use pf_gpu::kernels::Kernel;
+use pf_gpu::stream::{DeviceStream, Readback};
+use pf_gpu::wgpu;
+
+pub use super::SHADER;
 
 /// Points per workgroup tile of the paper's layout (`TILE` in the shader).
 const TILE: usize = 256;
@@ -130,7 +134,7 @@ struct ChunkStreams<'a> {
 }
 
 /// One dispatch chunk of `count` samples (at most the adapter's grid): its parameter buffer and
-/// a bind group per kernel, by the `@binding` numbers of `capsule_likelihood.wgsl`.
+/// a bind group per kernel, by the `@binding` numbers of `shaders/body/likelihood.wgsl`.
 fn chunk(
     ctx: &GpuContext,
     kernels: &[Kernel],
@@ -138,7 +142,7 @@ fn chunk(
     count: usize,
     s: &ChunkStreams<'_>,
 ) -> Result<Chunk, GpuError> {
-    let buffer = crate::stream::uniform_buffer(ctx, "capsule likelihood params", params)?;
+    let buffer = pf_gpu::stream::uniform_buffer(ctx, "capsule likelihood params", params)?;
     let groups = kernels
         .iter()
         .map(|k| {
@@ -204,7 +208,7 @@ impl CapsuleLikelihoodGpu {
         };
         let kernels = entries
             .iter()
-            .map(|e| Kernel::new(ctx, e, sources::CAPSULE_LIKELIHOOD, e))
+            .map(|e| Kernel::new(ctx, e, SHADER, e))
             .collect::<Result<Vec<_>, _>>()?;
         let streams = ChunkStreams {
             rays: &rays,
@@ -515,8 +519,8 @@ mod tests {
             ("origin", offset_of!(CapsuleParams, origin)),
             ("tau", offset_of!(CapsuleParams, tau)),
         ];
-        crate::kernels::assert_mirrors_wgsl(
-            crate::kernels::sources::CAPSULE_LIKELIHOOD,
+        pf_gpu::kernels::assert_mirrors_wgsl(
+            super::SHADER,
             "CapsuleParams",
             size_of::<CapsuleParams>(),
             &fields,

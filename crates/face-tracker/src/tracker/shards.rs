@@ -7,13 +7,14 @@
 //! host only puts their estimates side by side in slot order. Each shard draws its own random
 //! numbers (shard 0 those of a one-engine tracker).
 
+use crate::likelihood::gpu::FaceLikelihoodGpu;
 use pf_core::batch::{BatchConfig, BatchShape};
 use pf_core::random::part_seed;
 use pf_gpu::engine::{EngineReport, FilterEngine};
-use pf_gpu::faces::FaceLikelihoodGpu;
 use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood, PendingStep};
 use rayon::prelude::*;
 
+use super::FaceTrackerConfig;
 use crate::error::FaceError;
 use crate::image::GrayImage;
 use crate::likelihood::{
@@ -22,7 +23,6 @@ use crate::likelihood::{
 };
 use crate::projection::DIMS;
 use crate::template::Template;
-use crate::tracker::FaceTrackerConfig;
 
 /// A share of the slots on one engine.
 pub(crate) struct Shard {

@@ -5,11 +5,12 @@
 // y is the face: one dispatch weighs every face of a frame (the batched form), or one dispatch
 // per face with `face_offset` (the paper's form). CPU twin:
 // face_tracker::likelihood::residual_error_through (residual_error through weak perspective).
+// Launcher: face_tracker::likelihood::gpu::FaceLikelihoodGpu.
 //
 // Per point facing the camera ((R N)_z >= 0): p = S R2x3 P + (Tx, Ty) (weak perspective, the
 // paper's), or through a pinhole (inverse_focal = 1/f > 0) that point magnified by
 // 1 / (1 - S (R P)_z / f) about the principal point (through_lens; CPU twin
-// pf_gpu::faces::Lens::apply); a point at or behind the camera counts as outside the frame.
+// face_tracker::likelihood::Lens::apply); a point at or behind the camera counts as outside the frame.
 // I(p) bilinear, kappa =
 // (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1), computed as d^2 / (d^2 + J^2) with d =
 // alpha I(p) - J (the same value, one division); a point outside the frame has rho = 1.

@@ -1,6 +1,6 @@
 //! The ray-cast capsule likelihood (eq. 3 and 6 of the body paper) on the CPU: Listing 1.2's
 //! single-thread loop (the baseline every speed-up is quoted against) and a rayon version over
-//! samples. The GPU kernels in pf-gpu are tested against these.
+//! samples. The GPU kernels ([`gpu`], `shaders/body/likelihood.wgsl`) are tested against these.
 //!
 //! For a sample j with capsules C_j: M_j = Σ_i (min_k d_ik)², d from [`truncated_distance`], and
 //! log p(X | θ_j) = −M_j / (2σ²). Sums are accumulated in f64.
@@ -10,6 +10,12 @@ use rayon::prelude::*;
 
 use crate::capsule::{Capsule, ray_capsule, truncated_distance};
 use crate::error::BodyError;
+
+pub mod gpu;
+
+/// The WGSL of the capsule likelihood, launched by [`gpu::CapsuleLikelihoodGpu`]; this module's
+/// sums are its CPU twin.
+pub const SHADER: &str = include_str!("../../../../shaders/body/likelihood.wgsl");
 
 /// The rays of a stereo point cloud seen from one camera: per point, the unit direction from the
 /// camera origin and the distance Δ_i along it.

@@ -18,12 +18,12 @@
 //! Islands need nothing from each other within a frame.
 
 use pf_core::batch::{BatchShape, weighted_means, weighted_spreads};
-use pf_core::random::{CounterUniforms, part_seed};
+use pf_core::random::CounterUniforms;
 use pf_core::resample::{Resampler, Systematic};
 use pf_gpu::engine::FilterEngine;
 
+use super::filter::FilterStep;
 use crate::error::BodyError;
-use crate::filter::FilterStep;
 use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances_parallel};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
 
@@ -48,11 +48,6 @@ pub fn island_sizes(particles: usize, islands: usize) -> Result<Vec<usize>, Body
     Ok((0..islands)
         .map(|i| particles / islands + usize::from(i < particles % islands))
         .collect())
-}
-
-/// Island `island`'s seed: island 0 keeps the tracker's (so one island is the one-GPU filter).
-pub fn island_seed(seed: u64, island: usize) -> u64 {
-    part_seed(seed, island)
 }
 
 /// Which of a pose's values are angles (the root's rotations).
@@ -263,6 +258,7 @@ mod tests {
         assert_eq!(island_sizes(7, 3).unwrap(), vec![3, 2, 2]);
         assert!(island_sizes(3, 2).is_err());
         assert!(island_sizes(100, 0).is_err());
+        let island_seed = super::super::filter::island_seed;
         assert_eq!(island_seed(5, 0), 5);
         assert_ne!(island_seed(5, 1), island_seed(5, 2));
     }

@@ -13,10 +13,10 @@
 
 use pf_gpu::PendingStep;
 
+use super::shards::FrameRef;
+use super::{FaceEstimate, FaceTracker};
 use crate::error::FaceError;
 use crate::image::GrayImage;
-use crate::shards::FrameRef;
-use crate::tracker::{FaceEstimate, FaceTracker};
 
 /// The most frames in flight at once: the GPU filter has two sets of staging buffers.
 pub const MAX_FRAMES_IN_FLIGHT: usize = 2;

@@ -9,7 +9,7 @@
 //! - [`Backend::SplitGpus`]: an island of the samples on each GPU, each island the whole step of
 //!   its own filter on its GPU, all islands stepping at once; only their estimates meet on the
 //!   host, where they are combined and, every few frames, the islands exchange particles
-//!   ([`crate::islands`]).
+//!   ([`islands`]).
 //!
 //! Diffusion is a Gaussian random walk, clamped to the joint limits; the root's rotations are
 //! angles (wrapped, averaged on the circle). Each frame runs eight annealing layers by default
@@ -22,17 +22,21 @@ use pf_core::batch::{BatchShape, Motion};
 use pf_gpu::GpuContext;
 
 use crate::error::BodyError;
-pub use crate::filter::FilterStep;
-use crate::filter::{Filter, Frame, Measure, new_filter};
+
+mod filter;
+pub mod islands;
+
 use crate::frame::{FramePreparer, PreparedFrame};
 use crate::likelihood::{CapsuleLikelihoodParams, culled_sum_of_squared_distances_parallel};
 use crate::skeleton::Skeleton;
+pub use filter::FilterStep;
+use filter::{Filter, Frame, Measure, new_filter};
 
 /// Where the filter and the likelihood run.
 pub enum Backend {
     Cpu,
     Gpu(Box<GpuContext>),
-    /// One island filter per GPU ([`crate::islands`]); the samples are split among them.
+    /// One island filter per GPU ([`islands`]); the samples are split among them.
     SplitGpus(Vec<GpuContext>),
 }
 
@@ -92,7 +96,7 @@ pub struct TrackerConfig {
     /// diffuse only the trunk, the second half only the limbs ([`Skeleton::trunk_and_limbs`]).
     pub partitioned: bool,
     /// With islands ([`Backend::SplitGpus`]): every this many frames the islands exchange
-    /// particles ([`crate::islands::exchange`]); 0 never.
+    /// particles ([`islands::exchange`]); 0 never.
     pub island_exchange_every: u64,
 }
 
@@ -120,7 +124,7 @@ impl Default for TrackerConfig {
             // (3.4-3.7 cm at 160x120, 3.2-3.4 cm at 1024x768) at the same rate and took the
             // truth's coverage at ±2 reported sd from 52-61 % to 74-78 %.
             partitioned: true,
-            island_exchange_every: crate::islands::DEFAULT_EXCHANGE_EVERY,
+            island_exchange_every: islands::DEFAULT_EXCHANGE_EVERY,
         }
     }
 }
@@ -142,7 +146,7 @@ pub struct FrameResult {
     /// Points used (after thinning).
     pub points: usize,
     /// With islands ([`Backend::SplitGpus`]): each island's weight in the estimate (they sum to
-    /// 1; [`crate::islands::combine`]). Empty with one filter.
+    /// 1; [`islands::combine`]). Empty with one filter.
     pub island_weights: Vec<f64>,
 }
 
@@ -184,7 +188,7 @@ impl BodyTracker {
                 vec![new_filter(&skeleton, &config, initial_pose, Some(*ctx), 0)?]
             }
             Backend::SplitGpus(contexts) => {
-                let sizes = crate::islands::island_sizes(config.particles, contexts.len())?;
+                let sizes = islands::island_sizes(config.particles, contexts.len())?;
                 contexts
                     .into_iter()
                     .zip(sizes)
@@ -233,7 +237,7 @@ impl BodyTracker {
             .iter()
             .map(|f| f.engine.particles())
             .collect::<Result<Vec<_>, _>>()?;
-        crate::islands::joined_particles(&islands, &self.island_weights)
+        islands::joined_particles(&islands, &self.island_weights)
     }
 
     /// The last frame's own time on the GPU (the slowest island's with several; GPU timestamps
@@ -389,10 +393,10 @@ impl BodyTracker {
                 one.estimate_sum,
             )
         } else {
-            let combined = crate::islands::combine(&self.skeleton, rays, frame.params, &steps)?;
+            let combined = islands::combine(&self.skeleton, rays, frame.params, &steps)?;
             self.island_weights = combined.weights.clone();
-            if crate::islands::exchange_due(self.config.island_exchange_every, self.frames) {
-                crate::islands::exchange(
+            if islands::exchange_due(self.config.island_exchange_every, self.frames) {
+                islands::exchange(
                     &mut self
                         .filters
                         .iter_mut()

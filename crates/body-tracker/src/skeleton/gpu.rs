@@ -1,24 +1,27 @@
 //! The whole body likelihood on the GPU: forward kinematics from pose samples
-//! (`shaders/body_kinematics.wgsl`), then the fast capsule likelihood
-//! (`shaders/capsule_likelihood.wgsl`), then log-likelihoods (eq. 3). Inside the GPU filter the
+//! (`shaders/body/skeleton.wgsl`, [`super::SHADER`]), then the fast capsule likelihood
+//! (`shaders/body/likelihood.wgsl`, [`crate::likelihood::gpu`]), then log-likelihoods (eq. 3). Inside the GPU filter the
 //! poses are the filter's own state buffer, so a frame uploads only its rays; [`SplitBodyLikelihood`]
 //! spreads the samples of a host-held filter over several GPUs.
 //!
-//! The skeleton arrives as plain [`GpuBone`]s (body-tracker builds them); CPU twins:
-//! `body_tracker::Skeleton::capsules` and `body_tracker::likelihood::listing_1_2`.
+//! The skeleton arrives as plain [`GpuBone`]s ([`super::Skeleton::gpu_bones`] builds them); CPU
+//! twins: [`super::Skeleton::capsules`] and [`crate::likelihood::listing_1_2`].
 
 use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 
-use crate::capsules::{
+use crate::likelihood::gpu::{
     CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES, PreparedRays, prepare_rays,
 };
-use crate::context::GpuContext;
-use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
-use crate::kernels::{Kernel, sources};
-use crate::stream::{DeviceStream, Readback};
+use pf_gpu::GpuContext;
+use pf_gpu::GpuError;
+use pf_gpu::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
+use pf_gpu::kernels::Kernel;
+use pf_gpu::stream::{DeviceStream, Readback};
+use pf_gpu::wgpu;
+
+use super::SHADER;
 
 /// Marks the root in [`GpuBone::parent`].
 pub const NO_PARENT: u32 = u32::MAX;
@@ -113,7 +116,7 @@ fn kinematics_params(
     label: &str,
     value: &KinematicsParams,
 ) -> Result<wgpu::Buffer, GpuError> {
-    crate::stream::uniform_buffer(ctx, label, value)
+    pf_gpu::stream::uniform_buffer(ctx, label, value)
 }
 
 /// A frame's rays, `[dir, depth]` per point (at most `points` of them), as a
@@ -212,16 +215,11 @@ impl BodyLikelihoodGpu {
         let params = kinematics_params(ctx, "kinematics params", &params_value)?;
         let bones = DeviceStream::from_slice(ctx, "bones", &config.bones)?;
         let frames = DeviceStream::zeroed(ctx, "bone frames", frames_len)?;
-        let kinematics = Kernel::new(
-            ctx,
-            "forward kinematics",
-            sources::BODY_KINEMATICS,
-            "forward_kinematics",
-        )?;
+        let kinematics = Kernel::new(ctx, "forward kinematics", SHADER, "forward_kinematics")?;
         let to_log_likelihood = Kernel::new(
             ctx,
             "log-likelihood from sums",
-            sources::BODY_KINEMATICS,
+            SHADER,
             "log_likelihood_from_sums",
         )?;
         let host_poses = DeviceStream::zeroed(ctx, "pose samples", samples * config.dims)?;
@@ -585,8 +583,8 @@ impl SplitBodyLikelihood {
 mod layout_tests {
     use std::mem::{offset_of, size_of};
 
-    use super::{GpuBone, KinematicsParams};
-    use crate::kernels::{assert_mirrors_wgsl, sources};
+    use super::{GpuBone, KinematicsParams, SHADER};
+    use pf_gpu::kernels::assert_mirrors_wgsl;
 
     #[test]
     fn kinematics_params_and_bones_mirror_their_wgsl_layouts() {
@@ -594,13 +592,13 @@ mod layout_tests {
             ($t:ty: $($f:ident),*) => { [$((stringify!($f), offset_of!($t, $f))),*] };
         }
         assert_mirrors_wgsl(
-            sources::BODY_KINEMATICS,
+            SHADER,
             "KinematicsParams",
             size_of::<KinematicsParams>(),
             &fields!(KinematicsParams: samples, particles, dims, bones, log_scale),
         );
         assert_mirrors_wgsl(
-            sources::BODY_KINEMATICS,
+            SHADER,
             "Bone",
             size_of::<GpuBone>(),
             &fields!(GpuBone: offset, radius, extent, parent, joint),

@@ -1,8 +1,9 @@
 // The ray-cast capsule likelihood of the body paper on the GPU: M_j = sum_i (min_k d_ik)^2 for
 // every sample j, with d_ik the truncated distance (eq. 6) between point i's depth and the first
-// hit of its camera ray on capsule k (Appendix A).
+// hit of its camera ray on capsule k (Appendix A). Launcher:
+// body_tracker::likelihood::gpu::CapsuleLikelihoodGpu.
 //
-// Layouts (plain, see pf_gpu::capsules): capsules[(j * K + k) * 2] = (a.xyz, r) and
+// Layouts (plain, see body_tracker::likelihood::gpu): capsules[(j * K + k) * 2] = (a.xyz, r) and
 // [.. + 1] = (b.xyz, 0); rays[i] = (unit direction from the camera origin, depth); partials[j *
 // tiles + tile]; sums[j]. Samples j = sample_offset + workgroup_id.y, so that any J fits the
 // adapter's dispatch limit (the launcher dispatches sample tiles).
