@@ -138,8 +138,8 @@ pub fn sum_tolerance(caps: &[Capsule], rays: &Rays, want: f64) -> (f64, usize) {
             2.0 * di * delta + delta * delta
         })
         .sum();
-    // The tolerance policy (ARCHITECTURE.md): 1e-4 relative, or 1e-5 absolute near zero (a sum of a few points close to
-    // the capsules, where the rounding above can be exceeded by a ray near a silhouette).
-    let tol = (1e-4 * want).max(1e-5) + rounding + grazing as f64 * f64::from(TAU * TAU);
+    // The tolerance policy, plus the rounding above (near zero, a sum of a few points close to
+    // the capsules, where that rounding can be exceeded by a ray near a silhouette).
+    let tol = pf_gpu::model::tolerance(want) + rounding + grazing as f64 * f64::from(TAU * TAU);
     (tol, grazing)
 }
