@@ -34,6 +34,17 @@ fn many_targets_in_one_batch_beat_the_raw_observations() {
     );
 }
 
+#[test]
+fn many_targets_with_layers_frames_in_flight_and_two_gpus_beat_the_raw_observations() {
+    let context = || common::gpu_context("many_targets on all GPUs");
+    let (Some(first), Some(second)) = (context(), context()) else {
+        return;
+    };
+    let (filtered, raw) = many_targets::run_on_all_gpus(vec![first, second], 300, 20, 3).unwrap();
+    eprintln!("300 targets over two contexts, 3 layers: {filtered:.3}, raw {raw:.3}");
+    assert!(filtered < 0.85 * raw, "filtered {filtered}, raw {raw}");
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 8, ..ProptestConfig::default() })]
 

@@ -85,9 +85,15 @@ pub fn wrap_angle_floor(x: f32) -> f32 {
 
 /// The per-target keys of one stage.
 pub fn stage_keys(seed: u64, targets: usize, stage: Stage) -> Vec<[u32; 2]> {
+    stage_keys_from(seed, 0, targets, stage)
+}
+
+/// The keys of one stage for targets `first .. first + targets` of a batch: a part of a batch
+/// (one GPU's share of the targets) draws exactly the numbers those targets draw in the whole.
+pub fn stage_keys_from(seed: u64, first: usize, targets: usize, stage: Stage) -> Vec<[u32; 2]> {
     let streams = RandomStreams::new(seed);
-    (0..targets as u32)
-        .map(|t| key_words(streams.key(t, stage)))
+    (first..first + targets)
+        .map(|t| key_words(streams.key(t as u32, stage)))
         .collect()
 }
 

@@ -156,6 +156,8 @@ pub struct GpuFilter {
     has_best: bool,
     timer: Option<StepTimer>,
     step: u64,
+    /// The configuration's seed (the targets' random keys derive from it).
+    seed: u64,
 }
 
 /// The sections of a step's readback.
@@ -225,7 +227,30 @@ impl GpuFilter {
             groups,
             resample_steps,
             step: 0,
+            seed: config.seed,
         })
+    }
+
+    /// Makes this filter's targets targets `first ..` of a larger batch that is split over
+    /// several filters (one per GPU): each target then draws the random numbers it draws in the
+    /// whole batch, so that the parts step, bit for bit, as the whole would.
+    pub fn number_targets_from(&mut self, ctx: &GpuContext, first: usize) -> Result<(), GpuError> {
+        let targets = self.shape.targets;
+        if first
+            .checked_add(targets)
+            .is_none_or(|end| end > u32::MAX as usize)
+        {
+            return Err(GpuError::InvalidConfig(format!(
+                "targets {first} and on of a batch: the index of a target is 32 bits"
+            )));
+        }
+        let keys = |stage| pf_core::batch::stage_keys_from(self.seed, first, targets, stage);
+        self.streams
+            .diffusion_keys
+            .upload_at(ctx, 0, &keys(pf_core::Stage::Diffusion))?;
+        self.streams
+            .resampling_keys
+            .upload_at(ctx, 0, &keys(pf_core::Stage::Resampling))
     }
 
     /// Targets × particles × dimensions.

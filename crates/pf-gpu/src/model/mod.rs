@@ -22,27 +22,33 @@
 //! `model_propagate`, `State`, `DIMS`, `Params`, `TargetStats`, and the helpers of
 //! `shaders/engine/common.wgsl` and `shaders/engine/philox.wgsl`.
 //!
-//! [`ModelFilter`] is a [`GpuFilter`] built with its model (prepared once, never stale);
-//! [`check_against_cpu`] checks a model against its CPU twin ([`pf_core::plugin::CpuModel`]).
+//! [`ModelFilter`] is a [`GpuFilter`](crate::GpuFilter) built with its model (prepared once, never stale), which
+//! steps one frame at a time (`step`) or keeps two in flight (`submit`, then `finish`);
+//! [`ShardedModelFilter`] splits the targets over several GPUs and steps them at once, with the
+//! results of one GPU; annealing layers and the constant-velocity drift come from the
+//! [`pf_core::batch::BatchConfig`] as for any filter. [`check_against_cpu`] checks a model against its CPU twin
+//! ([`pf_core::plugin::CpuModel`]).
 
 mod check;
+mod filter;
+mod sharded;
 
 pub use check::{
     ABSOLUTE_TOLERANCE, CheckInputs, Mismatch, ModelCheck, RELATIVE_TOLERANCE, agrees,
     check_against_cpu, tolerance,
 };
+pub use filter::{ModelFilter, RawModelFilter};
+pub use sharded::{ShardedModelFilter, ShardedPending, ShardedStepReport};
 
 use std::marker::PhantomData;
 
 use bytemuck::Pod;
-use pf_core::batch::{BatchConfig, BatchShape};
+use pf_core::batch::BatchShape;
 use wgpu::naga;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{
-    GpuFilter, GpuLikelihood, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodPhase,
-};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase};
 use crate::kernels::{Kernel, sources};
 use crate::stream::DeviceStream;
 
@@ -546,101 +552,5 @@ impl GpuLikelihood for RawWgslModel {
 
     fn propagates(&self) -> bool {
         self.propagate.is_some()
-    }
-}
-
-/// A GPU filter built with its model: the model is prepared against the filter's streams at
-/// construction, so it can neither be forgotten nor bound to another filter.
-pub struct ModelFilter<O: Pod, C: Pod> {
-    filter: GpuFilter,
-    model: WgslModel<O, C>,
-}
-
-impl<O: Pod, C: Pod> ModelFilter<O, C> {
-    /// `initial_states` in the batch layout (`[(t·D + d)·M + m]`).
-    pub fn new(
-        ctx: &GpuContext,
-        config: &BatchConfig,
-        resampler: GpuResampler,
-        initial_states: &[f32],
-        model: ModelSource<'_>,
-        constants: &C,
-    ) -> Result<Self, GpuError> {
-        let filter = GpuFilter::new(ctx, config, resampler, initial_states)?;
-        let mut model = WgslModel::new(ctx, model, &config.shape, constants)?;
-        model.prepare(ctx, &filter.likelihood_inputs())?;
-        Ok(Self { filter, model })
-    }
-
-    /// One frame: resample, propagate (or diffuse), measure against `observations` (one per
-    /// target), normalise, estimate — one submission.
-    pub fn step(
-        &mut self,
-        ctx: &GpuContext,
-        observations: &[O],
-    ) -> Result<GpuStepReport, GpuError> {
-        self.model.set_observations(ctx, observations)?;
-        self.filter.step(ctx, &self.model)
-    }
-
-    /// The filter (states, weights, downloads).
-    pub fn filter(&self) -> &GpuFilter {
-        &self.filter
-    }
-
-    /// The filter and its model, for running single stages ([`GpuFilter::run_stages`]).
-    pub fn parts(&mut self) -> (&mut GpuFilter, &WgslModel<O, C>) {
-        (&mut self.filter, &self.model)
-    }
-
-    /// The model (observations, constants, generated source).
-    pub fn model(&self) -> &WgslModel<O, C> {
-        &self.model
-    }
-}
-
-/// [`ModelFilter`] for a [`RawWgslModel`]: observations and constants as f32 values.
-pub struct RawModelFilter {
-    filter: GpuFilter,
-    model: RawWgslModel,
-}
-
-impl RawModelFilter {
-    /// `initial_states` in the batch layout (`[(t·D + d)·M + m]`); `observation_values` 32-bit
-    /// values make one target's `Observation`.
-    pub fn new(
-        ctx: &GpuContext,
-        config: &BatchConfig,
-        resampler: GpuResampler,
-        initial_states: &[f32],
-        model: ModelSource<'_>,
-        observation_values: usize,
-        constants: &[f32],
-    ) -> Result<Self, GpuError> {
-        let filter = GpuFilter::new(ctx, config, resampler, initial_states)?;
-        let mut model =
-            RawWgslModel::new(ctx, model, &config.shape, observation_values, constants)?;
-        model.prepare(ctx, &filter.likelihood_inputs())?;
-        Ok(Self { filter, model })
-    }
-
-    /// One frame against `observations` (`[t·K + k]`), one submission.
-    pub fn step(
-        &mut self,
-        ctx: &GpuContext,
-        observations: &[f32],
-    ) -> Result<GpuStepReport, GpuError> {
-        self.model.set_observations(ctx, observations)?;
-        self.filter.step(ctx, &self.model)
-    }
-
-    /// The filter (states, weights, downloads).
-    pub fn filter(&self) -> &GpuFilter {
-        &self.filter
-    }
-
-    /// The model (constants, generated source).
-    pub fn model(&self) -> &RawWgslModel {
-        &self.model
     }
 }

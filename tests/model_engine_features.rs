@@ -1,0 +1,211 @@
+//! What the engine gives a researcher's own model (`pf_gpu::model`), shown on the toy plug-in:
+//! annealing layers and the constant-velocity drift (from the `BatchConfig`), two frames in
+//! flight (`submit`, `finish`) and the targets sharded over several GPUs
+//! (`ShardedModelFilter`). Each is checked against stepping one frame at a time on one GPU:
+//! the same random numbers and the same arithmetic give the same bits.
+
+mod common;
+
+use pf_core::anneal::Annealing;
+use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
+use pf_gpu::model::{ModelFilter, ShardedModelFilter};
+use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyObservation};
+use pf_gpu::{GpuContext, GpuResampler, GpuStepReport};
+use proptest::prelude::*;
+
+const FRAMES: usize = 6;
+
+/// A batch with every engine feature a model can have on: annealing layers, the survival rule,
+/// the drift, the best-M′ mean.
+fn config(targets: usize, particles: usize, seed: u64) -> BatchConfig {
+    let shape = BatchShape::new(targets, particles, 7).unwrap();
+    let mut config = BatchConfig::new(shape, seed, vec![0.2; 7]);
+    config.angular = vec![false, false, false, true, true, true, false];
+    config.annealing = Annealing::survival(3, 0.5, 0.6);
+    config.motion = Motion::ConstantVelocity { gain: 0.5 };
+    config.best = particles.min(10);
+    config
+}
+
+/// Target t's observation at `frame`: a point moving steadily, so that the drift matters.
+fn observations(targets: usize, frame: usize) -> Vec<ToyObservation> {
+    (0..targets)
+        .map(|t| ToyObservation {
+            z: std::array::from_fn(|d| 0.3 * t as f32 + 0.05 * (frame * (d + 1)) as f32),
+        })
+        .collect()
+}
+
+fn start(config: &BatchConfig) -> Vec<f32> {
+    let centres: Vec<f32> = (0..config.shape.targets)
+        .flat_map(|t| [0.3 * t as f32; 7])
+        .collect();
+    gaussian_clouds(&config.shape, 4, &centres, &[0.5; 7])
+}
+
+fn constants() -> ToyConstants {
+    ToyConstants::from_sigma(&[0.4; 7]).unwrap()
+}
+
+/// What a frame's results must agree on, bit for bit.
+fn bits(estimates: &[f32], spreads: &[f32], best: &[f32], ess: &[f32]) -> Vec<u32> {
+    [estimates, spreads, best, ess]
+        .concat()
+        .iter()
+        .map(|x| x.to_bits())
+        .collect()
+}
+
+fn report_bits(r: &GpuStepReport) -> Vec<u32> {
+    let ess: Vec<f32> = r.stats.iter().map(|s| s.ess).collect();
+    bits(&r.estimates, &r.spreads, &r.best_estimates, &ess)
+}
+
+/// One GPU, one frame at a time: the reference.
+fn one_at_a_time(ctx: &GpuContext, config: &BatchConfig) -> Vec<Vec<u32>> {
+    let c = constants();
+    let mut filter = ModelFilter::new(
+        ctx,
+        config,
+        GpuResampler::Systematic,
+        &start(config),
+        TOY_MODEL,
+        &c,
+    )
+    .unwrap();
+    (0..FRAMES)
+        .map(|f| {
+            report_bits(
+                &filter
+                    .step(ctx, &observations(config.shape.targets, f))
+                    .unwrap(),
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn two_frames_in_flight_give_the_bits_of_one_at_a_time() {
+    let (Some(ctx),) = (common::gpu_context("model frames in flight"),) else {
+        return;
+    };
+    let config = config(5, 300, 11);
+    let want = one_at_a_time(&ctx, &config);
+    let c = constants();
+    let mut filter = ModelFilter::new(
+        &ctx,
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        TOY_MODEL,
+        &c,
+    )
+    .unwrap();
+    let targets = config.shape.targets;
+    let mut got = Vec::new();
+    let mut in_flight = std::collections::VecDeque::new();
+    for f in 0..FRAMES {
+        in_flight.push_back(filter.submit(&ctx, &observations(targets, f)).unwrap());
+        if in_flight.len() == 2 {
+            let oldest = in_flight.pop_front().unwrap();
+            got.push(report_bits(&filter.finish(&ctx, oldest).unwrap()));
+        }
+    }
+    while let Some(oldest) = in_flight.pop_front() {
+        got.push(report_bits(&filter.finish(&ctx, oldest).unwrap()));
+    }
+    assert_eq!(got, want);
+    // A third frame in flight is refused, not queued over the second's readback.
+    let a = filter.submit(&ctx, &observations(targets, 0)).unwrap();
+    let b = filter.submit(&ctx, &observations(targets, 1)).unwrap();
+    assert!(filter.submit(&ctx, &observations(targets, 2)).is_err());
+    filter.finish(&ctx, a).unwrap();
+    filter.finish(&ctx, b).unwrap();
+}
+
+proptest! {
+    #![proptest_config(common::property::config(4))]
+
+    /// Targets split over two GPU contexts, two frames in flight on each: the one-GPU bits.
+    #[test]
+    fn targets_sharded_over_two_contexts_give_the_bits_of_one(
+        targets in 1usize..9,
+        particles in 1usize..400,
+        seed in any::<u64>(),
+    ) {
+        let context = || common::gpu_context("model sharded over two contexts");
+        let (Some(one), Some(first), Some(second)) = (context(), context(), context()) else {
+            return Ok(());
+        };
+        let config = config(targets, particles, seed);
+        let want = one_at_a_time(&one, &config);
+        let mut sharded = ShardedModelFilter::new(
+            vec![first, second],
+            &config,
+            GpuResampler::Systematic,
+            &start(&config),
+            TOY_MODEL,
+            &constants(),
+        )
+        .unwrap();
+        prop_assert_eq!(sharded.shards().count(), targets.min(2));
+        let mut got = Vec::new();
+        let mut in_flight = std::collections::VecDeque::new();
+        for f in 0..FRAMES {
+            in_flight.push_back(sharded.submit(&observations(targets, f)).unwrap());
+            if in_flight.len() == 2 {
+                let r = sharded.finish(in_flight.pop_front().unwrap()).unwrap();
+                let ess: Vec<f32> = r.stats.iter().map(|s| s.ess).collect();
+                got.push(bits(&r.estimates, &r.spreads, &r.best_estimates, &ess));
+            }
+        }
+        while let Some(oldest) = in_flight.pop_front() {
+            let r = sharded.finish(oldest).unwrap();
+            let ess: Vec<f32> = r.stats.iter().map(|s| s.ess).collect();
+            got.push(bits(&r.estimates, &r.spreads, &r.best_estimates, &ess));
+        }
+        prop_assert_eq!(got, want);
+    }
+}
+
+#[test]
+fn a_sharded_filter_checks_what_it_is_given() {
+    let (Some(a), Some(b)) = (
+        common::gpu_context("model sharded errors"),
+        common::gpu_context("model sharded errors"),
+    ) else {
+        return;
+    };
+    let config = config(3, 50, 1);
+    let none = ShardedModelFilter::<ToyObservation, ToyConstants>::new(
+        Vec::new(),
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        TOY_MODEL,
+        &constants(),
+    );
+    assert!(none.is_err(), "no contexts");
+    let short = ShardedModelFilter::<ToyObservation, ToyConstants>::new(
+        vec![a],
+        &config,
+        GpuResampler::Systematic,
+        &start(&config)[1..],
+        TOY_MODEL,
+        &constants(),
+    );
+    assert!(short.is_err(), "initial states one short");
+    let mut filter = ShardedModelFilter::new(
+        vec![b],
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        TOY_MODEL,
+        &constants(),
+    )
+    .unwrap();
+    let err = filter.step(&observations(2, 0)).err().unwrap();
+    assert!(err.to_string().contains("observations"), "{err}");
+    assert!(filter.reset_target(3, &vec![0.0; 7 * 50]).is_err());
+    filter.reset_target(2, &vec![0.0; 7 * 50]).unwrap();
+}
