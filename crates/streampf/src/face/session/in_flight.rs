@@ -11,7 +11,9 @@ use anyhow::Context;
 use face_tracker::tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::{FaceTracker, GrayImage};
 
-use super::{FaceRun, Runner, TrackArgs};
+use super::super::args::TrackArgs;
+use super::super::runner::Runner;
+use super::FaceRun;
 use crate::run_output;
 
 /// The frames submitted and not yet written, oldest first: each one's index and image (the

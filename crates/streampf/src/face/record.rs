@@ -1,0 +1,427 @@
+//! A run's written results: `TrackRecord` (states.csv, errors.csv, landmarks.csv, the summary)
+//! and the per-frame extras (the rerun recording's frame, the overlay's colours, particles).
+
+use super::args::TrackArgs;
+use super::runner::Runner;
+use super::{ERRORS_FILE, LANDMARKS_FILE, STATES_FILE};
+use crate::face_io::Source;
+use crate::face_overlay::ColourFrames;
+use crate::recording::{FaceClouds, FaceFrame, Recording};
+use crate::run_output::{CsvStream, ResumePoint, SkipLog};
+use face_tracker::projection::{
+    DIMS, RZ, STATE_NAMES, pitch_yaw_roll_degrees, rotation_quaternion,
+};
+use face_tracker::tracker::pose_errors;
+use face_tracker::{FaceEstimate, FaceTracker, GrayImage, TrackStatus};
+use std::path::Path;
+
+/// Logs a tracked frame to the rerun recording: the frame, the tracks, their particle clouds
+/// (read back from the filter) and, with the ground truth, their errors.
+pub(super) fn record_face_frame(
+    recording: &Recording,
+    frame: usize,
+    seconds: f64,
+    image: &GrayImage,
+    runner: &Runner,
+    estimates: &[FaceEstimate],
+    truth: Option<&Vec<[f32; DIMS]>>,
+) -> anyhow::Result<()> {
+    let tracker = runner.tracker();
+    let (shape, states, _) = tracker.particles()?;
+    let clouds = FaceClouds {
+        states: &states,
+        particles: shape.particles,
+    };
+    let errors: Vec<(usize, f32, f32)> = estimates
+        .iter()
+        .filter(|e| e.status == TrackStatus::Tracking)
+        .filter_map(|e| {
+            let t = truth?.get(e.track)?;
+            let (translation, rotation) = pose_errors(&e.state, t);
+            Some((e.track, translation, rotation))
+        })
+        .collect();
+    recording.face_frame(FaceFrame {
+        frame,
+        seconds,
+        image,
+        templates: &tracker.templates(),
+        estimates,
+        lens: tracker.lens(),
+        clouds: Some(clouds),
+        errors: &errors,
+    })
+}
+
+/// The overlay's colour frames: the image files again, or the video decoded a second time; none
+/// for a generated video or a camera (drawn in gray).
+pub(super) fn colour_frames(
+    args: &TrackArgs,
+    source: &Source,
+    size: (u32, u32),
+) -> anyhow::Result<Option<ColourFrames>> {
+    Ok(match (source, args.input.as_deref()) {
+        (Source::Images { files, .. }, _) => Some(ColourFrames::images(files.clone())),
+        (Source::Video(_), Some(path)) if args.webcam.is_none() => {
+            Some(ColourFrames::video(path, size)?)
+        }
+        _ => None,
+    })
+}
+
+/// What a run has tracked: states.csv and (with ground truth) errors.csv, written as each frame
+/// is finished, the error sums and the time spent in the tracker.
+/// The columns of a states.csv row after `status`: the state, the residual, the spreads, the ESS,
+/// the confidence, three angles and a quaternion.
+pub(super) const STATE_COLUMNS_AFTER_STATUS: usize = DIMS + 1 + DIMS + 2 + 3 + 4;
+
+pub(super) struct TrackRecord {
+    pub(super) states: CsvStream,
+    pub(super) errors: Option<CsvStream>,
+    pub(super) landmarks: Option<CsvStream>,
+    pub(super) translation: f64,
+    pub(super) rotation: f64,
+    pub(super) measured: usize,
+    /// Per state dimension, the face-frames whose true value lay within ±2 reported standard
+    /// deviations of the estimate (with ground truth).
+    pub(super) within_two_sd: [usize; DIMS],
+    pub(super) tracks_seen: std::collections::BTreeSet<usize>,
+    /// Seconds in the tracker's calls, and the GPU's own seconds for the frames (timestamps):
+    /// with frames in flight the GPU works while the host waits for the next frame, so the
+    /// tracker's time is the longer of the two.
+    pub(super) tracking_time: f64,
+    pub(super) gpu_time: f64,
+    /// Whether the frames were tracked with two in flight (`face/in_flight.rs`).
+    pub(super) frames_in_flight: bool,
+    /// Frames per second of the input: a row's timestamp is its frame / this.
+    pub(super) fps: f64,
+}
+
+impl TrackRecord {
+    /// The frame, its timestamp, the track, whether it is tracked, its status, the state, ε (the
+    /// residual), then how sure the estimate is (the posterior's spread per dimension, the ESS,
+    /// the confidence) and the rotation as degrees and as a quaternion (docs/OUTPUT.md).
+    pub(super) fn states_header() -> String {
+        let spreads: Vec<String> = STATE_NAMES.iter().map(|n| format!("sd_{n}")).collect();
+        format!(
+            "frame,timestamp,track,success,status,{},residual,{},ess,confidence,pitch_deg,yaw_deg,roll_deg,qw,qx,qy,qz",
+            STATE_NAMES.join(","),
+            spreads.join(",")
+        )
+    }
+
+    /// The frame, its timestamp, the track, then x and y of each of the 68 iBUG landmarks.
+    pub(super) fn landmarks_header() -> String {
+        let columns: Vec<String> = (0..68).map(|k| format!("x{k},y{k}")).collect();
+        format!("frame,timestamp,track,{}", columns.join(","))
+    }
+
+    /// A frame's landmark rows: each tracked face whose template has landmarks, posed by its
+    /// estimate.
+    pub(super) fn add_landmarks(
+        &mut self,
+        frame: usize,
+        templates: &[(usize, &face_tracker::Template)],
+        estimates: &[FaceEstimate],
+        lens: &face_tracker::likelihood::Lens,
+    ) -> anyhow::Result<()> {
+        let timestamp = self.timestamp(frame);
+        let Some(file) = self.landmarks.as_mut() else {
+            return Ok(());
+        };
+        for e in estimates
+            .iter()
+            .filter(|e| e.status == TrackStatus::Tracking)
+        {
+            let landmarks = templates
+                .iter()
+                .find(|(track, _)| *track == e.track)
+                .and_then(|(_, t)| t.landmarks.as_ref());
+            let Some(landmarks) = landmarks else { continue };
+            let pose = face_tracker::Pose::new(&e.state);
+            let pixels: Vec<String> = landmarks
+                .iter()
+                .map(|&p| {
+                    // A landmark at or behind the camera (never on a tracked face) is left empty.
+                    (pose.project_through(&nalgebra::Vector3::from(p), lens))
+                        .map_or_else(|| ",".to_string(), |at| format!("{},{}", at.x, at.y))
+                })
+                .collect();
+            file.row(&format!(
+                "{frame},{timestamp},{},{}",
+                e.track,
+                pixels.join(",")
+            ))?;
+        }
+        file.end_frame()
+    }
+
+    /// A frame's timestamp in seconds (frame / frames per second).
+    pub(super) fn timestamp(&self, frame: usize) -> String {
+        format!("{:.6}", self.seconds(frame))
+    }
+
+    pub(super) fn seconds(&self, frame: usize) -> f64 {
+        frame as f64 / self.fps
+    }
+
+    /// The columns after the state and ε (see [`TrackRecord::states_header`]).
+    pub(super) fn certainty_columns(e: &FaceEstimate) -> String {
+        let join = |values: &[f32]| {
+            values
+                .iter()
+                .map(|v| v.to_string())
+                .collect::<Vec<_>>()
+                .join(",")
+        };
+        format!(
+            "{},{},{},{},{}",
+            join(&e.spread),
+            e.ess,
+            e.confidence,
+            join(&pitch_yaw_roll_degrees(&e.state)),
+            join(&rotation_quaternion(&e.state))
+        )
+    }
+
+    /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
+    /// `(with_truth, with_landmarks)`: whether errors.csv and landmarks.csv are written.
+    pub(super) fn create(
+        out: &Path,
+        (with_truth, with_landmarks): (bool, bool),
+        resume: Option<&ResumePoint>,
+        fps: f64,
+    ) -> anyhow::Result<Self> {
+        let open = |name: &str, header: &str| match resume {
+            Some(point) => CsvStream::resume(&out.join(name), header, point),
+            None => CsvStream::create(&out.join(name), header),
+        };
+        let errors = with_truth
+            .then(|| open(ERRORS_FILE, "frame,face,translation_px,rotation_deg"))
+            .transpose()?;
+        let landmarks = with_landmarks
+            .then(|| open(LANDMARKS_FILE, &Self::landmarks_header()))
+            .transpose()?;
+        Ok(Self {
+            states: open(STATES_FILE, &Self::states_header())?,
+            errors,
+            landmarks,
+            translation: 0.0,
+            rotation: 0.0,
+            measured: 0,
+            within_two_sd: [0; DIMS],
+            tracks_seen: std::collections::BTreeSet::new(),
+            fps: if fps.is_finite() && fps > 0.0 {
+                fps
+            } else {
+                25.0
+            },
+            tracking_time: 0.0,
+            gpu_time: 0.0,
+            frames_in_flight: false,
+        })
+    }
+
+    /// One frame's rows (status `status` when given, else each estimate's own), their errors
+    /// where the ground truth (`truth[track]`) is known; flushed to the files.
+    pub(super) fn add(
+        &mut self,
+        frame: usize,
+        estimates: &[FaceEstimate],
+        status: &str,
+        truth: Option<&Vec<[f32; DIMS]>>,
+    ) -> anyhow::Result<()> {
+        // A frame whose rows fail to write is dropped from the files (CsvStream), and from the
+        // summary's error statistics with it.
+        let before = (
+            self.translation,
+            self.rotation,
+            self.measured,
+            self.within_two_sd,
+        );
+        let written = self.add_rows(frame, estimates, status, truth);
+        if written.is_err() {
+            (
+                self.translation,
+                self.rotation,
+                self.measured,
+                self.within_two_sd,
+            ) = before;
+        }
+        written
+    }
+
+    pub(super) fn add_rows(
+        &mut self,
+        frame: usize,
+        estimates: &[FaceEstimate],
+        status: &str,
+        truth: Option<&Vec<[f32; DIMS]>>,
+    ) -> anyhow::Result<()> {
+        let timestamp = self.timestamp(frame);
+        if estimates.is_empty() {
+            // No face this frame: a row that says so, its estimate's columns empty.
+            let word = if status.is_empty() { "none" } else { status };
+            let empty = ",".repeat(STATE_COLUMNS_AFTER_STATUS);
+            self.states
+                .row(&format!("{frame},{timestamp},,0,{word}{empty}"))?;
+        }
+        for e in estimates {
+            self.tracks_seen.insert(e.track);
+            let status = match e.status {
+                _ if !status.is_empty() => status.to_string(),
+                TrackStatus::Tracking => "tracking".to_string(),
+                TrackStatus::Lost { frame } => format!("lost@{frame}"),
+            };
+            let success = u8::from(status == "tracking");
+            let values: Vec<String> = e.state.iter().map(|v| v.to_string()).collect();
+            self.states.row(&format!(
+                "{frame},{timestamp},{},{success},{status},{},{},{}",
+                e.track,
+                values.join(","),
+                e.error,
+                Self::certainty_columns(e)
+            ))?;
+            let known = truth.and_then(|f| f.get(e.track));
+            if let (Some(t), TrackStatus::Tracking, Some(errors)) =
+                (known, e.status, self.errors.as_mut())
+                && t.iter().all(|v| v.is_finite())
+            {
+                let (te, re) = pose_errors(&e.state, t);
+                errors.row(&format!("{frame},{},{te},{re}", e.track))?;
+                self.translation += f64::from(te);
+                self.rotation += f64::from(re);
+                self.measured += 1;
+                for (d, &true_value) in t.iter().enumerate() {
+                    let mut miss = e.state[d] - true_value;
+                    if d == RZ {
+                        miss = pf_core::batch::wrap_angle_floor(miss);
+                    }
+                    self.within_two_sd[d] += usize::from(miss.abs() <= 2.0 * e.spread[d]);
+                }
+            }
+        }
+        match self.errors.as_mut() {
+            Some(errors) => CsvStream::end_frame_in_all(&mut [&mut self.states, errors]),
+            None => self.states.end_frame(),
+        }
+    }
+
+    /// Prints the summary of what was tracked and written.
+    pub(super) fn summary(
+        &self,
+        args: &TrackArgs,
+        runner: &Runner,
+        frames: usize,
+        elapsed: f64,
+        skipped: &SkipLog,
+        // Whether the run ended well: a stopped one says what it wrote in its error instead.
+        written: bool,
+    ) {
+        let faces = self.tracks_seen.len();
+        outln!(
+            "tracked {faces} face{} through {frames} frames in {elapsed:.2} s: {:.1} frames/s in the tracker{}, {:.1} frames/s with reading{}{}",
+            if faces == 1 { "" } else { "s" },
+            frames as f64 / self.tracking_time.max(self.gpu_time).max(1e-9),
+            if self.frames_in_flight {
+                " (two frames in flight)"
+            } else {
+                ""
+            },
+            frames as f64 / elapsed.max(1e-9),
+            if args.overlay.as_deref().is_some() {
+                " and drawing"
+            } else {
+                ""
+            },
+            skipped.note(),
+        );
+        let (personalised, missed) = runner.tracker().personalisation_counts();
+        if personalised + missed > 0 {
+            outln!(
+                "face model personalised to the landmarks of {personalised} of {} template{}{}",
+                personalised + missed,
+                if personalised + missed == 1 { "" } else { "s" },
+                if missed > 0 {
+                    format!(" (the landmark fit missed {missed}: generic model)")
+                } else {
+                    String::new()
+                }
+            );
+        }
+        self.print_errors();
+        if !written {
+            return;
+        }
+        self.print_written(args);
+    }
+
+    /// The errors against the ground truth and how often it lay within the reported spread.
+    fn print_errors(&self) {
+        let measured = self.measured;
+        if measured > 0 {
+            outln!(
+                "mean translation error: {:.2} px, mean rotation error: {:.2} deg ({measured} face-frames)",
+                self.translation / measured as f64,
+                self.rotation / measured as f64
+            );
+            let coverage: Vec<String> = STATE_NAMES
+                .iter()
+                .zip(self.within_two_sd)
+                .map(|(n, k)| format!("{n} {:.0}%", 100.0 * k as f64 / measured as f64))
+                .collect();
+            outln!(
+                "truth within ±2 reported sd: {} (about 95% for an honest spread)",
+                coverage.join(", ")
+            );
+        }
+    }
+
+    /// Which files the run wrote, and where.
+    fn print_written(&self, args: &TrackArgs) {
+        outln!(
+            "wrote states.csv{}{} to {}{}",
+            if self.errors.is_some() {
+                ", errors.csv"
+            } else {
+                ""
+            },
+            if self.landmarks.is_some() {
+                ", landmarks.csv"
+            } else {
+                ""
+            },
+            args.out.display(),
+            args.overlay.as_deref().map_or(String::new(), |p| format!(
+                ", the annotated frames to {}",
+                p.display()
+            ))
+        );
+    }
+}
+
+/// One frame's clouds as numpy files, with the track that runs in each slot (-1: free).
+pub(super) fn save_particles(
+    dir: &Path,
+    frame: usize,
+    tracker: &FaceTracker,
+    estimates: &[face_tracker::FaceEstimate],
+) -> anyhow::Result<()> {
+    let (shape, states, log_weights) = tracker.particles()?;
+    pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)?;
+    let mut tracks = vec![-1.0f32; shape.targets];
+    for e in estimates
+        .iter()
+        .filter(|e| e.status == TrackStatus::Tracking)
+    {
+        if let Some(slot) = tracks.get_mut(e.slot) {
+            *slot = e.track as f32;
+        }
+    }
+    pf_numpy::write_f32(
+        &dir.join(format!("tracks_{frame:06}.npy")),
+        &[shape.targets],
+        &tracks,
+    )?;
+    Ok(())
+}
