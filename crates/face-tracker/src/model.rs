@@ -83,6 +83,72 @@ pub fn photographed_height_with_face_depth(u: f32, v: f32, face_depth: f32) -> f
 /// times as deep as the photographed one.
 pub const FACE_DEPTH_RANGE: std::ops::RangeInclusive<f32> = 0.25..=4.0;
 
+/// Nodes per side of the built-in heads' grids.
+pub const BUILT_IN_GRID: u32 = 129;
+
+/// Which built-in head a tracker takes its points' depths from: one rule for the command line
+/// (`face track --face-model`) and Python (`FaceTracker(face_model=)`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum BuiltInModel {
+    /// The photographed head for real frames (a video, images, a webcam, arrays); the generic
+    /// head for the synthetic video, whose heads are the generic model. Chosen by measurement on
+    /// real clips against MediaPipe's face mesh (docs/ACCURACY.md, "Which face model by
+    /// default").
+    #[default]
+    Auto,
+    /// The parametric head (an ellipsoid with nose, brow and cheek relief).
+    Generic,
+    /// A real face's depth (the mean of five photographed faces) on the generic skull.
+    Photographed,
+}
+
+impl BuiltInModel {
+    /// The names [`std::str::FromStr`] takes, in order.
+    pub const NAMES: [&str; 3] = ["auto", "generic", "photographed"];
+
+    /// Whether this choice is the photographed head for frames that are (`synthetic`) or are
+    /// not the synthetic video.
+    pub fn is_photographed(self, synthetic: bool) -> bool {
+        match self {
+            Self::Auto => !synthetic,
+            Self::Generic => false,
+            Self::Photographed => true,
+        }
+    }
+
+    /// The head, on a [`BUILT_IN_GRID`] grid; the photographed one with its face `face_depth`
+    /// times as deep ([`FaceModel::photographed_with_face_depth`]), which the generic head does
+    /// not take (an error unless it is 1).
+    pub fn build(self, synthetic: bool, face_depth: f32) -> Result<FaceModel, FaceError> {
+        if self.is_photographed(synthetic) {
+            return FaceModel::photographed_with_face_depth(BUILT_IN_GRID, face_depth);
+        }
+        if face_depth != 1.0 {
+            return Err(FaceError::InvalidInput(format!(
+                "a face depth scale ({face_depth}) is for the photographed head; this one is the \
+                 generic head"
+            )));
+        }
+        FaceModel::generic(BUILT_IN_GRID)
+    }
+}
+
+impl std::str::FromStr for BuiltInModel {
+    type Err = FaceError;
+
+    fn from_str(name: &str) -> Result<Self, FaceError> {
+        match name {
+            "auto" => Ok(Self::Auto),
+            "generic" => Ok(Self::Generic),
+            "photographed" => Ok(Self::Photographed),
+            other => Err(FaceError::InvalidInput(format!(
+                "no built-in face model {other:?}: the choices are {}",
+                Self::NAMES.join(", ")
+            ))),
+        }
+    }
+}
+
 /// The real face's height above the eye corners and its weight (1 on the face, 0 off it) at
 /// (u, v), bilinear between the table's nodes.
 fn mesh_head_at(u: f32, v: f32) -> (f32, f32) {
@@ -266,4 +332,35 @@ fn normals_from_heights(size: u32, heights: &[f32]) -> Vec<[f32; 3]> {
             n.map(|c| c / len)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod built_in_tests {
+    use super::*;
+
+    #[test]
+    fn auto_is_the_photographed_head_for_real_frames_and_the_generic_for_the_synthetic_video() {
+        assert!(BuiltInModel::Auto.is_photographed(false));
+        assert!(!BuiltInModel::Auto.is_photographed(true));
+        for synthetic in [false, true] {
+            assert!(BuiltInModel::Photographed.is_photographed(synthetic));
+            assert!(!BuiltInModel::Generic.is_photographed(synthetic));
+        }
+        let generic = FaceModel::generic(BUILT_IN_GRID).unwrap();
+        let photographed = FaceModel::photographed(BUILT_IN_GRID).unwrap();
+        assert_eq!(BuiltInModel::Auto.build(true, 1.0).unwrap(), generic);
+        assert_eq!(BuiltInModel::Auto.build(false, 1.0).unwrap(), photographed);
+        assert!(BuiltInModel::Generic.build(false, 1.5).is_err());
+        assert!(BuiltInModel::Photographed.build(true, 9.0).is_err());
+    }
+
+    #[test]
+    fn every_name_parses_and_a_wrong_one_lists_them() {
+        for name in BuiltInModel::NAMES {
+            let model: BuiltInModel = name.parse().unwrap();
+            assert_eq!(BuiltInModel::NAMES[model as usize], name);
+        }
+        let err = "mesh".parse::<BuiltInModel>().unwrap_err().to_string();
+        assert!(err.contains("auto, generic, photographed"), "{err}");
+    }
 }

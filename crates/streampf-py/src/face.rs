@@ -4,7 +4,7 @@ use std::sync::Mutex;
 
 use face_tracker::detect::{Cascade, DetectConfig, DetectorPlacement, FaceDetector, GpuCascade};
 use face_tracker::extraction::FaceRect;
-use face_tracker::model::FaceModel;
+use face_tracker::model::BuiltInModel;
 use face_tracker::projection::{pitch_yaw_roll_degrees, rotation_quaternion};
 use face_tracker::{
     AutoConfig, AutoTracker, DIMS, FaceEstimate, FaceTrackerConfig, GrayImage, TrackStatus,
@@ -60,6 +60,8 @@ pub struct FaceTracker {
     device: String,
     /// Whether the detector runs (its thread needs frames of its own: no borrowed pixels).
     detecting: bool,
+    /// Whether the built-in head is the photographed one (else the generic).
+    photographed: bool,
 }
 
 fn config(
@@ -112,7 +114,7 @@ impl FaceTracker {
     #[pyo3(signature = (
         width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
-        layers = None, channel_order = "rgb", detector = "auto", fov = None
+        layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto"
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -132,6 +134,7 @@ impl FaceTracker {
         channel_order: &str,
         detector: &str,
         fov: Option<f32>,
+        face_model: &str,
     ) -> PyResult<Self> {
         let width: u32 = whole("width", width)?;
         let height: u32 = whole("height", height)?;
@@ -151,6 +154,11 @@ impl FaceTracker {
         let detector_on: DetectorPlacement = detector
             .parse()
             .map_err(|e: face_tracker::FaceError| value_error(e.to_string()))?;
+        let built_in: BuiltInModel = face_model
+            .parse()
+            .map_err(|e: face_tracker::FaceError| value_error(format!("face_model: {e}")))?;
+        // Frames from arrays are real frames (a synthetic video is asked for by name).
+        let photographed = built_in.is_photographed(false);
         let config = config(particles, seed, layers, focal_length(fov, width)?)?;
         let cascade = match (detect, cascade) {
             (false, None) => None,
@@ -198,7 +206,7 @@ impl FaceTracker {
         let size = (width, height);
         let engine = py
             .detach(|| -> Result<Engine, face_tracker::FaceError> {
-                let model = FaceModel::generic(129)?;
+                let model = built_in.build(false, 1.0)?;
                 Ok(match detector {
                     None => Engine::Fixed(Box::new(face_tracker::FaceTracker::with_capacity(
                         size, max_faces, &model, config, backend,
@@ -231,7 +239,18 @@ impl FaceTracker {
             order,
             device,
             detecting: detect,
+            photographed,
         })
+    }
+
+    /// The built-in head the tracker uses: "photographed" or "generic".
+    #[getter]
+    fn face_model(&self) -> &'static str {
+        if self.photographed {
+            "photographed"
+        } else {
+            "generic"
+        }
     }
 
     /// What the filters run on: "CPU" or the GPUs' names.

@@ -28,7 +28,9 @@ def rotation_error_deg(estimate, truth):
 
 
 def track(video, frames=None, **options):
-    """States per frame (F, K, 7) of a tracker started on the video's rectangles."""
+    """States per frame (F, K, 7) of a tracker started on the video's rectangles (with the
+    generic head, the synthetic video's, unless ``face_model`` says otherwise)."""
+    options.setdefault("face_model", "generic")
     frames = video["frames"] if frames is None else frames
     height, width = video["frames"].shape[1:3]
     tracker = streampf.FaceTracker(width, height, max_faces=len(video["rects"]), **options)
@@ -118,7 +120,9 @@ def test_two_threads_at_once_give_what_one_after_the_other_gives(two_face_video)
 def test_bad_frames_are_value_errors_and_change_nothing(two_face_video, bad, message):
     frames = two_face_video["frames"][:3]
     expected, _ = track(two_face_video, frames=frames, particles=64, backend="cpu")
-    tracker = streampf.FaceTracker(320, 240, max_faces=2, particles=64, backend="cpu")
+    tracker = streampf.FaceTracker(
+        320, 240, max_faces=2, particles=64, backend="cpu", face_model="generic"
+    )
     for rect in two_face_video["rects"]:
         tracker.add_face(frames[0], tuple(float(v) for v in rect))
     states = []
@@ -145,6 +149,23 @@ def test_a_close_camera_is_tracked_through_its_lens():
         streampf.FaceTracker(320, 240, fov=0.0)
     with pytest.raises(ValueError, match="field of view"):
         streampf.synthetic_faces(2, fov=180.0)
+
+
+def test_the_face_model_is_chosen_by_the_command_lines_rule(two_face_video):
+    # Frames from arrays are real frames: the photographed head, as `face track` picks for a
+    # video; the generic head (the synthetic video's) when asked for.
+    assert streampf.FaceTracker(320, 240, backend="cpu").face_model == "photographed"
+    generic = streampf.FaceTracker(320, 240, backend="cpu", face_model="generic")
+    assert generic.face_model == "generic"
+    photographed = streampf.FaceTracker(320, 240, backend="cpu", face_model="photographed")
+    assert photographed.face_model == "photographed"
+    # The two heads give the points different depths: different estimates on the same frames.
+    frames = two_face_video["frames"][:4]
+    a, _ = track(two_face_video, frames=frames, particles=64, backend="cpu")
+    b, _ = track(two_face_video, frames=frames, particles=64, backend="cpu", face_model="auto")
+    assert not np.array_equal(a, b)
+    with pytest.raises(ValueError, match="face_model.*auto, generic, photographed"):
+        streampf.FaceTracker(320, 240, face_model="mesh")
 
 
 def test_bad_settings_and_rectangles_are_value_errors(two_face_video):

@@ -35,6 +35,9 @@ class FaceTracker:
     camera's horizontal field of view in degrees (1 to 170): faces are seen through a pinhole of
     that angle instead of the paper's weak perspective, which reads a near face's turns as larger
     than they are (docs/ACCURACY.md, "The camera's lens"); give it when you know your camera's.
+    ``face_model``: the built-in head the points' depths come from, "auto" (the photographed
+    head, as ``face track`` picks for real frames), "photographed" or "generic" (the synthetic
+    video's heads: track ``synthetic_faces`` frames with it).
 
     Thread-safe; ``step`` releases the GIL, so trackers in different threads run at once.
     """
@@ -57,10 +60,14 @@ class FaceTracker:
         channel_order: str = "rgb",
         detector: str = "auto",
         fov: Optional[float] = None,
+        face_model: str = "auto",
     ) -> None: ...
     @property
     def device(self) -> str:
         """"CPU", or the GPUs' names."""
+    @property
+    def face_model(self) -> str:
+        """The built-in head in use: "photographed" or "generic"."""
     @property
     def frames(self) -> int:
         """Frames stepped so far."""

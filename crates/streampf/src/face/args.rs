@@ -136,6 +136,16 @@ pub enum FaceModelArg {
     Photographed,
 }
 
+impl From<FaceModelArg> for face_tracker::model::BuiltInModel {
+    fn from(arg: FaceModelArg) -> Self {
+        match arg {
+            FaceModelArg::Auto => Self::Auto,
+            FaceModelArg::Generic => Self::Generic,
+            FaceModelArg::Photographed => Self::Photographed,
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum DetectorArg {
     /// On a GPU when the tracker runs on one, else on the CPU.

@@ -50,9 +50,7 @@ const STATES_FILE: &str = "states.csv";
 const ERRORS_FILE: &str = "errors.csv";
 const LANDMARKS_FILE: &str = "landmarks.csv";
 
-/// Nodes per side of the built-in face models' grids.
-const MODEL_GRID: u32 = 129;
-
+/// The generic head: the synthetic video's heads.
 fn model() -> anyhow::Result<FaceModel> {
-    Ok(FaceModel::generic(MODEL_GRID)?)
+    Ok(FaceModel::generic(face_tracker::model::BUILT_IN_GRID)?)
 }

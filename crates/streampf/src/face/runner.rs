@@ -1,13 +1,13 @@
 //! Building the tracker a run steps (`Runner`: faces from given rectangles, or found by the
 //! detector), from the command line's settings, and announcing what it runs on.
 
-use super::args::{FaceModelArg, TrackArgs, focal_length};
+use super::DEFAULT_MAX_FACES;
+use super::args::{TrackArgs, focal_length};
 use super::inputs::{load_cascade, load_personaliser, open_backend, open_detector};
-use super::{DEFAULT_MAX_FACES, MODEL_GRID, model};
 use anyhow::bail;
 use face_tracker::detect::DetectConfig;
 use face_tracker::extraction::{ExtractionConfig, FaceRect};
-use face_tracker::model::FaceModel;
+use face_tracker::model::{BuiltInModel, FaceModel};
 use face_tracker::personal::Personaliser;
 use face_tracker::{
     AutoConfig, AutoTracker, FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage,
@@ -135,11 +135,8 @@ pub(super) fn build_runner(
 /// (auto) or when asked for, the generic head for the synthetic video (whose heads are the
 /// generic model) or when asked for.
 fn face_model(args: &TrackArgs) -> anyhow::Result<FaceModel> {
-    let photographed = args.heightmap.is_none()
-        && matches!(
-            (args.face_model, args.synthetic),
-            (FaceModelArg::Photographed, _) | (FaceModelArg::Auto, false)
-        );
+    let built_in = BuiltInModel::from(args.face_model);
+    let photographed = args.heightmap.is_none() && built_in.is_photographed(args.synthetic);
     if args.face_depth != 1.0 && !photographed {
         bail!(
             "--face-depth scales the photographed head's face; this run's model is {} (give --face-model photographed)",
@@ -151,12 +148,10 @@ fn face_model(args: &TrackArgs) -> anyhow::Result<FaceModel> {
         );
     }
     // (clap has a --heightmap come with its --normalmap)
-    let face_model = match (&args.heightmap, &args.normalmap) {
+    Ok(match (&args.heightmap, &args.normalmap) {
         (Some(h), Some(n)) => FaceModel::load(h, n, args.height_scale)?,
-        _ if photographed => FaceModel::photographed_with_face_depth(MODEL_GRID, args.face_depth)?,
-        _ => model()?,
-    };
-    Ok(face_model)
+        _ => built_in.build(args.synthetic, args.face_depth)?,
+    })
 }
 
 /// The tracker's settings from the command line (frames of `size` pixels).
