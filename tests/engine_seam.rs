@@ -10,6 +10,8 @@
 
 mod common;
 
+use std::ops::Range;
+
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_gpu::engine::{EngineReport, FilterEngine};
 use pf_gpu::toy::ToyGaussianLikelihood;
@@ -22,8 +24,12 @@ const SIGMA: [f32; D] = [2.0, 2.0, 0.05, 0.1, 0.1, 0.1, 0.05];
 const ANGLES: [bool; D] = [false, false, false, true, true, true, false];
 
 fn config() -> BatchConfig {
+    config_for(TARGETS)
+}
+
+fn config_for(targets: usize) -> BatchConfig {
     BatchConfig {
-        shape: BatchShape::new(TARGETS, PARTICLES, D).unwrap(),
+        shape: BatchShape::new(targets, PARTICLES, D).unwrap(),
         seed: 9,
         sigma: vec![1.0, 1.0, 0.01, 0.02, 0.02, 0.02, 0.01],
         bounds: None,
@@ -39,10 +45,12 @@ fn observation(t: usize, step: usize) -> [f32; D] {
     [10.0 * t as f32 + step as f32, 5.0, 1.0, 0.1, -0.2, 0.0, 1.0]
 }
 
-/// An engine with its GPU likelihood (the toy's hand-written kernel, prepared once).
+/// An engine with its GPU likelihood (the toy's hand-written kernel, prepared once), for the
+/// targets `targets` of the whole batch of [`TARGETS`].
 struct Rig {
     engine: FilterEngine,
     toy: Option<ToyGaussianLikelihood>,
+    targets: Range<usize>,
 }
 
 fn start() -> Vec<f32> {
@@ -50,29 +58,53 @@ fn start() -> Vec<f32> {
     gaussian_clouds(&config().shape, 3, &means, &SIGMA)
 }
 
+/// The whole batch's starting clouds of `targets`.
+fn start_of(targets: &Range<usize>) -> Vec<f32> {
+    let block = D * PARTICLES;
+    start()[targets.start * block..targets.end * block].to_vec()
+}
+
 fn cpu() -> Option<Rig> {
+    cpu_part(0..TARGETS)
+}
+
+/// The CPU engine for `targets` of the whole batch, numbered as in the whole.
+fn cpu_part(targets: Range<usize>) -> Option<Rig> {
+    let mut engine = FilterEngine::cpu(&config_for(targets.len()), start_of(&targets)).unwrap();
+    engine.number_targets_from(targets.start).unwrap();
     Some(Rig {
-        engine: FilterEngine::cpu(&config(), start()).unwrap(),
+        engine,
         toy: None,
+        targets,
     })
 }
 
 fn gpu() -> Option<Rig> {
+    gpu_part(0..TARGETS)
+}
+
+/// The GPU engine for `targets` of the whole batch, numbered as in the whole.
+fn gpu_part(targets: Range<usize>) -> Option<Rig> {
     let ctx = common::gpu_context("engine seam on the GPU")?;
-    let mut toy = ToyGaussianLikelihood::new(&ctx, TARGETS, &SIGMA).unwrap();
-    let engine = FilterEngine::gpu(ctx, &config(), &start()).unwrap();
+    let mut toy = ToyGaussianLikelihood::new(&ctx, targets.len(), &SIGMA).unwrap();
+    let config = config_for(targets.len());
+    let mut engine = FilterEngine::gpu(ctx, &config, &start_of(&targets)).unwrap();
+    engine.number_targets_from(targets.start).unwrap();
     let (ctx, inputs) = engine.likelihood_inputs().unwrap();
     toy.prepare(ctx, &inputs).unwrap();
     Some(Rig {
         engine,
         toy: Some(toy),
+        targets,
     })
 }
 
 impl Rig {
     /// One step against the observations of `step`, the same likelihood on either engine.
     fn step(&mut self, step: usize) -> EngineReport {
-        let observed: Vec<f32> = (0..TARGETS).flat_map(|t| observation(t, step)).collect();
+        let observed: Vec<f32> = (self.targets.clone())
+            .flat_map(|t| observation(t, step))
+            .collect();
         if let (Some(toy), Some(ctx)) = (&self.toy, self.engine.context()) {
             toy.upload_observations(ctx, &observed).unwrap();
         }
@@ -135,6 +167,27 @@ fn resets_one_target_and_reads_the_particles(rig: Option<Rig>) {
     assert!(rig.engine.reset_target(0, &cloud[1..]).is_err());
 }
 
+/// A batch split in two engines, each numbering its targets from its first: every target steps
+/// as in the whole batch, bit for bit (the engine's several-GPU split, and its CPU twin).
+fn a_split_batch_steps_as_the_whole(part: fn(Range<usize>) -> Option<Rig>) {
+    let (Some(mut whole), Some(mut first), Some(mut second)) =
+        (part(0..TARGETS), part(0..1), part(1..TARGETS))
+    else {
+        return;
+    };
+    for step in 0..5 {
+        let want = whole.step(step);
+        let (a, b) = (first.step(step), second.step(step));
+        let got: Vec<u32> = [a.estimates, b.estimates]
+            .concat()
+            .iter()
+            .map(|x| x.to_bits())
+            .collect();
+        let want: Vec<u32> = want.estimates.iter().map(|x| x.to_bits()).collect();
+        assert_eq!(got, want, "step {step}");
+    }
+}
+
 /// One test per (check, engine).
 macro_rules! every_engine {
     ($($check:ident),*) => {
@@ -147,6 +200,20 @@ every_engine!(
     follows_its_observations,
     resets_one_target_and_reads_the_particles
 );
+
+mod on_cpu_split {
+    #[test]
+    fn a_split_batch_steps_as_the_whole() {
+        super::a_split_batch_steps_as_the_whole(super::cpu_part)
+    }
+}
+
+mod on_gpu_split {
+    #[test]
+    fn a_split_batch_steps_as_the_whole() {
+        super::a_split_batch_steps_as_the_whole(super::gpu_part)
+    }
+}
 
 #[test]
 fn the_engines_agree_on_the_same_seed() {

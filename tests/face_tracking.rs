@@ -100,20 +100,21 @@ fn tracks_two_faces_on_gpu() {
     });
 }
 
-/// Two faces split over two GPU contexts, one face each: they track to the same bounds; and the
-/// slots on one context through the several-GPU path are the one-GPU tracker exactly.
+/// Two faces split over two GPU contexts, one face each: they track to the same bounds, and
+/// exactly as on one GPU (each shard numbers its slots as the whole tracker does, so every slot
+/// draws the numbers it draws on one GPU); the several-GPU path with one context is the one-GPU
+/// tracker too.
 #[test]
 fn tracks_two_faces_split_over_two_gpu_contexts() {
     let context = || common::gpu_context("face tracking on two GPU contexts");
     check(|| Some(FaceBackend::Gpus(vec![context()?, context()?])));
-    let (Some(a), Some(b)) = (context(), context()) else {
+    let (Some(a), Some(b), Some(c), Some(d)) = (context(), context(), context(), context()) else {
         return;
     };
     let short = video(6);
-    assert_eq!(
-        run(&short, FaceBackend::Gpus(vec![a])),
-        run(&short, FaceBackend::Gpu(Box::new(b)))
-    );
+    let one_gpu = run(&short, FaceBackend::Gpu(Box::new(b)));
+    assert_eq!(run(&short, FaceBackend::Gpus(vec![a])), one_gpu);
+    assert_eq!(run(&short, FaceBackend::Gpus(vec![c, d])), one_gpu);
 }
 
 #[test]

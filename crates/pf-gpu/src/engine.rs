@@ -198,6 +198,16 @@ impl FilterEngine {
         }
     }
 
+    /// Makes this engine's targets targets `first ..` of a larger batch split over several
+    /// engines (one per GPU), so that each draws the random numbers it draws in the whole
+    /// batch and the parts step as the whole would.
+    pub fn number_targets_from(&mut self, first: usize) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(filter) => Ok(filter.number_targets_from(first)?),
+            Self::Gpu(gpu) => gpu.filter.number_targets_from(&gpu.ctx, first),
+        }
+    }
+
     /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights.
     pub fn reset_target(&mut self, t: usize, states: &[f32]) -> Result<(), GpuError> {
         match self {

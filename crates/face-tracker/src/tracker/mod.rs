@@ -278,9 +278,9 @@ impl FaceTracker {
         let sizes = shard_sizes(capacity, contexts.len())?;
         let mut shards = Vec::with_capacity(sizes.len());
         let mut first_slot = 0;
-        for (index, (ctx, slots)) in contexts.into_iter().zip(sizes).enumerate() {
+        for (ctx, slots) in contexts.into_iter().zip(sizes) {
             shards.push(Shard::new(
-                &config, &batch, first_slot, slots, index, frame_size, ctx,
+                &config, &batch, first_slot, slots, frame_size, ctx,
             )?);
             first_slot += slots;
         }

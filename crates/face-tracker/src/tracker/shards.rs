@@ -4,12 +4,12 @@
 //! Faces are independent filters, so several GPUs split them with nothing to exchange: each GPU
 //! runs the whole step for its slots (frame upload, every annealing layer, the estimates and
 //! their check) in its own submission, the shards step at once on threads of their own, and the
-//! host only puts their estimates side by side in slot order. Each shard draws its own random
-//! numbers (shard 0 those of a one-engine tracker).
+//! host only puts their estimates side by side in slot order. Each shard numbers its slots as
+//! the whole tracker does (`FilterEngine::number_targets_from`), so a slot draws the random
+//! numbers it draws on one engine and the shards track as one GPU would.
 
 use crate::likelihood::gpu::FaceLikelihoodGpu;
 use pf_core::batch::{BatchConfig, BatchShape};
-use pf_core::random::part_seed;
 use pf_gpu::engine::{EngineReport, FilterEngine};
 use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood, PendingStep};
 use rayon::prelude::*;
@@ -109,14 +109,12 @@ impl Shard {
         batch: &BatchConfig,
         first_slot: usize,
         slots: usize,
-        index: usize,
         frame_size: (u32, u32),
         ctx: Option<GpuContext>,
     ) -> Result<Self, FaceError> {
         let shape = BatchShape::new(slots, config.particles, DIMS)?;
         let batch = BatchConfig {
             shape,
-            seed: part_seed(batch.seed, index),
             ..batch.clone()
         };
         batch.validate()?;
@@ -145,6 +143,8 @@ impl Shard {
                 (engine, Some(Box::new(likelihood)))
             }
         };
+        let mut engine = engine;
+        engine.number_targets_from(first_slot)?;
         Ok(Self {
             engine,
             gpu_likelihood,

@@ -135,6 +135,8 @@ pub struct BatchFilter<R> {
     previous_estimates: Vec<f32>,
     diffusion_keys: Vec<[u32; 2]>,
     resampling_keys: Vec<[u32; 2]>,
+    /// The configuration's seed (the targets' random keys derive from it).
+    seed: u64,
     /// The states, `[(t·D + d)·M + m]`.
     pub states: Vec<f32>,
     /// The normalised log-weights, `[t·M + m]`.
@@ -312,6 +314,7 @@ impl<R: Resampler> BatchFilter<R> {
             previous_estimates: vec![f32::NAN; shape.targets * shape.dims],
             diffusion_keys: stage_keys(config.seed, shape.targets, Stage::Diffusion),
             resampling_keys: stage_keys(config.seed, shape.targets, Stage::Resampling),
+            seed: config.seed,
             scratch: vec![0.0; initial_states.len()],
             states: initial_states,
             log_weights: vec![-(shape.particles as f32).ln(); n],
@@ -326,6 +329,24 @@ impl<R: Resampler> BatchFilter<R> {
     /// The batch's shape.
     pub fn shape(&self) -> &BatchShape {
         &self.shape
+    }
+
+    /// Makes this batch's targets targets `first ..` of a larger batch split over several
+    /// filters: each then draws the random numbers it draws in the whole batch (the twin of
+    /// `pf_gpu::GpuFilter::number_targets_from`).
+    pub fn number_targets_from(&mut self, first: usize) -> Result<(), PfError> {
+        let targets = self.shape.targets;
+        if first
+            .checked_add(targets)
+            .is_none_or(|end| end > u32::MAX as usize)
+        {
+            return Err(PfError::InvalidConfig(format!(
+                "targets {first} and on of a batch: the index of a target is 32 bits"
+            )));
+        }
+        self.diffusion_keys = stage_keys_from(self.seed, first, targets, Stage::Diffusion);
+        self.resampling_keys = stage_keys_from(self.seed, first, targets, Stage::Resampling);
+        Ok(())
     }
 
     /// Restarts target `t` from `states` (its `D·M` values, `[d·M + m]`) with equal weights:
