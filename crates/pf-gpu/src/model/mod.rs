@@ -37,7 +37,7 @@ pub use check::{
     ABSOLUTE_TOLERANCE, CheckInputs, Mismatch, ModelCheck, RELATIVE_TOLERANCE, agrees,
     check_against_cpu, tolerance,
 };
-pub use filter::{ModelFilter, RawModelFilter};
+pub use filter::{ModelFilter, PluginFilter, PluginModel, RawModelFilter};
 pub use sharded::{ShardedModelFilter, ShardedPending, ShardedStepReport};
 
 use std::marker::PhantomData;
