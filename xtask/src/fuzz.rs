@@ -12,6 +12,40 @@ use anyhow::{Context, bail};
 use crate::run;
 
 pub fn fuzz(args: &[String]) -> anyhow::Result<()> {
+    let (seconds, only) = fuzz_options(args)?;
+    ensure_cargo_afl()?;
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz");
+    run(
+        // Its own target directory (fuzz/target), whatever CARGO_TARGET_DIR says: the harness is
+        // looked for there, and its instrumented build must not evict the workspace's.
+        Command::new("cargo")
+            .args(["afl", "build", "--release"])
+            .current_dir(&dir)
+            .env_remove("CARGO_TARGET_DIR"),
+        "building the AFL++ harness (cargo afl build, in fuzz/)",
+    )?;
+    let harness = dir.join("target/release/parsers");
+    let seeds = dir.join("target/afl-seeds");
+    let names = write_seeds(&harness, &seeds, only.as_deref())?;
+    let mut crashed = Vec::new();
+    println!(
+        "{:>14} {:>11} {:>7} {:>8}",
+        "target", "executions", "corpus", "crashes"
+    );
+    for name in &names {
+        let out = dir.join("target/afl").join(name);
+        if fuzz_one(&harness, &seeds, &out, name, seconds)? > 0 {
+            crashed.push(out.join("default/crashes").display().to_string());
+        }
+    }
+    if !crashed.is_empty() {
+        bail!("inputs that crash a parser are in: {}", crashed.join(", "));
+    }
+    Ok(())
+}
+
+/// `--seconds N` (default 10) and `--only NAME,...`.
+fn fuzz_options(args: &[String]) -> anyhow::Result<(u64, Option<Vec<String>>)> {
     let mut seconds = 10u64;
     let mut only: Option<Vec<String>> = None;
     let mut it = args.iter();
@@ -31,23 +65,20 @@ pub fn fuzz(args: &[String]) -> anyhow::Result<()> {
             other => bail!("unknown option {other:?} for `fuzz` (--seconds N, --only NAME,...)"),
         }
     }
-    ensure_cargo_afl()?;
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../fuzz");
-    run(
-        // Its own target directory (fuzz/target), whatever CARGO_TARGET_DIR says: the harness is
-        // looked for there, and its instrumented build must not evict the workspace's.
-        Command::new("cargo")
-            .args(["afl", "build", "--release"])
-            .current_dir(&dir)
-            .env_remove("CARGO_TARGET_DIR"),
-        "building the AFL++ harness (cargo afl build, in fuzz/)",
-    )?;
-    let harness = dir.join("target/release/parsers");
-    let seeds = dir.join("target/afl-seeds");
-    let _ = std::fs::remove_dir_all(&seeds);
-    let listed = Command::new(&harness)
+    Ok((seconds, only))
+}
+
+/// Has the harness write every target's seeds into `seeds`; the targets to fuzz (those `only`
+/// names, or all).
+fn write_seeds(
+    harness: &Path,
+    seeds: &Path,
+    only: Option<&[String]>,
+) -> anyhow::Result<Vec<String>> {
+    let _ = std::fs::remove_dir_all(seeds);
+    let listed = Command::new(harness)
         .arg("--write-seeds")
-        .arg(&seeds)
+        .arg(seeds)
         .output()
         .context("writing the seeds")?;
     if !listed.status.success() {
@@ -59,7 +90,7 @@ pub fn fuzz(args: &[String]) -> anyhow::Result<()> {
     let names: Vec<String> = String::from_utf8_lossy(&listed.stdout)
         .lines()
         .map(str::to_string)
-        .filter(|n| only.as_ref().is_none_or(|o| o.contains(n)))
+        .filter(|n| only.is_none_or(|o| o.contains(n)))
         .collect();
     if names.is_empty() {
         bail!(
@@ -67,60 +98,58 @@ pub fn fuzz(args: &[String]) -> anyhow::Result<()> {
             String::from_utf8_lossy(&listed.stdout).replace('\n', " ")
         );
     }
-    let mut crashed = Vec::new();
+    Ok(names)
+}
+
+/// Fuzzes target `name` for `seconds` into `out`, prints its line of the table and returns the
+/// crashes it saved.
+fn fuzz_one(
+    harness: &Path,
+    seeds: &Path,
+    out: &Path,
+    name: &str,
+    seconds: u64,
+) -> anyhow::Result<u64> {
+    let _ = std::fs::remove_dir_all(out);
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let log = std::fs::File::create(out.with_extension("log"))?;
+    run(
+        Command::new("cargo")
+            .args(["afl", "fuzz", "-V", &seconds.to_string(), "-i"])
+            .arg(seeds.join(name))
+            .arg("-o")
+            .arg(out)
+            .arg("--")
+            .arg(harness)
+            .arg(name)
+            // No terminal UI; no tuning of the machine (CI has no say over CPU governors or
+            // where cores are dumped).
+            .env("AFL_NO_UI", "1")
+            .env("AFL_SKIP_CPUFREQ", "1")
+            .env("AFL_I_DONT_CARE_ABOUT_MISSING_CRASHES", "1")
+            .stdout(log.try_clone()?)
+            .stderr(log),
+        &format!(
+            "afl-fuzz on {name} (log: {})",
+            out.with_extension("log").display()
+        ),
+    )?;
+    let stats = std::fs::read_to_string(out.join("default/fuzzer_stats"))
+        .with_context(|| format!("{name}: afl-fuzz wrote no statistics"))?;
+    let stat = |key: &str| -> u64 {
+        stats
+            .lines()
+            .find_map(|l| l.split_once(':').filter(|(k, _)| k.trim() == key))
+            .and_then(|(_, v)| v.trim().parse().ok())
+            .unwrap_or(0)
+    };
+    let crashes = stat("saved_crashes");
     println!(
-        "{:>14} {:>11} {:>7} {:>8}",
-        "target", "executions", "corpus", "crashes"
+        "{name:>14} {:>11} {:>7} {crashes:>8}",
+        stat("execs_done"),
+        stat("corpus_count")
     );
-    for name in &names {
-        let out = dir.join("target/afl").join(name);
-        let _ = std::fs::remove_dir_all(&out);
-        std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-        let log = std::fs::File::create(out.with_extension("log"))?;
-        run(
-            Command::new("cargo")
-                .args(["afl", "fuzz", "-V", &seconds.to_string(), "-i"])
-                .arg(seeds.join(name))
-                .arg("-o")
-                .arg(&out)
-                .arg("--")
-                .arg(&harness)
-                .arg(name)
-                // No terminal UI; no tuning of the machine (CI has no say over CPU governors or
-                // where cores are dumped).
-                .env("AFL_NO_UI", "1")
-                .env("AFL_SKIP_CPUFREQ", "1")
-                .env("AFL_I_DONT_CARE_ABOUT_MISSING_CRASHES", "1")
-                .stdout(log.try_clone()?)
-                .stderr(log),
-            &format!(
-                "afl-fuzz on {name} (log: {})",
-                out.with_extension("log").display()
-            ),
-        )?;
-        let stats = std::fs::read_to_string(out.join("default/fuzzer_stats"))
-            .with_context(|| format!("{name}: afl-fuzz wrote no statistics"))?;
-        let stat = |key: &str| -> u64 {
-            stats
-                .lines()
-                .find_map(|l| l.split_once(':').filter(|(k, _)| k.trim() == key))
-                .and_then(|(_, v)| v.trim().parse().ok())
-                .unwrap_or(0)
-        };
-        let crashes = stat("saved_crashes");
-        println!(
-            "{name:>14} {:>11} {:>7} {crashes:>8}",
-            stat("execs_done"),
-            stat("corpus_count")
-        );
-        if crashes > 0 {
-            crashed.push(out.join("default/crashes").display().to_string());
-        }
-    }
-    if !crashed.is_empty() {
-        bail!("inputs that crash a parser are in: {}", crashed.join(", "));
-    }
-    Ok(())
+    Ok(crashes)
 }
 
 /// cargo-afl (which builds AFL++ when it is installed) unless it is there.

@@ -91,6 +91,59 @@ pub(crate) fn focal_length(fov: Option<f32>, width: u32) -> PyResult<Option<f32>
     Ok(Some(focal))
 }
 
+/// The detector's cascade when `detect` is on (OpenCV's frontal cascade unless `cascade` names
+/// one); a cascade without `detect` is an error.
+fn load_cascade(detect: bool, cascade: Option<std::path::PathBuf>) -> PyResult<Option<Cascade>> {
+    match (detect, cascade) {
+        (false, None) => Ok(None),
+        (false, Some(_)) => Err(value_error("cascade is given but detect is False")),
+        (true, path) => {
+            let path = path.unwrap_or_else(|| face_tracker::detect::DEFAULT_CASCADE.into());
+            if !path.exists() {
+                return Err(pyo3::exceptions::PyFileNotFoundError::new_err(format!(
+                    "the face detector's cascade {} is missing: install Debian's \
+                     opencv-data, pass cascade=PATH to an OpenCV Haar cascade XML, or \
+                     track from rectangles (detect=False, add_face)",
+                    path.display()
+                )));
+            }
+            Ok(Some(Cascade::load(&path).map_err(face)?))
+        }
+    }
+}
+
+/// The detector on a GPU of its own (`on_gpu`) or on the CPU.
+fn open_detector(
+    py: Python<'_>,
+    cascade: Cascade,
+    on_gpu: bool,
+    allow_software: bool,
+) -> PyResult<FaceDetector> {
+    if !on_gpu {
+        return Ok(FaceDetector::Cpu(cascade));
+    }
+    let ctx = open(py, Choice::Gpu, allow_software)?
+        .into_iter()
+        .next()
+        .ok_or_else(|| runtime_error("no GPU for the detector"))?;
+    Ok(FaceDetector::from(
+        py.detach(|| GpuCascade::new(ctx, cascade)).map_err(face)?,
+    ))
+}
+
+/// What the filters run on, for `device`: "CPU" or the GPUs' names.
+fn device_names(backend: &face_tracker::FaceBackend) -> String {
+    match backend {
+        face_tracker::FaceBackend::Cpu => "CPU".to_string(),
+        face_tracker::FaceBackend::Gpu(ctx) => ctx.adapter().name.clone(),
+        face_tracker::FaceBackend::Gpus(all) => all
+            .iter()
+            .map(|c| c.adapter().name.clone())
+            .collect::<Vec<_>>()
+            .join(", "),
+    }
+}
+
 fn rect_from(rect: (f32, f32, f32, f32)) -> PyResult<FaceRect> {
     let (x, y, width, height) = rect;
     if ![x, y, width, height].iter().all(|v| v.is_finite()) || width <= 0.0 || height <= 0.0 {
@@ -160,75 +213,46 @@ impl FaceTracker {
         // Frames from arrays are real frames (a synthetic video is asked for by name).
         let photographed = built_in.is_photographed(false);
         let config = config(particles, seed, layers, focal_length(fov, width)?)?;
-        let cascade = match (detect, cascade) {
-            (false, None) => None,
-            (false, Some(_)) => {
-                return Err(value_error("cascade is given but detect is False"));
-            }
-            (true, path) => {
-                let path = path.unwrap_or_else(|| face_tracker::detect::DEFAULT_CASCADE.into());
-                if !path.exists() {
-                    return Err(pyo3::exceptions::PyFileNotFoundError::new_err(format!(
-                        "the face detector's cascade {} is missing: install Debian's \
-                         opencv-data, pass cascade=PATH to an OpenCV Haar cascade XML, or \
-                         track from rectangles (detect=False, add_face)",
-                        path.display()
-                    )));
-                }
-                Some(Cascade::load(&path).map_err(face)?)
-            }
-        };
+        let cascade = load_cascade(detect, cascade)?;
         let contexts = open(py, choice, allow_software)?;
         let backend = face_backend(contexts, choice);
-        let device = match &backend {
-            face_tracker::FaceBackend::Cpu => "CPU".to_string(),
-            face_tracker::FaceBackend::Gpu(ctx) => ctx.adapter().name.clone(),
-            face_tracker::FaceBackend::Gpus(all) => all
-                .iter()
-                .map(|c| c.adapter().name.clone())
-                .collect::<Vec<_>>()
-                .join(", "),
-        };
-        let on_gpu = detector_on.runs_on_gpu(&backend);
+        let device = device_names(&backend);
         let detector = match cascade {
-            Some(cascade) if on_gpu => {
-                let ctx = open(py, Choice::Gpu, allow_software)?
-                    .into_iter()
-                    .next()
-                    .ok_or_else(|| runtime_error("no GPU for the detector"))?;
-                Some(FaceDetector::from(
-                    py.detach(|| GpuCascade::new(ctx, cascade)).map_err(face)?,
-                ))
-            }
-            Some(cascade) => Some(FaceDetector::Cpu(cascade)),
+            Some(cascade) => Some(open_detector(
+                py,
+                cascade,
+                detector_on.runs_on_gpu(&backend),
+                allow_software,
+            )?),
             None => None,
         };
         let size = (width, height);
+        let detecting = detector.map(|detector| {
+            let auto = AutoConfig {
+                detect_every,
+                detect: DetectConfig {
+                    min_size: min_face,
+                    ..DetectConfig::default()
+                },
+                max_faces,
+                // Frames from an array play as a file does: the detector's answer is used
+                // before the next is due, so a run is repeatable.
+                detection_delay: Some(1),
+                tracker: config.clone(),
+                ..AutoConfig::default()
+            };
+            (detector, auto)
+        });
         let engine = py
             .detach(|| -> Result<Engine, face_tracker::FaceError> {
                 let model = built_in.build(false, 1.0)?;
-                Ok(match detector {
+                Ok(match detecting {
                     None => Engine::Fixed(Box::new(face_tracker::FaceTracker::with_capacity(
                         size, max_faces, &model, config, backend,
                     )?)),
-                    Some(detector) => {
-                        let auto = AutoConfig {
-                            detect_every,
-                            detect: DetectConfig {
-                                min_size: min_face,
-                                ..DetectConfig::default()
-                            },
-                            max_faces,
-                            // Frames from an array play as a file does: the detector's answer
-                            // is used before the next is due, so a run is repeatable.
-                            detection_delay: Some(1),
-                            tracker: config,
-                            ..AutoConfig::default()
-                        };
-                        Engine::Detecting(Box::new(AutoTracker::new(
-                            size, detector, &model, auto, backend,
-                        )?))
-                    }
+                    Some((detector, auto)) => Engine::Detecting(Box::new(AutoTracker::new(
+                        size, detector, &model, auto, backend,
+                    )?)),
                 })
             })
             .map_err(face)?;

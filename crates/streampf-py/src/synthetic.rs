@@ -139,14 +139,7 @@ pub fn synthetic_body<'py>(
     let dofs = skeleton.dofs();
     let points = rendered
         .iter()
-        .map(|(_, frame)| {
-            let n = frame.points.len();
-            to_numpy(
-                py,
-                frame.points.iter().flat_map(|p| [p.x, p.y, p.z]).collect(),
-                &[n, 3],
-            )
-        })
+        .map(|(_, frame)| points_array(py, &frame.points))
         .collect::<PyResult<Vec<_>>>()?;
     let depth: Vec<u16> = rendered
         .iter()
@@ -161,13 +154,6 @@ pub fn synthetic_body<'py>(
         .map(|(t, _)| joints_array(py, &skeleton, t))
         .collect::<PyResult<Vec<_>>>()?;
     let numpy = py.import("numpy")?;
-    let camera = &config.camera;
-    let intrinsics = PyDict::new(py);
-    intrinsics.set_item("fx", camera.fx)?;
-    intrinsics.set_item("fy", camera.fy)?;
-    intrinsics.set_item("cx", camera.cx)?;
-    intrinsics.set_item("cy", camera.cy)?;
-    intrinsics.set_item("depth_scale", camera.depth_scale)?;
     let out = PyDict::new(py);
     out.set_item("points", points)?;
     out.set_item(
@@ -176,7 +162,34 @@ pub fn synthetic_body<'py>(
     )?;
     out.set_item("truth", to_numpy(py, truth, &[frames, dofs])?)?;
     out.set_item("joints", numpy.call_method1("stack", (joints,))?)?;
-    out.set_item("intrinsics", intrinsics)?;
+    out.set_item("intrinsics", intrinsics_dict(py, &config.camera)?)?;
     out.set_item("pose_names", skeleton.pose_names())?;
     Ok(out)
+}
+
+/// A frame's points as an (N, 3) float32 array.
+fn points_array<'py>(
+    py: Python<'py>,
+    points: &[nalgebra::Vector3<f32>],
+) -> PyResult<Bound<'py, PyAny>> {
+    let n = points.len();
+    to_numpy(
+        py,
+        points.iter().flat_map(|p| [p.x, p.y, p.z]).collect(),
+        &[n, 3],
+    )
+}
+
+/// A camera's intrinsics as the dict Python reads (fx, fy, cx, cy, depth_scale).
+fn intrinsics_dict<'py>(
+    py: Python<'py>,
+    camera: &body_tracker::camera::Intrinsics,
+) -> PyResult<Bound<'py, PyDict>> {
+    let intrinsics = PyDict::new(py);
+    intrinsics.set_item("fx", camera.fx)?;
+    intrinsics.set_item("fy", camera.fy)?;
+    intrinsics.set_item("cx", camera.cx)?;
+    intrinsics.set_item("cy", camera.cy)?;
+    intrinsics.set_item("depth_scale", camera.depth_scale)?;
+    Ok(intrinsics)
 }

@@ -248,7 +248,63 @@ fn observe(k: u32, t: u32, noise: &mut RandomStream, space: &StateSpace<7>) -> P
 /// larger run is refused before it allocates rather than aborted by the allocator.
 const MAX_TOTAL_PARTICLES: u64 = 100_000_000;
 
-pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
+/// The errors of a run, summed over steps (each step's the mean over its targets).
+#[derive(Default)]
+struct Tally {
+    translation: f32,
+    rotation: f32,
+    max_translation: f32,
+    max_rotation: f32,
+    observed_translation: f32,
+    observed_rotation: f32,
+}
+
+impl Tally {
+    /// Adds step `t`'s errors; its mean translation and rotation errors and the observations'
+    /// translation error.
+    fn add_step(
+        &mut self,
+        space: &StateSpace<7>,
+        t: u32,
+        estimates: &[Pose],
+        observed: &[Pose],
+    ) -> (f32, f32, f32) {
+        let n = estimates.len() as f32;
+        let (mut step_t, mut step_r, mut step_obs_t) = (0.0, 0.0, 0.0);
+        for (k, (estimate, seen)) in estimates.iter().zip(observed).enumerate() {
+            let x = truth(k as u32, t);
+            let (et, er) = errors(space, estimate, &x);
+            let (obs_t, obs_r) = errors(space, seen, &x);
+            step_t += et / n;
+            step_r += er / n;
+            step_obs_t += obs_t / n;
+            self.observed_rotation += obs_r / n;
+            self.max_translation = self.max_translation.max(et);
+            self.max_rotation = self.max_rotation.max(er);
+        }
+        self.translation += step_t;
+        self.rotation += step_r;
+        self.observed_translation += step_obs_t;
+        (step_t, step_r, step_obs_t)
+    }
+
+    fn print_summary(&self, steps: u32) {
+        let n = steps as f32;
+        outln!(
+            "summary: mean translation error {:.2} px (max {:.2}), mean rotation error {:.2} deg (max {:.2}); \
+             the raw observations were off by {:.2} px and {:.2} deg on average",
+            self.translation / n,
+            self.max_translation,
+            self.rotation / n,
+            self.max_rotation,
+            self.observed_translation / n,
+            self.observed_rotation / n
+        );
+    }
+}
+
+/// The resampling policy `--ess-threshold` asks for, after the run's size is checked.
+fn checked_policy(args: &DemoArgs) -> anyhow::Result<ResamplePolicy> {
     let total = u64::from(args.targets) * u64::from(args.particles);
     if total > MAX_TOTAL_PARTICLES {
         bail!(
@@ -257,11 +313,15 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
             args.particles
         );
     }
-    let policy = match args.ess_threshold {
+    Ok(match args.ess_threshold {
         None => ResamplePolicy::EveryStep,
         Some(f) if f > 0.0 && f <= 1.0 => ResamplePolicy::EssBelow(f),
         Some(f) => bail!("--ess-threshold must be a fraction in (0, 1], got {f}"),
-    };
+    })
+}
+
+pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
+    let policy = checked_policy(args)?;
     let space = StateSpace::with_angles(&ANGLES)?;
     let mut trackers = Trackers::new(args, policy, space)?;
     // The sequence's noise has its own stream per target, apart from the filters'.
@@ -282,9 +342,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     if !args.quiet {
         outln!("step  transl.err(px)  rot.err(deg)  obs.transl.err(px)  mean ESS  resampled");
     }
-    let n_targets = args.targets as f32;
-    let (mut sum_t, mut sum_r, mut max_t, mut max_r) = (0.0, 0.0, 0.0f32, 0.0f32);
-    let (mut sum_obs_t, mut sum_obs_r) = (0.0, 0.0);
+    let mut tally = Tally::default();
     let mut gpu_time = Duration::ZERO;
     let mut gpu_time_source = "";
     let start = Instant::now();
@@ -299,21 +357,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
             gpu_time += time.duration();
             gpu_time_source = time.source();
         }
-        let (mut step_t, mut step_r, mut step_obs_t) = (0.0, 0.0, 0.0);
-        for k in 0..args.targets {
-            let x = truth(k, t);
-            let (et, er) = errors(&space, &frame.estimates[k as usize], &x);
-            let (obs_t, obs_r) = errors(&space, &observed[k as usize], &x);
-            step_t += et / n_targets;
-            step_r += er / n_targets;
-            step_obs_t += obs_t / n_targets;
-            sum_obs_r += obs_r / n_targets;
-            max_t = max_t.max(et);
-            max_r = max_r.max(er);
-        }
-        sum_t += step_t;
-        sum_r += step_r;
-        sum_obs_t += step_obs_t;
+        let (step_t, step_r, step_obs_t) = tally.add_step(&space, t, &frame.estimates, &observed);
         if !args.quiet {
             let mean_ess = frame.ess.iter().sum::<f64>() / frame.ess.len() as f64;
             outln!(
@@ -324,17 +368,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
         }
     }
     let elapsed = start.elapsed();
-    let n = args.steps as f32;
-    outln!(
-        "summary: mean translation error {:.2} px (max {:.2}), mean rotation error {:.2} deg (max {:.2}); \
-         the raw observations were off by {:.2} px and {:.2} deg on average",
-        sum_t / n,
-        max_t,
-        sum_r / n,
-        max_r,
-        sum_obs_t / n,
-        sum_obs_r / n
-    );
+    tally.print_summary(args.steps);
     let per_step_ms = elapsed.as_secs_f64() * 1e3 / f64::from(args.steps);
     match &trackers {
         Trackers::Cpu(_) => outln!(
