@@ -12,9 +12,11 @@
 //! The files: `args.rs` (the command line), `synth.rs`, `inputs.rs` (what a run reads),
 //! `runner.rs` (the tracker it steps), `session/` (the run pipeline: frames in, rows out,
 //! interrupts, `--resume`; `session/in_flight.rs`, two frames in flight) and `record.rs` (the
-//! files it writes and the summary).
+//! files it writes and the summary) with `extras.rs` (the rerun frame, the overlay's colours,
+//! the particles).
 
 mod args;
+mod extras;
 mod inputs;
 mod record;
 mod runner;

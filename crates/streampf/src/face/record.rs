@@ -1,80 +1,22 @@
-//! A run's written results: `TrackRecord` (states.csv, errors.csv, landmarks.csv, the summary)
-//! and the per-frame extras (the rerun recording's frame, the overlay's colours, particles).
+//! A run's written results: `TrackRecord` (states.csv, errors.csv, landmarks.csv, the summary).
 
 use super::args::TrackArgs;
 use super::runner::Runner;
 use super::{ERRORS_FILE, LANDMARKS_FILE, STATES_FILE};
-use crate::face_io::Source;
-use crate::face_overlay::ColourFrames;
-use crate::recording::{FaceClouds, FaceFrame, Recording};
 use crate::run_output::{CsvStream, ResumePoint, SkipLog};
 use face_tracker::projection::{
     DIMS, RZ, STATE_NAMES, pitch_yaw_roll_degrees, rotation_quaternion,
 };
 use face_tracker::tracker::pose_errors;
-use face_tracker::{FaceEstimate, FaceTracker, GrayImage, TrackStatus};
+use face_tracker::{FaceEstimate, TrackStatus};
 use std::path::Path;
 
-/// Logs a tracked frame to the rerun recording: the frame, the tracks, their particle clouds
-/// (read back from the filter) and, with the ground truth, their errors.
-pub(super) fn record_face_frame(
-    recording: &Recording,
-    frame: usize,
-    seconds: f64,
-    image: &GrayImage,
-    runner: &Runner,
-    estimates: &[FaceEstimate],
-    truth: Option<&Vec<[f32; DIMS]>>,
-) -> anyhow::Result<()> {
-    let tracker = runner.tracker();
-    let (shape, states, _) = tracker.particles()?;
-    let clouds = FaceClouds {
-        states: &states,
-        particles: shape.particles,
-    };
-    let errors: Vec<(usize, f32, f32)> = estimates
-        .iter()
-        .filter(|e| e.status == TrackStatus::Tracking)
-        .filter_map(|e| {
-            let t = truth?.get(e.track)?;
-            let (translation, rotation) = pose_errors(&e.state, t);
-            Some((e.track, translation, rotation))
-        })
-        .collect();
-    recording.face_frame(FaceFrame {
-        frame,
-        seconds,
-        image,
-        templates: &tracker.templates(),
-        estimates,
-        lens: tracker.lens(),
-        clouds: Some(clouds),
-        errors: &errors,
-    })
-}
-
-/// The overlay's colour frames: the image files again, or the video decoded a second time; none
-/// for a generated video or a camera (drawn in gray).
-pub(super) fn colour_frames(
-    args: &TrackArgs,
-    source: &Source,
-    size: (u32, u32),
-) -> anyhow::Result<Option<ColourFrames>> {
-    Ok(match (source, args.input.as_deref()) {
-        (Source::Images { files, .. }, _) => Some(ColourFrames::images(files.clone())),
-        (Source::Video(_), Some(path)) if args.webcam.is_none() => {
-            Some(ColourFrames::video(path, size)?)
-        }
-        _ => None,
-    })
-}
-
-/// What a run has tracked: states.csv and (with ground truth) errors.csv, written as each frame
-/// is finished, the error sums and the time spent in the tracker.
 /// The columns of a states.csv row after `status`: the state, the residual, the spreads, the ESS,
 /// the confidence, three angles and a quaternion.
 pub(super) const STATE_COLUMNS_AFTER_STATUS: usize = DIMS + 1 + DIMS + 2 + 3 + 4;
 
+/// What a run has tracked: states.csv and (with ground truth) errors.csv, written as each frame
+/// is finished, the error sums and the time spent in the tracker.
 pub(super) struct TrackRecord {
     pub(super) states: CsvStream,
     pub(super) errors: Option<CsvStream>,
@@ -398,30 +340,4 @@ impl TrackRecord {
             ))
         );
     }
-}
-
-/// One frame's clouds as numpy files, with the track that runs in each slot (-1: free).
-pub(super) fn save_particles(
-    dir: &Path,
-    frame: usize,
-    tracker: &FaceTracker,
-    estimates: &[face_tracker::FaceEstimate],
-) -> anyhow::Result<()> {
-    let (shape, states, log_weights) = tracker.particles()?;
-    pf_numpy::write_particles(dir, frame, &shape, &states, &log_weights)?;
-    let mut tracks = vec![-1.0f32; shape.targets];
-    for e in estimates
-        .iter()
-        .filter(|e| e.status == TrackStatus::Tracking)
-    {
-        if let Some(slot) = tracks.get_mut(e.slot) {
-            *slot = e.track as f32;
-        }
-    }
-    pf_numpy::write_f32(
-        &dir.join(format!("tracks_{frame:06}.npy")),
-        &[shape.targets],
-        &tracks,
-    )?;
-    Ok(())
 }

@@ -4,8 +4,9 @@
 //! interrupt, a bad frame or a device fault keeps every row already written.
 
 use super::args::TrackArgs;
+use super::extras::{colour_frames, record_face_frame, save_particles};
 use super::inputs::{Input, open_input, parse_rect};
-use super::record::{TrackRecord, colour_frames, record_face_frame, save_particles};
+use super::record::TrackRecord;
 use super::runner::{Runner, announce, build_runner};
 use super::{ERRORS_FILE, LANDMARKS_FILE, STATES_FILE};
 use crate::annotated::Annotated;
