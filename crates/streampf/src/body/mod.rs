@@ -6,7 +6,8 @@
 //!   the per-frame mean joint position error (`errors.csv`) and its mean.
 //!
 //! The files: `args.rs` (the command line), `synth.rs`, `inputs.rs` (the sequence, its first pose
-//! and the engines), `session/` (the run pipeline; `session/run.rs`, the frame loop's steps),
+//! and the engines), `session/` (the run pipeline; `session/frames.rs`, the frame loop;
+//! `session/run.rs`, a frame's tracking and writing),
 //! `record.rs` (poses, joints and errors, a frame at a time) and `overlay.rs`.
 
 mod args;
