@@ -638,7 +638,7 @@ fn every_test_the_reliability_table_names_exists() {
     let doc = std::fs::read_to_string(crate_dir.join("../../docs/RELIABILITY.md")).unwrap();
     let source = |file: &str| {
         let path = match file {
-            "video" => crate_dir.join("src/video.rs"),
+            "video" => crate_dir.join("src/video/mod.rs"),
             "run_output" => crate_dir.join("src/run_output.rs"),
             test => crate_dir.join(format!("tests/{test}.rs")),
         };
