@@ -5,18 +5,23 @@
 //! (`gpu`) and through the model plug-in (`gpu_plugin`, `pf_gpu::toy::TOY_MODEL`). Then resampling alone on the GPU
 //! for one target of N = 10^3 … 10^6 particles, against pf-core's CPU resamplers.
 //!
+//! Then the plug-in model with five annealing layers over every GPU of the host
+//! (`plugin_over_gpus_7d_1000`: `ShardedModelFilter`, two frames in flight) against the same
+//! filter on one GPU, for 256 and 1024 targets.
+//!
 //! Every GPU timing includes the submission, the device wait and the readback. The adapter is
 //! printed at the start; set WGPU_ADAPTER_NAME to choose one.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use nalgebra::SVector;
+use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::resample::{Metropolis, Systematic};
 use pf_core::{
     FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStreams, Resampler,
     Stage, StateSpace,
 };
-use pf_gpu::model::ModelFilter;
+use pf_gpu::model::{ModelFilter, ShardedModelFilter, ShardedPending};
 use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyGaussianLikelihood, ToyObservation};
 use pf_gpu::{
     ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
@@ -210,5 +215,81 @@ fn bench_resampling_alone(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_whole_step, bench_resampling_alone);
+/// A frame's observations for `targets` toy targets.
+fn toy_observations(targets: usize, frame: usize) -> Vec<ToyObservation> {
+    (0..targets)
+        .map(|t| ToyObservation {
+            z: observed(t, frame),
+        })
+        .collect()
+}
+
+fn bench_plugin_over_gpus(c: &mut Criterion) {
+    let options = ContextOptions::default();
+    let gpus = GpuContext::all(&options).map_or(0, |all| all.len());
+    if gpus == 0 {
+        eprintln!("plugin_over_gpus: no hardware GPU adapter; not measured");
+        return;
+    }
+    let mut group = c.benchmark_group("plugin_over_gpus_7d_1000");
+    group.sample_size(10);
+    let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
+    for &targets in &[256usize, 1024] {
+        group.throughput(Throughput::Elements((targets * M) as u64));
+        let shape = BatchShape::new(targets, M, D).unwrap();
+        let mut config = BatchConfig::new(shape, 1, DIFFUSION.to_vec());
+        config.angular = ANGLES.to_vec();
+        config.annealing = Annealing::survival(5, 0.5, 0.6);
+        let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
+        let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+        let mut counts = vec![1, gpus];
+        counts.dedup();
+        for count in counts {
+            let contexts: Vec<GpuContext> = GpuContext::all(&options)
+                .unwrap()
+                .into_iter()
+                .take(count)
+                .collect();
+            for ctx in &contexts {
+                let a = ctx.adapter();
+                eprintln!(
+                    "plugin_over_gpus: {} ({}, {})",
+                    a.name, a.device_type, a.backend
+                );
+            }
+            let mut filter = ShardedModelFilter::new(
+                contexts,
+                &config,
+                GpuResampler::Systematic,
+                &initial,
+                TOY_MODEL,
+                &constants,
+            )
+            .unwrap();
+            // Two frames in flight: each iteration submits a frame and reads the one before.
+            let mut pending: Option<ShardedPending> = None;
+            let mut frame = 0;
+            group.bench_function(BenchmarkId::new(format!("gpus_{count}"), targets), |b| {
+                b.iter(|| {
+                    let next = filter.submit(&toy_observations(targets, frame)).unwrap();
+                    frame += 1;
+                    if let Some(previous) = pending.replace(next) {
+                        std::hint::black_box(filter.finish(previous).unwrap());
+                    }
+                })
+            });
+            if let Some(last) = pending.take() {
+                filter.finish(last).unwrap();
+            }
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(
+    benches,
+    bench_whole_step,
+    bench_resampling_alone,
+    bench_plugin_over_gpus
+);
 criterion_main!(benches);
