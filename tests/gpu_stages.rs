@@ -11,12 +11,25 @@ use pf_core::random::{CounterUniforms, counter_gaussian, philox4x32_10};
 use pf_core::resample::{Metropolis, Stratified, Systematic};
 use pf_core::{PfError, Resampler, Stage};
 use pf_gpu::model::{ABSOLUTE_TOLERANCE, agrees, tolerance};
-use pf_gpu::{GpuFilter, GpuResampler, GpuStage, NoLikelihood, TargetStats};
+use pf_gpu::{GpuContext, GpuFilter, GpuResampler, GpuStage, NoLikelihood, TargetStats};
 use proptest::prelude::*;
-use proptest::test_runner::{TestCaseError, TestRunner};
+use proptest::test_runner::TestCaseError;
 
-fn runner(cases: u32) -> TestRunner {
-    TestRunner::new(common::property::config(cases))
+/// Runs `check` over `cases` random cases of `strategy` on one GPU context; a failure panics
+/// with the case to pin (`common::property`).
+fn property<S>(
+    name: &str,
+    cases: u32,
+    strategy: S,
+    check: impl Fn(&GpuContext, S::Value) -> Result<(), TestCaseError>,
+) where
+    S: Strategy,
+    S::Value: std::fmt::Debug,
+{
+    let Some(ctx) = common::gpu_context(name) else {
+        return;
+    };
+    common::property::check_cases(name, cases, strategy, |value| check(&ctx, value));
 }
 
 fn shapes() -> impl Strategy<Value = BatchShape> {
@@ -60,10 +73,6 @@ fn close(gpu: f32, cpu: f64, extra: f64) -> bool {
 
 #[test]
 fn philox_blocks_bit_exact_vs_cpu() {
-    let Some(ctx) = common::gpu_context("philox_blocks_bit_exact_vs_cpu") else {
-        return;
-    };
-    let mut runner = runner(16);
     let strategy = (
         any::<[u32; 2]>(),
         prop::collection::vec(
@@ -71,46 +80,45 @@ fn philox_blocks_bit_exact_vs_cpu() {
             1..200,
         ),
     );
-    runner
-        .run(&strategy, |(key, counters)| {
-            let gpu = pf_gpu::random::philox_blocks(&ctx, key, &counters).unwrap();
+    property(
+        "philox_blocks_bit_exact_vs_cpu",
+        16,
+        strategy,
+        |ctx: &GpuContext, (key, counters)| {
+            let gpu = pf_gpu::random::philox_blocks(ctx, key, &counters).unwrap();
             for (c, g) in counters.iter().zip(&gpu) {
                 prop_assert_eq!(*g, philox4x32_10(*c, key));
             }
             Ok(())
-        })
-        .unwrap_or_else(common::property::report);
+        },
+    );
 }
 
 #[test]
 fn gaussian_draws_match_cpu_within_tolerance() {
-    let Some(ctx) = common::gpu_context("gaussian_draws_match_cpu_within_tolerance") else {
-        return;
-    };
-    let mut runner = runner(12);
-    runner
-        .run(
-            &(any::<[u32; 2]>(), 1u32..2000, 1u32..9, any::<u64>()),
-            |(key, particles, dims, step)| {
-                let gpu = pf_gpu::random::gaussians(&ctx, key, particles, dims, step).unwrap();
-                for m in 0..particles {
-                    for d in 0..dims {
-                        let cpu = counter_gaussian(key, m, d, step);
-                        let g = gpu[(m * dims + d) as usize];
-                        prop_assert!(
-                            close(g, cpu, 0.0),
-                            "m {} d {}: GPU {} vs CPU {}",
-                            m,
-                            d,
-                            g,
-                            cpu
-                        );
-                    }
+    property(
+        "gaussian_draws_match_cpu_within_tolerance",
+        12,
+        (any::<[u32; 2]>(), 1u32..2000, 1u32..9, any::<u64>()),
+        |ctx: &GpuContext, (key, particles, dims, step)| {
+            let gpu = pf_gpu::random::gaussians(ctx, key, particles, dims, step).unwrap();
+            for m in 0..particles {
+                for d in 0..dims {
+                    let cpu = counter_gaussian(key, m, d, step);
+                    let g = gpu[(m * dims + d) as usize];
+                    prop_assert!(
+                        close(g, cpu, 0.0),
+                        "m {} d {}: GPU {} vs CPU {}",
+                        m,
+                        d,
+                        g,
+                        cpu
+                    );
                 }
-                Ok(())
-            },
-        )
-        .unwrap_or_else(common::property::report);
+            }
+            Ok(())
+        },
+    );
 }
 
 // ---- diffusion ----------------------------------------------------------------------------------
@@ -121,10 +129,6 @@ fn state_value() -> impl Strategy<Value = f32> {
 
 #[test]
 fn diffusion_matches_cpu_within_tolerance() {
-    let Some(ctx) = common::gpu_context("diffusion_matches_cpu_within_tolerance") else {
-        return;
-    };
-    let mut runner = runner(16);
     let strategy = shapes().prop_flat_map(|shape| {
         let d = shape.dims;
         (
@@ -136,58 +140,57 @@ fn diffusion_matches_cpu_within_tolerance() {
             any::<u64>(),
         )
     });
-    runner
-        .run(
-            &strategy,
-            |(shape, states, sigma, angular, bounded, step)| {
-                let bounds = bounded.then(|| (vec![-3.0; shape.dims], vec![3.0; shape.dims]));
-                let cfg = config(shape, angular.clone(), sigma.clone(), bounds.clone());
-                let mut gpu =
-                    GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
-                gpu.set_step(step);
-                gpu.run_stages(&ctx, &[GpuStage::Diffuse], &NoLikelihood)
-                    .unwrap();
-                let got = gpu.download_states(&ctx).unwrap();
-                let mut want = states.clone();
-                let keys = batch::stage_keys(5, shape.targets, Stage::Diffusion);
-                let b = bounds.as_ref().map(|(l, h)| (l.as_slice(), h.as_slice()));
-                batch::diffuse(&shape, &mut want, &sigma, 1.0, b, &angular, &keys, step);
-                for t in 0..shape.targets {
-                    for d in 0..shape.dims {
-                        for m in 0..shape.particles {
-                            let i = shape.state_index(t, d, m);
-                            let (g, c) = (got[i], want[i]);
-                            let ok = if c.is_nan() {
-                                g.is_nan()
-                            } else if angular[d] {
-                                // Wrapping keeps the absolute rounding of the unwrapped sum:
-                                // a few ulps of |start| (an angle of 941 rad has ulps of 6e-5).
-                                batch::wrap_angle_floor(g - c).abs()
-                                    <= 1e-5 * (1.0 + sigma[d]) + 2.5e-7 * states[i].abs()
-                            } else {
-                                close(
-                                    g,
-                                    f64::from(c),
-                                    ABSOLUTE_TOLERANCE * f64::from(1.0 + sigma[d]),
-                                )
-                            };
-                            prop_assert!(
-                                ok,
-                                "t {} d {} m {}: GPU {} vs CPU {} (start {})",
-                                t,
-                                d,
-                                m,
+    property(
+        "diffusion_matches_cpu_within_tolerance",
+        16,
+        strategy,
+        |ctx: &GpuContext, (shape, states, sigma, angular, bounded, step)| {
+            let bounds = bounded.then(|| (vec![-3.0; shape.dims], vec![3.0; shape.dims]));
+            let cfg = config(shape, angular.clone(), sigma.clone(), bounds.clone());
+            let mut gpu = GpuFilter::new(ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.set_step(step);
+            gpu.run_stages(ctx, &[GpuStage::Diffuse], &NoLikelihood)
+                .unwrap();
+            let got = gpu.download_states(ctx).unwrap();
+            let mut want = states.clone();
+            let keys = batch::stage_keys(5, shape.targets, Stage::Diffusion);
+            let b = bounds.as_ref().map(|(l, h)| (l.as_slice(), h.as_slice()));
+            batch::diffuse(&shape, &mut want, &sigma, 1.0, b, &angular, &keys, step);
+            for t in 0..shape.targets {
+                for d in 0..shape.dims {
+                    for m in 0..shape.particles {
+                        let i = shape.state_index(t, d, m);
+                        let (g, c) = (got[i], want[i]);
+                        let ok = if c.is_nan() {
+                            g.is_nan()
+                        } else if angular[d] {
+                            // Wrapping keeps the absolute rounding of the unwrapped sum:
+                            // a few ulps of |start| (an angle of 941 rad has ulps of 6e-5).
+                            batch::wrap_angle_floor(g - c).abs()
+                                <= 1e-5 * (1.0 + sigma[d]) + 2.5e-7 * states[i].abs()
+                        } else {
+                            close(
                                 g,
-                                c,
-                                states[i]
-                            );
-                        }
+                                f64::from(c),
+                                ABSOLUTE_TOLERANCE * f64::from(1.0 + sigma[d]),
+                            )
+                        };
+                        prop_assert!(
+                            ok,
+                            "t {} d {} m {}: GPU {} vs CPU {} (start {})",
+                            t,
+                            d,
+                            m,
+                            g,
+                            c,
+                            states[i]
+                        );
                     }
                 }
-                Ok(())
-            },
-        )
-        .unwrap_or_else(common::property::report);
+            }
+            Ok(())
+        },
+    );
 }
 
 // ---- normalisation ------------------------------------------------------------------------------
@@ -205,10 +208,6 @@ fn log_value() -> impl Strategy<Value = f32> {
 
 #[test]
 fn normalisation_matches_cpu_within_tolerance() {
-    let Some(ctx) = common::gpu_context("normalisation_matches_cpu_within_tolerance") else {
-        return;
-    };
-    let mut runner = runner(24);
     let strategy = shapes().prop_flat_map(|shape| {
         let n = shape.particle_len();
         (
@@ -217,28 +216,28 @@ fn normalisation_matches_cpu_within_tolerance() {
             prop::collection::vec(log_value(), n),
         )
     });
-    runner
-        .run(&strategy, |(shape, log_weights, log_likelihood)| {
+    property(
+        "normalisation_matches_cpu_within_tolerance",
+        24,
+        strategy,
+        |ctx: &GpuContext, (shape, log_weights, log_likelihood)| {
             let cfg = config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None);
             let mut gpu = GpuFilter::new(
-                &ctx,
+                ctx,
                 &cfg,
                 GpuResampler::Systematic,
                 &vec![0.0; shape.state_len()],
             )
             .unwrap();
-            gpu.streams()
-                .log_weights
-                .upload(&ctx, &log_weights)
-                .unwrap();
+            gpu.streams().log_weights.upload(ctx, &log_weights).unwrap();
             gpu.streams()
                 .log_likelihood
-                .upload(&ctx, &log_likelihood)
+                .upload(ctx, &log_likelihood)
                 .unwrap();
             let report = gpu
-                .run_stages(&ctx, &[GpuStage::Normalise], &NoLikelihood)
+                .run_stages(ctx, &[GpuStage::Normalise], &NoLikelihood)
                 .unwrap();
-            let weights = gpu.download_weights(&ctx).unwrap();
+            let weights = gpu.download_weights(ctx).unwrap();
             let m = shape.particles;
             for t in 0..shape.targets {
                 let range = t * m..(t + 1) * m;
@@ -276,8 +275,8 @@ fn normalisation_matches_cpu_within_tolerance() {
                 }
             }
             Ok(())
-        })
-        .unwrap_or_else(common::property::report);
+        },
+    );
 }
 
 #[test]
@@ -358,10 +357,6 @@ fn large_shapes() -> impl Strategy<Value = BatchShape> {
 }
 
 fn check_ordered(stratified: bool, large: bool) {
-    let Some(ctx) = common::gpu_context("ordered resampling") else {
-        return;
-    };
-    let mut runner = runner(if large { 6 } else { 16 });
     let shape_strategy = if large {
         large_shapes().boxed()
     } else {
@@ -369,96 +364,95 @@ fn check_ordered(stratified: bool, large: bool) {
     };
     let strategy = shape_strategy
         .prop_flat_map(|shape| (Just(shape), weight_sets(shape), any::<u64>(), any::<bool>()));
-    runner
-        .run(
-            &strategy,
-            |(shape, (w32, w64), step, due)| -> Result<(), TestCaseError> {
-                let m = shape.particles;
-                let cfg = BatchConfig {
-                    ess_threshold: 0.5,
-                    ..config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None)
-                };
-                let kind = if stratified {
-                    GpuResampler::Stratified
+    property(
+        "ordered resampling",
+        if large { 6 } else { 16 },
+        strategy,
+        |ctx: &GpuContext, (shape, (w32, w64), step, due)| -> Result<(), TestCaseError> {
+            let m = shape.particles;
+            let cfg = BatchConfig {
+                ess_threshold: 0.5,
+                ..config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None)
+            };
+            let kind = if stratified {
+                GpuResampler::Stratified
+            } else {
+                GpuResampler::Systematic
+            };
+            let mut gpu = GpuFilter::new(ctx, &cfg, kind, &vec![0.0; shape.state_len()]).unwrap();
+            gpu.streams().weights.upload(ctx, &w32).unwrap();
+            // With a threshold of M/2, ESS 0 makes every target due and ESS M none.
+            let stats = TargetStats {
+                ess: if due { 0.0 } else { m as f32 },
+                ..TargetStats::default()
+            };
+            gpu.streams()
+                .stats
+                .upload(ctx, &vec![stats; shape.targets])
+                .unwrap();
+            gpu.set_step(step);
+            let report = gpu
+                .run_stages(ctx, &[GpuStage::Resample], &NoLikelihood)
+                .unwrap();
+            let got = gpu.download_ancestors(ctx).unwrap();
+            let keys = batch::stage_keys(5, shape.targets, Stage::Resampling);
+            for t in 0..shape.targets {
+                let r = t * m..(t + 1) * m;
+                prop_assert_eq!(report.stats[t].resampled == 1, due);
+                if !due {
+                    prop_assert!(got[r].iter().enumerate().all(|(k, &a)| a as usize == k));
+                    continue;
+                }
+                let uniforms = CounterUniforms::new(keys[t], step);
+                let mut want = vec![0u32; m];
+                if stratified {
+                    Stratified
+                        .resample(&w64[r.clone()], &uniforms, &mut want)
+                        .unwrap();
                 } else {
-                    GpuResampler::Systematic
-                };
-                let mut gpu =
-                    GpuFilter::new(&ctx, &cfg, kind, &vec![0.0; shape.state_len()]).unwrap();
-                gpu.streams().weights.upload(&ctx, &w32).unwrap();
-                // With a threshold of M/2, ESS 0 makes every target due and ESS M none.
-                let stats = TargetStats {
-                    ess: if due { 0.0 } else { m as f32 },
-                    ..TargetStats::default()
-                };
-                gpu.streams()
-                    .stats
-                    .upload(&ctx, &vec![stats; shape.targets])
-                    .unwrap();
-                gpu.set_step(step);
-                let report = gpu
-                    .run_stages(&ctx, &[GpuStage::Resample], &NoLikelihood)
-                    .unwrap();
-                let got = gpu.download_ancestors(&ctx).unwrap();
-                let keys = batch::stage_keys(5, shape.targets, Stage::Resampling);
-                for t in 0..shape.targets {
-                    let r = t * m..(t + 1) * m;
-                    prop_assert_eq!(report.stats[t].resampled == 1, due);
-                    if !due {
-                        prop_assert!(got[r].iter().enumerate().all(|(k, &a)| a as usize == k));
-                        continue;
-                    }
-                    let uniforms = CounterUniforms::new(keys[t], step);
-                    let mut want = vec![0u32; m];
-                    if stratified {
-                        Stratified
-                            .resample(&w64[r.clone()], &uniforms, &mut want)
-                            .unwrap();
-                    } else {
-                        Systematic
-                            .resample(&w64[r.clone()], &uniforms, &mut want)
-                            .unwrap();
-                    }
-                    let cdf: Vec<f64> = w64[r.clone()]
-                        .iter()
-                        .scan(0.0, |acc, &w| {
-                            *acc += w;
-                            Some(*acc)
-                        })
-                        .collect();
-                    for k in 0..m {
-                        let (g, c) = (got[t * m + k] as usize, want[k] as usize);
-                        if g != c {
-                            use pf_core::UniformSource;
-                            let u = if stratified {
-                                uniforms.uniform(k as u32, 0)
-                            } else {
-                                uniforms.uniform(0, 0)
-                            };
-                            let point = (k as f64 + u) / m as f64;
-                            // f32 prefix sums (up to 20 000 weights) and f32 points: 1e-5 covers both.
-                            prop_assert!(
-                                near_boundary(&cdf, point, &[g.min(m - 1), c], 1e-5),
-                                "target {} offspring {}: GPU {} vs CPU {} (point {}, cdf {:?})",
-                                t,
-                                k,
-                                g,
-                                c,
-                                point,
-                                &cdf[c.saturating_sub(1)..(c + 1).min(m)]
-                            );
-                        }
+                    Systematic
+                        .resample(&w64[r.clone()], &uniforms, &mut want)
+                        .unwrap();
+                }
+                let cdf: Vec<f64> = w64[r.clone()]
+                    .iter()
+                    .scan(0.0, |acc, &w| {
+                        *acc += w;
+                        Some(*acc)
+                    })
+                    .collect();
+                for k in 0..m {
+                    let (g, c) = (got[t * m + k] as usize, want[k] as usize);
+                    if g != c {
+                        use pf_core::UniformSource;
+                        let u = if stratified {
+                            uniforms.uniform(k as u32, 0)
+                        } else {
+                            uniforms.uniform(0, 0)
+                        };
+                        let point = (k as f64 + u) / m as f64;
+                        // f32 prefix sums (up to 20 000 weights) and f32 points: 1e-5 covers both.
                         prop_assert!(
-                            w64[t * m + g] > 0.0 || m == 1,
-                            "GPU chose zero-weight particle {}",
-                            g
+                            near_boundary(&cdf, point, &[g.min(m - 1), c], 1e-5),
+                            "target {} offspring {}: GPU {} vs CPU {} (point {}, cdf {:?})",
+                            t,
+                            k,
+                            g,
+                            c,
+                            point,
+                            &cdf[c.saturating_sub(1)..(c + 1).min(m)]
                         );
                     }
+                    prop_assert!(
+                        w64[t * m + g] > 0.0 || m == 1,
+                        "GPU chose zero-weight particle {}",
+                        g
+                    );
                 }
-                Ok(())
-            },
-        )
-        .unwrap_or_else(common::property::report);
+            }
+            Ok(())
+        },
+    );
 }
 
 #[test]
@@ -512,36 +506,35 @@ fn metropolis_with_ties(
 
 #[test]
 fn metropolis_resampling_same_ancestors_as_cpu() {
-    let Some(ctx) = common::gpu_context("metropolis_resampling_same_ancestors_as_cpu") else {
-        return;
-    };
-    let mut runner = runner(16);
     let strategy =
         shapes().prop_flat_map(|shape| (Just(shape), weight_sets(shape), any::<u64>(), 1u32..40));
-    runner
-        .run(&strategy, |(shape, (w32, w64), step, steps)| {
+    property(
+        "metropolis_resampling_same_ancestors_as_cpu",
+        16,
+        strategy,
+        |ctx: &GpuContext, (shape, (w32, w64), step, steps)| {
             let m = shape.particles;
             let cfg = config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None);
             let mut gpu = GpuFilter::new(
-                &ctx,
+                ctx,
                 &cfg,
                 GpuResampler::Metropolis(steps),
                 &vec![0.0; shape.state_len()],
             )
             .unwrap();
-            gpu.streams().weights.upload(&ctx, &w32).unwrap();
+            gpu.streams().weights.upload(ctx, &w32).unwrap();
             let stats = TargetStats {
                 ess: 0.0,
                 ..TargetStats::default()
             };
             gpu.streams()
                 .stats
-                .upload(&ctx, &vec![stats; shape.targets])
+                .upload(ctx, &vec![stats; shape.targets])
                 .unwrap();
             gpu.set_step(step);
-            gpu.run_stages(&ctx, &[GpuStage::Resample], &NoLikelihood)
+            gpu.run_stages(ctx, &[GpuStage::Resample], &NoLikelihood)
                 .unwrap();
-            let got = gpu.download_ancestors(&ctx).unwrap();
+            let got = gpu.download_ancestors(ctx).unwrap();
             let keys = batch::stage_keys(5, shape.targets, Stage::Resampling);
             for t in 0..shape.targets {
                 let r = t * m..(t + 1) * m;
@@ -566,18 +559,14 @@ fn metropolis_resampling_same_ancestors_as_cpu() {
                 }
             }
             Ok(())
-        })
-        .unwrap_or_else(common::property::report);
+        },
+    );
 }
 
 // ---- gather and estimate ------------------------------------------------------------------------
 
 #[test]
 fn gather_bit_exact_vs_cpu() {
-    let Some(ctx) = common::gpu_context("gather_bit_exact_vs_cpu") else {
-        return;
-    };
-    let mut runner = runner(12);
     let strategy = shapes().prop_flat_map(|shape| {
         (
             Just(shape),
@@ -586,12 +575,15 @@ fn gather_bit_exact_vs_cpu() {
             prop::collection::vec(any::<bool>(), shape.targets),
         )
     });
-    runner
-        .run(&strategy, |(shape, states, ancestors, resampled)| {
+    property(
+        "gather_bit_exact_vs_cpu",
+        12,
+        strategy,
+        |ctx: &GpuContext, (shape, states, ancestors, resampled)| {
             let m = shape.particles;
             let cfg = config(shape, vec![false; shape.dims], vec![0.0; shape.dims], None);
-            let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
-            gpu.streams().ancestors.upload(&ctx, &ancestors).unwrap();
+            let mut gpu = GpuFilter::new(ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.streams().ancestors.upload(ctx, &ancestors).unwrap();
             let stats: Vec<TargetStats> = resampled
                 .iter()
                 .map(|&r| TargetStats {
@@ -599,15 +591,15 @@ fn gather_bit_exact_vs_cpu() {
                     ..TargetStats::default()
                 })
                 .collect();
-            gpu.streams().stats.upload(&ctx, &stats).unwrap();
+            gpu.streams().stats.upload(ctx, &stats).unwrap();
             gpu.streams()
                 .log_weights
-                .upload(&ctx, &vec![-7.0; shape.particle_len()])
+                .upload(ctx, &vec![-7.0; shape.particle_len()])
                 .unwrap();
-            gpu.run_stages(&ctx, &[GpuStage::Gather], &NoLikelihood)
+            gpu.run_stages(ctx, &[GpuStage::Gather], &NoLikelihood)
                 .unwrap();
-            let got = gpu.download_states(&ctx).unwrap();
-            let lw = gpu.streams().log_weights.download(&ctx).unwrap();
+            let got = gpu.download_states(ctx).unwrap();
+            let lw = gpu.streams().log_weights.download(ctx).unwrap();
             for t in 0..shape.targets {
                 let mut set = pf_core::ParticleSet::<1>::zeros(m).unwrap();
                 for d in 0..shape.dims {
@@ -630,17 +622,12 @@ fn gather_bit_exact_vs_cpu() {
                 );
             }
             Ok(())
-        })
-        .unwrap_or_else(common::property::report);
+        },
+    );
 }
 
 #[test]
 fn weighted_mean_and_spread_match_cpu_within_tolerance() {
-    let Some(ctx) = common::gpu_context("weighted_mean_and_spread_match_cpu_within_tolerance")
-    else {
-        return;
-    };
-    let mut runner = runner(16);
     let strategy = shapes().prop_flat_map(|shape| {
         (
             Just(shape),
@@ -649,8 +636,11 @@ fn weighted_mean_and_spread_match_cpu_within_tolerance() {
             prop::collection::vec(any::<bool>(), shape.dims),
         )
     });
-    runner
-        .run(&strategy, |(shape, states, (w32, w64), angular)| {
+    property(
+        "weighted_mean_and_spread_match_cpu_within_tolerance",
+        16,
+        strategy,
+        |ctx: &GpuContext, (shape, states, (w32, w64), angular)| {
             let states: Vec<f32> = states
                 .iter()
                 .enumerate()
@@ -664,10 +654,10 @@ fn weighted_mean_and_spread_match_cpu_within_tolerance() {
                 })
                 .collect();
             let cfg = config(shape, angular.clone(), vec![0.0; shape.dims], None);
-            let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
-            gpu.streams().weights.upload(&ctx, &w32).unwrap();
+            let mut gpu = GpuFilter::new(ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.streams().weights.upload(ctx, &w32).unwrap();
             let report = gpu
-                .run_stages(&ctx, &[GpuStage::Estimate], &NoLikelihood)
+                .run_stages(ctx, &[GpuStage::Estimate], &NoLikelihood)
                 .unwrap();
             let want = batch::weighted_means(&shape, &states, &w64, &angular);
             for (i, (&g, &c)) in report.estimates.iter().zip(&want).enumerate() {
@@ -695,16 +685,12 @@ fn weighted_mean_and_spread_match_cpu_within_tolerance() {
                 prop_assert!(ok, "spread {}: GPU {} vs CPU {}", i, g, c);
             }
             Ok(())
-        })
-        .unwrap_or_else(common::property::report);
+        },
+    );
 }
 
 #[test]
 fn best_weighted_mean_matches_cpu_within_tolerance() {
-    let Some(ctx) = common::gpu_context("best_weighted_mean_matches_cpu_within_tolerance") else {
-        return;
-    };
-    let mut runner = runner(16);
     let strategy = shapes().prop_flat_map(|shape| {
         (
             Just(shape),
@@ -717,8 +703,11 @@ fn best_weighted_mean_matches_cpu_within_tolerance() {
             1..=shape.particles,
         )
     });
-    runner
-        .run(&strategy, |(shape, states, raw, best)| {
+    property(
+        "best_weighted_mean_matches_cpu_within_tolerance",
+        16,
+        strategy,
+        |ctx: &GpuContext, (shape, states, raw, best)| {
             let m = shape.particles;
             // Normalise per target in f32 (what the GPU holds); the CPU reads the same values.
             let mut w32 = raw.clone();
@@ -739,10 +728,10 @@ fn best_weighted_mean_matches_cpu_within_tolerance() {
                 best,
                 ..config(shape, angular.clone(), vec![0.0; shape.dims], None)
             };
-            let mut gpu = GpuFilter::new(&ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
-            gpu.streams().weights.upload(&ctx, &w32).unwrap();
+            let mut gpu = GpuFilter::new(ctx, &cfg, GpuResampler::Systematic, &states).unwrap();
+            gpu.streams().weights.upload(ctx, &w32).unwrap();
             let report = gpu
-                .run_stages(&ctx, &[GpuStage::Estimate], &NoLikelihood)
+                .run_stages(ctx, &[GpuStage::Estimate], &NoLikelihood)
                 .unwrap();
             let want = batch::best_weighted_means(&shape, &states, &w64, &angular, best);
             for (i, (&g, &c)) in report.best_estimates.iter().zip(&want).enumerate() {
@@ -756,6 +745,6 @@ fn best_weighted_mean_matches_cpu_within_tolerance() {
                 );
             }
             Ok(())
-        })
-        .unwrap_or_else(common::property::report);
+        },
+    );
 }
