@@ -5,7 +5,8 @@ mod common;
 
 use body_tracker::human::human_skeleton;
 use body_tracker::likelihood::{Rays, listing_1_2};
-use body_tracker::skeleton::gpu::{BodyLikelihoodConfig, BodyLikelihoodGpu, SplitBodyLikelihood};
+use body_tracker::skeleton::gpu::{BodyLikelihoodConfig, BodyLikelihoodGpu};
+use body_tracker::skeleton::gpu_split::SplitBodyLikelihood;
 use body_tracker::skeleton::{Skeleton, SkeletonSpec};
 use common::capsule_cases::{TAU, points, random_pose, sum_tolerance};
 use common::property::check_cases;

@@ -12,6 +12,12 @@ use crate::capsule::{Capsule, ray_capsule, truncated_distance};
 use crate::error::BodyError;
 
 pub mod gpu;
+mod gpu_rays;
+
+/// Points per workgroup tile of the paper's layout (`TILE` in the shader).
+pub(crate) const TILE: usize = 256;
+/// Points per workgroup tile of the fast kernel (`FAST_POINTS * TILE`).
+pub(crate) const FAST_TILE: usize = 4 * TILE;
 
 /// The WGSL of the capsule likelihood, launched by [`gpu::CapsuleLikelihoodGpu`]; this module's
 /// sums are its CPU twin.

@@ -1,13 +1,11 @@
 //! The whole body likelihood on the GPU: forward kinematics from pose samples
 //! (`shaders/body/skeleton.wgsl`, [`super::SHADER`]), then the fast capsule likelihood
 //! (`shaders/body/likelihood.wgsl`, [`crate::likelihood::gpu`]), then log-likelihoods (eq. 3). Inside the GPU filter the
-//! poses are the filter's own state buffer, so a frame uploads only its rays; [`SplitBodyLikelihood`]
+//! poses are the filter's own state buffer, so a frame uploads only its rays; [`super::gpu_split::SplitBodyLikelihood`]
 //! spreads the samples of a host-held filter over several GPUs.
 //!
 //! The skeleton arrives as plain [`GpuBone`]s ([`super::Skeleton::gpu_bones`] builds them); CPU
 //! twins: [`super::Skeleton::capsules`] and [`crate::likelihood::listing_1_2`].
-
-use std::ops::Range;
 
 use bytemuck::{Pod, Zeroable};
 
@@ -471,111 +469,6 @@ impl BodyLikelihoodGpu {
             _frames: frames,
             kinematics,
         })
-    }
-}
-
-/// The samples of a host-held filter split over several GPUs, one contiguous share each.
-pub struct SplitBodyLikelihood {
-    /// (context index, sample range, that context's likelihood).
-    parts: Vec<(usize, Range<usize>, BodyLikelihoodGpu)>,
-    contexts: usize,
-    dims: usize,
-    samples: usize,
-}
-
-impl SplitBodyLikelihood {
-    /// One share per context, as equal as possible (a context gets none when samples < contexts).
-    pub fn new(
-        contexts: &[GpuContext],
-        config: &BodyLikelihoodConfig,
-        samples: usize,
-    ) -> Result<Self, GpuError> {
-        if contexts.is_empty() {
-            return Err(GpuError::InvalidConfig(
-                "splitting samples needs at least one GPU context".into(),
-            ));
-        }
-        let mut parts = Vec::new();
-        let n = contexts.len();
-        for (i, ctx) in contexts.iter().enumerate() {
-            let range = samples * i / n..samples * (i + 1) / n;
-            if range.is_empty() {
-                continue;
-            }
-            let share = BodyLikelihoodGpu::new(ctx, config.clone(), range.len())?;
-            parts.push((i, range, share));
-        }
-        if parts.is_empty() {
-            return Err(GpuError::InvalidConfig(
-                "the split body likelihood needs at least one sample".into(),
-            ));
-        }
-        Ok(Self {
-            parts,
-            contexts: n,
-            dims: config.dims,
-            samples,
-        })
-    }
-
-    /// The sample range each context evaluates, by context index (empty when it got none).
-    pub fn shares(&self) -> Vec<Range<usize>> {
-        let mut shares = vec![0..0; self.contexts];
-        for (i, range, _) in &self.parts {
-            shares[*i] = range.clone();
-        }
-        shares
-    }
-
-    fn check_contexts(&self, contexts: &[GpuContext]) -> Result<(), GpuError> {
-        if contexts.len() == self.contexts {
-            Ok(())
-        } else {
-            Err(GpuError::LengthMismatch {
-                what: "GPU contexts of the split likelihood".into(),
-                expected: self.contexts,
-                got: contexts.len(),
-            })
-        }
-    }
-
-    /// This frame's rays, to every GPU.
-    pub fn upload_rays(
-        &mut self,
-        contexts: &[GpuContext],
-        rays: &[[f32; 4]],
-    ) -> Result<(), GpuError> {
-        self.check_contexts(contexts)?;
-        for (i, _, part) in &mut self.parts {
-            part.upload_rays(&contexts[*i], rays)?;
-        }
-        Ok(())
-    }
-
-    /// M_j for every pose (`[d·J + j]`): every GPU is submitted its share before any is read.
-    pub fn evaluate(&self, contexts: &[GpuContext], poses: &[f32]) -> Result<Vec<f64>, GpuError> {
-        self.check_contexts(contexts)?;
-        if poses.len() != self.samples * self.dims {
-            return Err(GpuError::LengthMismatch {
-                what: "pose samples".into(),
-                expected: self.samples * self.dims,
-                got: poses.len(),
-            });
-        }
-        let mut submissions = Vec::with_capacity(self.parts.len());
-        for (i, range, part) in &self.parts {
-            let mut share = Vec::with_capacity(range.len() * self.dims);
-            for d in 0..self.dims {
-                let row = d * self.samples;
-                share.extend_from_slice(&poses[row + range.start..row + range.end]);
-            }
-            submissions.push(part.submit_poses(&contexts[*i], &share)?);
-        }
-        let mut sums = Vec::with_capacity(self.samples);
-        for ((i, _, part), submission) in self.parts.iter().zip(submissions) {
-            sums.extend(part.read_sums(&contexts[*i], submission)?);
-        }
-        Ok(sums)
     }
 }
 

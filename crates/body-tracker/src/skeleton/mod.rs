@@ -17,6 +17,7 @@ use crate::capsule::Capsule;
 use crate::error::BodyError;
 
 pub mod gpu;
+pub mod gpu_split;
 
 /// The WGSL of the forward kinematics and the body's log-likelihood, launched by
 /// [`gpu::BodyLikelihoodGpu`]; [`Skeleton::capsules`] is the kinematics' CPU twin.
