@@ -56,6 +56,19 @@ fn position_error(truth: &[[f32; 2]], estimates: &[f32]) -> f32 {
     truth.iter().enumerate().map(|(t, p)| e(t, p)).sum::<f32>() / truth.len() as f32
 }
 
+/// One frame of the walkers: each takes a Gaussian step, then is seen with noise.
+fn walk_and_observe(truth: &mut [[f32; 2]], rng: &mut pf_core::RandomStream) -> Vec<Position> {
+    for p in truth.iter_mut() {
+        p.iter_mut().for_each(|x| *x += STEP * rng.gaussian_f32());
+    }
+    (truth.iter())
+        .map(|p| Position {
+            x: p[0] + NOISE * rng.gaussian_f32(),
+            y: p[1] + NOISE * rng.gaussian_f32(),
+        })
+        .collect()
+}
+
 /// Tracks `targets` random walkers for `frames` frames; the mean position error over the second
 /// half, on the GPU (when `ctx` is given) and on the CPU, and the raw observations' error.
 pub fn run(
@@ -77,15 +90,7 @@ pub fn run(
     let mut cpu = BatchFilter::new(&config, Systematic, start.clone())?;
     let mut errors = [Vec::new(), Vec::new(), Vec::new()]; // GPU, CPU, raw
     for _ in 0..frames {
-        for p in &mut truth {
-            p.iter_mut().for_each(|x| *x += STEP * rng.gaussian_f32());
-        }
-        let seen: Vec<Position> = (truth.iter())
-            .map(|p| Position {
-                x: p[0] + NOISE * rng.gaussian_f32(),
-                y: p[1] + NOISE * rng.gaussian_f32(),
-            })
-            .collect();
+        let seen = walk_and_observe(&mut truth, &mut rng);
         if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
             errors[0].push(position_error(&truth, &filter.step(ctx, &seen)?.estimates));
         }
@@ -131,15 +136,7 @@ pub fn run_on_all_gpus(
     // One pass more than there are frames, to read the last one back.
     for frame in 0..=frames {
         if frame < frames {
-            for p in &mut truth {
-                p.iter_mut().for_each(|x| *x += STEP * rng.gaussian_f32());
-            }
-            let seen: Vec<Position> = (truth.iter())
-                .map(|p| Position {
-                    x: p[0] + NOISE * rng.gaussian_f32(),
-                    y: p[1] + NOISE * rng.gaussian_f32(),
-                })
-                .collect();
+            let seen = walk_and_observe(&mut truth, &mut rng);
             let flat: Vec<f32> = seen.iter().flat_map(|p| [p.x, p.y]).collect();
             raw.push(position_error(&truth, &flat));
             in_flight.push_back((filter.submit(&seen)?, truth.clone()));
