@@ -112,7 +112,7 @@ fn bench_whole_step(c: &mut Criterion) {
                     })
                     .collect();
                 frame += 1;
-                std::hint::black_box(plugin.step(&ctx, &obs).unwrap());
+                std::hint::black_box(plugin.step(&obs).unwrap());
             })
         });
 

@@ -91,8 +91,8 @@ pub fn run(
     let mut errors = [Vec::new(), Vec::new(), Vec::new()]; // GPU, CPU, raw
     for _ in 0..frames {
         let seen = walk_and_observe(&mut truth, &mut rng);
-        if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
-            errors[0].push(position_error(&truth, &filter.step(ctx, &seen)?.estimates));
+        if let Some(filter) = gpu.as_mut() {
+            errors[0].push(position_error(&truth, &filter.step(&seen)?.estimates));
         }
         let on_cpu = cpu.step_model(&NoisyPosition, &seen, &constants)?;
         errors[1].push(position_error(&truth, &on_cpu.estimates));

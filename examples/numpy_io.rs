@@ -76,7 +76,7 @@ pub fn run(
             .chunks(2)
             .map(|p| Position { x: p[0], y: p[1] })
             .collect();
-        estimates.extend(filter.step(ctx, &positions)?.estimates);
+        estimates.extend(filter.step(&positions)?.estimates);
     }
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     pf_numpy::write_f32(
@@ -84,8 +84,7 @@ pub fn run(
         &[frames, targets, 2],
         &estimates,
     )?;
-    let cloud = filter.filter().download_states(ctx)?;
-    let log_weights = filter.filter().download_log_weights(ctx)?;
+    let (cloud, log_weights) = filter.particles()?;
     pf_numpy::write_particles(out, frames - 1, &shape, &cloud, &log_weights)?;
     Ok(estimates)
 }

@@ -111,11 +111,8 @@ pub fn run(
             .map(|t| truth(t, frame as f32 * CONSTANTS.dt))
             .collect();
         let observed: Vec<Ranges> = truths.iter().map(&mut sensor).collect();
-        if let (Some(filter), Some(ctx)) = (gpu.as_mut(), ctx) {
-            gpu_errors.push(position_error(
-                &truths,
-                &filter.step(ctx, &observed)?.estimates,
-            ));
+        if let Some(filter) = gpu.as_mut() {
+            gpu_errors.push(position_error(&truths, &filter.step(&observed)?.estimates));
         }
         let on_cpu = cpu.step_model(&RangeOnly, &observed, &CONSTANTS)?;
         cpu_errors.push(position_error(&truths, &on_cpu.estimates));

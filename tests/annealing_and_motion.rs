@@ -164,7 +164,7 @@ fn gpu_error_with(ctx: &pf_gpu::GpuContext, config: BatchConfig) -> f32 {
     let mut filter = gpu_filter(ctx, &config);
     let errors: Vec<f32> = (1..=FRAMES)
         .map(|frame| {
-            let report = filter.step(ctx, &observed(frame)).unwrap();
+            let report = filter.step(&observed(frame)).unwrap();
             error(&report.estimates, frame)
         })
         .collect();
@@ -220,13 +220,9 @@ fn a_fixed_schedule_runs_its_betas() {
     assert_eq!(report.beta, vec![0.5; TARGETS]);
     assert_eq!(report.resampled, vec![true; TARGETS]);
     let mut gpu = gpu_filter(&ctx, &config);
-    let report = gpu.step(&ctx, &observed(1)).unwrap();
-    assert!(
-        report
-            .stats
-            .iter()
-            .all(|s| s.beta == 0.5 && s.resampled == 1)
-    );
+    let report = gpu.step(&observed(1)).unwrap();
+    assert_eq!(report.beta, vec![0.5; TARGETS]);
+    assert_eq!(report.resampled, vec![true; TARGETS]);
 }
 
 /// Log-likelihood values: ordinary, sharp, flat, and −∞ (a zero likelihood).
@@ -307,9 +303,9 @@ fn annealed_step_matches_cpu() {
         let a = cpu
             .step_model(&Gaussian12, &observed(frame), &CONSTANTS)
             .unwrap();
-        let b = gpu.step(&ctx, &observed(frame)).unwrap();
+        let b = gpu.step(&observed(frame)).unwrap();
         for t in 0..TARGETS {
-            let (cb, gb) = (a.beta[t], b.stats[t].beta);
+            let (cb, gb) = (a.beta[t], b.beta[t]);
             assert!(
                 (cb - gb).abs() <= 1e-2 * cb,
                 "frame {frame} target {t}: beta CPU {cb} vs GPU {gb}"
@@ -386,7 +382,7 @@ fn constant_velocity_matches_cpu_and_resets_with_its_target() {
         let a = cpu
             .step_model(&Gaussian12, &observed(frame), &CONSTANTS)
             .unwrap();
-        let b = gpu.step(&ctx, &observed(frame)).unwrap();
+        let b = gpu.step(&observed(frame)).unwrap();
         for (i, (x, y)) in a.estimates.iter().zip(&b.estimates).enumerate() {
             assert!(
                 (x - y).abs() <= 2e-3,
@@ -400,7 +396,7 @@ fn constant_velocity_matches_cpu_and_resets_with_its_target() {
     // Target 0 restarts from its frame-3 cloud: no drift until it has two estimates again.
     let block: Vec<f32> = cpu.states[..DIMS * PARTICLES].to_vec();
     cpu.reset_target(0, &block).unwrap();
-    gpu.filter().reset_target(&ctx, 0, &block).unwrap();
+    gpu.reset_target(0, &block).unwrap();
     compare(4, &mut cpu, &mut gpu);
     compare(5, &mut cpu, &mut gpu);
 
@@ -448,9 +444,9 @@ fn a_partitioned_layer_moves_only_its_dimensions_on_both_engines() {
         return;
     };
     let mut gpu = gpu_filter(&ctx, &one_layer);
-    let before = gpu.filter().download_states(&ctx).unwrap();
-    gpu.step(&ctx, &observed(1)).unwrap();
-    let after = gpu.filter().download_states(&ctx).unwrap();
+    let before = gpu.particles().unwrap().0;
+    gpu.step(&observed(1)).unwrap();
+    let after = gpu.particles().unwrap().0;
     assert!(only_partition_moved(&before, &after, &still), "GPU");
     assert!(
         !only_partition_moved(&before, &after, &moved),
@@ -473,9 +469,9 @@ fn a_partitioned_layer_moves_only_its_dimensions_on_both_engines() {
     let a = cpu
         .step_model(&Gaussian12, &observed(1), &CONSTANTS)
         .unwrap();
-    let b = gpu.step(&ctx, &observed(1)).unwrap();
+    let b = gpu.step(&observed(1)).unwrap();
     for t in 0..TARGETS {
-        let (cb, gb) = (a.beta[t], b.stats[t].beta);
+        let (cb, gb) = (a.beta[t], b.beta[t]);
         assert!(
             (cb - gb).abs() <= 1e-3 * cb,
             "target {t}: beta CPU {cb} vs GPU {gb}"

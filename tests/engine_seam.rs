@@ -1,5 +1,5 @@
-//! The engine seam (`pf_gpu::engine::FilterEngine`): one set of checks written once and run on
-//! every engine (cubecl's `testgen` style) — a step that follows its observations, a target
+//! The engine seam (`pf_gpu::engine::Filter` over a `Model` with a CPU twin and a GPU side):
+//! one set of checks written once and run on every engine (cubecl's `testgen` style) — a step that follows its observations, a target
 //! reset, the particles read back — and the two engines against each other on the same seed.
 //!
 //! Bounds. Four 7-D targets, 512 particles, the toy Gaussian likelihood (σ as below) around an
@@ -13,9 +13,10 @@ mod common;
 use std::ops::Range;
 
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
-use pf_gpu::engine::{EngineReport, FilterEngine};
+use pf_core::resample::ResamplerKind;
+use pf_gpu::engine::{EngineReport, Filter, Model};
 use pf_gpu::toy::ToyGaussianLikelihood;
-use pf_gpu::{GpuError, GpuLikelihood};
+use pf_gpu::{GpuContext, GpuError, GpuLikelihood, GpuResampler, LikelihoodInputs};
 
 const D: usize = 7;
 const TARGETS: usize = 4;
@@ -45,11 +46,65 @@ fn observation(t: usize, step: usize) -> [f32; D] {
     [10.0 * t as f32 + step as f32, 5.0, 1.0, 0.1, -0.2, 0.0, 1.0]
 }
 
-/// An engine with its GPU likelihood (the toy's hand-written kernel, prepared once), for the
-/// targets `targets` of the whole batch of [`TARGETS`].
+/// The toy Gaussian likelihood as a model: its CPU twin below, its GPU side the toy's
+/// hand-written kernel. A frame is each target's observation, `[t·D + d]`.
+struct Toy {
+    gpu: Option<ToyGaussianLikelihood>,
+}
+
+impl Model for Toy {
+    type Frame<'f> = [f32];
+    type Error = GpuError;
+
+    fn prepare_gpu(
+        &mut self,
+        ctx: &GpuContext,
+        inputs: &LikelihoodInputs<'_>,
+    ) -> Result<(), GpuError> {
+        match &mut self.gpu {
+            Some(toy) => toy.prepare(ctx, inputs),
+            None => Ok(()),
+        }
+    }
+
+    fn upload_frame(
+        &mut self,
+        ctx: &GpuContext,
+        observed: &[f32],
+    ) -> Result<&dyn GpuLikelihood, GpuError> {
+        let toy = (self.gpu.as_ref()).ok_or(GpuError::InvalidConfig("no GPU side".into()))?;
+        toy.upload_observations(ctx, observed)?;
+        Ok(toy)
+    }
+
+    fn measure_on_cpu(
+        &self,
+        observed: &[f32],
+        shape: &BatchShape,
+        states: &[f32],
+        out: &mut [f32],
+    ) -> Result<(), GpuError> {
+        for t in 0..shape.targets {
+            for m in 0..shape.particles {
+                let mut sum = 0.0;
+                for d in 0..D {
+                    let mut diff = states[shape.state_index(t, d, m)] - observed[t * D + d];
+                    if ANGLES[d] {
+                        diff = pf_core::batch::wrap_angle_floor(diff);
+                    }
+                    sum += (diff / SIGMA[d]).powi(2);
+                }
+                out[t * shape.particles + m] = -0.5 * sum;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The toy model's filter on one engine, for the targets `targets` of the whole batch of
+/// [`TARGETS`].
 struct Rig {
-    engine: FilterEngine,
-    toy: Option<ToyGaussianLikelihood>,
+    filter: Filter<Toy>,
     targets: Range<usize>,
 }
 
@@ -70,13 +125,12 @@ fn cpu() -> Option<Rig> {
 
 /// The CPU engine for `targets` of the whole batch, numbered as in the whole.
 fn cpu_part(targets: Range<usize>) -> Option<Rig> {
-    let mut engine = FilterEngine::cpu(&config_for(targets.len()), start_of(&targets)).unwrap();
-    engine.number_targets_from(targets.start).unwrap();
-    Some(Rig {
-        engine,
-        toy: None,
-        targets,
-    })
+    let config = config_for(targets.len());
+    let toy = Toy { gpu: None };
+    let mut filter =
+        Filter::on_cpu(&config, ResamplerKind::Systematic, start_of(&targets), toy).unwrap();
+    filter.number_targets_from(targets.start).unwrap();
+    Some(Rig { filter, targets })
 }
 
 fn gpu() -> Option<Rig> {
@@ -86,49 +140,23 @@ fn gpu() -> Option<Rig> {
 /// The GPU engine for `targets` of the whole batch, numbered as in the whole.
 fn gpu_part(targets: Range<usize>) -> Option<Rig> {
     let ctx = common::gpu_context("engine seam on the GPU")?;
-    let mut toy = ToyGaussianLikelihood::new(&ctx, targets.len(), &SIGMA).unwrap();
+    let toy = Toy {
+        gpu: Some(ToyGaussianLikelihood::new(&ctx, targets.len(), &SIGMA).unwrap()),
+    };
     let config = config_for(targets.len());
-    let mut engine = FilterEngine::gpu(ctx, &config, &start_of(&targets)).unwrap();
-    engine.number_targets_from(targets.start).unwrap();
-    let (ctx, inputs) = engine.likelihood_inputs().unwrap();
-    toy.prepare(ctx, &inputs).unwrap();
-    Some(Rig {
-        engine,
-        toy: Some(toy),
-        targets,
-    })
+    let start = start_of(&targets);
+    let mut filter = Filter::on_gpu(ctx, &config, GpuResampler::Systematic, &start, toy).unwrap();
+    filter.number_targets_from(targets.start).unwrap();
+    Some(Rig { filter, targets })
 }
 
 impl Rig {
-    /// One step against the observations of `step`, the same likelihood on either engine.
+    /// One step against the observations of `step`, the same model on either engine.
     fn step(&mut self, step: usize) -> EngineReport {
         let observed: Vec<f32> = (self.targets.clone())
             .flat_map(|t| observation(t, step))
             .collect();
-        if let (Some(toy), Some(ctx)) = (&self.toy, self.engine.context()) {
-            toy.upload_observations(ctx, &observed).unwrap();
-        }
-        let on_gpu: &dyn GpuLikelihood = match &self.toy {
-            Some(toy) => toy,
-            None => &pf_gpu::NoLikelihood,
-        };
-        let measure = |shape: &BatchShape, states: &[f32], out: &mut [f32]| {
-            for t in 0..shape.targets {
-                for m in 0..shape.particles {
-                    let mut sum = 0.0;
-                    for d in 0..D {
-                        let mut diff = states[shape.state_index(t, d, m)] - observed[t * D + d];
-                        if ANGLES[d] {
-                            diff = pf_core::batch::wrap_angle_floor(diff);
-                        }
-                        sum += (diff / SIGMA[d]).powi(2);
-                    }
-                    out[t * shape.particles + m] = -0.5 * sum;
-                }
-            }
-            Ok::<(), GpuError>(())
-        };
-        self.engine.step(measure, on_gpu).unwrap()
+        self.filter.step(&observed).unwrap()
     }
 }
 
@@ -152,8 +180,9 @@ fn resets_one_target_and_reads_the_particles(rig: Option<Rig>) {
     let Some(mut rig) = rig else { return };
     rig.step(0);
     let cloud: Vec<f32> = (0..D * PARTICLES).map(|i| i as f32 * 1e-3).collect();
-    rig.engine.reset_target(2, &cloud).unwrap();
-    let (shape, states, log_weights) = rig.engine.particles().unwrap();
+    rig.filter.reset_target(2, &cloud).unwrap();
+    let shape = rig.filter.shape();
+    let (states, log_weights) = rig.filter.particles().unwrap();
     assert_eq!(shape, config().shape);
     for d in 0..D {
         for m in 0..PARTICLES {
@@ -163,8 +192,8 @@ fn resets_one_target_and_reads_the_particles(rig: Option<Rig>) {
     let uniform = -(PARTICLES as f32).ln();
     let slot = &log_weights[2 * PARTICLES..3 * PARTICLES];
     assert!(slot.iter().all(|w| (w - uniform).abs() < 1e-5));
-    assert!(rig.engine.reset_target(TARGETS, &cloud).is_err());
-    assert!(rig.engine.reset_target(0, &cloud[1..]).is_err());
+    assert!(rig.filter.reset_target(TARGETS, &cloud).is_err());
+    assert!(rig.filter.reset_target(0, &cloud[1..]).is_err());
 }
 
 /// A batch split in two engines, each numbering its targets from its first: every target steps

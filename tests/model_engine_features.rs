@@ -8,9 +8,10 @@ mod common;
 
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, Motion, gaussian_clouds};
+use pf_gpu::engine::EngineReport;
 use pf_gpu::model::{ModelFilter, ShardedModelFilter};
 use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyObservation};
-use pf_gpu::{GpuContext, GpuResampler, GpuStepReport};
+use pf_gpu::{GpuContext, GpuResampler};
 use proptest::prelude::*;
 
 const FRAMES: usize = 6;
@@ -56,8 +57,8 @@ fn bits(estimates: &[f32], spreads: &[f32], best: &[f32], ess: &[f32]) -> Vec<u3
         .collect()
 }
 
-fn report_bits(r: &GpuStepReport) -> Vec<u32> {
-    let ess: Vec<f32> = r.stats.iter().map(|s| s.ess).collect();
+fn report_bits(r: &EngineReport) -> Vec<u32> {
+    let ess: Vec<f32> = r.ess.iter().map(|&e| e as f32).collect();
     bits(&r.estimates, &r.spreads, &r.best_estimates, &ess)
 }
 
@@ -74,13 +75,7 @@ fn one_at_a_time(ctx: &GpuContext, config: &BatchConfig) -> Vec<Vec<u32>> {
     )
     .unwrap();
     (0..FRAMES)
-        .map(|f| {
-            report_bits(
-                &filter
-                    .step(ctx, &observations(config.shape.targets, f))
-                    .unwrap(),
-            )
-        })
+        .map(|f| report_bits(&filter.step(&observations(config.shape.targets, f)).unwrap()))
         .collect()
 }
 
@@ -105,22 +100,22 @@ fn two_frames_in_flight_give_the_bits_of_one_at_a_time() {
     let mut got = Vec::new();
     let mut in_flight = std::collections::VecDeque::new();
     for f in 0..FRAMES {
-        in_flight.push_back(filter.submit(&ctx, &observations(targets, f)).unwrap());
+        in_flight.push_back(filter.submit(&observations(targets, f)).unwrap());
         if in_flight.len() == 2 {
             let oldest = in_flight.pop_front().unwrap();
-            got.push(report_bits(&filter.finish(&ctx, oldest).unwrap()));
+            got.push(report_bits(&filter.finish(oldest).unwrap()));
         }
     }
     while let Some(oldest) = in_flight.pop_front() {
-        got.push(report_bits(&filter.finish(&ctx, oldest).unwrap()));
+        got.push(report_bits(&filter.finish(oldest).unwrap()));
     }
     assert_eq!(got, want);
     // A third frame in flight is refused, not queued over the second's readback.
-    let a = filter.submit(&ctx, &observations(targets, 0)).unwrap();
-    let b = filter.submit(&ctx, &observations(targets, 1)).unwrap();
-    assert!(filter.submit(&ctx, &observations(targets, 2)).is_err());
-    filter.finish(&ctx, a).unwrap();
-    filter.finish(&ctx, b).unwrap();
+    let a = filter.submit(&observations(targets, 0)).unwrap();
+    let b = filter.submit(&observations(targets, 1)).unwrap();
+    assert!(filter.submit(&observations(targets, 2)).is_err());
+    filter.finish(a).unwrap();
+    filter.finish(b).unwrap();
 }
 
 proptest! {
@@ -155,14 +150,12 @@ proptest! {
             in_flight.push_back(sharded.submit(&observations(targets, f)).unwrap());
             if in_flight.len() == 2 {
                 let r = sharded.finish(in_flight.pop_front().unwrap()).unwrap();
-                let ess: Vec<f32> = r.stats.iter().map(|s| s.ess).collect();
-                got.push(bits(&r.estimates, &r.spreads, &r.best_estimates, &ess));
+                got.push(report_bits(&r));
             }
         }
         while let Some(oldest) = in_flight.pop_front() {
             let r = sharded.finish(oldest).unwrap();
-            let ess: Vec<f32> = r.stats.iter().map(|s| s.ess).collect();
-            got.push(bits(&r.estimates, &r.spreads, &r.best_estimates, &ess));
+            got.push(report_bits(&r));
         }
         prop_assert_eq!(got, want);
     }

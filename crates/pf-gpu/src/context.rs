@@ -47,7 +47,9 @@ impl ContextOptions {
     }
 }
 
-/// An open device on one adapter.
+/// An open device on one adapter. A clone is another handle to the same device and queue (wgpu's
+/// handles are reference-counted), so a filter can own its context while its caller keeps one.
+#[derive(Clone)]
 pub struct GpuContext {
     /// The wgpu device.
     pub device: wgpu::Device,

@@ -8,8 +8,8 @@ use numpy::PyUntypedArrayMethods;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
 use pf_core::{PfError, Resampler, ResamplerKind};
+use pf_gpu::GpuResampler;
 use pf_gpu::model::{ModelSource, RawModelFilter};
-use pf_gpu::{GpuContext, GpuResampler};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};
 
@@ -20,7 +20,6 @@ use crate::errors::{gpu, pf, runtime_error, value_error, whole, whole_opt};
 enum Engine {
     /// The model's WGSL, the whole step on the GPU.
     Gpu {
-        ctx: Box<GpuContext>,
         filter: Box<RawModelFilter>,
         observation_values: usize,
     },
@@ -166,7 +165,6 @@ impl ParticleFilter {
                     .map_err(gpu)?;
                 (
                     Engine::Gpu {
-                        ctx: Box::new(ctx),
                         filter: Box::new(filter),
                         observation_values,
                     },
@@ -228,7 +226,6 @@ impl ParticleFilter {
                 py.detach(|| {
                 let mut engine = self.engine.lock().map_err(|_| poisoned())?;
                 let Engine::Gpu {
-                    ctx,
                     filter,
                     observation_values,
                 } = &mut *engine
@@ -242,14 +239,9 @@ impl ParticleFilter {
                         shape.targets
                     )));
                 }
-                let report = filter.step(ctx, &values).map_err(gpu)?;
-                check_statuses(report.stats.iter().map(|s| (s.status, s.bad_particle)))?;
-                Ok((
-                    report.estimates,
-                    report.spreads,
-                    report.stats.iter().map(|s| f64::from(s.ess)).collect::<Vec<_>>(),
-                    report.stats.iter().map(|s| s.resampled != 0).collect::<Vec<_>>(),
-                ))
+                let report = filter.step(&values).map_err(gpu)?;
+                check_statuses(&report.status)?;
+                Ok((report.estimates, report.spreads, report.ess, report.resampled))
             })?
             } else {
                 let mut engine = self.try_lock()?;
@@ -271,9 +263,7 @@ impl ParticleFilter {
                     return Err(e);
                 }
                 let report = report.map_err(pf)?;
-                for status in &report.status {
-                    status.clone().map_err(pf)?;
-                }
+                check_statuses(&report.status)?;
                 (
                     report.estimates,
                     report.spreads,
@@ -297,12 +287,7 @@ impl ParticleFilter {
             let engine = self.try_lock()?;
             match &*engine {
                 Engine::Cpu { filter, .. } => (filter.states.clone(), filter.log_weights.clone()),
-                Engine::Gpu { ctx, filter, .. } => py
-                    .detach(|| -> Result<_, pf_gpu::GpuError> {
-                        let f = filter.filter();
-                        Ok((f.download_states(ctx)?, f.download_log_weights(ctx)?))
-                    })
-                    .map_err(gpu)?,
+                Engine::Gpu { filter, .. } => py.detach(|| filter.particles()).map_err(gpu)?,
             }
         };
         let (t, m, d) = (shape.targets, shape.particles, shape.dims);
@@ -331,18 +316,15 @@ impl ParticleFilter {
     }
 }
 
-/// The GPU's per-target status: 0 is fine; the others name what went wrong with the weights.
-fn check_statuses(statuses: impl Iterator<Item = (u32, u32)>) -> PyResult<()> {
-    for (target, (status, particle)) in statuses.enumerate() {
-        let what = match status {
-            0 => continue,
-            1 => "every particle's likelihood is zero",
-            2 => "a log-likelihood is NaN",
-            _ => "a log-likelihood is +infinity",
-        };
-        return Err(runtime_error(format!(
-            "target {target}: {what} (particle {particle}); its weights were left uniform"
-        )));
+/// Each target's status from either engine: an error names the target and what went wrong with
+/// its weights.
+fn check_statuses(statuses: &[Result<(), PfError>]) -> PyResult<()> {
+    for (target, status) in statuses.iter().enumerate() {
+        if let Err(e) = status {
+            return Err(runtime_error(format!(
+                "target {target}: {e}; its weights were left uniform"
+            )));
+        }
     }
     Ok(())
 }

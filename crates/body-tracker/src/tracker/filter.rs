@@ -5,8 +5,9 @@
 use crate::skeleton::gpu::{BodyLikelihoodConfig, BodyLikelihoodGpu};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::random::part_seed;
-use pf_gpu::engine::{EngineReport, FilterEngine};
-use pf_gpu::{GpuContext, NoLikelihood, PendingStep};
+use pf_core::resample::ResamplerKind;
+use pf_gpu::engine::{EngineReport, Filter as EngineFilter, FilterEngine, InFlight, Model};
+use pf_gpu::{GpuContext, GpuLikelihood, GpuResampler, LikelihoodInputs, NoLikelihood};
 use rayon::prelude::*;
 
 use super::TrackerConfig;
@@ -14,18 +15,71 @@ use crate::error::BodyError;
 use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
 
-/// How the particles are weighed, beside the filter's engine.
-pub(crate) enum Measure {
-    /// On the host, all cores (the CPU engine).
-    Host,
-    /// On the GPU, in the engine's submission (the GPU engine).
-    Gpu(Box<BodyLikelihoodGpu>),
+/// The body likelihood as a [`Model`] of the engine's one filter: eq. 3 over the frame's rays,
+/// on the host (all cores, culled capsules) or on the GPU ([`BodyLikelihoodGpu`]).
+pub(crate) struct BodyModel {
+    /// The GPU side (GPU engines only).
+    gpu: Option<Box<BodyLikelihoodGpu>>,
 }
 
-/// One particle filter over θ on one engine (the CPU, or one GPU), and how it weighs.
+/// What one step weighs: the frame, and the skeleton the host poses.
+pub(crate) struct BodyFrame<'a> {
+    skeleton: &'a Skeleton,
+    frame: &'a Frame<'a>,
+}
+
+impl Model for BodyModel {
+    type Frame<'f> = BodyFrame<'f>;
+    type Error = BodyError;
+
+    fn prepare_gpu(
+        &mut self,
+        ctx: &GpuContext,
+        inputs: &LikelihoodInputs<'_>,
+    ) -> Result<(), BodyError> {
+        if let Some(gpu) = &mut self.gpu {
+            GpuLikelihood::prepare(&mut **gpu, ctx, inputs)?;
+        }
+        Ok(())
+    }
+
+    /// Uploads the frame's prepared rays and σ; a flat frame is weighed by nothing.
+    fn upload_frame(
+        &mut self,
+        ctx: &GpuContext,
+        frame: &BodyFrame<'_>,
+    ) -> Result<&dyn GpuLikelihood, BodyError> {
+        let gpu = self.gpu.as_deref_mut().ok_or_else(|| {
+            BodyError::InvalidInput("a body model built for the CPU was put on a GPU".into())
+        })?;
+        let rays = frame.frame.gpu_rays.ok_or_else(|| {
+            BodyError::InvalidInput("a GPU filter got a frame prepared for the CPU".into())
+        })?;
+        gpu.upload_prepared_rays(ctx, rays)?;
+        gpu.set_sigma(ctx, frame.frame.sigma)?;
+        Ok(if frame.frame.flat { &NoLikelihood } else { gpu })
+    }
+
+    fn measure_on_cpu(
+        &self,
+        frame: &BodyFrame<'_>,
+        _: &BatchShape,
+        poses: &[f32],
+        out: &mut [f32],
+    ) -> Result<(), BodyError> {
+        let BodyFrame { skeleton, frame } = frame;
+        if frame.flat {
+            out.fill(0.0);
+            return Ok(());
+        }
+        host_log_likelihoods(skeleton, frame.rays, frame.params, poses, out)
+    }
+}
+
+/// One particle filter over θ on one engine (the CPU, or one GPU): the body model stepped by
+/// the engine's filter.
 pub(crate) struct Filter {
-    pub(crate) engine: FilterEngine,
-    pub(crate) measure: Measure,
+    filter: EngineFilter<BodyModel>,
 }
 
 /// What one filter's step gives (an island's, with several GPUs): its estimate, the spread
@@ -59,65 +113,46 @@ impl Filter {
         skeleton: &Skeleton,
         frame: &Frame,
     ) -> Result<FilterStep, BodyError> {
-        self.upload(frame)?;
-        let Self { engine, measure } = self;
-        let on_gpu: &dyn pf_gpu::GpuLikelihood = match &*measure {
-            Measure::Gpu(likelihood) if !frame.flat => &**likelihood,
-            _ => &NoLikelihood,
-        };
-        let report = engine.step(
-            |_, poses, out| -> Result<(), BodyError> {
-                match measure {
-                    Measure::Host if !frame.flat => {
-                        host_log_likelihoods(skeleton, frame.rays, frame.params, poses, out)
-                    }
-                    // A flat likelihood; the GPU engine never measures on the host.
-                    _ => {
-                        out.fill(0.0);
-                        Ok(())
-                    }
-                }
-            },
-            on_gpu,
-        )?;
+        let report = self.filter.step(&BodyFrame { skeleton, frame })?;
         self.step_of(report, frame.flat)
     }
 
     /// On a GPU, uploads the frame and submits its step without waiting ([`Self::finish`] reads
     /// it back); `None` on the CPU engine, which steps with [`Self::step`].
-    pub(crate) fn submit(&mut self, frame: &Frame) -> Result<Option<PendingStep>, BodyError> {
-        if !matches!(self.measure, Measure::Gpu(_)) {
+    pub(crate) fn submit(
+        &mut self,
+        skeleton: &Skeleton,
+        frame: &Frame,
+    ) -> Result<Option<InFlight>, BodyError> {
+        if !self.on_gpu() {
             return Ok(None);
         }
-        self.upload(frame)?;
-        let on_gpu: &dyn pf_gpu::GpuLikelihood = match &self.measure {
-            Measure::Gpu(likelihood) if !frame.flat => &**likelihood,
-            _ => &NoLikelihood,
-        };
-        Ok(self.engine.submit(on_gpu)?)
+        Ok(Some(self.filter.submit(&BodyFrame { skeleton, frame })?))
     }
 
     /// The step of a frame from [`Self::submit`], after waiting for it.
     pub(crate) fn finish(
         &mut self,
-        pending: PendingStep,
+        pending: InFlight,
         flat: bool,
     ) -> Result<FilterStep, BodyError> {
-        let report = self.engine.finish(pending)?;
+        let report = self.filter.finish(pending)?;
         self.step_of(report, flat)
     }
 
-    /// A GPU filter's upload of a frame: its prepared rays and σ.
-    fn upload(&mut self, frame: &Frame) -> Result<(), BodyError> {
-        let Self { engine, measure } = self;
-        if let (Measure::Gpu(likelihood), Some(ctx)) = (&mut *measure, engine.context()) {
-            let rays = frame.gpu_rays.ok_or_else(|| {
-                BodyError::InvalidInput("a GPU filter got a frame prepared for the CPU".into())
-            })?;
-            likelihood.upload_prepared_rays(ctx, rays)?;
-            likelihood.set_sigma(ctx, frame.sigma)?;
-        }
-        Ok(())
+    /// Whether the filter weighs on a GPU.
+    pub(crate) fn on_gpu(&self) -> bool {
+        self.filter.context().is_some()
+    }
+
+    /// The engine (particles, the GPU context).
+    pub(crate) fn engine(&self) -> &FilterEngine {
+        self.filter.engine()
+    }
+
+    /// The engine, to move samples between islands.
+    pub(crate) fn engine_mut(&mut self) -> &mut FilterEngine {
+        self.filter.engine_mut()
     }
 
     /// The filter's step from its engine's report.
@@ -125,8 +160,8 @@ impl Filter {
         if let Some(Err(e)) = report.status.into_iter().next() {
             return Err(e.into());
         }
-        let estimate_sum = match &self.measure {
-            Measure::Gpu(_) if !flat => {
+        let estimate_sum = match self.on_gpu() {
+            true if !flat => {
                 let sums: Vec<f32> = report.likelihood.get(BodyLikelihoodGpu::ESTIMATE_SUM)?;
                 sums.first().map(|&m| f64::from(m))
             }
@@ -193,11 +228,13 @@ pub(crate) fn new_filter(
             *x = x.clamp(lower[d], upper[d]);
         }
     }
-    Ok(match ctx {
-        None => Filter {
-            engine: FilterEngine::cpu(&batch, states)?,
-            measure: Measure::Host,
-        },
+    let filter = match ctx {
+        None => EngineFilter::on_cpu(
+            &batch,
+            ResamplerKind::Systematic,
+            states,
+            BodyModel { gpu: None },
+        )?,
         Some(ctx) => {
             let gpu_config = BodyLikelihoodConfig {
                 bones: skeleton.gpu_bones(),
@@ -207,17 +244,14 @@ pub(crate) fn new_filter(
                 tau: config.tau,
                 sigma: config.sigma_at_1000_points,
             };
-            let mut likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config, config.particles)?;
-            let engine = FilterEngine::gpu(ctx, &batch, &states)?;
-            if let Some((ctx, inputs)) = engine.likelihood_inputs() {
-                pf_gpu::GpuLikelihood::prepare(&mut likelihood, ctx, &inputs)?;
-            }
-            Filter {
-                engine,
-                measure: Measure::Gpu(Box::new(likelihood)),
-            }
+            let likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config, config.particles)?;
+            let model = BodyModel {
+                gpu: Some(Box::new(likelihood)),
+            };
+            EngineFilter::on_gpu(ctx, &batch, GpuResampler::Systematic, &states, model)?
         }
-    })
+    };
+    Ok(Filter { filter })
 }
 
 /// Sample `m` of a single-target batch (`[d·M + m]`).

@@ -289,7 +289,12 @@ mod tests {
                 motion: Default::default(),
             };
             let states: Vec<f32> = (0..100).map(|i| value + i as f32 * 1e-3).collect();
-            FilterEngine::cpu(&config, states).unwrap()
+            FilterEngine::cpu(
+                &config,
+                pf_core::resample::ResamplerKind::Systematic,
+                states,
+            )
+            .unwrap()
         };
         let (mut good, mut lost) = (island(1.0), island(50.0));
         let sources = exchange(&mut [&mut good, &mut lost], &[1.0, 0.0], 9).unwrap();

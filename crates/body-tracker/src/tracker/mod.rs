@@ -30,7 +30,7 @@ use crate::frame::{FramePreparer, PreparedFrame};
 use crate::likelihood::{CapsuleLikelihoodParams, culled_sum_of_squared_distances_parallel};
 use crate::skeleton::Skeleton;
 pub use filter::FilterStep;
-use filter::{Filter, Frame, Measure, new_filter};
+use filter::{Filter, Frame, new_filter};
 
 /// Where the filter and the likelihood run.
 pub enum Backend {
@@ -230,12 +230,12 @@ impl BodyTracker {
             ));
         }
         if let [filter] = self.filters.as_slice() {
-            return Ok(filter.engine.particles()?);
+            return Ok(filter.engine().particles()?);
         }
         let islands = self
             .filters
             .iter()
-            .map(|f| f.engine.particles())
+            .map(|f| f.engine().particles())
             .collect::<Result<Vec<_>, _>>()?;
         islands::joined_particles(&islands, &self.island_weights)
     }
@@ -248,7 +248,7 @@ impl BodyTracker {
 
     /// The GPU the filter runs on (the first island's with several; `None` on the CPU engine).
     pub fn gpu_context(&self) -> Option<&pf_gpu::GpuContext> {
-        self.filters.first().and_then(|f| f.engine.context())
+        self.filters.first().and_then(|f| f.engine().context())
     }
 
     /// What prepares this tracker's frames ([`FramePreparer::prepare`]): on any thread, for
@@ -256,10 +256,7 @@ impl BodyTracker {
     pub fn preparer(&self) -> FramePreparer {
         FramePreparer {
             max_points: self.config.max_points,
-            on_gpu: self
-                .filters
-                .iter()
-                .any(|f| matches!(f.measure, Measure::Gpu(_))),
+            on_gpu: self.filters.iter().any(|f| f.on_gpu()),
         }
     }
 
@@ -296,9 +293,9 @@ impl BodyTracker {
             ));
         }
         let work = match self.filters.as_mut_slice() {
-            [filter] if matches!(filter.measure, Measure::Gpu(_)) => {
+            [filter] if filter.on_gpu() => {
                 let frame = frame_of(&self.config, &prepared)?;
-                match filter.submit(&frame)? {
+                match filter.submit(&self.skeleton, &frame)? {
                     Some(pending) => Submitted::Gpu(pending),
                     None => Submitted::Done(self.step_now(&prepared)),
                 }
@@ -400,7 +397,7 @@ impl BodyTracker {
                     &mut self
                         .filters
                         .iter_mut()
-                        .map(|f| &mut f.engine)
+                        .map(|f| f.engine_mut())
                         .collect::<Vec<_>>(),
                     &combined.weights,
                     self.config.seed ^ self.frames,
@@ -452,7 +449,7 @@ struct InFlight {
 /// How far a frame in flight has got.
 enum Submitted {
     /// On the GPU; its results are read at `finish`.
-    Gpu(pf_gpu::PendingStep),
+    Gpu(pf_gpu::engine::InFlight),
     /// Stepped already (the CPU engine, or islands).
     Done(Result<FrameResult, BodyError>),
 }

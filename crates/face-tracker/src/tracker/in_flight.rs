@@ -11,7 +11,7 @@
 //! they are not after a lost track in one-at-a-time stepping. On the CPU engine a submitted frame
 //! is kept and stepped when it is finished.
 
-use pf_gpu::PendingStep;
+use pf_gpu::engine::InFlight;
 
 use super::shards::FrameRef;
 use super::{FaceEstimate, FaceTracker};
@@ -25,7 +25,7 @@ pub const MAX_FRAMES_IN_FLIGHT: usize = 2;
 pub(crate) enum FrameInFlight {
     /// Each shard's step, submitted to its GPU, in shard order; and the frame's size.
     Submitted {
-        steps: Vec<PendingStep>,
+        steps: Vec<InFlight>,
         size: (u32, u32),
     },
     /// On the CPU engine: the frame, stepped when it is finished.

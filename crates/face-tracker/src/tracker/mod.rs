@@ -30,6 +30,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicUsize;
 
 pub mod in_flight;
+mod model;
 pub mod shards;
 mod start;
 use start::RECENT_ESTIMATES;
@@ -346,7 +347,7 @@ impl FaceTracker {
 
     /// The GPU the filter runs on (the first one with several; `None` on the CPU engine).
     pub fn gpu_context(&self) -> Option<&pf_gpu::GpuContext> {
-        self.shards.first().and_then(|s| s.engine.context())
+        self.shards.first().and_then(|s| s.filter.context())
     }
 
     /// The GPU's time for the last step's submission (timestamps where the adapter has them),

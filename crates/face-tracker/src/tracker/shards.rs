@@ -5,36 +5,30 @@
 //! runs the whole step for its slots (frame upload, every annealing layer, the estimates and
 //! their check) in its own submission, the shards step at once on threads of their own, and the
 //! host only puts their estimates side by side in slot order. Each shard numbers its slots as
-//! the whole tracker does (`FilterEngine::number_targets_from`), so a slot draws the random
+//! the whole tracker does (`Filter::number_targets_from`), so a slot draws the random
 //! numbers it draws on one engine and the shards track as one GPU would.
 
 use crate::likelihood::gpu::FaceLikelihoodGpu;
 use pf_core::batch::{BatchConfig, BatchShape};
-use pf_gpu::engine::{EngineReport, FilterEngine};
-use pf_gpu::{GpuContext, GpuLikelihood, GpuTime, NoLikelihood, PendingStep};
+use pf_core::resample::ResamplerKind;
+use pf_gpu::engine::{EngineReport, Filter, InFlight};
+use pf_gpu::{GpuContext, GpuResampler, GpuTime};
 use rayon::prelude::*;
 
 use super::FaceTrackerConfig;
+use super::model::{FaceFrame, FaceModel};
 use crate::error::FaceError;
 use crate::image::GrayImage;
-use crate::likelihood::{
-    Lens, MIN_ERROR, MIN_VISIBLE_SHARE, log_weight, residual_error_through,
-    residual_errors_of_through,
-};
+use crate::likelihood::{MIN_ERROR, MIN_VISIBLE_SHARE, residual_error_through};
 use crate::projection::DIMS;
 use crate::template::Template;
 
-/// A share of the slots on one engine.
+/// A share of the slots on one engine: the face model stepped by the engine's filter.
 pub(crate) struct Shard {
-    pub engine: FilterEngine,
-    /// The GPU likelihood (GPU engines only; the CPU engine weighs on the host).
-    pub gpu_likelihood: Option<Box<FaceLikelihoodGpu>>,
+    pub filter: Filter<FaceModel>,
     /// The tracker's first slot in this shard.
     pub first_slot: usize,
     pub slots: usize,
-    /// The camera the faces are seen through (the CPU engine's; a GPU's likelihood has its own
-    /// copy).
-    pub lens: Lens,
 }
 
 /// One shard's step: per slot of the shard, the estimate (`[t·7 + d]`), its spread, the ESS and
@@ -121,10 +115,15 @@ impl Shard {
         let lens = config.lens(frame_size)?;
         // Free slots hold a cloud at the origin until a face arrives; they are never reported.
         let states = vec![0.0; shape.state_len()];
-        let (engine, gpu_likelihood) = match ctx {
-            None => (FilterEngine::cpu(&batch, states)?, None),
+        let mut filter = match ctx {
+            None => Filter::on_cpu(
+                &batch,
+                ResamplerKind::Systematic,
+                states,
+                FaceModel { lens, gpu: None },
+            )?,
             Some(ctx) => {
-                let mut likelihood = FaceLikelihoodGpu::new(
+                let likelihood = FaceLikelihoodGpu::new(
                     &ctx,
                     config.gpu_dispatch,
                     slots,
@@ -136,21 +135,18 @@ impl Shard {
                     MIN_VISIBLE_SHARE,
                     lens,
                 )?;
-                let engine = FilterEngine::gpu(ctx, &batch, &states)?;
-                if let Some((ctx, inputs)) = engine.likelihood_inputs() {
-                    likelihood.prepare(ctx, &inputs)?;
-                }
-                (engine, Some(Box::new(likelihood)))
+                let model = FaceModel {
+                    lens,
+                    gpu: Some(Box::new(likelihood)),
+                };
+                Filter::on_gpu(ctx, &batch, GpuResampler::Systematic, &states, model)?
             }
         };
-        let mut engine = engine;
-        engine.number_targets_from(first_slot)?;
+        filter.number_targets_from(first_slot)?;
         Ok(Self {
-            engine,
-            gpu_likelihood,
+            filter,
             first_slot,
             slots,
-            lens,
         })
     }
 
@@ -167,8 +163,8 @@ impl Shard {
         template: &Template,
     ) -> Result<(), FaceError> {
         let local = slot - self.first_slot;
-        self.engine.reset_target(local, cloud)?;
-        if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
+        self.filter.reset_target(local, cloud)?;
+        if let (Some(likelihood), Some(ctx)) = (&self.filter.model().gpu, self.filter.context()) {
             likelihood.upload_template(ctx, local, &template.gpu_layout())?;
         }
         Ok(())
@@ -182,28 +178,17 @@ impl Shard {
         templates: &[Option<&Template>],
         sharpness: f32,
     ) -> Result<ShardStep, FaceError> {
-        if let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) {
-            likelihood.upload_frame(ctx, frame.pixels())?;
-        }
-        // The CPU weighs an image; a GPU only needs the pixels it uploaded.
-        let image = match &self.gpu_likelihood {
+        // The CPU weighs an image; a GPU only needs the pixels it uploads.
+        let image = match self.filter.context() {
             Some(_) => None,
             None => Some(frame.image()?),
         };
-        let on_gpu: &dyn GpuLikelihood = match &self.gpu_likelihood {
-            Some(likelihood) => &**likelihood,
-            None => &NoLikelihood,
-        };
-        let lens = self.lens;
-        let report = self.engine.step(
-            |shape, states, out| -> Result<(), FaceError> {
-                if let Some(image) = &image {
-                    host_log_weights(shape, states, templates, image, &lens, sharpness, out);
-                }
-                Ok(())
-            },
-            on_gpu,
-        )?;
+        let report = self.filter.step(&FaceFrame {
+            pixels: frame.pixels(),
+            image: image.as_deref(),
+            templates,
+            sharpness,
+        })?;
         let Some(image) = &image else {
             return gpu_shard_step(report);
         };
@@ -215,7 +200,7 @@ impl Shard {
             .map(|(t, template)| {
                 let state: [f32; DIMS] = std::array::from_fn(|d| estimates[t * DIMS + d]);
                 template.map_or(1.0, |template| {
-                    residual_error_through(&state, template, image, &lens)
+                    residual_error_through(&state, template, image, &self.filter.model().lens)
                 })
             })
             .collect();
@@ -230,17 +215,24 @@ impl Shard {
 
     /// On a GPU: uploads the frame and submits the shard's step without waiting for it; `None`
     /// on the CPU engine, which steps with [`Shard::step`]. [`Shard::finish`] reads it back.
-    pub fn submit(&mut self, frame: FrameRef<'_>) -> Result<Option<PendingStep>, FaceError> {
-        let (Some(likelihood), Some(ctx)) = (&self.gpu_likelihood, self.engine.context()) else {
+    pub fn submit(&mut self, frame: FrameRef<'_>) -> Result<Option<InFlight>, FaceError> {
+        if self.filter.context().is_none() {
             return Ok(None);
+        }
+        // A GPU reads only the pixels: each slot's template is on the GPU since the slot
+        // started, and λ is among its parameters.
+        let frame = FaceFrame {
+            pixels: frame.pixels(),
+            image: None,
+            templates: &[],
+            sharpness: f32::NAN,
         };
-        likelihood.upload_frame(ctx, frame.pixels())?;
-        Ok(self.engine.submit(&**likelihood)?)
+        Ok(Some(self.filter.submit(&frame)?))
     }
 
     /// The step [`Shard::submit`] submitted, after waiting for it.
-    pub fn finish(&mut self, pending: PendingStep) -> Result<ShardStep, FaceError> {
-        gpu_shard_step(self.engine.finish(pending)?)
+    pub fn finish(&mut self, pending: InFlight) -> Result<ShardStep, FaceError> {
+        gpu_shard_step(self.filter.finish(pending)?)
     }
 }
 
@@ -260,48 +252,6 @@ fn gpu_shard_step(report: EngineReport) -> Result<ShardStep, FaceError> {
         errors,
         gpu_time: report.gpu_time,
     })
-}
-
-/// The CPU engine's measure: each slot's particles in tasks of `TASK` (a particle is about a
-/// microsecond of work), weighed `LANES` at a time; free slots weigh 0.
-fn host_log_weights(
-    shape: &BatchShape,
-    states: &[f32],
-    templates: &[Option<&Template>],
-    frame: &GrayImage,
-    lens: &Lens,
-    sharpness: f32,
-    out: &mut [f32],
-) {
-    const TASK: usize = 64;
-    out.par_chunks_mut(shape.particles)
-        .enumerate()
-        .for_each(|(t, out)| {
-            let Some(template) = templates[t] else {
-                out.fill(0.0);
-                return;
-            };
-            out.par_chunks_mut(TASK)
-                .enumerate()
-                .for_each(|(task, out)| {
-                    let first = task * TASK;
-                    let mut particles = [[0.0f32; DIMS]; TASK];
-                    for (k, s) in particles[..out.len()].iter_mut().enumerate() {
-                        *s = std::array::from_fn(|d| states[shape.state_index(t, d, first + k)]);
-                    }
-                    let mut errors = [0.0f64; TASK];
-                    residual_errors_of_through(
-                        &particles[..out.len()],
-                        template,
-                        frame,
-                        lens,
-                        &mut errors[..out.len()],
-                    );
-                    for (out, error) in out.iter_mut().zip(errors) {
-                        *out = log_weight(error, sharpness);
-                    }
-                });
-        });
 }
 
 /// Every shard's step at once (each on its own thread when there are several), in shard order.
@@ -339,13 +289,13 @@ pub(crate) fn joined_particles(
     shards: &[Shard],
 ) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
     if let [shard] = shards {
-        return Ok(shard.engine.particles()?);
+        return Ok(shard.filter.engine().particles()?);
     }
     let (mut states, mut log_weights, mut slots) = (Vec::new(), Vec::new(), 0);
     let mut particles = 0;
     for shard in shards {
         // Targets are outermost in both layouts: shards' slots follow one another.
-        let (shape, s, w) = shard.engine.particles()?;
+        let (shape, s, w) = shard.filter.engine().particles()?;
         states.extend(s);
         log_weights.extend(w);
         slots += shape.targets;

@@ -151,15 +151,24 @@ pub fn check_against_cpu<O: Pod, C: Pod, M: CpuModel<O, C>>(
         )));
     }
     filter.model().set_observations(ctx, inputs.observations)?;
-    let mut mismatches = compare_log_likelihoods(ctx, &mut filter, cpu, inputs)?;
+    let mut mismatches = compare_log_likelihoods(&mut filter, cpu, inputs)?;
     if M::PROPAGATES {
-        mismatches.extend(compare_propagation(ctx, &mut filter, cpu, inputs)?);
+        mismatches.extend(compare_propagation(&mut filter, cpu, inputs)?);
     }
     Ok(ModelCheck {
         particles: shape.targets * shape.particles,
         checked_propagate: M::PROPAGATES,
         mismatches,
     })
+}
+
+/// The GPU driver of a model's filter, to run one stage at a time.
+fn on_gpu<O: Pod, C: Pod>(
+    filter: &mut ModelFilter<O, C>,
+) -> Result<(&GpuContext, &mut crate::GpuFilter, &super::WgslModel<O, C>), GpuError> {
+    filter
+        .gpu_parts()
+        .ok_or_else(|| GpuError::InvalidConfig("a model check runs on the GPU engine".into()))
 }
 
 /// One particle's state from the batch layout.
@@ -171,17 +180,16 @@ fn particle(shape: &BatchShape, states: &[f32], t: usize, m: usize) -> Vec<f32> 
 
 /// The measure kernel on the given particles against the twin's `log_likelihood`.
 fn compare_log_likelihoods<O: Pod, C: Pod, M: CpuModel<O, C>>(
-    ctx: &GpuContext,
     filter: &mut ModelFilter<O, C>,
     cpu: &M,
     inputs: &CheckInputs<'_, O, C>,
 ) -> Result<Vec<Mismatch>, GpuError> {
     let shape = inputs.shape;
-    {
-        let (gpu_filter, model) = filter.parts();
+    let gpu = {
+        let (ctx, gpu_filter, model) = on_gpu(filter)?;
         gpu_filter.run_stages(ctx, &[GpuStage::Likelihood], model)?;
-    }
-    let gpu = filter.filter().download_log_likelihood(ctx)?;
+        gpu_filter.download_log_likelihood(ctx)?
+    };
     let mut mismatches = Vec::new();
     for t in 0..shape.targets {
         for m in 0..shape.particles {
@@ -205,19 +213,18 @@ fn compare_log_likelihoods<O: Pod, C: Pod, M: CpuModel<O, C>>(
 
 /// The propagate kernel at one step against the twin's `propagate` fed the same draws.
 fn compare_propagation<O: Pod, C: Pod, M: CpuModel<O, C>>(
-    ctx: &GpuContext,
     filter: &mut ModelFilter<O, C>,
     cpu: &M,
     inputs: &CheckInputs<'_, O, C>,
 ) -> Result<Vec<Mismatch>, GpuError> {
     let shape = inputs.shape;
     let step = 7;
-    {
-        let (gpu_filter, model) = filter.parts();
+    let moved = {
+        let (ctx, gpu_filter, model) = on_gpu(filter)?;
         gpu_filter.set_step(step);
         gpu_filter.run_stages(ctx, &[GpuStage::Diffuse], model)?;
-    }
-    let moved = filter.filter().download_states(ctx)?;
+        gpu_filter.download_states(ctx)?
+    };
     let keys = stage_keys(inputs.seed, shape.targets, Stage::Diffusion);
     let mut next = vec![0.0f32; shape.dims];
     let mut mismatches = Vec::new();

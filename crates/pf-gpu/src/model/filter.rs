@@ -1,89 +1,117 @@
-//! A GPU filter built with its model, [`PluginFilter`]: [`ModelFilter`] for a typed model
-//! (observations and constants as `Pod` types) and [`RawModelFilter`] for one sized at run time
-//! (f32 values: the Python package's). The two differ only in how they are built and what an
-//! observation is; they step the same way, a frame at a time or two frames in flight, as the
-//! trackers do: `submit` records and submits a frame without waiting, `finish` waits for the
-//! oldest and reads it back, with the results of stepping one at a time, bit for bit.
+//! A researcher's WGSL model as a [`Model`] of the one [`Filter`]: [`ModelFilter`] for a typed
+//! model (observations and constants as `Pod` types) and [`RawModelFilter`] for one sized at run
+//! time (f32 values: the Python package's). They step as every filter does, a frame at a time or
+//! two frames in flight (`submit`, `finish`), with the engine's layers and drift, and over several
+//! GPUs through [`super::ShardedModelFilter`].
 
 use bytemuck::Pod;
-use pf_core::batch::BatchConfig;
+use pf_core::batch::{BatchConfig, BatchShape};
 
 use super::{ModelSource, RawWgslModel, WgslModel};
 use crate::context::GpuContext;
+use crate::engine::{Filter, Model};
 use crate::error::GpuError;
-use crate::filter::{GpuFilter, GpuLikelihood, GpuResampler, GpuStage, GpuStepReport, PendingStep};
+use crate::filter::{GpuLikelihood, GpuResampler, LikelihoodInputs};
 
-/// Every stage of a frame, in order.
-const WHOLE_STEP: [GpuStage; 6] = [
-    GpuStage::Resample,
-    GpuStage::Gather,
-    GpuStage::Diffuse,
-    GpuStage::Likelihood,
-    GpuStage::Normalise,
-    GpuStage::Estimate,
-];
+/// A [`Filter`] of a typed WGSL model ([`WgslModel`]); a frame is one observation per target.
+pub type ModelFilter<O, C> = Filter<WgslModel<O, C>>;
 
-/// What a [`PluginFilter`] needs of its model beyond the [`GpuLikelihood`]: how one frame's
-/// observations (one per target) reach the GPU.
-pub trait PluginModel: GpuLikelihood {
-    /// One target's observation: the model's `Observation` type, or its f32 values.
-    type Observation: Pod;
+/// A [`Filter`] of a WGSL model sized at run time ([`RawWgslModel`]: observations and constants
+/// as f32 values); a frame is `[t·K + k]`, K values per target.
+pub type RawModelFilter = Filter<RawWgslModel>;
 
-    /// Uploads one frame's observations (`[t]`, or `[t·K + k]` for f32 values).
-    fn upload_observations(
-        &self,
+/// What a WGSL model answers on the CPU engine: its CPU twin is a separate
+/// `pf_core::plugin::CpuModel`, run by `BatchFilter::step_model` and checked against the WGSL
+/// by [`super::check_against_cpu`].
+fn no_cpu_side(name: &str) -> GpuError {
+    GpuError::InvalidConfig(format!(
+        "the WGSL model {name} runs on the GPU engine; its CPU twin is a \
+         pf_core::plugin::CpuModel run by BatchFilter::step_model"
+    ))
+}
+
+impl<O: Pod, C: Pod> Model for WgslModel<O, C> {
+    type Frame<'f> = [O];
+    type Error = GpuError;
+
+    fn prepare_gpu(
+        &mut self,
         ctx: &GpuContext,
-        observations: &[Self::Observation],
-    ) -> Result<(), GpuError>;
-}
+        inputs: &LikelihoodInputs<'_>,
+    ) -> Result<(), GpuError> {
+        self.prepare(ctx, inputs)
+    }
 
-impl<O: Pod, C: Pod> PluginModel for WgslModel<O, C> {
-    type Observation = O;
+    fn upload_frame(
+        &mut self,
+        ctx: &GpuContext,
+        frame: &[O],
+    ) -> Result<&dyn GpuLikelihood, GpuError> {
+        self.set_observations(ctx, frame)?;
+        Ok(self)
+    }
 
-    fn upload_observations(&self, ctx: &GpuContext, observations: &[O]) -> Result<(), GpuError> {
-        self.set_observations(ctx, observations)
+    fn measure_on_cpu(
+        &self,
+        _: &[O],
+        _: &BatchShape,
+        _: &[f32],
+        _: &mut [f32],
+    ) -> Result<(), GpuError> {
+        Err(no_cpu_side(self.name()))
     }
 }
 
-impl PluginModel for RawWgslModel {
-    type Observation = f32;
+impl Model for RawWgslModel {
+    type Frame<'f> = [f32];
+    type Error = GpuError;
 
-    fn upload_observations(&self, ctx: &GpuContext, observations: &[f32]) -> Result<(), GpuError> {
-        self.set_observations(ctx, observations)
+    fn prepare_gpu(
+        &mut self,
+        ctx: &GpuContext,
+        inputs: &LikelihoodInputs<'_>,
+    ) -> Result<(), GpuError> {
+        self.prepare(ctx, inputs)
+    }
+
+    fn upload_frame(
+        &mut self,
+        ctx: &GpuContext,
+        frame: &[f32],
+    ) -> Result<&dyn GpuLikelihood, GpuError> {
+        self.set_observations(ctx, frame)?;
+        Ok(self)
+    }
+
+    fn measure_on_cpu(
+        &self,
+        _: &[f32],
+        _: &BatchShape,
+        _: &[f32],
+        _: &mut [f32],
+    ) -> Result<(), GpuError> {
+        Err(no_cpu_side(self.name()))
     }
 }
 
-/// A GPU filter built with its model: the model is prepared against the filter's streams at
-/// construction, so it can neither be forgotten nor bound to another filter.
-pub struct PluginFilter<M: PluginModel> {
-    filter: GpuFilter,
-    model: M,
-}
-
-/// A [`PluginFilter`] of a typed model ([`WgslModel`]).
-pub type ModelFilter<O, C> = PluginFilter<WgslModel<O, C>>;
-
-/// A [`PluginFilter`] of a model sized at run time ([`RawWgslModel`]: observations and
-/// constants as f32 values).
-pub type RawModelFilter = PluginFilter<RawWgslModel>;
-
-impl<O: Pod, C: Pod> PluginFilter<WgslModel<O, C>> {
+impl<O: Pod, C: Pod> Filter<WgslModel<O, C>> {
+    /// The model of `source` on the GPU of `ctx` (the filter keeps a handle to it);
     /// `initial_states` in the batch layout (`[(t·D + d)·M + m]`).
     pub fn new(
         ctx: &GpuContext,
         config: &BatchConfig,
         resampler: GpuResampler,
         initial_states: &[f32],
-        model: ModelSource<'_>,
+        source: ModelSource<'_>,
         constants: &C,
     ) -> Result<Self, GpuError> {
-        let filter = GpuFilter::new(ctx, config, resampler, initial_states)?;
-        let model = WgslModel::new(ctx, model, &config.shape, constants)?;
-        Self::prepared(ctx, filter, model)
+        let model = WgslModel::new(ctx, source, &config.shape, constants)?;
+        Self::on_gpu(ctx.clone(), config, resampler, initial_states, model)
     }
 }
 
-impl PluginFilter<RawWgslModel> {
+impl Filter<RawWgslModel> {
+    /// The model of `source` on the GPU of `ctx` (the filter keeps a handle to it);
     /// `initial_states` in the batch layout (`[(t·D + d)·M + m]`); `observation_values` 32-bit
     /// values make one target's `Observation`.
     pub fn new(
@@ -91,73 +119,11 @@ impl PluginFilter<RawWgslModel> {
         config: &BatchConfig,
         resampler: GpuResampler,
         initial_states: &[f32],
-        model: ModelSource<'_>,
+        source: ModelSource<'_>,
         observation_values: usize,
         constants: &[f32],
     ) -> Result<Self, GpuError> {
-        let filter = GpuFilter::new(ctx, config, resampler, initial_states)?;
-        let model = RawWgslModel::new(ctx, model, &config.shape, observation_values, constants)?;
-        Self::prepared(ctx, filter, model)
-    }
-}
-
-impl<M: PluginModel> PluginFilter<M> {
-    fn prepared(ctx: &GpuContext, filter: GpuFilter, mut model: M) -> Result<Self, GpuError> {
-        model.prepare(ctx, &filter.likelihood_inputs())?;
-        Ok(Self { filter, model })
-    }
-
-    /// One frame: resample, propagate (or diffuse), measure against `observations` (one per
-    /// target), normalise, estimate — one submission.
-    pub fn step(
-        &mut self,
-        ctx: &GpuContext,
-        observations: &[M::Observation],
-    ) -> Result<GpuStepReport, GpuError> {
-        self.model.upload_observations(ctx, observations)?;
-        self.filter.step(ctx, &self.model)
-    }
-
-    /// Submits a frame against `observations` without waiting for it: the GPU steps it while
-    /// the host prepares the next frame or reads the one before. At most two frames are in
-    /// flight; [`Self::finish`] them in the order submitted. (The next frame's observations
-    /// may be set at once: the queue writes them after this frame's work.)
-    pub fn submit(
-        &mut self,
-        ctx: &GpuContext,
-        observations: &[M::Observation],
-    ) -> Result<PendingStep, GpuError> {
-        self.model.upload_observations(ctx, observations)?;
-        self.filter.submit_stages(ctx, &WHOLE_STEP, &self.model)
-    }
-
-    /// Waits for the oldest frame in flight and reads its results back.
-    pub fn finish(
-        &mut self,
-        ctx: &GpuContext,
-        pending: PendingStep,
-    ) -> Result<GpuStepReport, GpuError> {
-        self.filter.finish_step(ctx, pending)
-    }
-
-    /// The filter (states, weights, downloads).
-    pub fn filter(&self) -> &GpuFilter {
-        &self.filter
-    }
-
-    /// The filter, to number its targets as a part of a larger batch
-    /// ([`GpuFilter::number_targets_from`]).
-    pub fn filter_mut(&mut self) -> &mut GpuFilter {
-        &mut self.filter
-    }
-
-    /// The filter and its model, for running single stages ([`GpuFilter::run_stages`]).
-    pub fn parts(&mut self) -> (&mut GpuFilter, &M) {
-        (&mut self.filter, &self.model)
-    }
-
-    /// The model (observations, constants, generated source).
-    pub fn model(&self) -> &M {
-        &self.model
+        let model = RawWgslModel::new(ctx, source, &config.shape, observation_values, constants)?;
+        Self::on_gpu(ctx.clone(), config, resampler, initial_states, model)
     }
 }

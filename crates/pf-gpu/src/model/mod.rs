@@ -37,8 +37,8 @@ pub use check::{
     ABSOLUTE_TOLERANCE, CheckInputs, Mismatch, ModelCheck, RELATIVE_TOLERANCE, agrees,
     check_against_cpu, tolerance,
 };
-pub use filter::{ModelFilter, PluginFilter, PluginModel, RawModelFilter};
-pub use sharded::{ShardedModelFilter, ShardedPending, ShardedStepReport};
+pub use filter::{ModelFilter, RawModelFilter};
+pub use sharded::{ShardedModelFilter, ShardedPending};
 
 use std::marker::PhantomData;
 
@@ -408,10 +408,16 @@ impl RawWgslModel {
     pub fn generated_source(&self) -> &str {
         &self.source
     }
+
+    /// The model's name (from its [`ModelSource`]).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
 }
 
 /// A model given as WGSL, with its observations `O` (one per target) and constants `C` on the
-/// device. Implements [`GpuLikelihood`]; [`ModelFilter`] owns one with its filter.
+/// device. Implements [`GpuLikelihood`] and [`crate::engine::Model`]; [`ModelFilter`] is the
+/// filter of one.
 pub struct WgslModel<O: Pod, C: Pod> {
     raw: RawWgslModel,
     _types: PhantomData<(O, C)>,
@@ -468,6 +474,11 @@ impl<O: Pod, C: Pod> WgslModel<O, C> {
     /// The generated WGSL, for reading and debugging.
     pub fn generated_source(&self) -> &str {
         self.raw.generated_source()
+    }
+
+    /// The model's name (from its [`ModelSource`]).
+    pub fn name(&self) -> &str {
+        self.raw.name()
     }
 }
 

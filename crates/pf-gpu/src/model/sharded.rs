@@ -14,8 +14,9 @@ use pf_core::batch::{BatchConfig, BatchShape};
 
 use super::{ModelFilter, ModelSource};
 use crate::context::GpuContext;
+use crate::engine::{EngineReport, InFlight};
 use crate::error::GpuError;
-use crate::filter::{GpuResampler, GpuStepReport, PendingStep, TargetStats};
+use crate::filter::{GpuResampler, LikelihoodReadbacks};
 
 /// One GPU's share of the targets.
 struct Shard<O: Pod, C: Pod> {
@@ -33,22 +34,7 @@ pub struct ShardedModelFilter<O: Pod, C: Pod> {
 /// A frame submitted to every shard ([`ShardedModelFilter::submit`]), not yet read back.
 #[must_use = "a submitted frame must be finished (ShardedModelFilter::finish)"]
 pub struct ShardedPending {
-    pending: Vec<PendingStep>,
-}
-
-/// One frame's results over every shard, in the whole batch's target order.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ShardedStepReport {
-    /// `[t·D + d]`.
-    pub estimates: Vec<f32>,
-    /// The posterior's spread, `[t·D + d]`.
-    pub spreads: Vec<f32>,
-    /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
-    pub best_estimates: Vec<f32>,
-    /// Per-target statistics.
-    pub stats: Vec<TargetStats>,
-    /// Each shard's own report (its timing and its likelihood's readbacks), in shard order.
-    pub shards: Vec<GpuStepReport>,
+    pending: Vec<InFlight>,
 }
 
 /// Contiguous ranges of `targets` over at most `parts` shards, their sizes differing by at most
@@ -100,9 +86,7 @@ impl<O: Pod, C: Pod> ShardedModelFilter<O, C> {
             part.shape = BatchShape::new(targets.len(), shape.particles, shape.dims)?;
             let states = &initial_states[targets.start * block..targets.end * block];
             let mut filter = ModelFilter::new(&ctx, &part, resampler, states, model, constants)?;
-            filter
-                .filter_mut()
-                .number_targets_from(&ctx, targets.start)?;
+            filter.number_targets_from(targets.start)?;
             shards.push(Shard {
                 ctx,
                 targets,
@@ -123,7 +107,7 @@ impl<O: Pod, C: Pod> ShardedModelFilter<O, C> {
     }
 
     /// One frame against `observations` (one per target of the whole batch), every GPU at once.
-    pub fn step(&mut self, observations: &[O]) -> Result<ShardedStepReport, GpuError> {
+    pub fn step(&mut self, observations: &[O]) -> Result<EngineReport, GpuError> {
         let pending = self.submit(observations)?;
         self.finish(pending)
     }
@@ -140,52 +124,59 @@ impl<O: Pod, C: Pod> ShardedModelFilter<O, C> {
         let mut pending = Vec::with_capacity(self.shards.len());
         for shard in &mut self.shards {
             let seen = &observations[shard.targets.clone()];
-            pending.push(shard.filter.submit(&shard.ctx, seen)?);
+            pending.push(shard.filter.submit(seen)?);
         }
         Ok(ShardedPending { pending })
     }
 
-    /// Waits for the oldest frame in flight on every shard; the results in target order.
-    pub fn finish(&mut self, frame: ShardedPending) -> Result<ShardedStepReport, GpuError> {
-        let mut report = ShardedStepReport {
-            estimates: Vec::with_capacity(self.shape.targets * self.shape.dims),
-            spreads: Vec::with_capacity(self.shape.targets * self.shape.dims),
+    /// Waits for the oldest frame in flight on every shard; the results in the whole batch's
+    /// target order. The GPU time is the slowest shard's (the GPUs work at once).
+    pub fn finish(&mut self, frame: ShardedPending) -> Result<EngineReport, GpuError> {
+        let (t, d) = (self.shape.targets, self.shape.dims);
+        let mut report = EngineReport {
+            estimates: Vec::with_capacity(t * d),
             best_estimates: Vec::new(),
-            stats: Vec::with_capacity(self.shape.targets),
-            shards: Vec::with_capacity(self.shards.len()),
+            spreads: Vec::with_capacity(t * d),
+            ess: Vec::with_capacity(t),
+            resampled: Vec::with_capacity(t),
+            beta: Vec::with_capacity(t),
+            status: Vec::with_capacity(t),
+            gpu_time: None,
+            likelihood: LikelihoodReadbacks::default(),
         };
         for (shard, pending) in self.shards.iter_mut().zip(frame.pending) {
-            let part = shard.filter.finish(&shard.ctx, pending)?;
-            report.estimates.extend_from_slice(&part.estimates);
-            report.spreads.extend_from_slice(&part.spreads);
-            report
-                .best_estimates
-                .extend_from_slice(&part.best_estimates);
-            report.stats.extend_from_slice(&part.stats);
-            report.shards.push(part);
+            let part = shard.filter.finish(pending)?;
+            report.estimates.extend(part.estimates);
+            report.best_estimates.extend(part.best_estimates);
+            report.spreads.extend(part.spreads);
+            report.ess.extend(part.ess);
+            report.resampled.extend(part.resampled);
+            report.beta.extend(part.beta);
+            report.status.extend(part.status);
+            report.gpu_time = match (report.gpu_time, part.gpu_time) {
+                (Some(a), Some(b)) if a.duration() >= b.duration() => Some(a),
+                (a, b) => b.or(a),
+            };
         }
         Ok(report)
     }
 
     /// Restarts target `t` of the whole batch from `states` (`[d·M + m]`) with equal weights.
     pub fn reset_target(&mut self, t: usize, states: &[f32]) -> Result<(), GpuError> {
-        let shard = (self.shards.iter())
+        let shard = (self.shards.iter_mut())
             .find(|s| s.targets.contains(&t))
             .ok_or_else(|| {
                 GpuError::InvalidConfig(format!("target {t} of a batch of {}", self.shape.targets))
             })?;
         let local = t - shard.targets.start;
-        shard
-            .filter
-            .filter()
-            .reset_target(&shard.ctx, local, states)
+        shard.filter.reset_target(local, states)
     }
 
     /// The whole batch's particle states (`[(t·D + d)·M + m]`; tests and debugging).
     pub fn download_states(&self) -> Result<Vec<f32>, GpuError> {
         let mut states = Vec::with_capacity(self.shape.state_len());
         for shard in &self.shards {
-            states.extend(shard.filter.filter().download_states(&shard.ctx)?);
+            states.extend(shard.filter.particles()?.0);
         }
         Ok(states)
     }

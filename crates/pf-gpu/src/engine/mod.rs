@@ -1,26 +1,33 @@
-//! One seam for the CPU and GPU engines: a tracker holds a [`FilterEngine`] and steps it with
-//! its measurement on the host (for the CPU) and its [`GpuLikelihood`] (for the GPU); both give
-//! the same [`EngineReport`], and a slot is reset and the particles read the same way.
+//! The one filter every model is stepped by, [`Filter`], over a [`Model`] (a model's CPU twin and
+//! its GPU side) on either engine ([`FilterEngine`]): the trackers' models, a researcher's WGSL
+//! plug-in ([`crate::model::ModelFilter`] is a `Filter` of one) and the CPU-only models alike.
+//! Both engines give the same [`EngineReport`], and a target is reset and the particles read the
+//! same way.
 //!
 //! The CPU engine is pf-core's [`BatchFilter`] (the GPU driver's twin, drawing the same random
 //! numbers); the GPU engine is [`GpuFilter`] with the context it runs on.
 
+mod filter;
+mod model;
+
+pub use filter::{Filter, InFlight};
+pub use model::Model;
+
 use pf_core::PfError;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
-use pf_core::resample::Systematic;
+use pf_core::resample::{Resampler, ResamplerKind};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{
-    GpuFilter, GpuLikelihood, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodReadbacks,
-    PendingStep,
+    GpuFilter, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodReadbacks,
 };
 use crate::timing::GpuTime;
 
 /// Where a filter runs.
 pub enum FilterEngine {
-    /// pf-core's batch filter on the host (systematic resampling, all cores for the measure).
-    Cpu(Box<BatchFilter<Systematic>>),
+    /// pf-core's batch filter on the host (all cores for the measure).
+    Cpu(Box<BatchFilter<Box<dyn Resampler>>>),
     /// The whole step on the GPU.
     Gpu(Box<GpuEngine>),
 }
@@ -39,6 +46,8 @@ impl GpuEngine {
         let particles = self.filter.shape().particles;
         EngineReport {
             ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
+            resampled: report.stats.iter().map(|s| s.resampled != 0).collect(),
+            beta: report.stats.iter().map(|s| s.beta).collect(),
             status: report.stats.iter().map(|s| s.result(particles)).collect(),
             estimates: report.estimates,
             best_estimates: report.best_estimates,
@@ -61,6 +70,10 @@ pub struct EngineReport {
     pub spreads: Vec<f32>,
     /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,
+    /// Whether each target resampled at the start of the step (of its last annealing layer).
+    pub resampled: Vec<bool>,
+    /// The exponent each target's last layer weighed with (1 without annealing).
+    pub beta: Vec<f32>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
     pub status: Vec<Result<(), PfError>>,
     /// The step's GPU time (GPU engine only).
@@ -81,22 +94,27 @@ impl EngineReport {
 }
 
 impl FilterEngine {
-    /// The CPU engine over `initial_states` (`[(t·D + d)·M + m]`).
-    pub fn cpu(config: &BatchConfig, initial_states: Vec<f32>) -> Result<Self, GpuError> {
+    /// The CPU engine over `initial_states` (`[(t·D + d)·M + m]`), resampling with `resampler`.
+    pub fn cpu(
+        config: &BatchConfig,
+        resampler: ResamplerKind,
+        initial_states: Vec<f32>,
+    ) -> Result<Self, GpuError> {
         Ok(Self::Cpu(Box::new(BatchFilter::new(
             config,
-            Systematic,
+            resampler.build(),
             initial_states,
         )?)))
     }
 
-    /// The GPU engine on `ctx` (systematic resampling, as the CPU engine).
+    /// The GPU engine on `ctx`, resampling with `resampler`.
     pub fn gpu(
         ctx: GpuContext,
         config: &BatchConfig,
+        resampler: GpuResampler,
         initial_states: &[f32],
     ) -> Result<Self, GpuError> {
-        let filter = GpuFilter::new(&ctx, config, GpuResampler::Systematic, initial_states)?;
+        let filter = GpuFilter::new(&ctx, config, resampler, initial_states)?;
         Ok(Self::Gpu(Box::new(GpuEngine { ctx, filter })))
     }
 
@@ -124,78 +142,36 @@ impl FilterEngine {
         }
     }
 
-    /// One step. The CPU engine measures with `cpu_measure(shape, states, out)` (fill
-    /// `out[t·M + m]` with log-likelihoods; an error is returned as it is; called once per
-    /// annealing layer); the GPU engine records `gpu_likelihood` (which must have been prepared
-    /// against this engine).
-    pub fn step<E: From<GpuError>>(
-        &mut self,
-        mut cpu_measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), E>,
-        gpu_likelihood: &dyn GpuLikelihood,
+    /// One step on the CPU engine, measuring with `measure(shape, states, out)` (fill
+    /// `out[t·M + m]` with log-likelihoods; called once per annealing layer). The measure's own
+    /// error is returned as it is.
+    fn step_on_cpu<E: From<GpuError>>(
+        filter: &mut BatchFilter<Box<dyn Resampler>>,
+        mut measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), E>,
     ) -> Result<EngineReport, E> {
-        match self {
-            Self::Cpu(filter) => {
-                // BatchFilter takes a PfError; keep the caller's own error to return it as is.
-                let mut failure = None;
-                let report = filter.step_batched(|shape, states, out| {
-                    cpu_measure(shape, states, out).map_err(|e| {
-                        failure = Some(e);
-                        PfError::InvalidConfig("the measurement failed".into())
-                    })
-                });
-                if let Some(e) = failure {
-                    return Err(e);
-                }
-                let report = report.map_err(GpuError::from)?;
-                Ok(EngineReport {
-                    estimates: report.estimates,
-                    best_estimates: report.best_estimates,
-                    spreads: report.spreads,
-                    ess: report.ess,
-                    status: report.status,
-                    gpu_time: None,
-                    likelihood: LikelihoodReadbacks::default(),
-                })
-            }
-            Self::Gpu(gpu) => {
-                let report = gpu.filter.step(&gpu.ctx, gpu_likelihood)?;
-                Ok(gpu.report(report))
-            }
+        // BatchFilter takes a PfError; keep the measure's own error to return it as is.
+        let mut failure = None;
+        let report = filter.step_batched(|shape, states, out| {
+            measure(shape, states, out).map_err(|e| {
+                failure = Some(e);
+                PfError::InvalidConfig("the model's measurement failed".into())
+            })
+        });
+        if let Some(e) = failure {
+            return Err(e);
         }
-    }
-
-    /// On the GPU engine, submits one step without waiting (`None` on the CPU engine, which
-    /// steps with [`Self::step`]); [`Self::finish`] reads it back. See
-    /// [`GpuFilter::submit_stages`]: two steps may be in flight, finished in order.
-    pub fn submit(
-        &mut self,
-        gpu_likelihood: &dyn GpuLikelihood,
-    ) -> Result<Option<PendingStep>, GpuError> {
-        use crate::filter::GpuStage::*;
-        match self {
-            Self::Cpu(_) => Ok(None),
-            Self::Gpu(gpu) => gpu
-                .filter
-                .submit_stages(
-                    &gpu.ctx,
-                    &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
-                    gpu_likelihood,
-                )
-                .map(Some),
-        }
-    }
-
-    /// The report of a step from [`Self::submit`], after waiting for it.
-    pub fn finish(&mut self, pending: PendingStep) -> Result<EngineReport, GpuError> {
-        match self {
-            Self::Cpu(_) => Err(GpuError::InvalidConfig(
-                "the CPU engine has no submitted steps to finish".into(),
-            )),
-            Self::Gpu(gpu) => {
-                let report = gpu.filter.finish_step(&gpu.ctx, pending)?;
-                Ok(gpu.report(report))
-            }
-        }
+        let report = report.map_err(GpuError::from)?;
+        Ok(EngineReport {
+            estimates: report.estimates,
+            best_estimates: report.best_estimates,
+            spreads: report.spreads,
+            ess: report.ess,
+            resampled: report.resampled,
+            beta: report.beta,
+            status: report.status,
+            gpu_time: None,
+            likelihood: LikelihoodReadbacks::default(),
+        })
     }
 
     /// Makes this engine's targets targets `first ..` of a larger batch split over several
