@@ -1,12 +1,14 @@
 //! Range-only 2-D tracking: targets heard by three beacons that measure only their distance,
 //! tracked with a constant-velocity model written in WGSL (`MODEL`: the whole GPU side) and its
-//! CPU twin (`RangeOnly`), side by side on the same random numbers.
+//! CPU twin (`RangeOnly`), paired as one `Plugin` and run by the same `Filter` type on a GPU and
+//! on the CPU, side by side on the same random numbers.
 //! `cargo run --release --example range_only [-- --allow-software]` (Mesa's lavapipe, no GPU).
 
 use bytemuck::{Pod, Zeroable};
-use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
-use pf_core::{plugin::CpuModel, resample::Systematic};
-use pf_gpu::model::{ModelFilter, ModelSource};
+use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_core::{plugin::CpuModel, resample::ResamplerKind};
+use pf_gpu::engine::Filter;
+use pf_gpu::model::{ModelSource, Plugin};
 use pf_gpu::{ContextOptions, GpuContext, GpuResampler};
 
 // The user's GPU model: the 17 lines of WGSL below and the two bytemuck types it reads.
@@ -94,11 +96,19 @@ pub fn run(
     let config = BatchConfig::new(BatchShape::new(targets, 1000, 4)?, 3, vec![0.0; 4]);
     let means: Vec<f32> = (0..targets).flat_map(|t| truth(t, 0.0)).collect();
     let start = gaussian_clouds(&config.shape, 4, &means, &[1.0, 1.0, 0.5, 0.5]);
-    let systematic = GpuResampler::Systematic;
-    let mut gpu = (ctx
-        .map(|ctx| ModelFilter::new(ctx, &config, systematic, &start, MODEL, &CONSTANTS)))
-    .transpose()?;
-    let mut cpu = BatchFilter::new(&config, Systematic, start)?;
+    let on_gpu = |ctx: &GpuContext| -> Result<_, pf_gpu::GpuError> {
+        let model = Plugin::gpu(ctx, MODEL, &config.shape, RangeOnly, CONSTANTS)?;
+        Filter::on_gpu(
+            ctx.clone(),
+            &config,
+            GpuResampler::Systematic,
+            &start,
+            model,
+        )
+    };
+    let mut gpu = ctx.map(on_gpu).transpose()?;
+    let model = Plugin::cpu(RangeOnly, CONSTANTS);
+    let mut cpu = Filter::on_cpu(&config, ResamplerKind::Systematic, start.clone(), model)?;
     let mut noise = pf_core::RandomStreams::new(9).stream(0, pf_core::Stage::Model(0));
     let mut sensor = |p: &[f32; 4]| Ranges {
         r: std::array::from_fn(|k| {
@@ -114,8 +124,7 @@ pub fn run(
         if let Some(filter) = gpu.as_mut() {
             gpu_errors.push(position_error(&truths, &filter.step(&observed)?.estimates));
         }
-        let on_cpu = cpu.step_model(&RangeOnly, &observed, &CONSTANTS)?;
-        cpu_errors.push(position_error(&truths, &on_cpu.estimates));
+        cpu_errors.push(position_error(&truths, &cpu.step(&observed)?.estimates));
     }
     let second_half =
         |e: &[f32]| e[frames / 2..].iter().sum::<f32>() / (frames - frames / 2) as f32;

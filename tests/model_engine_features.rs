@@ -202,3 +202,77 @@ fn a_sharded_filter_checks_what_it_is_given() {
     assert!(filter.reset_target(3, &vec![0.0; 7 * 50]).is_err());
     filter.reset_target(2, &vec![0.0; 7 * 50]).unwrap();
 }
+
+/// One filter type runs a plug-in on either engine (`Plugin`: the WGSL with its CPU twin). On
+/// the CPU engine it is the twin's own step (`BatchFilter::step_model`), bit for bit, with every
+/// engine feature on; on a GPU a frame from the same particles gives the CPU's estimates within
+/// the tolerance policy (`agrees`: the same random numbers, f32 sums on the GPU). One layer
+/// there: the survival rule's β bisection may part in the last bits between f32 and f64.
+#[test]
+fn a_plugin_runs_on_either_engine_through_one_filter() {
+    use pf_core::batch::BatchFilter;
+    use pf_core::resample::{ResamplerKind, Systematic};
+    use pf_gpu::engine::Filter;
+    use pf_gpu::model::Plugin;
+    use pf_gpu::toy::ToyTwin;
+
+    let config = config(4, 200, 5);
+    let twin = || ToyTwin {
+        angular: [false, false, false, true, true, true, false],
+    };
+    let model = Plugin::cpu(twin(), constants());
+    let mut on_cpu =
+        Filter::on_cpu(&config, ResamplerKind::Systematic, start(&config), model).unwrap();
+    let mut reference = BatchFilter::new(&config, Systematic, start(&config)).unwrap();
+    for f in 0..FRAMES {
+        let seen = observations(4, f);
+        let a = on_cpu.step(&seen).unwrap();
+        let b = reference.step_model(&twin(), &seen, &constants()).unwrap();
+        let ess: Vec<f32> = b.ess.iter().map(|&e| e as f32).collect();
+        assert_eq!(
+            report_bits(&a),
+            bits(&b.estimates, &b.spreads, &b.best_estimates, &ess),
+            "frame {f}"
+        );
+    }
+    let err = on_cpu.step(&observations(3, 0)).unwrap_err();
+    assert!(err.to_string().contains("observations"), "{err}");
+
+    let Some(ctx) = common::gpu_context("a plug-in on either engine") else {
+        return;
+    };
+    let mut one_layer = config.clone();
+    one_layer.annealing = Annealing::none();
+    let model = Plugin::gpu(&ctx, TOY_MODEL, &config.shape, twin(), constants()).unwrap();
+    let mut on_gpu = Filter::on_gpu(
+        ctx.clone(),
+        &one_layer,
+        GpuResampler::Systematic,
+        &start(&config),
+        model,
+    )
+    .unwrap();
+    let gpu = on_gpu.step(&observations(4, 0)).unwrap();
+    let model = Plugin::cpu(twin(), constants());
+    let mut on_cpu =
+        Filter::on_cpu(&one_layer, ResamplerKind::Systematic, start(&config), model).unwrap();
+    let cpu = on_cpu.step(&observations(4, 0)).unwrap();
+    for (i, (g, c)) in gpu.estimates.iter().zip(&cpu.estimates).enumerate() {
+        assert!(
+            pf_gpu::model::agrees(f64::from(*g), f64::from(*c)),
+            "estimate {i}: GPU {g} vs CPU {c}"
+        );
+    }
+    // A model built for the CPU cannot weigh on a GPU: a clear error, not a silent flat step.
+    let cpu_only = Plugin::cpu(twin(), constants());
+    let mut wrong = Filter::on_gpu(
+        ctx,
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        cpu_only,
+    )
+    .unwrap();
+    let err = wrong.step(&observations(4, 0)).unwrap_err();
+    assert!(err.to_string().contains("Plugin::gpu"), "{err}");
+}

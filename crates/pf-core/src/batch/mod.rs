@@ -33,7 +33,9 @@ pub fn wrap_angle_floor(x: f32) -> f32 {
 }
 
 /// A model's dynamics on one particle: `(previous state, standard Gaussian draws, next state)`.
-type Propagate<'a> = dyn Fn(&[f32], &[f32], &mut [f32]) + Sync + 'a;
+/// A model's own dynamics on the host: one particle's next state (`next`) from its state and `D`
+/// standard Gaussian draws (those the GPU's `propagate` gets).
+pub type Propagate<'a> = dyn Fn(&[f32], &[f32], &mut [f32]) + Sync + 'a;
 
 /// What one batched step produced, per target.
 #[derive(Debug, Clone, PartialEq)]
@@ -283,7 +285,10 @@ impl<R: Resampler> BatchFilter<R> {
         }
     }
 
-    fn step_with(
+    /// One step with the model's own dynamics when `propagate` is given (else the Gaussian
+    /// random walk) and the whole measurement in one call, as [`Self::step_batched`]: the general
+    /// form the other steps and pf-gpu's `Filter` on the CPU engine use.
+    pub fn step_with(
         &mut self,
         propagate: Option<&Propagate<'_>>,
         mut measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,

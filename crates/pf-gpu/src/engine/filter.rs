@@ -1,7 +1,7 @@
 //! [`Filter`]: one model stepped on the engine chosen at construction, a frame at a time
 //! ([`Filter::step`]) or two frames in flight ([`Filter::submit`], [`Filter::finish`]).
 
-use pf_core::batch::{BatchConfig, BatchShape};
+use pf_core::batch::{BatchConfig, BatchShape, Propagate};
 use pf_core::resample::ResamplerKind;
 
 use super::{EngineReport, FilterEngine, GpuEngine, Model};
@@ -71,9 +71,18 @@ impl<M: Model> Filter<M> {
     pub fn step(&mut self, frame: &M::Frame<'_>) -> Result<EngineReport, M::Error> {
         let Self { engine, model } = self;
         match engine {
-            FilterEngine::Cpu(filter) => FilterEngine::step_on_cpu(filter, |shape, states, out| {
-                model.measure_on_cpu(frame, shape, states, out)
-            }),
+            FilterEngine::Cpu(filter) => {
+                let model: &M = model;
+                let dynamics = |x: &[f32], noise: &[f32], next: &mut [f32]| {
+                    model.propagate_on_cpu(x, noise, next)
+                };
+                let propagate = model
+                    .propagates_on_cpu()
+                    .then_some(&dynamics as &Propagate<'_>);
+                FilterEngine::step_on_cpu(filter, propagate, |shape, states, out| {
+                    model.measure_on_cpu(frame, shape, states, out)
+                })
+            }
             FilterEngine::Gpu(gpu) => {
                 let likelihood = model.upload_frame(&gpu.ctx, frame)?;
                 let report = gpu.filter.step(&gpu.ctx, likelihood)?;

@@ -14,7 +14,7 @@ pub use filter::{Filter, InFlight};
 pub use model::Model;
 
 use pf_core::PfError;
-use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, Propagate};
 use pf_core::resample::{Resampler, ResamplerKind};
 
 use crate::context::GpuContext;
@@ -142,16 +142,18 @@ impl FilterEngine {
         }
     }
 
-    /// One step on the CPU engine, measuring with `measure(shape, states, out)` (fill
+    /// One step on the CPU engine, moving with the model's dynamics when given (else the random
+    /// walk) and measuring with `measure(shape, states, out)` (fill
     /// `out[t·M + m]` with log-likelihoods; called once per annealing layer). The measure's own
     /// error is returned as it is.
     fn step_on_cpu<E: From<GpuError>>(
         filter: &mut BatchFilter<Box<dyn Resampler>>,
+        propagate: Option<&Propagate<'_>>,
         mut measure: impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), E>,
     ) -> Result<EngineReport, E> {
         // BatchFilter takes a PfError; keep the measure's own error to return it as is.
         let mut failure = None;
-        let report = filter.step_batched(|shape, states, out| {
+        let report = filter.step_with(propagate, |shape, states, out| {
             measure(shape, states, out).map_err(|e| {
                 failure = Some(e);
                 PfError::InvalidConfig("the model's measurement failed".into())

@@ -14,7 +14,7 @@ use crate::filter::{GpuLikelihood, LikelihoodInputs};
 ///
 /// The two sides must agree: the GPU side's log-likelihoods equal the CPU twin's within the
 /// tolerance policy (`crate::model::tolerance`), which each model's GPU-vs-CPU test checks.
-pub trait Model {
+pub trait Model: Sync {
     /// What one step weighs: a frame and whatever the model reads beside it (a plug-in's is one
     /// observation per target, `[O]`; the face tracker's the image and each slot's template).
     type Frame<'f>: ?Sized;
@@ -49,4 +49,19 @@ pub trait Model {
         states: &[f32],
         out: &mut [f32],
     ) -> Result<(), Self::Error>;
+
+    /// Whether the model brings its own dynamics on the CPU engine
+    /// ([`Model::propagate_on_cpu`]; its GPU side says so through
+    /// [`GpuLikelihood::propagates`]). `false`: the engine's Gaussian random walk.
+    fn propagates_on_cpu(&self) -> bool {
+        false
+    }
+
+    /// The model's dynamics on the CPU engine: one particle's next state from `x` and `D`
+    /// standard Gaussian draws (those the GPU side's propagate gets, so the two agree). Called
+    /// only when [`Model::propagates_on_cpu`]; angle dimensions are wrapped by the engine.
+    fn propagate_on_cpu(&self, x: &[f32], noise: &[f32], next: &mut [f32]) {
+        let _ = noise;
+        next.copy_from_slice(x);
+    }
 }

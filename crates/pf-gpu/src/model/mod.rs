@@ -31,6 +31,7 @@
 
 mod check;
 mod filter;
+mod plugin;
 mod sharded;
 
 pub use check::{
@@ -38,6 +39,7 @@ pub use check::{
     check_against_cpu, tolerance,
 };
 pub use filter::{ModelFilter, RawModelFilter};
+pub use plugin::Plugin;
 pub use sharded::{ShardedModelFilter, ShardedPending};
 
 use std::marker::PhantomData;
@@ -420,7 +422,8 @@ impl RawWgslModel {
 /// filter of one.
 pub struct WgslModel<O: Pod, C: Pod> {
     raw: RawWgslModel,
-    _types: PhantomData<(O, C)>,
+    // `fn() -> _`: the model holds no O or C, so it is Send and Sync whatever they are.
+    _types: PhantomData<fn() -> (O, C)>,
 }
 
 impl<O: Pod, C: Pod> WgslModel<O, C> {
