@@ -276,3 +276,98 @@ fn a_plugin_runs_on_either_engine_through_one_filter() {
     let err = wrong.step(&observations(4, 0)).unwrap_err();
     assert!(err.to_string().contains("Plugin::gpu"), "{err}");
 }
+
+/// Samples as islands over GPU contexts (`Islands`), for a plug-in: one island is the plain
+/// filter, bit for bit (island 0 keeps the seed); two islands track the toy's moving point,
+/// each target's island weights sum to 1, they exchange on the frames due, and a wrong number
+/// of island log-weights is an error.
+#[test]
+fn a_plugin_runs_as_islands_over_two_contexts() {
+    use pf_core::plugin::CpuModel;
+    use pf_gpu::engine::Islands;
+    use pf_gpu::model::Plugin;
+    use pf_gpu::toy::ToyTwin;
+
+    let (Some(a), Some(b), Some(c)) = (
+        common::gpu_context("islands a"),
+        common::gpu_context("islands b"),
+        common::gpu_context("islands c"),
+    ) else {
+        return;
+    };
+    let targets = 3;
+    let config = config(targets, 400, 7);
+    let twin = || ToyTwin {
+        angular: [false, false, false, true, true, true, false],
+    };
+    let model = |ctx: &GpuContext, island: &BatchConfig| {
+        Plugin::gpu(ctx, TOY_MODEL, &island.shape, twin(), constants())
+    };
+    // Each island weighed by the likelihood of its estimate, as the body tracker's are.
+    let weigh = |obs: &[ToyObservation], r: &EngineReport| -> Result<Vec<f64>, pf_gpu::GpuError> {
+        Ok((0..targets)
+            .map(|t| {
+                let x = &r.point_estimates()[t * 7..(t + 1) * 7];
+                f64::from(twin().log_likelihood(x, &obs[t], &constants()))
+            })
+            .collect())
+    };
+
+    let mut one =
+        Islands::on_gpus(vec![a], &config, GpuResampler::Systematic, start, model, 0).unwrap();
+    let mut plain = ModelFilter::new(
+        &c,
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        TOY_MODEL,
+        &constants(),
+    )
+    .unwrap();
+    for f in 0..FRAMES {
+        let obs = observations(targets, f);
+        let island = one.step(&obs, |_, r| weigh(&obs, r)).unwrap();
+        let alone = plain.step(&obs).unwrap();
+        assert_eq!(
+            report_bits(&island.islands[0]),
+            report_bits(&alone),
+            "frame {f}"
+        );
+        assert!(island.combined.weights.iter().all(|&w| w == 1.0));
+    }
+
+    let contexts = vec![b, c];
+    let mut two =
+        Islands::on_gpus(contexts, &config, GpuResampler::Systematic, start, model, 2).unwrap();
+    assert_eq!(two.filters().len(), 2);
+    assert_eq!(two.filters()[1].shape().particles, 200);
+    for f in 0..FRAMES {
+        let obs = observations(targets, f);
+        let report = two.step(&obs, |_, r| weigh(&obs, r)).unwrap();
+        assert_eq!(report.exchanged.is_some(), (f + 1) % 2 == 0, "frame {f}");
+        for (t, seen) in obs.iter().enumerate() {
+            let w = &report.combined.weights[t * 2..t * 2 + 2];
+            assert!(
+                (w[0] + w[1] - 1.0).abs() < 1e-9,
+                "frame {f} target {t}: {w:?}"
+            );
+            for d in 0..7 {
+                let error = (report.combined.estimates[t * 7 + d] - seen.z[d]).abs();
+                assert!(
+                    error < 0.5,
+                    "frame {f} target {t} dimension {d}: off by {error}"
+                );
+            }
+        }
+    }
+    let (states, log_weights) = two.particles().unwrap();
+    assert_eq!(
+        (states.len(), log_weights.len()),
+        (targets * 7 * 400, targets * 400)
+    );
+    let obs = observations(targets, FRAMES);
+    let err = two
+        .step(&obs, |_, _| Ok(vec![0.0; targets - 1]))
+        .unwrap_err();
+    assert!(err.to_string().contains("island log-weights"), "{err}");
+}

@@ -40,6 +40,7 @@ pub mod batch;
 pub mod error;
 pub mod estimate;
 pub mod filter;
+pub mod islands;
 pub mod model;
 pub mod particles;
 pub mod plugin;

@@ -237,7 +237,7 @@ impl BodyTracker {
             .iter()
             .map(|f| f.engine().particles())
             .collect::<Result<Vec<_>, _>>()?;
-        islands::joined_particles(&islands, &self.island_weights)
+        Ok(islands::joined_particles(&islands, &self.island_weights)?)
     }
 
     /// The last frame's own time on the GPU (the slowest island's with several; GPU timestamps

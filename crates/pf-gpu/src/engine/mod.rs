@@ -8,9 +8,11 @@
 //! numbers); the GPU engine is [`GpuFilter`] with the context it runs on.
 
 mod filter;
+pub mod islands;
 mod model;
 
 pub use filter::{Filter, InFlight};
+pub use islands::{IslandReport, Islands};
 pub use model::Model;
 
 use pf_core::PfError;
