@@ -47,9 +47,19 @@ fn abduction(side: f32) -> JointAxis {
     }
 }
 
+/// The body before any bone is split: the trunk, then each side's arm and leg.
 fn base_bones() -> Vec<Bone> {
+    let mut bones = trunk_bones();
+    for (side, s) in [("left", 1.0f32), ("right", -1.0f32)] {
+        bones.extend(limb_bones(side, s));
+    }
+    bones
+}
+
+/// Pelvis (the root), spine, chest, neck and head.
+fn trunk_bones() -> Vec<Bone> {
     use Axis::{X, Y, Z};
-    let mut bones = vec![
+    vec![
         bone(
             "pelvis",
             None,
@@ -95,76 +105,79 @@ fn base_bones() -> Vec<Bone> {
             0.10,
             vec![axis(X, -0.6, 0.6), axis(Y, -0.8, 0.8), axis(Z, -0.5, 0.5)],
         ),
-    ];
-    for (side, s) in [("left", 1.0f32), ("right", -1.0f32)] {
-        let n = |part: &str| format!("{side}_{part}");
-        bones.extend([
-            bone(
-                &n("clavicle"),
-                Some("chest"),
-                [0.0, 0.18, 0.0],
-                [s, 0.0, 0.0],
-                0.16,
-                0.05,
-                vec![],
-            ),
-            bone(
-                &n("upper_arm"),
-                Some(&n("clavicle")),
-                [s * 0.16, 0.0, 0.0],
-                [0.0, -1.0, 0.0],
-                0.28,
-                0.05,
-                vec![axis(X, -PI, 1.0), axis(Y, -1.5, 1.5), abduction(s)],
-            ),
-            bone(
-                &n("forearm"),
-                Some(&n("upper_arm")),
-                [0.0, -0.28, 0.0],
-                [0.0, -1.0, 0.0],
-                0.26,
-                0.04,
-                vec![axis(X, -2.6, 0.0)],
-            ),
-            bone(
-                &n("hand"),
-                Some(&n("forearm")),
-                [0.0, -0.26, 0.0],
-                [0.0, -1.0, 0.0],
-                0.09,
-                0.04,
-                vec![axis(X, -0.8, 0.8), axis(Z, -0.4, 0.4)],
-            ),
-            bone(
-                &n("thigh"),
-                Some("pelvis"),
-                [s * 0.10, 0.0, 0.0],
-                [0.0, -1.0, 0.0],
-                0.42,
-                0.08,
-                vec![axis(X, -2.0, 0.5), axis(Y, -0.6, 0.6), axis(Z, -0.6, 0.6)],
-            ),
-            bone(
-                &n("shin"),
-                Some(&n("thigh")),
-                [0.0, -0.42, 0.0],
-                [0.0, -1.0, 0.0],
-                0.42,
-                0.055,
-                vec![axis(X, 0.0, 2.6)],
-            ),
-            bone(
-                &n("foot"),
-                Some(&n("shin")),
-                [0.0, -0.42, 0.0],
-                [0.0, 0.0, -1.0],
-                0.20,
-                0.045,
-                vec![axis(X, -0.6, 0.6)],
-            ),
-        ]);
-    }
-    bones
+    ]
+}
+
+/// One side's arm (from the chest) and leg (from the pelvis); `s` is +1 on the left (+x), −1 on
+/// the right.
+fn limb_bones(side: &str, s: f32) -> [Bone; 7] {
+    use Axis::{X, Y, Z};
+    let n = |part: &str| format!("{side}_{part}");
+    [
+        bone(
+            &n("clavicle"),
+            Some("chest"),
+            [0.0, 0.18, 0.0],
+            [s, 0.0, 0.0],
+            0.16,
+            0.05,
+            vec![],
+        ),
+        bone(
+            &n("upper_arm"),
+            Some(&n("clavicle")),
+            [s * 0.16, 0.0, 0.0],
+            [0.0, -1.0, 0.0],
+            0.28,
+            0.05,
+            vec![axis(X, -PI, 1.0), axis(Y, -1.5, 1.5), abduction(s)],
+        ),
+        bone(
+            &n("forearm"),
+            Some(&n("upper_arm")),
+            [0.0, -0.28, 0.0],
+            [0.0, -1.0, 0.0],
+            0.26,
+            0.04,
+            vec![axis(X, -2.6, 0.0)],
+        ),
+        bone(
+            &n("hand"),
+            Some(&n("forearm")),
+            [0.0, -0.26, 0.0],
+            [0.0, -1.0, 0.0],
+            0.09,
+            0.04,
+            vec![axis(X, -0.8, 0.8), axis(Z, -0.4, 0.4)],
+        ),
+        bone(
+            &n("thigh"),
+            Some("pelvis"),
+            [s * 0.10, 0.0, 0.0],
+            [0.0, -1.0, 0.0],
+            0.42,
+            0.08,
+            vec![axis(X, -2.0, 0.5), axis(Y, -0.6, 0.6), axis(Z, -0.6, 0.6)],
+        ),
+        bone(
+            &n("shin"),
+            Some(&n("thigh")),
+            [0.0, -0.42, 0.0],
+            [0.0, -1.0, 0.0],
+            0.42,
+            0.055,
+            vec![axis(X, 0.0, 2.6)],
+        ),
+        bone(
+            &n("foot"),
+            Some(&n("shin")),
+            [0.0, -0.42, 0.0],
+            [0.0, 0.0, -1.0],
+            0.20,
+            0.045,
+            vec![axis(X, -0.6, 0.6)],
+        ),
+    ]
 }
 
 /// Splits bone `i` in two collinear halves; the second half is a new child with no joint, and

@@ -41,7 +41,8 @@ fn bad(message: impl Into<String>) -> BodyError {
     BodyError::InvalidInput(format!("PLY: {}", message.into()))
 }
 
-fn parse_header(bytes: &[u8]) -> Result<Header, BodyError> {
+/// The header's text (from `ply` to before `end_header`) and where the data starts.
+fn header_text(bytes: &[u8]) -> Result<(&str, usize), BodyError> {
     if bytes.is_empty() {
         return Err(bad("the file is empty"));
     }
@@ -58,6 +59,11 @@ fn parse_header(bytes: &[u8]) -> Result<Header, BodyError> {
         data_start += 1;
     }
     let text = std::str::from_utf8(&bytes[..end]).map_err(|_| bad("the header is not text"))?;
+    Ok((text, data_start))
+}
+
+fn parse_header(bytes: &[u8]) -> Result<Header, BodyError> {
+    let (text, data_start) = header_text(bytes)?;
     let mut lines = text.lines().map(str::trim);
     if lines.next() != Some("ply") {
         return Err(bad("the first line is not \"ply\""));
@@ -155,68 +161,11 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Vec<Vector3<f32>>, BodyError> {
             .unwrap_or(0)
     };
     let (ix, iy, iz) = (index("x"), index("y"), index("z"));
-    let mut points = Vec::with_capacity(header.vertices.min(1 << 24));
     let data = &bytes[header.data_start..];
-    match header.format {
-        Format::Ascii => {
-            let text = std::str::from_utf8(data).map_err(|_| bad("the vertex data is not text"))?;
-            let mut lines = text.lines().filter(|l| !l.trim().is_empty());
-            for v in 0..header.vertices {
-                let line = lines.next().ok_or_else(|| {
-                    bad(format!(
-                        "the file ends after {v} of {} vertices",
-                        header.vertices
-                    ))
-                })?;
-                let values: Vec<&str> = line.split_whitespace().collect();
-                if values.len() < header.properties.len() {
-                    return Err(bad(format!(
-                        "vertex {v} has {} values, expected {}",
-                        values.len(),
-                        header.properties.len()
-                    )));
-                }
-                let get = |i: usize| -> Result<f32, BodyError> {
-                    values[i]
-                        .parse::<f32>()
-                        .map_err(|_| bad(format!("vertex {v}: {:?} is not a number", values[i])))
-                };
-                points.push(Vector3::new(get(ix)?, get(iy)?, get(iz)?));
-            }
-        }
-        Format::BinaryLittleEndian => {
-            let sizes: Vec<usize> = header
-                .properties
-                .iter()
-                .map(|(ty, _)| scalar_size(ty).unwrap_or(4))
-                .collect();
-            let stride: usize = sizes.iter().sum();
-            let needed = stride
-                .checked_mul(header.vertices)
-                .ok_or_else(|| bad("the vertex count is too large"))?;
-            if data.len() < needed {
-                return Err(bad(format!(
-                    "the file holds {} bytes of vertex data, {} vertices need {needed}",
-                    data.len(),
-                    header.vertices
-                )));
-            }
-            let offsets: Vec<usize> = sizes
-                .iter()
-                .scan(0, |acc, s| {
-                    let o = *acc;
-                    *acc += s;
-                    Some(o)
-                })
-                .collect();
-            for v in 0..header.vertices {
-                let record = &data[v * stride..(v + 1) * stride];
-                let get =
-                    |i: usize| read_scalar(&header.properties[i].0, &record[offsets[i]..]) as f32;
-                points.push(Vector3::new(get(ix), get(iy), get(iz)));
-            }
-        }
-    }
+    let points = match header.format {
+        Format::Ascii => ascii_vertices(&header, data, [ix, iy, iz])?,
+        Format::BinaryLittleEndian => binary_vertices(&header, data, [ix, iy, iz])?,
+    };
     if let Some(v) = points.iter().position(|p| !p.iter().all(|x| x.is_finite())) {
         let p = points[v];
         return Err(bad(format!(
@@ -225,6 +174,80 @@ pub fn parse_ply(bytes: &[u8]) -> Result<Vec<Vector3<f32>>, BodyError> {
         )));
     }
     Ok(points)
+}
+
+/// The vertices of an ASCII body, one per line; `xyz` are the x, y, z properties' indices.
+fn ascii_vertices(
+    header: &Header,
+    data: &[u8],
+    [ix, iy, iz]: [usize; 3],
+) -> Result<Vec<Vector3<f32>>, BodyError> {
+    let mut points = Vec::with_capacity(header.vertices.min(1 << 24));
+    let text = std::str::from_utf8(data).map_err(|_| bad("the vertex data is not text"))?;
+    let mut lines = text.lines().filter(|l| !l.trim().is_empty());
+    for v in 0..header.vertices {
+        let line = lines.next().ok_or_else(|| {
+            bad(format!(
+                "the file ends after {v} of {} vertices",
+                header.vertices
+            ))
+        })?;
+        let values: Vec<&str> = line.split_whitespace().collect();
+        if values.len() < header.properties.len() {
+            return Err(bad(format!(
+                "vertex {v} has {} values, expected {}",
+                values.len(),
+                header.properties.len()
+            )));
+        }
+        let get = |i: usize| -> Result<f32, BodyError> {
+            values[i]
+                .parse::<f32>()
+                .map_err(|_| bad(format!("vertex {v}: {:?} is not a number", values[i])))
+        };
+        points.push(Vector3::new(get(ix)?, get(iy)?, get(iz)?));
+    }
+    Ok(points)
+}
+
+/// The vertices of a binary little-endian body, fixed-size records; `xyz` as above.
+fn binary_vertices(
+    header: &Header,
+    data: &[u8],
+    [ix, iy, iz]: [usize; 3],
+) -> Result<Vec<Vector3<f32>>, BodyError> {
+    let sizes: Vec<usize> = header
+        .properties
+        .iter()
+        .map(|(ty, _)| scalar_size(ty).unwrap_or(4))
+        .collect();
+    let stride: usize = sizes.iter().sum();
+    let needed = stride
+        .checked_mul(header.vertices)
+        .ok_or_else(|| bad("the vertex count is too large"))?;
+    if data.len() < needed {
+        return Err(bad(format!(
+            "the file holds {} bytes of vertex data, {} vertices need {needed}",
+            data.len(),
+            header.vertices
+        )));
+    }
+    let offsets: Vec<usize> = sizes
+        .iter()
+        .scan(0, |acc, s| {
+            let o = *acc;
+            *acc += s;
+            Some(o)
+        })
+        .collect();
+    let record = |v: usize| &data[v * stride..(v + 1) * stride];
+    Ok((0..header.vertices)
+        .map(|v| {
+            let get =
+                |i: usize| read_scalar(&header.properties[i].0, &record(v)[offsets[i]..]) as f32;
+            Vector3::new(get(ix), get(iy), get(iz))
+        })
+        .collect())
 }
 
 /// Reads a PLY point cloud.

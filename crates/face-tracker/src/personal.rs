@@ -173,23 +173,7 @@ impl Personaliser {
     /// triangle to its generic one. Heights are carried over; normals are turned by W's linear
     /// part (a surface h(W(p)) has gradient Aᵀ∇h), so loaded normalmaps keep their detail.
     pub fn warp(&self, model: &FaceModel, fitted: &[[f32; 2]]) -> Result<FaceModel, FaceError> {
-        if fitted.len() != ibug68::COUNT {
-            return Err(FaceError::InvalidInput(format!(
-                "the warp needs {} landmarks, got {}",
-                ibug68::COUNT,
-                fitted.len()
-            )));
-        }
-        // Far beyond the rectangle (which spans ±1) the fit has surely missed.
-        let limit = 2.0;
-        if let Some(p) = fitted
-            .iter()
-            .find(|p| !(p[0].abs() < limit && p[1].abs() < limit))
-        {
-            return Err(FaceError::InvalidInput(format!(
-                "a fitted landmark lies at {p:?} of the face rectangle (which spans ±1): the fit missed the face"
-            )));
-        }
+        check_fitted(fitted)?;
         let (turn, shift) = self.similarity_to(fitted);
         let moved: Vec<[f32; 2]> = WARP_LANDMARKS
             .iter()
@@ -218,25 +202,11 @@ impl Personaliser {
             }
             // The affine map from this fitted triangle to its generic one: W(p) = A·p + b.
             let (a, b) = affine_between(from, to);
-            // Grid nodes inside the triangle (its bounding box, clipped to the grid).
-            let to_index = |c: f32| (c + 1.0) / 2.0 * last;
-            let lo = |c: f32| to_index(c).ceil().clamp(0.0, last) as u32;
-            let hi = |c: f32| to_index(c).floor().clamp(0.0, last) as u32;
-            let xs = from.map(|p| p[0]);
-            let ys = from.map(|p| p[1]);
-            let (min_x, max_x) = (
-                xs.iter().copied().fold(f32::MAX, f32::min),
-                xs.iter().copied().fold(f32::MIN, f32::max),
-            );
-            let (min_y, max_y) = (
-                ys.iter().copied().fold(f32::MAX, f32::min),
-                ys.iter().copied().fold(f32::MIN, f32::max),
-            );
-            if max_x < -1.0 || min_x > 1.0 || max_y < -1.0 || min_y > 1.0 {
+            let Some((columns, rows)) = grid_box(from, last) else {
                 continue;
-            }
-            for j in lo(min_y)..=hi(max_y) {
-                for i in lo(min_x)..=hi(max_x) {
+            };
+            for j in rows {
+                for i in columns.clone() {
                     let k = (j * size + i) as usize;
                     let p = [node(i), node(j)];
                     if !heights[k].is_nan() || !inside(from, p) {
@@ -264,6 +234,53 @@ impl Personaliser {
             normals,
         })
     }
+}
+
+/// Checks a fit before warping: 68 landmarks, none far outside the face rectangle (which spans
+/// ±1; beyond ±2 the fit has surely missed).
+fn check_fitted(fitted: &[[f32; 2]]) -> Result<(), FaceError> {
+    if fitted.len() != ibug68::COUNT {
+        return Err(FaceError::InvalidInput(format!(
+            "the warp needs {} landmarks, got {}",
+            ibug68::COUNT,
+            fitted.len()
+        )));
+    }
+    let limit = 2.0;
+    if let Some(p) = fitted
+        .iter()
+        .find(|p| !(p[0].abs() < limit && p[1].abs() < limit))
+    {
+        return Err(FaceError::InvalidInput(format!(
+            "a fitted landmark lies at {p:?} of the face rectangle (which spans ±1): the fit missed the face"
+        )));
+    }
+    Ok(())
+}
+
+/// The grid nodes (columns, rows; `last` the last node's index) in a triangle's bounding box,
+/// clipped to the grid; `None` when the box misses the grid.
+fn grid_box(
+    triangle: [[f32; 2]; 3],
+    last: f32,
+) -> Option<(std::ops::RangeInclusive<u32>, std::ops::RangeInclusive<u32>)> {
+    let to_index = |c: f32| (c + 1.0) / 2.0 * last;
+    let lo = |c: f32| to_index(c).ceil().clamp(0.0, last) as u32;
+    let hi = |c: f32| to_index(c).floor().clamp(0.0, last) as u32;
+    let xs = triangle.map(|p| p[0]);
+    let ys = triangle.map(|p| p[1]);
+    let (min_x, max_x) = (
+        xs.iter().copied().fold(f32::MAX, f32::min),
+        xs.iter().copied().fold(f32::MIN, f32::max),
+    );
+    let (min_y, max_y) = (
+        ys.iter().copied().fold(f32::MAX, f32::min),
+        ys.iter().copied().fold(f32::MIN, f32::max),
+    );
+    if max_x < -1.0 || min_x > 1.0 || max_y < -1.0 || min_y > 1.0 {
+        return None;
+    }
+    Some((lo(min_x)..=hi(max_x), lo(min_y)..=hi(max_y)))
 }
 
 impl Personaliser {

@@ -36,39 +36,37 @@ pub const CASCADE_SEED: &str = "/usr/share/opencv4/haarcascades/haarcascade_fron
 /// Every target; path-reading parsers write their input under `scratch` (a directory that
 /// exists). The cascade target is left out when [`CASCADE_SEED`] is not installed.
 pub fn targets(scratch: &Path) -> Result<Vec<Target>, String> {
-    let skeleton = human_skeleton(19).map_err(|e| e.to_string())?;
-    let dofs = skeleton.dofs();
-    let seed_file = |name: &str, write: &dyn Fn(&Path) -> Result<(), String>| {
-        let path = scratch.join(format!("seed-{name}"));
-        write(&path)?;
-        std::fs::read(&path).map_err(|e| e.to_string())
-    };
-    let through = |name: &str, read: fn(&Path) -> Result<(), String>| -> Parse {
-        let path = scratch.join(name);
-        Box::new(move |bytes| {
-            std::fs::write(&path, bytes).map_err(|e| format!("scratch file: {e}"))?;
-            read(&path)
-        })
-    };
-    let camera = Intrinsics::with_fov(32, 24, 60.0).map_err(|e| e.to_string())?;
-    let depth = DepthImage {
-        width: 32,
-        height: 24,
-        depth: (0..32 * 24).map(|i| 1000 + (i % 97) as u16).collect(),
-    };
+    let mut targets = face_targets(scratch)?;
+    targets.extend(body_targets(scratch)?);
+    targets.extend(numpy_targets(scratch)?);
+    Ok(targets)
+}
+
+/// A seed written by the project's own writer: `write` saves it under `scratch`, then it is read
+/// back as bytes.
+fn seed_file(
+    scratch: &Path,
+    name: &str,
+    write: &dyn Fn(&Path) -> Result<(), String>,
+) -> Result<Vec<u8>, String> {
+    let path = scratch.join(format!("seed-{name}"));
+    write(&path)?;
+    std::fs::read(&path).map_err(|e| e.to_string())
+}
+
+/// A parse of a parser that reads a path: the bytes go to `scratch/name` first.
+fn through(scratch: &Path, name: &str, read: fn(&Path) -> Result<(), String>) -> Parse {
+    let path = scratch.join(name);
+    Box::new(move |bytes| {
+        std::fs::write(&path, bytes).map_err(|e| format!("scratch file: {e}"))?;
+        read(&path)
+    })
+}
+
+/// The face tracker's inputs: the landmark model, `.pts` files, frames and the Haar cascade.
+fn face_targets(scratch: &Path) -> Result<Vec<Target>, String> {
     let frame = GrayImage::new(24, 16, (0..24 * 16).map(|i| (i * 7 % 251) as u8).collect())
         .map_err(|e| e.to_string())?;
-    let pose_csv = {
-        let mut csv = format!("frame,{}\n", skeleton.pose_names().join(","));
-        for r in 0..3 {
-            let values: Vec<String> = (0..dofs)
-                .map(|d| ((r * dofs + d) as f32 * 0.01).to_string())
-                .collect();
-            csv.push_str(&format!("{r},{}\n", values.join(",")));
-        }
-        csv.into_bytes()
-    };
-    let pose_path = scratch.join("poses.csv");
     let mut targets = vec![
         Target {
             name: "dlib-model",
@@ -85,89 +83,11 @@ pub fn targets(scratch: &Path) -> Result<Vec<Target>, String> {
             parse: Box::new(|b| parse_pts(&String::from_utf8_lossy(b)).map(drop)),
         },
         Target {
-            name: "ply",
-            seeds: vec![
-                ply_ascii(&body_points()).into_bytes(),
-                seed_file("b.ply", &|p| {
-                    write_ply_binary(p, &body_points()).map_err(|e| e.to_string())
-                })?,
-            ],
-            parse: Box::new(|b| parse_ply(b).map(drop).map_err(|e| e.to_string())),
-        },
-        Target {
-            name: "depth-png",
-            seeds: vec![seed_file("d.png", &|p| {
-                write_depth_png(p, &depth).map_err(|e| e.to_string())
-            })?],
-            parse: through("depth.png", |p| {
-                read_depth_png(p).map(drop).map_err(|e| e.to_string())
-            }),
-        },
-        Target {
-            name: "camera-json",
-            seeds: vec![seed_file("camera.json", &|p| {
-                camera.save(p).map_err(|e| e.to_string())
-            })?],
-            parse: through("camera.json", |p| {
-                Intrinsics::load(p).map(drop).map_err(|e| e.to_string())
-            }),
-        },
-        Target {
-            name: "skeleton-json",
-            seeds: vec![seed_file("skeleton.json", &|p| {
-                skeleton.save(p).map_err(|e| e.to_string())
-            })?],
-            parse: through("skeleton.json", |p| {
-                Skeleton::load(p).map(drop).map_err(|e| e.to_string())
-            }),
-        },
-        Target {
-            name: "pose-csv",
-            seeds: vec![pose_csv],
-            parse: Box::new(move |b| {
-                std::fs::write(&pose_path, b).map_err(|e| format!("scratch file: {e}"))?;
-                read_pose_csv(&pose_path, dofs)
-                    .map(drop)
-                    .map_err(|e| e.to_string())
-            }),
-        },
-        Target {
-            name: "numeric-csv",
-            seeds: vec![b"frame,face,a,b\n0,0,1.5,2\n1,0,-3,4e-3\n".to_vec()],
-            parse: through("numbers.csv", |p| {
-                read_numeric_csv(p, 4).map(drop).map_err(|e| e.to_string())
-            }),
-        },
-        Target {
-            name: "npy",
-            seeds: vec![seed_file("a.npy", &|p| {
-                let values: Vec<f32> = (0..24).map(|i| i as f32 * 0.5).collect();
-                pf_numpy::write_f32(p, &[3, 4, 2], &values).map_err(|e| e.to_string())
-            })?],
-            parse: through("x.npy", |p| {
-                pf_numpy::read_f32(p).map(drop).map_err(|e| e.to_string())
-            }),
-        },
-        Target {
-            name: "npz",
-            seeds: vec![seed_file("a.npz", &|p| {
-                let arrays: [(&str, &[usize], &[f32]); 2] = [
-                    ("x", &[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
-                    ("y", &[1], &[7.0]),
-                ];
-                pf_numpy::npz::write_npz(p, &arrays).map_err(|e| e.to_string())
-            })?],
-            parse: through("x.npz", |p| {
-                let mut npz = pf_numpy::npz::NpzReader::open(p).map_err(|e| e.to_string())?;
-                npz.read_f32("x").map(drop).map_err(|e| e.to_string())
-            }),
-        },
-        Target {
             name: "image-frame",
-            seeds: vec![seed_file("f.png", &|p| {
+            seeds: vec![seed_file(scratch, "f.png", &|p| {
                 frame.save_png(p).map_err(|e| e.to_string())
             })?],
-            parse: through("frame.png", |p| {
+            parse: through(scratch, "frame.png", |p| {
                 GrayImage::load(p).map(drop).map_err(|e| e.to_string())
             }),
         },
@@ -180,6 +100,118 @@ pub fn targets(scratch: &Path) -> Result<Vec<Target>, String> {
         });
     }
     Ok(targets)
+}
+
+/// The body tracker's inputs: point clouds, depth images, camera and skeleton files, CSVs.
+fn body_targets(scratch: &Path) -> Result<Vec<Target>, String> {
+    let skeleton = human_skeleton(19).map_err(|e| e.to_string())?;
+    let dofs = skeleton.dofs();
+    let camera = Intrinsics::with_fov(32, 24, 60.0).map_err(|e| e.to_string())?;
+    let depth = DepthImage {
+        width: 32,
+        height: 24,
+        depth: (0..32 * 24).map(|i| 1000 + (i % 97) as u16).collect(),
+    };
+    let pose_path = scratch.join("poses.csv");
+    Ok(vec![
+        Target {
+            name: "ply",
+            seeds: vec![
+                ply_ascii(&body_points()).into_bytes(),
+                seed_file(scratch, "b.ply", &|p| {
+                    write_ply_binary(p, &body_points()).map_err(|e| e.to_string())
+                })?,
+            ],
+            parse: Box::new(|b| parse_ply(b).map(drop).map_err(|e| e.to_string())),
+        },
+        Target {
+            name: "depth-png",
+            seeds: vec![seed_file(scratch, "d.png", &|p| {
+                write_depth_png(p, &depth).map_err(|e| e.to_string())
+            })?],
+            parse: through(scratch, "depth.png", |p| {
+                read_depth_png(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "camera-json",
+            seeds: vec![seed_file(scratch, "camera.json", &|p| {
+                camera.save(p).map_err(|e| e.to_string())
+            })?],
+            parse: through(scratch, "camera.json", |p| {
+                Intrinsics::load(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "skeleton-json",
+            seeds: vec![seed_file(scratch, "skeleton.json", &|p| {
+                skeleton.save(p).map_err(|e| e.to_string())
+            })?],
+            parse: through(scratch, "skeleton.json", |p| {
+                Skeleton::load(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "pose-csv",
+            seeds: vec![pose_csv_seed(&skeleton)],
+            parse: Box::new(move |b| {
+                std::fs::write(&pose_path, b).map_err(|e| format!("scratch file: {e}"))?;
+                read_pose_csv(&pose_path, dofs)
+                    .map(drop)
+                    .map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "numeric-csv",
+            seeds: vec![b"frame,face,a,b\n0,0,1.5,2\n1,0,-3,4e-3\n".to_vec()],
+            parse: through(scratch, "numbers.csv", |p| {
+                read_numeric_csv(p, 4).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+    ])
+}
+
+/// Three frames of poses for `skeleton`, as `body track` writes them.
+fn pose_csv_seed(skeleton: &Skeleton) -> Vec<u8> {
+    let dofs = skeleton.dofs();
+    let mut csv = format!("frame,{}\n", skeleton.pose_names().join(","));
+    for r in 0..3 {
+        let values: Vec<String> = (0..dofs)
+            .map(|d| ((r * dofs + d) as f32 * 0.01).to_string())
+            .collect();
+        csv.push_str(&format!("{r},{}\n", values.join(",")));
+    }
+    csv.into_bytes()
+}
+
+/// numpy's files: `.npy` arrays and `.npz` archives.
+fn numpy_targets(scratch: &Path) -> Result<Vec<Target>, String> {
+    Ok(vec![
+        Target {
+            name: "npy",
+            seeds: vec![seed_file(scratch, "a.npy", &|p| {
+                let values: Vec<f32> = (0..24).map(|i| i as f32 * 0.5).collect();
+                pf_numpy::write_f32(p, &[3, 4, 2], &values).map_err(|e| e.to_string())
+            })?],
+            parse: through(scratch, "x.npy", |p| {
+                pf_numpy::read_f32(p).map(drop).map_err(|e| e.to_string())
+            }),
+        },
+        Target {
+            name: "npz",
+            seeds: vec![seed_file(scratch, "a.npz", &|p| {
+                let arrays: [(&str, &[usize], &[f32]); 2] = [
+                    ("x", &[2, 3], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+                    ("y", &[1], &[7.0]),
+                ];
+                pf_numpy::npz::write_npz(p, &arrays).map_err(|e| e.to_string())
+            })?],
+            parse: through(scratch, "x.npz", |p| {
+                let mut npz = pf_numpy::npz::NpzReader::open(p).map_err(|e| e.to_string())?;
+                npz.read_f32("x").map(drop).map_err(|e| e.to_string())
+            }),
+        },
+    ])
 }
 
 /// A scratch directory for one fuzzing process.

@@ -7,7 +7,8 @@ use face_tracker::extraction::FaceRect;
 use face_tracker::model::BuiltInModel;
 use face_tracker::projection::{pitch_yaw_roll_degrees, rotation_quaternion};
 use face_tracker::{
-    AutoConfig, AutoTracker, DIMS, FaceEstimate, FaceTrackerConfig, GrayImage, TrackStatus,
+    AutoConfig, AutoTracker, DIMS, FaceBackend, FaceEstimate, FaceTrackerConfig, GrayImage,
+    TrackStatus,
 };
 use numpy::PyUntypedArrayMethods;
 use pyo3::prelude::*;
@@ -160,6 +161,60 @@ fn rect_from(rect: (f32, f32, f32, f32)) -> PyResult<FaceRect> {
     })
 }
 
+/// The frame size from the constructor's arguments: whole numbers, at least 16×16.
+fn frame_size(width: i128, height: i128) -> PyResult<(u32, u32)> {
+    let width: u32 = whole("width", width)?;
+    let height: u32 = whole("height", height)?;
+    if width < 16 || height < 16 {
+        return Err(value_error(format!(
+            "frames must be at least 16x16 pixels, got {width}x{height}"
+        )));
+    }
+    Ok((width, height))
+}
+
+/// The detecting tracker's settings for frames from arrays: these play as a file does (the
+/// detector's answer is used before the next is due), so a run is repeatable.
+fn auto_config(
+    detect_every: usize,
+    min_face: u32,
+    max_faces: usize,
+    tracker: &FaceTrackerConfig,
+) -> AutoConfig {
+    AutoConfig {
+        detect_every,
+        detect: DetectConfig {
+            min_size: min_face,
+            ..DetectConfig::default()
+        },
+        max_faces,
+        detection_delay: Some(1),
+        tracker: tracker.clone(),
+        ..AutoConfig::default()
+    }
+}
+
+/// The tracker behind a `FaceTracker`: faces given by the caller, or found by `detecting`'s
+/// detector.
+fn build_engine(
+    size: (u32, u32),
+    max_faces: usize,
+    built_in: BuiltInModel,
+    config: FaceTrackerConfig,
+    backend: FaceBackend,
+    detecting: Option<(FaceDetector, AutoConfig)>,
+) -> Result<Engine, face_tracker::FaceError> {
+    let model = built_in.build(false, 1.0)?;
+    Ok(match detecting {
+        None => Engine::Fixed(Box::new(face_tracker::FaceTracker::with_capacity(
+            size, max_faces, &model, config, backend,
+        )?)),
+        Some((detector, auto)) => Engine::Detecting(Box::new(AutoTracker::new(
+            size, detector, &model, auto, backend,
+        )?)),
+    })
+}
+
 #[pymethods]
 impl FaceTracker {
     /// See the Python stub (`streampf/__init__.pyi`) for the arguments.
@@ -189,19 +244,13 @@ impl FaceTracker {
         fov: Option<f32>,
         face_model: &str,
     ) -> PyResult<Self> {
-        let width: u32 = whole("width", width)?;
-        let height: u32 = whole("height", height)?;
+        let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
         let particles: usize = whole("particles", particles)?;
         let detect_every: usize = whole("detect_every", detect_every)?;
         let min_face: u32 = whole("min_face", min_face)?;
         let seed: u64 = whole("seed", seed)?;
         let layers: Option<usize> = whole_opt("layers", layers)?;
-        if width < 16 || height < 16 {
-            return Err(value_error(format!(
-                "frames must be at least 16x16 pixels, got {width}x{height}"
-            )));
-        }
         let order = ChannelOrder::parse(channel_order)?;
         let choice = Choice::parse(backend)?;
         let detector_on: DetectorPlacement = detector
@@ -214,47 +263,22 @@ impl FaceTracker {
         let photographed = built_in.is_photographed(false);
         let config = config(particles, seed, layers, focal_length(fov, width)?)?;
         let cascade = load_cascade(detect, cascade)?;
-        let contexts = open(py, choice, allow_software)?;
-        let backend = face_backend(contexts, choice);
+        let backend = face_backend(open(py, choice, allow_software)?, choice);
         let device = device_names(&backend);
-        let detector = match cascade {
-            Some(cascade) => Some(open_detector(
-                py,
-                cascade,
-                detector_on.runs_on_gpu(&backend),
-                allow_software,
-            )?),
+        let detecting = match cascade {
+            Some(cascade) => {
+                let on_gpu = detector_on.runs_on_gpu(&backend);
+                let detector = open_detector(py, cascade, on_gpu, allow_software)?;
+                Some((
+                    detector,
+                    auto_config(detect_every, min_face, max_faces, &config),
+                ))
+            }
             None => None,
         };
         let size = (width, height);
-        let detecting = detector.map(|detector| {
-            let auto = AutoConfig {
-                detect_every,
-                detect: DetectConfig {
-                    min_size: min_face,
-                    ..DetectConfig::default()
-                },
-                max_faces,
-                // Frames from an array play as a file does: the detector's answer is used
-                // before the next is due, so a run is repeatable.
-                detection_delay: Some(1),
-                tracker: config.clone(),
-                ..AutoConfig::default()
-            };
-            (detector, auto)
-        });
         let engine = py
-            .detach(|| -> Result<Engine, face_tracker::FaceError> {
-                let model = built_in.build(false, 1.0)?;
-                Ok(match detecting {
-                    None => Engine::Fixed(Box::new(face_tracker::FaceTracker::with_capacity(
-                        size, max_faces, &model, config, backend,
-                    )?)),
-                    Some((detector, auto)) => Engine::Detecting(Box::new(AutoTracker::new(
-                        size, detector, &model, auto, backend,
-                    )?)),
-                })
-            })
+            .detach(|| build_engine(size, max_faces, built_in, config, backend, detecting))
             .map_err(face)?;
         Ok(Self {
             inner: Mutex::new(Inner { engine, frames: 0 }),

@@ -104,21 +104,9 @@ impl ParticleFilter {
         allow_software: bool,
     ) -> PyResult<Self> {
         let observation_size: Option<usize> = whole_opt("observation_size", observation_size)?;
-        let layers: usize = whole("layers", layers)?;
-        let seed: u64 = whole("seed", seed)?;
         let (dims, values) = finite_f32(initial, &[None, None, None], "initial")?;
         let shape = BatchShape::new(dims[0], dims[1], dims[2]).map_err(pf)?;
-        let mut config = BatchConfig::new(shape, seed, sigma);
-        if let Some(angular) = angular {
-            config.angular = angular;
-        }
-        config.bounds = bounds;
-        config.annealing = match layers {
-            0 => return Err(value_error("layers must be at least 1")),
-            1 => Annealing::none(),
-            n => Annealing::survival(n, 0.5, 0.7),
-        };
-        config.validate().map_err(pf)?;
+        let config = batch_config(shape, sigma, angular, bounds, layers, seed)?;
         let states = to_batch_layout(&values, &shape);
         let choice = Choice::parse(backend)?;
         let (engine, device) = match (wgsl, likelihood) {
@@ -128,67 +116,28 @@ impl ParticleFilter {
                 ));
             }
             (Some(source), None) => {
-                let observation_values = observation_size.ok_or_else(|| {
-                    value_error(
-                        "a WGSL model needs observation_size: the 32-bit values of one Observation",
-                    )
-                })?;
-                let constants = match constants {
-                    Some(c) => finite_f32(c, &[None], "constants")?.1,
-                    None => Vec::new(),
+                let model = ModelSource {
+                    name,
+                    wgsl: &source,
                 };
-                if choice == Choice::Cpu {
-                    return Err(value_error(
-                        "a WGSL model runs on the GPU: use backend=\"gpu\" (or \"auto\"), or give \
-                         likelihood= for the CPU",
-                    ));
-                }
                 let resampler = gpu_resampler(resampler)?;
-                let mut contexts = open(py, Choice::Gpu, allow_software)?;
-                let ctx = contexts.remove(0);
-                let device = ctx.adapter().name.clone();
-                let filter = py
-                    .detach(|| {
-                        RawModelFilter::new(
-                            &ctx,
-                            &config,
-                            resampler,
-                            &states,
-                            ModelSource {
-                                name,
-                                wgsl: &source,
-                            },
-                            observation_values,
-                            &constants,
-                        )
-                    })
-                    .map_err(gpu)?;
-                (
-                    Engine::Gpu {
-                        filter: Box::new(filter),
-                        observation_values,
-                    },
-                    device,
-                )
+                let gpu = GpuChoice {
+                    choice,
+                    allow_software,
+                };
+                wgsl_engine(
+                    py,
+                    &config,
+                    &states,
+                    model,
+                    observation_size,
+                    constants,
+                    resampler,
+                    gpu,
+                )?
             }
             (None, Some(likelihood)) => {
-                if !likelihood.bind(py).is_callable() {
-                    return Err(value_error("likelihood must be callable"));
-                }
-                if matches!(choice, Choice::Gpu | Choice::AllGpus) {
-                    return Err(value_error(
-                        "a Python likelihood runs on the CPU: give wgsl= for the GPU",
-                    ));
-                }
-                let kind: ResamplerKind = resampler.parse().map_err(pf)?;
-                let filter = BatchFilter::new(&config, kind.build(), states).map_err(pf)?;
-                (
-                    Engine::Cpu {
-                        filter: Box::new(filter),
-                        likelihood,
-                    },
-                    "CPU".to_string(),
-                )
+                python_engine(py, &config, states, likelihood, resampler, choice)?
             }
         };
         let on_gpu = matches!(engine, Engine::Gpu { .. });
@@ -296,6 +245,103 @@ impl ParticleFilter {
             to_numpy(py, log_weights, &[t, m])?,
         ))
     }
+}
+
+/// Where a WGSL model may run: the backend asked for, and whether a software adapter will do.
+struct GpuChoice {
+    choice: Choice,
+    allow_software: bool,
+}
+
+/// The engine of a WGSL model: the whole step on the first GPU; its device's name.
+#[allow(clippy::too_many_arguments)]
+fn wgsl_engine(
+    py: Python<'_>,
+    config: &BatchConfig,
+    states: &[f32],
+    model: ModelSource<'_>,
+    observation_size: Option<usize>,
+    constants: Option<&Bound<'_, PyAny>>,
+    resampler: GpuResampler,
+    device: GpuChoice,
+) -> PyResult<(Engine, String)> {
+    let observation_values = observation_size.ok_or_else(|| {
+        value_error("a WGSL model needs observation_size: the 32-bit values of one Observation")
+    })?;
+    if device.choice == Choice::Cpu {
+        return Err(value_error(
+            "a WGSL model runs on the GPU: use backend=\"gpu\" (or \"auto\"), or give \
+             likelihood= for the CPU",
+        ));
+    }
+    let constants = match constants {
+        Some(c) => finite_f32(c, &[None], "constants")?.1,
+        None => Vec::new(),
+    };
+    let mut contexts = open(py, Choice::Gpu, device.allow_software)?;
+    let ctx = contexts.remove(0);
+    let name = ctx.adapter().name.clone();
+    let filter = py
+        .detach(|| {
+            let (values, constants) = (observation_values, &constants);
+            RawModelFilter::new(&ctx, config, resampler, states, model, values, constants)
+        })
+        .map_err(gpu)?;
+    let filter = Box::new(filter);
+    Ok((
+        Engine::Gpu {
+            filter,
+            observation_values,
+        },
+        name,
+    ))
+}
+
+/// The engine of a Python likelihood: the step on the CPU, the callable weighing each frame.
+fn python_engine(
+    py: Python<'_>,
+    config: &BatchConfig,
+    states: Vec<f32>,
+    likelihood: Py<PyAny>,
+    resampler: &str,
+    choice: Choice,
+) -> PyResult<(Engine, String)> {
+    if !likelihood.bind(py).is_callable() {
+        return Err(value_error("likelihood must be callable"));
+    }
+    if matches!(choice, Choice::Gpu | Choice::AllGpus) {
+        return Err(value_error(
+            "a Python likelihood runs on the CPU: give wgsl= for the GPU",
+        ));
+    }
+    let kind: ResamplerKind = resampler.parse().map_err(pf)?;
+    let filter = Box::new(BatchFilter::new(config, kind.build(), states).map_err(pf)?);
+    Ok((Engine::Cpu { filter, likelihood }, "CPU".to_string()))
+}
+
+/// The filter's configuration from the constructor's arguments: `layers` annealing layers with
+/// the survival rule (1: none), checked.
+fn batch_config(
+    shape: BatchShape,
+    sigma: Vec<f32>,
+    angular: Option<Vec<bool>>,
+    bounds: Option<(Vec<f32>, Vec<f32>)>,
+    layers: i128,
+    seed: i128,
+) -> PyResult<BatchConfig> {
+    let layers: usize = whole("layers", layers)?;
+    let mut config = BatchConfig::new(shape, whole("seed", seed)?, sigma);
+    if let Some(angular) = angular {
+        config.angular = angular;
+    }
+    config.bounds = bounds;
+    config.annealing = match layers {
+        0 => return Err(value_error("layers must be at least 1")),
+        1 => Annealing::none(),
+        n => Annealing::survival(n, 0.5, 0.7),
+    };
+    config.validate().map_err(pf)?;
+    Ok(config)
 }
 
 fn poisoned() -> PyErr {

@@ -150,61 +150,10 @@ mod enabled {
                 &rerun::Image::from_l8(image.data.clone(), [image.width, image.height]),
             )?;
             for e in estimates {
-                let base = format!("video/faces/{}", e.track);
-                if let TrackStatus::Lost { .. } = e.status {
-                    self.stream.log(base.as_str(), &rerun::Clear::recursive())?;
-                    continue;
-                }
-                let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
-                let colour = rerun::Color::from_rgb(colour[0], colour[1], colour[2]);
-                if let Some((_, template)) = templates.iter().find(|(t, _)| *t == e.track) {
-                    let visible: Vec<[f32; 2]> = (posed_points(e, template, &lens).into_iter())
-                        .map(|(x, y)| [x, y])
-                        .collect();
-                    self.stream.log(
-                        format!("{base}/points"),
-                        &rerun::Points2D::new(visible)
-                            .with_colors([colour])
-                            .with_radii([1.0]),
-                    )?;
-                }
-                let (origin, ends) = head_axes(e, &lens);
-                let strips: Vec<Vec<[f32; 2]>> = ends
-                    .iter()
-                    .map(|end| vec![[origin.0, origin.1], [end.0, end.1]])
-                    .collect();
-                let axis_colours = AXIS_COLOURS.map(|[r, g, b]| rerun::Color::from_rgb(r, g, b));
-                self.stream.log(
-                    format!("{base}/axes"),
-                    &rerun::LineStrips2D::new(strips).with_colors(axis_colours),
-                )?;
-                self.stream.log(
-                    format!("{base}/box"),
-                    &rerun::Boxes2D::from_mins_and_sizes(
-                        [(e.rect.x, e.rect.y)],
-                        [(e.rect.width, e.rect.height)],
-                    )
-                    .with_colors([colour])
-                    .with_labels([format!("#{} {:.2}", e.track, e.confidence)]),
-                )?;
-                if let Some(clouds) = &clouds {
-                    let m = clouds.particles;
-                    let start = e.slot * face_tracker::projection::DIMS * m;
-                    if let Some(target) = clouds.states.get(start..start + 2 * m) {
-                        let centres: Vec<[f32; 2]> =
-                            (0..m).map(|k| [target[k], target[m + k]]).collect();
-                        self.stream.log(
-                            format!("{base}/particles"),
-                            &rerun::Points2D::new(centres)
-                                .with_colors([colour])
-                                .with_radii([0.5]),
-                        )?;
-                    }
-                }
-                let metrics = format!("metrics/faces/{}", e.track);
-                self.scalar(&format!("{metrics}/ess"), e.ess)?;
-                self.scalar(&format!("{metrics}/confidence"), f64::from(e.confidence))?;
-                self.scalar(&format!("{metrics}/residual"), e.error)?;
+                let template = (templates.iter())
+                    .find(|(t, _)| *t == e.track)
+                    .map(|(_, template)| *template);
+                self.log_face(e, template, &lens, clouds.as_ref())?;
             }
             for &(track, translation, rotation) in errors {
                 let metrics = format!("metrics/faces/{track}");
@@ -215,6 +164,83 @@ mod enabled {
                 self.scalar(
                     &format!("{metrics}/rotation_error_deg"),
                     f64::from(rotation),
+                )?;
+            }
+            Ok(())
+        }
+
+        /// One face's entities (its points where its template is known, its head axes, its
+        /// box and label, its samples' centres) and its time series; a lost track is cleared.
+        fn log_face(
+            &self,
+            e: &FaceEstimate,
+            template: Option<&Template>,
+            lens: &face_tracker::likelihood::Lens,
+            clouds: Option<&FaceClouds<'_>>,
+        ) -> anyhow::Result<()> {
+            let base = format!("video/faces/{}", e.track);
+            if let TrackStatus::Lost { .. } = e.status {
+                self.stream.log(base.as_str(), &rerun::Clear::recursive())?;
+                return Ok(());
+            }
+            let colour = TRACK_COLOURS[e.track % TRACK_COLOURS.len()];
+            let colour = rerun::Color::from_rgb(colour[0], colour[1], colour[2]);
+            if let Some(template) = template {
+                let visible: Vec<[f32; 2]> = (posed_points(e, template, lens).into_iter())
+                    .map(|(x, y)| [x, y])
+                    .collect();
+                self.stream.log(
+                    format!("{base}/points"),
+                    &rerun::Points2D::new(visible)
+                        .with_colors([colour])
+                        .with_radii([1.0]),
+                )?;
+            }
+            let (origin, ends) = head_axes(e, lens);
+            let strips: Vec<Vec<[f32; 2]>> = ends
+                .iter()
+                .map(|end| vec![[origin.0, origin.1], [end.0, end.1]])
+                .collect();
+            let axis_colours = AXIS_COLOURS.map(|[r, g, b]| rerun::Color::from_rgb(r, g, b));
+            self.stream.log(
+                format!("{base}/axes"),
+                &rerun::LineStrips2D::new(strips).with_colors(axis_colours),
+            )?;
+            self.stream.log(
+                format!("{base}/box"),
+                &rerun::Boxes2D::from_mins_and_sizes(
+                    [(e.rect.x, e.rect.y)],
+                    [(e.rect.width, e.rect.height)],
+                )
+                .with_colors([colour])
+                .with_labels([format!("#{} {:.2}", e.track, e.confidence)]),
+            )?;
+            if let Some(clouds) = clouds {
+                self.log_samples(&base, e.slot, clouds, colour)?;
+            }
+            let metrics = format!("metrics/faces/{}", e.track);
+            self.scalar(&format!("{metrics}/ess"), e.ess)?;
+            self.scalar(&format!("{metrics}/confidence"), f64::from(e.confidence))?;
+            self.scalar(&format!("{metrics}/residual"), e.error)
+        }
+
+        /// The image-plane centres (x, y) of a slot's samples.
+        fn log_samples(
+            &self,
+            base: &str,
+            slot: usize,
+            clouds: &FaceClouds<'_>,
+            colour: rerun::Color,
+        ) -> anyhow::Result<()> {
+            let m = clouds.particles;
+            let start = slot * face_tracker::projection::DIMS * m;
+            if let Some(target) = clouds.states.get(start..start + 2 * m) {
+                let centres: Vec<[f32; 2]> = (0..m).map(|k| [target[k], target[m + k]]).collect();
+                self.stream.log(
+                    format!("{base}/particles"),
+                    &rerun::Points2D::new(centres)
+                        .with_colors([colour])
+                        .with_radii([0.5]),
                 )?;
             }
             Ok(())

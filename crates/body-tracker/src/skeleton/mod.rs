@@ -92,6 +92,46 @@ type Frame = (Vector3<f32>, Rotation3<f32>);
 /// The number of root pose values at the start of θ (translation, then Rx, Ry, Rz).
 pub const ROOT_DOFS: usize = 6;
 
+/// Checks one bone's own values (finite non-negative length, positive radius, finite non-zero
+/// direction, finite offset, 0–3 joint axes with min ≤ max); its unit direction.
+fn checked_direction(bone: &Bone) -> Result<Vector3<f32>, BodyError> {
+    let bad = |m: String| Err(BodyError::InvalidSkeleton(m));
+    if !(bone.length.is_finite() && bone.length >= 0.0) {
+        return bad(format!("bone {:?} has length {}", bone.name, bone.length));
+    }
+    if !(bone.radius.is_finite() && bone.radius > 0.0) {
+        return bad(format!("bone {:?} has radius {}", bone.name, bone.radius));
+    }
+    let dir = Vector3::from(bone.direction);
+    let norm = dir.norm();
+    if !(norm.is_finite() && norm > 0.0) {
+        let [x, y, z] = bone.direction;
+        return bad(format!(
+            "bone {:?} has direction ({x}, {y}, {z}): it must be finite and not zero",
+            bone.name
+        ));
+    }
+    if !bone.offset.iter().all(|x| x.is_finite()) {
+        return bad(format!("bone {:?} has offset {:?}", bone.name, bone.offset));
+    }
+    if bone.joint.len() > 3 {
+        return bad(format!(
+            "bone {:?} has {} joint axes; at most 3",
+            bone.name,
+            bone.joint.len()
+        ));
+    }
+    for j in &bone.joint {
+        if !(j.min.is_finite() && j.max.is_finite() && j.min <= j.max) {
+            return bad(format!(
+                "bone {:?} has joint limits [{}, {}]",
+                bone.name, j.min, j.max
+            ));
+        }
+    }
+    Ok(dir / norm)
+}
+
 impl Skeleton {
     /// Checks the bones: unique names, parents listed before children, one root, 0–3 joint axes
     /// with min ≤ max, finite non-negative lengths and positive radii, non-zero directions.
@@ -132,41 +172,9 @@ impl Skeleton {
                     bone.name
                 ));
             }
-            if !(bone.length.is_finite() && bone.length >= 0.0) {
-                return bad(format!("bone {:?} has length {}", bone.name, bone.length));
-            }
-            if !(bone.radius.is_finite() && bone.radius > 0.0) {
-                return bad(format!("bone {:?} has radius {}", bone.name, bone.radius));
-            }
-            let dir = Vector3::from(bone.direction);
-            let norm = dir.norm();
-            if !(norm.is_finite() && norm > 0.0) {
-                let [x, y, z] = bone.direction;
-                return bad(format!(
-                    "bone {:?} has direction ({x}, {y}, {z}): it must be finite and not zero",
-                    bone.name
-                ));
-            }
-            if !bone.offset.iter().all(|x| x.is_finite()) {
-                return bad(format!("bone {:?} has offset {:?}", bone.name, bone.offset));
-            }
-            if bone.joint.len() > 3 {
-                return bad(format!(
-                    "bone {:?} has {} joint axes; at most 3",
-                    bone.name,
-                    bone.joint.len()
-                ));
-            }
-            for j in &bone.joint {
-                if !(j.min.is_finite() && j.max.is_finite() && j.min <= j.max) {
-                    return bad(format!(
-                        "bone {:?} has joint limits [{}, {}]",
-                        bone.name, j.min, j.max
-                    ));
-                }
-            }
+            let dir = checked_direction(bone)?;
             parents.push(parent);
-            directions.push(dir / norm);
+            directions.push(dir);
             first_angle.push(dofs);
             dofs += bone.joint.len();
         }

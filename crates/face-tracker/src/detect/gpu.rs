@@ -338,39 +338,9 @@ impl GpuCascade {
     /// The tables, grids and bind groups for a pyramid.
     fn buffers_for(&self, levels: Vec<PyramidLevel>) -> Result<PyramidBuffers, FaceError> {
         let ctx = &self.ctx;
-        let (w, h) = (self.cascade.width as usize, self.cascade.height as usize);
-        let mut table = Vec::with_capacity(levels.len());
-        let mut pixel_words = Vec::with_capacity(levels.len());
-        let (mut words, mut values, mut windows) = (0usize, 0usize, 0usize);
-        let (mut pixel_rows, mut table_columns, mut window_rows) = (0usize, 0usize, 0usize);
-        for level in &levels {
-            let (width, height) = (level.scaled.0 as usize, level.scaled.1 as usize);
-            let step = level.step();
-            // The CPU's scan: x in 0..width − w and y in 0..height − h, by the step.
-            let (columns, rows) = ((width - w).div_ceil(step), (height - h).div_ceil(step));
-            table.push(LevelLayout {
-                width: width as u32,
-                height: height as u32,
-                step: step as u32,
-                pixel_word: words as u32,
-                table: values as u32,
-                window_first: windows as u32,
-                columns: columns as u32,
-                rows: rows as u32,
-                pixel_row_first: pixel_rows as u32,
-                table_column_first: table_columns as u32,
-                window_row_first: window_rows as u32,
-                _pad: 0,
-            });
-            pixel_words.push(words);
-            words += (width * height).div_ceil(4);
-            values += (width + 1) * (height + 1);
-            windows += columns * rows;
-            pixel_rows += height;
-            table_columns += width + 1;
-            window_rows += rows;
-        }
-        if values > u32::MAX as usize {
+        let window = (self.cascade.width as usize, self.cascade.height as usize);
+        let (table, pixel_words, sizes) = level_layouts(&levels, window);
+        if sizes.values > u32::MAX as usize {
             // A limit of this device's layout, not a bad frame: a tracker's detector goes on on
             // the CPU (FaceDetector falls back on GPU errors).
             return Err(GpuError::InvalidConfig(format!(
@@ -379,6 +349,42 @@ impl GpuCascade {
             ))
             .into());
         }
+        let params = self.params(levels.len(), window, &sizes);
+        let params_buffer = uniform_buffer(ctx, "haar cascade params", &params)?;
+        let level_words: &[u32] = bytemuck::cast_slice(&table);
+        let hit_words = 1 + 4 * MAX_HITS as usize;
+        let streams = PyramidStreams {
+            levels: DeviceStream::from_slice(ctx, "pyramid levels", level_words)?,
+            pixels: DeviceStream::zeroed(ctx, "pyramid pixels", sizes.words)?,
+            integral: DeviceStream::zeroed(ctx, "pyramid integral", sizes.values)?,
+            squares: DeviceStream::zeroed(ctx, "pyramid squared integral", sizes.values)?,
+            verdicts: DeviceStream::zeroed(ctx, "window verdicts", sizes.windows)?,
+            hits: DeviceStream::zeroed(ctx, "detector hits", hit_words)?,
+        };
+        let dispatches = self.dispatches(&params_buffer, &streams, &sizes)?;
+        let PyramidStreams {
+            levels: level_stream,
+            pixels,
+            integral,
+            squares,
+            verdicts,
+            hits,
+        } = streams;
+        Ok(PyramidBuffers {
+            levels,
+            pixel_words,
+            pixel_upload: vec![0; sizes.words],
+            pixels,
+            hits,
+            readback: Readback::new(ctx, "detector hits", hit_words)?,
+            dispatches,
+            _params: params_buffer,
+            _tables: [level_stream, integral, squares, verdicts],
+        })
+    }
+
+    /// The shader's parameters for a pyramid of `levels` levels of `sizes`.
+    fn params(&self, levels: usize, (w, h): (usize, usize), sizes: &PyramidSizes) -> Params {
         let [
             stages_at,
             trees_at,
@@ -387,15 +393,15 @@ impl GpuCascade {
             rects_at,
             feature_starts_at,
         ] = self.sections;
-        let params = Params {
-            levels: levels.len() as u32,
+        Params {
+            levels: levels as u32,
             window_width: w as u32,
             window_height: h as u32,
             stages: self.cascade.stages.len() as u32,
-            pixel_rows: pixel_rows as u32,
-            table_columns: table_columns as u32,
-            windows: windows as u32,
-            window_rows: window_rows as u32,
+            pixel_rows: sizes.pixel_rows as u32,
+            table_columns: sizes.table_columns as u32,
+            windows: sizes.windows as u32,
+            window_rows: sizes.window_rows as u32,
             grid_width: GROUPS_PER_ROW * WORKGROUP,
             max_hits: MAX_HITS,
             stages_at,
@@ -404,84 +410,135 @@ impl GpuCascade {
             leaves_at,
             rects_at,
             feature_starts_at,
-        };
-        let params_buffer = uniform_buffer(ctx, "haar cascade params", &params)?;
-        let level_words: &[u32] = bytemuck::cast_slice(&table);
-        let level_stream = DeviceStream::from_slice(ctx, "pyramid levels", level_words)?;
-        let pixels = DeviceStream::zeroed(ctx, "pyramid pixels", words)?;
-        let integral = DeviceStream::zeroed(ctx, "pyramid integral", values)?;
-        let squares = DeviceStream::zeroed(ctx, "pyramid squared integral", values)?;
-        let verdicts = DeviceStream::zeroed(ctx, "window verdicts", windows)?;
-        let hit_words = 1 + 4 * MAX_HITS as usize;
-        let hits = DeviceStream::zeroed(ctx, "detector hits", hit_words)?;
-        let readback = Readback::new(ctx, "detector hits", hit_words)?;
-        let p = || params_buffer.as_entire_binding();
-        let passes = &self.passes;
-        let dispatches = vec![
+        }
+    }
+
+    /// Each pass's bind group and grid, in order: integral rows, integral columns, classify
+    /// windows, collect faces.
+    fn dispatches(
+        &self,
+        params: &wgpu::Buffer,
+        streams: &PyramidStreams,
+        sizes: &PyramidSizes,
+    ) -> Result<Vec<(wgpu::BindGroup, [u32; 3])>, FaceError> {
+        let (ctx, passes, s) = (&self.ctx, &self.passes, streams);
+        let p = || params.as_entire_binding();
+        Ok(vec![
             (
                 passes.integral_rows.bind(
                     ctx,
                     &[
                         (0, p()),
-                        (1, level_stream.binding()),
-                        (2, pixels.binding()),
-                        (3, integral.binding()),
-                        (4, squares.binding()),
+                        (1, s.levels.binding()),
+                        (2, s.pixels.binding()),
+                        (3, s.integral.binding()),
+                        (4, s.squares.binding()),
                     ],
                 )?,
-                grid(pixel_rows),
+                grid(sizes.pixel_rows),
             ),
             (
                 passes.integral_columns.bind(
                     ctx,
                     &[
                         (0, p()),
-                        (1, level_stream.binding()),
-                        (3, integral.binding()),
-                        (4, squares.binding()),
+                        (1, s.levels.binding()),
+                        (3, s.integral.binding()),
+                        (4, s.squares.binding()),
                     ],
                 )?,
-                grid(table_columns),
+                grid(sizes.table_columns),
             ),
             (
                 passes.classify_windows.bind(
                     ctx,
                     &[
                         (0, p()),
-                        (1, level_stream.binding()),
-                        (3, integral.binding()),
-                        (4, squares.binding()),
-                        (5, verdicts.binding()),
+                        (1, s.levels.binding()),
+                        (3, s.integral.binding()),
+                        (4, s.squares.binding()),
+                        (5, s.verdicts.binding()),
                         (7, self.cascade_words.binding()),
                     ],
                 )?,
-                grid(windows),
+                grid(sizes.windows),
             ),
             (
                 passes.collect_faces.bind(
                     ctx,
                     &[
                         (0, p()),
-                        (1, level_stream.binding()),
-                        (5, verdicts.binding()),
-                        (6, hits.binding()),
+                        (1, s.levels.binding()),
+                        (5, s.verdicts.binding()),
+                        (6, s.hits.binding()),
                     ],
                 )?,
-                grid(window_rows),
+                grid(sizes.window_rows),
             ),
-        ];
-        Ok(PyramidBuffers {
-            levels,
-            pixel_words,
-            pixel_upload: vec![0; words],
-            pixels,
-            hits,
-            readback,
-            dispatches,
-            _params: params_buffer,
-            _tables: [level_stream, integral, squares, verdicts],
-        })
+        ])
     }
+}
+
+/// A pyramid's device streams, before they are handed to its [`PyramidBuffers`].
+struct PyramidStreams {
+    levels: DeviceStream<u32>,
+    pixels: DeviceStream<u32>,
+    integral: DeviceStream<u32>,
+    squares: DeviceStream<u32>,
+    verdicts: DeviceStream<u32>,
+    hits: DeviceStream<u32>,
+}
+
+/// A pyramid's sizes summed over its levels: what its streams and grids hold.
+#[derive(Default)]
+struct PyramidSizes {
+    /// Pixel words (four 8-bit pixels each).
+    words: usize,
+    /// Integral-table values.
+    values: usize,
+    windows: usize,
+    pixel_rows: usize,
+    table_columns: usize,
+    window_rows: usize,
+}
+
+/// Each level's layout in the shared streams (the CPU's scan: x in 0..width − w and y in
+/// 0..height − h by the level's step, for a `(w, h)` window), each level's first pixel word,
+/// and the totals.
+fn level_layouts(
+    levels: &[PyramidLevel],
+    (w, h): (usize, usize),
+) -> (Vec<LevelLayout>, Vec<usize>, PyramidSizes) {
+    let mut table = Vec::with_capacity(levels.len());
+    let mut pixel_words = Vec::with_capacity(levels.len());
+    let mut at = PyramidSizes::default();
+    for level in levels {
+        let (width, height) = (level.scaled.0 as usize, level.scaled.1 as usize);
+        let step = level.step();
+        let (columns, rows) = ((width - w).div_ceil(step), (height - h).div_ceil(step));
+        table.push(LevelLayout {
+            width: width as u32,
+            height: height as u32,
+            step: step as u32,
+            pixel_word: at.words as u32,
+            table: at.values as u32,
+            window_first: at.windows as u32,
+            columns: columns as u32,
+            rows: rows as u32,
+            pixel_row_first: at.pixel_rows as u32,
+            table_column_first: at.table_columns as u32,
+            window_row_first: at.window_rows as u32,
+            _pad: 0,
+        });
+        pixel_words.push(at.words);
+        at.words += (width * height).div_ceil(4);
+        at.values += (width + 1) * (height + 1);
+        at.windows += columns * rows;
+        at.pixel_rows += height;
+        at.table_columns += width + 1;
+        at.window_rows += rows;
+    }
+    (table, pixel_words, at)
 }
 
 #[cfg(test)]

@@ -112,73 +112,15 @@ impl ShapePredictor {
             }
             forests.push(trees);
         }
-        let anchor_sets = r.length("the number of anchor sets", MAX_LEVELS)?;
-        let mut anchors = Vec::with_capacity(anchor_sets);
-        for _ in 0..anchor_sets {
-            let n = r.length("the number of feature pixels", MAX_PIXELS)?;
-            let set = (0..n)
-                .map(|_| {
-                    let at = r.error("");
-                    let i = r.unsigned("an anchor landmark")?;
-                    if i >= landmarks as u64 {
-                        return Err(FormatError {
-                            message: format!("anchor landmark {i} of a {landmarks}-point model"),
-                            ..at
-                        });
-                    }
-                    Ok(i as u32)
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            anchors.push(set);
-        }
-        let offset_sets = r.length("the number of offset sets", MAX_LEVELS)?;
-        let mut offsets = Vec::with_capacity(offset_sets);
-        for _ in 0..offset_sets {
-            let n = r.length("the number of feature pixels", MAX_PIXELS)?;
-            let set = (0..n)
-                .map(|_| Ok([r.float("an offset")?, r.float("an offset")?]))
-                .collect::<Result<Vec<_>, FormatError>>()?;
-            offsets.push(set);
-        }
+        let anchors = read_anchor_sets(&mut r, landmarks)?;
+        let offsets = read_offset_sets(&mut r)?;
         if r.remaining() != 0 {
             return Err(r.error(format!(
                 "{} bytes follow the model; the file is not one shape_predictor",
                 r.remaining()
             )));
         }
-        if anchors.len() != level_count || offsets.len() != level_count {
-            return Err(r.error(format!(
-                "{level_count} cascade levels but {} anchor sets and {} offset sets",
-                anchors.len(),
-                offsets.len()
-            )));
-        }
-        let mut levels = Vec::with_capacity(level_count);
-        for (k, ((trees, anchors), offsets)) in
-            forests.into_iter().zip(anchors).zip(offsets).enumerate()
-        {
-            let pixels = anchors.len();
-            if offsets.len() != pixels {
-                return Err(r.error(format!(
-                    "level {k} has {pixels} anchors but {} offsets",
-                    offsets.len()
-                )));
-            }
-            let out_of_range = trees
-                .iter()
-                .flat_map(|t| &t.splits)
-                .any(|s| s.a as usize >= pixels || s.b as usize >= pixels);
-            if out_of_range {
-                return Err(r.error(format!(
-                    "a split in level {k} reads a feature pixel beyond its {pixels}"
-                )));
-            }
-            levels.push(CascadeLevel {
-                anchors,
-                offsets,
-                trees,
-            });
-        }
+        let levels = checked_levels(&r, forests, anchors, offsets)?;
         if !mean_shape.iter().all(|v| v.is_finite()) {
             return Err(r.error("the mean shape has a non-finite coordinate"));
         }
@@ -316,6 +258,89 @@ impl RegressionTree {
         let leaf = node - self.splits.len();
         &self.increments[leaf * dims..(leaf + 1) * dims]
     }
+}
+
+/// Each cascade level's feature pixels: the landmark each is anchored to (of `landmarks`).
+fn read_anchor_sets(r: &mut Reader<'_>, landmarks: usize) -> Result<Vec<Vec<u32>>, FormatError> {
+    let anchor_sets = r.length("the number of anchor sets", MAX_LEVELS)?;
+    let mut anchors = Vec::with_capacity(anchor_sets);
+    for _ in 0..anchor_sets {
+        let n = r.length("the number of feature pixels", MAX_PIXELS)?;
+        let set = (0..n)
+            .map(|_| {
+                let at = r.error("");
+                let i = r.unsigned("an anchor landmark")?;
+                if i >= landmarks as u64 {
+                    return Err(FormatError {
+                        message: format!("anchor landmark {i} of a {landmarks}-point model"),
+                        ..at
+                    });
+                }
+                Ok(i as u32)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        anchors.push(set);
+    }
+    Ok(anchors)
+}
+
+/// Each cascade level's feature pixels' offsets from their anchors.
+fn read_offset_sets(r: &mut Reader<'_>) -> Result<Vec<Vec<[f32; 2]>>, FormatError> {
+    let offset_sets = r.length("the number of offset sets", MAX_LEVELS)?;
+    let mut offsets = Vec::with_capacity(offset_sets);
+    for _ in 0..offset_sets {
+        let n = r.length("the number of feature pixels", MAX_PIXELS)?;
+        let set = (0..n)
+            .map(|_| Ok([r.float("an offset")?, r.float("an offset")?]))
+            .collect::<Result<Vec<_>, FormatError>>()?;
+        offsets.push(set);
+    }
+    Ok(offsets)
+}
+
+/// The cascade's levels from their forests, anchors and offsets, checked against each other:
+/// as many of each, and every split reading a feature pixel the level has.
+fn checked_levels(
+    r: &Reader<'_>,
+    forests: Vec<Vec<RegressionTree>>,
+    anchors: Vec<Vec<u32>>,
+    offsets: Vec<Vec<[f32; 2]>>,
+) -> Result<Vec<CascadeLevel>, FormatError> {
+    let level_count = forests.len();
+    if anchors.len() != level_count || offsets.len() != level_count {
+        return Err(r.error(format!(
+            "{level_count} cascade levels but {} anchor sets and {} offset sets",
+            anchors.len(),
+            offsets.len()
+        )));
+    }
+    let mut levels = Vec::with_capacity(level_count);
+    for (k, ((trees, anchors), offsets)) in
+        forests.into_iter().zip(anchors).zip(offsets).enumerate()
+    {
+        let pixels = anchors.len();
+        if offsets.len() != pixels {
+            return Err(r.error(format!(
+                "level {k} has {pixels} anchors but {} offsets",
+                offsets.len()
+            )));
+        }
+        let out_of_range = trees
+            .iter()
+            .flat_map(|t| &t.splits)
+            .any(|s| s.a as usize >= pixels || s.b as usize >= pixels);
+        if out_of_range {
+            return Err(r.error(format!(
+                "a split in level {k} reads a feature pixel beyond its {pixels}"
+            )));
+        }
+        levels.push(CascadeLevel {
+            anchors,
+            offsets,
+            trees,
+        });
+    }
+    Ok(levels)
 }
 
 fn read_tree(r: &mut Reader<'_>, dims: usize) -> Result<RegressionTree, FormatError> {

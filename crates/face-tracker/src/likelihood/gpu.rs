@@ -105,20 +105,7 @@ impl FaceLikelihoodGpu {
                 "the face likelihood needs faces, points and a frame of at least 2x2 (got {faces} faces, {max_points} points, {width}x{height})"
             )));
         }
-        if !(lens.inverse_focal.is_finite()
-            && lens.inverse_focal >= 0.0
-            && lens.principal.iter().all(|c| c.is_finite()))
-        {
-            return Err(GpuError::InvalidConfig(format!(
-                "the lens needs a finite, non-negative 1/f and a finite principal point, got {lens:?}"
-            )));
-        }
-        if !(sharpness.is_finite() && sharpness >= 0.0 && min_error.is_finite() && min_error > 0.0)
-        {
-            return Err(GpuError::InvalidConfig(format!(
-                "sharpness must be finite and >= 0 and the error floor finite and > 0, the visible share in [0, 1] (got {sharpness}, {min_error}, {min_visible_share})"
-            )));
-        }
+        check_weighing(&lens, sharpness, min_error, min_visible_share)?;
         let pixels = width as usize * height as usize;
         let point_values = faces
             .checked_mul(max_points * 2)
@@ -138,29 +125,20 @@ impl FaceLikelihoodGpu {
             &stage_source(super::SHADER),
             "weigh_estimates",
         )?;
-        let offsets: Vec<u32> = match dispatch {
-            FaceDispatch::PerFace => (0..faces as u32).collect(),
-            FaceDispatch::Batched | FaceDispatch::Packed => vec![0],
+        let every_face = FaceParams {
+            width,
+            height,
+            max_points: max_points as u32,
+            face_offset: 0,
+            sharpness,
+            min_error,
+            min_visible_share,
+            inverse_focal: lens.inverse_focal,
+            principal_x: lens.principal[0],
+            principal_y: lens.principal[1],
+            _pad: [0; 2],
         };
-        let params = offsets
-            .iter()
-            .map(|&face_offset| {
-                let value = FaceParams {
-                    width,
-                    height,
-                    max_points: max_points as u32,
-                    face_offset,
-                    sharpness,
-                    min_error,
-                    min_visible_share,
-                    inverse_focal: lens.inverse_focal,
-                    principal_x: lens.principal[0],
-                    principal_y: lens.principal[1],
-                    _pad: [0; 2],
-                };
-                pf_gpu::stream::uniform_buffer(ctx, "face likelihood params", &value)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+        let params = params_per_dispatch(ctx, dispatch, faces, every_face)?;
         Ok(Self {
             dispatch,
             faces,
@@ -339,6 +317,53 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             .map(|check| ReadbackSource::of(Self::ESTIMATE_ERRORS, &check.errors))
             .collect()
     }
+}
+
+/// Checks the lens and the weighing's settings (`FaceLikelihoodGpu::new`'s).
+fn check_weighing(
+    lens: &Lens,
+    sharpness: f32,
+    min_error: f32,
+    min_visible_share: f32,
+) -> Result<(), GpuError> {
+    if !(lens.inverse_focal.is_finite()
+        && lens.inverse_focal >= 0.0
+        && lens.principal.iter().all(|c| c.is_finite()))
+    {
+        return Err(GpuError::InvalidConfig(format!(
+            "the lens needs a finite, non-negative 1/f and a finite principal point, got {lens:?}"
+        )));
+    }
+    if !(sharpness.is_finite() && sharpness >= 0.0 && min_error.is_finite() && min_error > 0.0) {
+        return Err(GpuError::InvalidConfig(format!(
+            "sharpness must be finite and >= 0 and the error floor finite and > 0, the visible share in [0, 1] (got {sharpness}, {min_error}, {min_visible_share})"
+        )));
+    }
+    Ok(())
+}
+
+/// The uniform parameters of each dispatch: one per face for `PerFace` (each its face's
+/// offset), else one for every face.
+fn params_per_dispatch(
+    ctx: &GpuContext,
+    dispatch: FaceDispatch,
+    faces: usize,
+    every_face: FaceParams,
+) -> Result<Vec<wgpu::Buffer>, GpuError> {
+    let offsets: Vec<u32> = match dispatch {
+        FaceDispatch::PerFace => (0..faces as u32).collect(),
+        FaceDispatch::Batched | FaceDispatch::Packed => vec![0],
+    };
+    offsets
+        .into_iter()
+        .map(|face_offset| {
+            let value = FaceParams {
+                face_offset,
+                ..every_face
+            };
+            pf_gpu::stream::uniform_buffer(ctx, "face likelihood params", &value)
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -280,53 +280,14 @@ fn lanes_through<const GATHER: bool, const PINHOLE: bool>(
 ) -> [f64; LANES] {
     #[cfg(target_arch = "x86_64")]
     let gather = GATHER && gather::can_gather(&frame.data, frame.width, frame.height);
-    let poses = states.map(|s| Projector::new(&s));
-    let lanes =
-        |f: fn(&Projector) -> f32| -> [f32; LANES] { std::array::from_fn(|l| f(&poses[l])) };
-    let (zx, zy, zz) = (
-        lanes(|p| p.row_z[0]),
-        lanes(|p| p.row_z[1]),
-        lanes(|p| p.row_z[2]),
-    );
-    let (xx, xy, xz) = (
-        lanes(|p| p.row_x[0]),
-        lanes(|p| p.row_x[1]),
-        lanes(|p| p.row_x[2]),
-    );
-    let (yx, yy, yz) = (
-        lanes(|p| p.row_y[0]),
-        lanes(|p| p.row_y[1]),
-        lanes(|p| p.row_y[2]),
-    );
-    let (tx, ty, alpha) = (lanes(|p| p.tx), lanes(|p| p.ty), lanes(|p| p.alpha));
-    let scale = lanes(|p| p.scale);
-    let (inverse_focal, [principal_x, principal_y]) = (lens.inverse_focal, lens.principal);
+    let poses = LanePoses::of(states);
     let pixels = Pixels::new(frame);
     let mut sum = [0.0f64; LANES];
     let mut visible = [0usize; LANES];
     // Three passes per point: the lanes' arithmetic (no branches, so vectorised), the pixel
     // reads (scalar), the residuals (vectorised).
-    let zero = [0.0f32; LANES];
     for q in &template.points {
-        let ([nx, ny, nz], [px, py, pz]) = (q.normal, q.position);
-        let (mut facing, mut inside) = ([false; LANES], [false; LANES]);
-        let (mut u, mut v) = (zero, zero);
-        for l in 0..LANES {
-            facing[l] = facing_camera(zx[l] * nx + zy[l] * ny + zz[l] * nz);
-            let mut x = xx[l] * px + xy[l] * py + xz[l] * pz + tx[l];
-            let mut y = yx[l] * px + yy[l] * py + yz[l] * pz + ty[l];
-            let mut near = true;
-            if PINHOLE {
-                let depth = scale[l] * (zx[l] * px + zy[l] * py + zz[l] * pz);
-                let distance = 1.0 - depth * inverse_focal;
-                near = distance > Lens::MIN_DISTANCE_SHARE;
-                x = principal_x + (x - principal_x) / distance;
-                y = principal_y + (y - principal_y) / distance;
-            }
-            inside[l] = near & pixels.inside(x, y);
-            // Outside the frame a lane reads the corner's pixels, then ignores them.
-            (u[l], v[l]) = if inside[l] { (x, y) } else { (0.0, 0.0) };
-        }
+        let (facing, inside, u, v) = poses.project::<PINHOLE>(q, lens, &pixels);
         let LaneSamples {
             fx,
             fy,
@@ -347,7 +308,7 @@ fn lanes_through<const GATHER: bool, const PINHOLE: bool>(
             let top = top_left[l] * (1.0 - fx[l]) + top_right[l] * fx[l];
             let bottom = bottom_left[l] * (1.0 - fx[l]) + bottom_right[l] * fx[l];
             let intensity = top * (1.0 - fy[l]) + bottom * fy[l];
-            let rho = f64::from(rho_of_residual(alpha[l] * intensity - q.gray, q.gray));
+            let rho = f64::from(rho_of_residual(poses.alpha[l] * intensity - q.gray, q.gray));
             let term = if inside[l] { rho } else { 1.0 };
             // Adding 0.0 leaves a sum of non-negative terms unchanged, bit for bit.
             sum[l] += if facing[l] { term } else { 0.0 };
@@ -355,6 +316,74 @@ fn lanes_through<const GATHER: bool, const PINHOLE: bool>(
         }
     }
     std::array::from_fn(|l| mean_residual(sum[l], visible[l], template.points.len()))
+}
+
+/// One value of every lane's pose.
+#[inline(always)]
+fn each_lane(poses: &[Projector; LANES], value: impl Fn(&Projector) -> f32) -> [f32; LANES] {
+    std::array::from_fn(|l| value(&poses[l]))
+}
+
+/// The lanes' poses component by component (`z[0][l]` is lane l's `row_z[0]`), so that a
+/// point's arithmetic runs across the lanes without branches.
+struct LanePoses {
+    z: [[f32; LANES]; 3],
+    x: [[f32; LANES]; 3],
+    y: [[f32; LANES]; 3],
+    tx: [f32; LANES],
+    ty: [f32; LANES],
+    alpha: [f32; LANES],
+    scale: [f32; LANES],
+}
+
+impl LanePoses {
+    #[inline(always)]
+    fn of(states: &[[f32; DIMS]; LANES]) -> Self {
+        let poses = states.map(|s| Projector::new(&s));
+        Self {
+            z: std::array::from_fn(|k| each_lane(&poses, |p| p.row_z[k])),
+            x: std::array::from_fn(|k| each_lane(&poses, |p| p.row_x[k])),
+            y: std::array::from_fn(|k| each_lane(&poses, |p| p.row_y[k])),
+            tx: each_lane(&poses, |p| p.tx),
+            ty: each_lane(&poses, |p| p.ty),
+            alpha: each_lane(&poses, |p| p.alpha),
+            scale: each_lane(&poses, |p| p.scale),
+        }
+    }
+
+    /// Point `q` in every lane: whether it faces the camera, whether it lands inside the frame
+    /// (and, through a pinhole, in front of the camera), and where (`u`, `v`; the corner for a
+    /// lane outside, whose pixels are read and then ignored).
+    #[inline(always)]
+    #[allow(clippy::type_complexity)]
+    fn project<const PINHOLE: bool>(
+        &self,
+        q: &crate::template::FeaturePoint,
+        lens: &Lens,
+        pixels: &Pixels<'_>,
+    ) -> ([bool; LANES], [bool; LANES], [f32; LANES], [f32; LANES]) {
+        let ([nx, ny, nz], [px, py, pz]) = (q.normal, q.position);
+        let (inverse_focal, [principal_x, principal_y]) = (lens.inverse_focal, lens.principal);
+        let ([zx, zy, zz], [xx, xy, xz], [yx, yy, yz]) = (&self.z, &self.x, &self.y);
+        let (mut facing, mut inside) = ([false; LANES], [false; LANES]);
+        let (mut u, mut v) = ([0.0f32; LANES], [0.0f32; LANES]);
+        for l in 0..LANES {
+            facing[l] = facing_camera(zx[l] * nx + zy[l] * ny + zz[l] * nz);
+            let mut x = xx[l] * px + xy[l] * py + xz[l] * pz + self.tx[l];
+            let mut y = yx[l] * px + yy[l] * py + yz[l] * pz + self.ty[l];
+            let mut near = true;
+            if PINHOLE {
+                let depth = self.scale[l] * (zx[l] * px + zy[l] * py + zz[l] * pz);
+                let distance = 1.0 - depth * inverse_focal;
+                near = distance > Lens::MIN_DISTANCE_SHARE;
+                x = principal_x + (x - principal_x) / distance;
+                y = principal_y + (y - principal_y) / distance;
+            }
+            inside[l] = near & pixels.inside(x, y);
+            (u[l], v[l]) = if inside[l] { (x, y) } else { (0.0, 0.0) };
+        }
+        (facing, inside, u, v)
+    }
 }
 
 /// ε of every particle of `states` (any number) into `out`, [`LANES`] at a time: with AVX2's

@@ -166,6 +166,43 @@ pub fn body_steps(quick: bool) -> u64 {
     body_sequence(quick).map_or(0, |(s, ..)| VARIANTS.len() as u64 * s.frames as u64)
 }
 
+/// The tracker's defaults, as a plain filter (`plain`: one layer) or with a flat likelihood.
+fn variant_config(particles: usize, plain: bool, flat: bool) -> TrackerConfig {
+    TrackerConfig {
+        particles,
+        weighing: if flat {
+            Weighing::Flat
+        } else {
+            Weighing::Capsules
+        },
+        annealing: if plain {
+            Annealing::none()
+        } else {
+            TrackerConfig::default().annealing
+        },
+        ..TrackerConfig::default()
+    }
+}
+
+/// Steps `tracker` on `frame` of the sequence: each tracked joint's position error (cm).
+fn joint_errors(
+    skeleton: &body_tracker::skeleton::Skeleton,
+    synth: &SynthConfig,
+    tracker: &mut BodyTracker,
+    frame: usize,
+) -> anyhow::Result<Vec<f64>> {
+    let truth = pose_at(skeleton, synth, frame)?;
+    let points = render(skeleton, &truth, synth, frame)?.points;
+    let result = tracker.step(&points)?;
+    let estimated = skeleton.tracked_joint_positions(&result.pose)?;
+    let expected = skeleton.tracked_joint_positions(&truth)?;
+    Ok(estimated
+        .iter()
+        .zip(&expected)
+        .map(|(a, b)| 100.0 * f64::from((a - b).norm()))
+        .collect())
+}
+
 pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
     let (synth, particles, capsules) = body_sequence(run.quick)?;
     let skeleton = human_skeleton(capsules)?;
@@ -183,20 +220,7 @@ pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
     let gpu = run.hardware_gpu();
     let start = pose_at(&skeleton, &synth, 0)?;
     for (label, kind, plain, flat) in VARIANTS {
-        let config = TrackerConfig {
-            particles,
-            weighing: if flat {
-                Weighing::Flat
-            } else {
-                Weighing::Capsules
-            },
-            annealing: if plain {
-                Annealing::none()
-            } else {
-                TrackerConfig::default().annealing
-            },
-            ..TrackerConfig::default()
-        };
+        let config = variant_config(particles, plain, flat);
         let backend = match gpu {
             Some(ctx) => Backend::Gpu(Box::new(reopen(ctx)?)),
             None => Backend::Cpu,
@@ -205,16 +229,7 @@ pub fn body(run: &mut Run) -> anyhow::Result<Figure> {
         let mut sums = vec![0.0f64; joints.len()];
         for frame in 0..synth.frames {
             run.step(&format!("body accuracy ({label}): frame {frame}"));
-            let truth = pose_at(&skeleton, &synth, frame)?;
-            let points = render(&skeleton, &truth, &synth, frame)?.points;
-            let result = tracker.step(&points)?;
-            let estimated = skeleton.tracked_joint_positions(&result.pose)?;
-            let expected = skeleton.tracked_joint_positions(&truth)?;
-            let errors: Vec<f64> = estimated
-                .iter()
-                .zip(&expected)
-                .map(|(a, b)| 100.0 * f64::from((a - b).norm()))
-                .collect();
+            let errors = joint_errors(&skeleton, &synth, &mut tracker, frame)?;
             for (s, e) in sums.iter_mut().zip(&errors) {
                 *s += e;
             }

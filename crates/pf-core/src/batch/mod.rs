@@ -347,18 +347,26 @@ impl<R: Resampler> BatchFilter<R> {
         propagate: Option<&Propagate<'_>>,
         measure: &mut impl FnMut(&BatchShape, &[f32], &mut [f32]) -> Result<(), PfError>,
     ) -> Result<(Vec<bool>, Vec<f32>, Vec<Result<(), PfError>>), PfError> {
-        let shape = self.shape;
-        let (m_count, dims) = (shape.particles, shape.dims);
         let step = self.step;
         self.step += 1;
+        // Targets are independent: each stage runs them (or their rows) on all cores, each
+        // value computed as on one core.
+        let resampled = self.resample_and_gather(layer, step)?;
+        self.move_particles(layer, propagate, step);
+        measure(&self.shape, &self.states, &mut self.log_likelihood)?;
+        let (betas, status) = self.normalise_all(layer);
+        Ok((resampled, betas, status))
+    }
+
+    /// Resamples the targets due (in layer 0, those whose ESS is below the threshold; in later
+    /// layers every target) and gathers their particles by ancestor; which targets resampled.
+    fn resample_and_gather(&mut self, layer: usize, step: u64) -> Result<Vec<bool>, PfError> {
+        let (m_count, dims) = (self.shape.particles, self.shape.dims);
         let ess_threshold = if layer == 0 {
             self.ess_threshold
         } else {
             f64::INFINITY
         };
-
-        // Targets are independent: each stage below runs them (or their rows) on all cores,
-        // each value computed as on one core.
         let (resampler, keys, ess) = (&self.resampler, &self.resampling_keys, &self.ess);
         let resampled = (self.ancestors.par_chunks_mut(m_count))
             .zip(self.log_weights.par_chunks_mut(m_count))
@@ -394,7 +402,13 @@ impl<R: Resampler> BatchFilter<R> {
                 }
             });
         std::mem::swap(&mut self.states, &mut self.scratch);
+        Ok(resampled)
+    }
 
+    /// Moves the particles: the model's dynamics in layer 0 when it has them, else (layer 0's
+    /// drift, then) the layer's Gaussian random walk, clamped to the bounds.
+    fn move_particles(&mut self, layer: usize, propagate: Option<&Propagate<'_>>, step: u64) {
+        let shape = self.shape;
         match propagate {
             Some(propagate) if layer == 0 => self.propagate_all(propagate, step),
             _ => {
@@ -417,8 +431,11 @@ impl<R: Resampler> BatchFilter<R> {
                 );
             }
         }
+    }
 
-        measure(&shape, &self.states, &mut self.log_likelihood)?;
+    /// Weighs every target by the layer's β rule and normalises; each target's β and status.
+    fn normalise_all(&mut self, layer: usize) -> (Vec<f32>, Vec<Result<(), PfError>>) {
+        let m_count = self.shape.particles;
         let rule = LayerBeta::of_layer(&self.annealing, layer);
         let results: Vec<Result<Normalised, PfError>> = (self.log_weights.par_chunks_mut(m_count))
             .zip(self.log_likelihood.par_chunks(m_count))
@@ -427,14 +444,14 @@ impl<R: Resampler> BatchFilter<R> {
                 normalise_target(log_weights, log_likelihood, weights, rule)
             })
             .collect();
-        let mut status = Vec::with_capacity(shape.targets);
-        let mut betas = Vec::with_capacity(shape.targets);
+        let mut status = Vec::with_capacity(self.shape.targets);
+        let mut betas = Vec::with_capacity(self.shape.targets);
         for (t, result) in results.into_iter().enumerate() {
             self.ess[t] = result.as_ref().map_or(m_count as f64, |n| n.ess);
             betas.push(result.as_ref().map_or(0.0, |n| n.beta));
             status.push(result.map(|_| ()));
         }
-        Ok((resampled, betas, status))
+        (betas, status)
     }
 }
 

@@ -41,20 +41,36 @@ impl GpuFilter {
             self.record_layer(encoder, stages, likelihood, layer);
         }
 
-        let per_target = [1, self.shape.targets as u32, 1];
         if stages.contains(&GpuStage::Estimate) {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("estimate"),
-                timestamp_writes: None,
-            });
-            self.stages
-                .estimate
-                .record(&mut pass, &self.groups.estimate, per_target);
-            if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
-                k.record(&mut pass, g, per_target);
-            }
-            likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
+            self.record_estimate(encoder, likelihood);
         }
+        self.record_copies_back(encoder, likelihood);
+    }
+
+    /// The estimate's pass: the weighted (and best-M′) means, then the likelihood's work on them.
+    fn record_estimate(&self, encoder: &mut wgpu::CommandEncoder, likelihood: &dyn GpuLikelihood) {
+        let per_target = [1, self.shape.targets as u32, 1];
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("estimate"),
+            timestamp_writes: None,
+        });
+        self.stages
+            .estimate
+            .record(&mut pass, &self.groups.estimate, per_target);
+        if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
+            k.record(&mut pass, g, per_target);
+        }
+        likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
+    }
+
+    /// The step's results copied into its staging buffer: the likelihood's named readbacks, the
+    /// estimates, statistics, best-M′ estimates and spreads.
+    fn record_copies_back(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        let back = &self.step_backs[self.next_back];
         // Only into sections the staging buffer was fitted with (`run_stages` fits it first; a
         // bare `record_step` of a likelihood it was never fitted for copies nothing).
         let fitted = likelihood
@@ -63,33 +79,21 @@ impl GpuFilter {
             .zip(&self.likelihood_sections);
         for (k, (source, &(name, bytes))) in fitted.enumerate() {
             if source.name == name && source.bytes == bytes {
-                self.step_backs[self.next_back].record_copy(
-                    encoder,
-                    STEP_BACK_OWN + k,
-                    source.buffer,
-                );
+                back.record_copy(encoder, STEP_BACK_OWN + k, source.buffer);
             }
         }
-        self.step_backs[self.next_back].record_copy(
+        back.record_copy(
             encoder,
             STEP_BACK_ESTIMATES,
             self.streams.estimates.buffer(),
         );
-        self.step_backs[self.next_back].record_copy(
-            encoder,
-            STEP_BACK_STATS,
-            self.streams.stats.buffer(),
-        );
-        self.step_backs[self.next_back].record_copy(
+        back.record_copy(encoder, STEP_BACK_STATS, self.streams.stats.buffer());
+        back.record_copy(
             encoder,
             STEP_BACK_BEST,
             self.streams.best_estimates.buffer(),
         );
-        self.step_backs[self.next_back].record_copy(
-            encoder,
-            STEP_BACK_SPREADS,
-            self.streams.spreads.buffer(),
-        );
+        back.record_copy(encoder, STEP_BACK_SPREADS, self.streams.spreads.buffer());
     }
 
     /// One annealing layer's stages (the whole frame but the estimate without annealing): the
