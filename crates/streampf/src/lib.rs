@@ -181,6 +181,29 @@ where
     run(Cli::from_arg_matches(&matches)?)
 }
 
+/// Parses `streampf ARGS…` (`args` without the program's name) as the binary would, without
+/// running anything: clap's message for a bad command line. Asking for help or the version
+/// parses. The commands the documentation shows are checked with it (`tests/doc_commands.rs`).
+pub fn check_command_line<I, S>(args: I) -> Result<(), UsageError>
+where
+    I: IntoIterator<Item = S>,
+    S: Into<std::ffi::OsString>,
+{
+    let argv = std::iter::once("streampf".into()).chain(args.into_iter().map(Into::into));
+    match Cli::command().try_get_matches_from(argv.collect::<Vec<std::ffi::OsString>>()) {
+        Ok(_) => Ok(()),
+        Err(e)
+            if matches!(
+                e.kind(),
+                clap::error::ErrorKind::DisplayHelp | clap::error::ErrorKind::DisplayVersion
+            ) =>
+        {
+            Ok(())
+        }
+        Err(e) => Err(UsageError(clap_message(&e))),
+    }
+}
+
 /// Asks a run started by [`run_embedded`] to stop after its current frame.
 pub fn request_stop() {
     run_output::request_stop();
