@@ -109,6 +109,12 @@ fn xtask_usage() -> String {
         .to_string()
 }
 
+/// Whether `program` is a Python interpreter (on the path, or a virtual environment's).
+fn is_python(program: &str) -> bool {
+    let name = program.rsplit('/').next().unwrap_or(program);
+    matches!(name, "python" | "python3")
+}
+
 /// Why `command` does not work as documented, or `None` when it does.
 fn problem(command: &str, xtask: &str) -> Option<String> {
     let w = words(command);
@@ -151,7 +157,9 @@ fn problem(command: &str, xtask: &str) -> Option<String> {
         ] => None,
         ["pip" | "pip3", "install", path] if path.starts_with("./") => exists(path.to_string()),
         ["python" | "python3", "-c", ..] => None,
-        ["python" | "python3", script, ..] if script.ends_with(".py") => exists(script.to_string()),
+        [python, script, ..] if is_python(python) && script.ends_with(".py") => {
+            exists(script.to_string())
+        }
         _ => Some("not a command this test can check: mark its block <!-- illustrative -->".into()),
     }
 }
@@ -194,6 +202,7 @@ fn the_checks_catch_what_they_are_for() {
         "cargo bench --bench no_such_bench",
         "cargo run --release --example no_such_example",
         "apt-get install something",
+        "target/media/pose-venv/bin/python3 tools/no_such_tool.py",
     ] {
         assert!(problem(bad, &xtask).is_some(), "{bad} passed");
     }
@@ -202,6 +211,7 @@ fn the_checks_catch_what_they_are_for() {
         "cargo run --release -p streampf -- face track --help",
         "cargo xtask test --no-gpu",
         "cargo run --release --example range_only -- --allow-software",
+        "target/media/pose-venv/bin/python3 tools/head_pose_check.py V S --widest 300",
     ] {
         assert_eq!(problem(good, &xtask), None, "{good}");
     }
