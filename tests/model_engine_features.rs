@@ -371,3 +371,41 @@ fn a_plugin_runs_as_islands_over_two_contexts() {
         .unwrap_err();
     assert!(err.to_string().contains("island log-weights"), "{err}");
 }
+
+/// Sharding is the engine's, for any model whose frame is per-target values: a `Plugin` (a WGSL
+/// model with its CPU twin) split over two contexts steps as on one GPU, bit for bit.
+#[test]
+fn any_model_with_per_target_frames_shards_over_contexts() {
+    use pf_gpu::engine::{Filter, Sharded};
+    use pf_gpu::model::Plugin;
+    use pf_gpu::toy::ToyTwin;
+
+    let (Some(a), Some(b), Some(c)) = (
+        common::gpu_context("sharded plug-in a"),
+        common::gpu_context("sharded plug-in b"),
+        common::gpu_context("sharded plug-in c"),
+    ) else {
+        return;
+    };
+    let config = config(5, 200, 13);
+    let twin = || ToyTwin {
+        angular: [false, false, false, true, true, true, false],
+    };
+    let model = |ctx: &GpuContext, part: &BatchConfig| {
+        Plugin::gpu(ctx, TOY_MODEL, &part.shape, twin(), constants())
+    };
+    let systematic = GpuResampler::Systematic;
+    let mut sharded =
+        Sharded::on_gpus(vec![a, b], &config, systematic, &start(&config), model).unwrap();
+    assert_eq!(sharded.shards().count(), 2);
+    let whole = model(&c, &config).unwrap();
+    let mut one = Filter::on_gpu(c, &config, systematic, &start(&config), whole).unwrap();
+    for f in 0..FRAMES {
+        let seen = observations(5, f);
+        let got = sharded.step(&seen).unwrap();
+        let want = one.step(&seen).unwrap();
+        assert_eq!(report_bits(&got), report_bits(&want), "frame {f}");
+    }
+    let err = sharded.step(&observations(5, 0)[..3]).unwrap_err();
+    assert!(err.to_string().contains("observations"), "{err}");
+}

@@ -10,10 +10,12 @@
 mod filter;
 pub mod islands;
 mod model;
+pub mod sharded;
 
 pub use filter::{Filter, InFlight};
 pub use islands::{IslandReport, Islands};
 pub use model::Model;
+pub use sharded::{Sharded, ShardedPending, shard_ranges};
 
 use pf_core::PfError;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, Propagate};

@@ -34,13 +34,14 @@ mod filter;
 mod plugin;
 mod sharded;
 
+pub use crate::engine::ShardedPending;
 pub use check::{
     ABSOLUTE_TOLERANCE, CheckInputs, Mismatch, ModelCheck, RELATIVE_TOLERANCE, agrees,
     check_against_cpu, tolerance,
 };
 pub use filter::{ModelFilter, RawModelFilter};
 pub use plugin::Plugin;
-pub use sharded::{ShardedModelFilter, ShardedPending};
+pub use sharded::ShardedModelFilter;
 
 use std::marker::PhantomData;
 

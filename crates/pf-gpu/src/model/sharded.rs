@@ -1,61 +1,24 @@
-//! A model's targets split over several GPUs: [`ShardedModelFilter`].
-//!
-//! Targets are independent filters, so a batch splits into contiguous shards of targets, one per
-//! GPU, each a whole [`ModelFilter`] for its share. Each shard numbers its targets as in the
-//! whole batch ([`GpuFilter::number_targets_from`](crate::GpuFilter::number_targets_from)), so
-//! they draw the random numbers they draw on one GPU and the results are those of one GPU, bit
-//! for bit, where the GPUs compute alike. A frame is submitted to every GPU before any is
-//! waited for, so that they work at once; two frames may be in flight on each.
-
-use std::ops::Range;
+//! A WGSL model's targets split over several GPUs: [`ShardedModelFilter`], the engine's
+//! [`Sharded`] filter of a [`WgslModel`] (see `crate::engine::sharded` for how the split keeps one
+//! GPU's results).
 
 use bytemuck::Pod;
-use pf_core::batch::{BatchConfig, BatchShape};
+use pf_core::batch::BatchConfig;
 
-use super::{ModelFilter, ModelSource};
+use super::{ModelSource, WgslModel};
 use crate::context::GpuContext;
-use crate::engine::{EngineReport, InFlight};
+use crate::engine::Sharded;
 use crate::error::GpuError;
-use crate::filter::{GpuResampler, LikelihoodReadbacks};
+use crate::filter::GpuResampler;
 
-/// One GPU's share of the targets.
-struct Shard<O: Pod, C: Pod> {
-    ctx: GpuContext,
-    targets: Range<usize>,
-    filter: ModelFilter<O, C>,
-}
+/// A [`super::ModelFilter`] whose targets are split over several GPUs (one shard of targets
+/// each).
+pub type ShardedModelFilter<O, C> = Sharded<WgslModel<O, C>>;
 
-/// A [`ModelFilter`] whose targets are split over several GPUs (one shard of targets each).
-pub struct ShardedModelFilter<O: Pod, C: Pod> {
-    shards: Vec<Shard<O, C>>,
-    shape: BatchShape,
-}
-
-/// A frame submitted to every shard ([`ShardedModelFilter::submit`]), not yet read back.
-#[must_use = "a submitted frame must be finished (ShardedModelFilter::finish)"]
-pub struct ShardedPending {
-    pending: Vec<InFlight>,
-}
-
-/// Contiguous ranges of `targets` over at most `parts` shards, their sizes differing by at most
-/// one (no empty shard).
-pub fn shard_ranges(targets: usize, parts: usize) -> Vec<Range<usize>> {
-    let parts = parts.min(targets).max(1);
-    let mut start = 0;
-    (0..parts)
-        .map(|i| {
-            let len = targets / parts + usize::from(i < targets % parts);
-            let range = start..start + len;
-            start += len;
-            range
-        })
-        .collect()
-}
-
-impl<O: Pod, C: Pod> ShardedModelFilter<O, C> {
+impl<O: Pod, C: Pod> Sharded<WgslModel<O, C>> {
     /// The batch of `config` split over `contexts` (one shard each; with fewer targets than
-    /// contexts, the extra contexts are not used). `initial_states` in the whole batch's layout
-    /// (`[(t·D + d)·M + m]`).
+    /// contexts, the extra contexts are not used), each shard's model compiled from `model`.
+    /// `initial_states` in the whole batch's layout (`[(t·D + d)·M + m]`).
     pub fn new(
         contexts: Vec<GpuContext>,
         config: &BatchConfig,
@@ -64,143 +27,8 @@ impl<O: Pod, C: Pod> ShardedModelFilter<O, C> {
         model: ModelSource<'_>,
         constants: &C,
     ) -> Result<Self, GpuError> {
-        config.validate()?;
-        let shape = config.shape;
-        if contexts.is_empty() {
-            return Err(GpuError::InvalidConfig(
-                "a sharded filter needs at least one GPU context".into(),
-            ));
-        }
-        if initial_states.len() != shape.state_len() {
-            return Err(GpuError::LengthMismatch {
-                what: "initial states".into(),
-                expected: shape.state_len(),
-                got: initial_states.len(),
-            });
-        }
-        let block = shape.dims * shape.particles;
-        let ranges = shard_ranges(shape.targets, contexts.len());
-        let mut shards = Vec::with_capacity(ranges.len());
-        for (ctx, targets) in contexts.into_iter().zip(ranges) {
-            let mut part = config.clone();
-            part.shape = BatchShape::new(targets.len(), shape.particles, shape.dims)?;
-            let states = &initial_states[targets.start * block..targets.end * block];
-            let mut filter = ModelFilter::new(&ctx, &part, resampler, states, model, constants)?;
-            filter.number_targets_from(targets.start)?;
-            shards.push(Shard {
-                ctx,
-                targets,
-                filter,
-            });
-        }
-        Ok(Self { shards, shape })
-    }
-
-    /// The whole batch's shape.
-    pub fn shape(&self) -> &BatchShape {
-        &self.shape
-    }
-
-    /// Each shard's targets and context, in order.
-    pub fn shards(&self) -> impl Iterator<Item = (Range<usize>, &GpuContext)> {
-        self.shards.iter().map(|s| (s.targets.clone(), &s.ctx))
-    }
-
-    /// One frame against `observations` (one per target of the whole batch), every GPU at once.
-    pub fn step(&mut self, observations: &[O]) -> Result<EngineReport, GpuError> {
-        let pending = self.submit(observations)?;
-        self.finish(pending)
-    }
-
-    /// Submits a frame to every shard without waiting (at most two frames in flight).
-    pub fn submit(&mut self, observations: &[O]) -> Result<ShardedPending, GpuError> {
-        if observations.len() != self.shape.targets {
-            return Err(GpuError::LengthMismatch {
-                what: "observations (one per target)".into(),
-                expected: self.shape.targets,
-                got: observations.len(),
-            });
-        }
-        let mut pending = Vec::with_capacity(self.shards.len());
-        for shard in &mut self.shards {
-            let seen = &observations[shard.targets.clone()];
-            pending.push(shard.filter.submit(seen)?);
-        }
-        Ok(ShardedPending { pending })
-    }
-
-    /// Waits for the oldest frame in flight on every shard; the results in the whole batch's
-    /// target order. The GPU time is the slowest shard's (the GPUs work at once).
-    pub fn finish(&mut self, frame: ShardedPending) -> Result<EngineReport, GpuError> {
-        let (t, d) = (self.shape.targets, self.shape.dims);
-        let mut report = EngineReport {
-            estimates: Vec::with_capacity(t * d),
-            best_estimates: Vec::new(),
-            spreads: Vec::with_capacity(t * d),
-            ess: Vec::with_capacity(t),
-            resampled: Vec::with_capacity(t),
-            beta: Vec::with_capacity(t),
-            status: Vec::with_capacity(t),
-            gpu_time: None,
-            likelihood: LikelihoodReadbacks::default(),
-        };
-        for (shard, pending) in self.shards.iter_mut().zip(frame.pending) {
-            let part = shard.filter.finish(pending)?;
-            report.estimates.extend(part.estimates);
-            report.best_estimates.extend(part.best_estimates);
-            report.spreads.extend(part.spreads);
-            report.ess.extend(part.ess);
-            report.resampled.extend(part.resampled);
-            report.beta.extend(part.beta);
-            report.status.extend(part.status);
-            report.gpu_time = match (report.gpu_time, part.gpu_time) {
-                (Some(a), Some(b)) if a.duration() >= b.duration() => Some(a),
-                (a, b) => b.or(a),
-            };
-        }
-        Ok(report)
-    }
-
-    /// Restarts target `t` of the whole batch from `states` (`[d·M + m]`) with equal weights.
-    pub fn reset_target(&mut self, t: usize, states: &[f32]) -> Result<(), GpuError> {
-        let shard = (self.shards.iter_mut())
-            .find(|s| s.targets.contains(&t))
-            .ok_or_else(|| {
-                GpuError::InvalidConfig(format!("target {t} of a batch of {}", self.shape.targets))
-            })?;
-        let local = t - shard.targets.start;
-        shard.filter.reset_target(local, states)
-    }
-
-    /// The whole batch's particle states (`[(t·D + d)·M + m]`; tests and debugging).
-    pub fn download_states(&self) -> Result<Vec<f32>, GpuError> {
-        let mut states = Vec::with_capacity(self.shape.state_len());
-        for shard in &self.shards {
-            states.extend(shard.filter.particles()?.0);
-        }
-        Ok(states)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::shard_ranges;
-
-    #[test]
-    fn shards_are_contiguous_even_and_never_empty() {
-        assert_eq!(shard_ranges(10, 3), vec![0..4, 4..7, 7..10]);
-        assert_eq!(shard_ranges(2, 4), vec![0..1, 1..2]);
-        assert_eq!(shard_ranges(5, 1), vec![0..5]);
-        for targets in 1..40 {
-            for parts in 1..9 {
-                let ranges = shard_ranges(targets, parts);
-                assert_eq!(ranges.first().unwrap().start, 0);
-                assert_eq!(ranges.last().unwrap().end, targets);
-                assert!(ranges.windows(2).all(|w| w[0].end == w[1].start));
-                let lens: Vec<usize> = ranges.iter().map(|r| r.len()).collect();
-                assert!(lens.iter().all(|&l| l > 0));
-                assert!(lens.iter().max().unwrap() - lens.iter().min().unwrap() <= 1);
-            }
-        }
+        Self::on_gpus(contexts, config, resampler, initial_states, |ctx, part| {
+            WgslModel::new(ctx, model, &part.shape, constants)
+        })
     }
 }
