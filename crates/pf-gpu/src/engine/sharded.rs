@@ -119,7 +119,7 @@ where
     /// Submits a frame to every shard without waiting (at most two frames in flight).
     pub fn submit(&mut self, frame: &[T]) -> Result<ShardedPending, M::Error> {
         let targets = self.shape.targets;
-        if frame.is_empty() || frame.len() % targets != 0 {
+        if frame.is_empty() || !frame.len().is_multiple_of(targets) {
             return Err(GpuError::LengthMismatch {
                 what: format!(
                     "observations (the same number of values for each of {targets} targets)"
