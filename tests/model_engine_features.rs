@@ -114,8 +114,13 @@ fn two_frames_in_flight_give_the_bits_of_one_at_a_time() {
     let a = filter.submit(&observations(targets, 0)).unwrap();
     let b = filter.submit(&observations(targets, 1)).unwrap();
     assert!(filter.submit(&observations(targets, 2)).is_err());
+    // Nor is a frame stepped at once while others are in flight: it would be waited for out of
+    // order; the submitted frames still finish.
+    let err = filter.step(&observations(targets, 2)).unwrap_err();
+    assert!(err.to_string().contains("in flight"), "{err}");
     filter.finish(a).unwrap();
     filter.finish(b).unwrap();
+    filter.step(&observations(targets, 2)).unwrap();
 }
 
 proptest! {
@@ -235,8 +240,11 @@ fn a_plugin_runs_on_either_engine_through_one_filter() {
             "frame {f}"
         );
     }
+    // A frame of the wrong length is refused before a particle moves.
+    let before = on_cpu.particles().unwrap();
     let err = on_cpu.step(&observations(3, 0)).unwrap_err();
     assert!(err.to_string().contains("observations"), "{err}");
+    assert_eq!(on_cpu.particles().unwrap(), before);
 
     let Some(ctx) = common::gpu_context("a plug-in on either engine") else {
         return;

@@ -69,6 +69,7 @@ impl<M: Model> Filter<M> {
     /// One frame: resample, diffuse (or the model's dynamics), weigh against `frame`, normalise,
     /// estimate; every annealing layer of the configuration.
     pub fn step(&mut self, frame: &M::Frame<'_>) -> Result<EngineReport, M::Error> {
+        self.model.check_frame(frame, &self.engine.shape())?;
         let Self { engine, model } = self;
         match engine {
             FilterEngine::Cpu(filter) => {
@@ -99,6 +100,7 @@ impl<M: Model> Filter<M> {
         if matches!(self.engine, FilterEngine::Cpu(_)) {
             return Ok(InFlight::Stepped(Box::new(self.step(frame)?)));
         }
+        self.model.check_frame(frame, &self.engine.shape())?;
         let Self { engine, model } = self;
         match engine {
             FilterEngine::Cpu(_) => unreachable!("the CPU engine stepped above"),

@@ -50,6 +50,13 @@ pub trait Model: Sync {
         out: &mut [f32],
     ) -> Result<(), Self::Error>;
 
+    /// Checks `frame` before either engine moves a particle (its length, for example), so that
+    /// a bad frame changes nothing. The default accepts every frame.
+    fn check_frame(&self, frame: &Self::Frame<'_>, shape: &BatchShape) -> Result<(), Self::Error> {
+        let _ = (frame, shape);
+        Ok(())
+    }
+
     /// Whether the model brings its own dynamics on the CPU engine
     /// ([`Model::propagate_on_cpu`]; its GPU side says so through
     /// [`GpuLikelihood::propagates`]). `false`: the engine's Gaussian random walk.

@@ -291,13 +291,19 @@ impl GpuFilter {
     }
 
     /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.
-    /// Stages that are left out keep their streams as they are.
+    /// Stages that are left out keep their streams as they are. Refused while submitted steps
+    /// are in flight (finish them first): waiting for this one out of order would wedge them.
     pub fn run_stages(
         &mut self,
         ctx: &GpuContext,
         stages: &[GpuStage],
         likelihood: &dyn GpuLikelihood,
     ) -> Result<GpuStepReport, GpuError> {
+        if self.in_flight > 0 {
+            return Err(GpuError::InvalidConfig(
+                "submitted steps are in flight: finish them before stepping one at a time".into(),
+            ));
+        }
         let pending = self.submit_stages(ctx, stages, likelihood)?;
         self.finish_step(ctx, pending)
     }

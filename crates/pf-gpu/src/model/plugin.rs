@@ -111,13 +111,7 @@ impl<O: Pod + Sync, C: Pod + Sync, T: CpuModel<O, C>> Model for Plugin<O, C, T> 
         Ok(wgsl)
     }
 
-    fn measure_on_cpu(
-        &self,
-        observations: &[O],
-        shape: &BatchShape,
-        states: &[f32],
-        out: &mut [f32],
-    ) -> Result<(), GpuError> {
+    fn check_frame(&self, observations: &[O], shape: &BatchShape) -> Result<(), GpuError> {
         if observations.len() != shape.targets {
             return Err(GpuError::LengthMismatch {
                 what: "observations (one per target)".into(),
@@ -125,6 +119,17 @@ impl<O: Pod + Sync, C: Pod + Sync, T: CpuModel<O, C>> Model for Plugin<O, C, T> 
                 got: observations.len(),
             });
         }
+        Ok(())
+    }
+
+    fn measure_on_cpu(
+        &self,
+        observations: &[O],
+        shape: &BatchShape,
+        states: &[f32],
+        out: &mut [f32],
+    ) -> Result<(), GpuError> {
+        self.check_frame(observations, shape)?;
         out.par_chunks_mut(shape.particles)
             .enumerate()
             .for_each(|(t, row)| {
