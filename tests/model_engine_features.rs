@@ -44,6 +44,13 @@ fn start(config: &BatchConfig) -> Vec<f32> {
     gaussian_clouds(&config.shape, 4, &centres, &[0.5; 7])
 }
 
+/// The toy plug-in's CPU twin (the angles as `config` has them).
+fn toy_twin() -> pf_gpu::toy::ToyTwin {
+    pf_gpu::toy::ToyTwin {
+        angular: [false, false, false, true, true, true, false],
+    }
+}
+
 fn constants() -> ToyConstants {
     ToyConstants::from_sigma(&[0.4; 7]).unwrap()
 }
@@ -219,12 +226,9 @@ fn a_plugin_runs_on_either_engine_through_one_filter() {
     use pf_core::resample::{ResamplerKind, Systematic};
     use pf_gpu::engine::Filter;
     use pf_gpu::model::Plugin;
-    use pf_gpu::toy::ToyTwin;
 
     let config = config(4, 200, 5);
-    let twin = || ToyTwin {
-        angular: [false, false, false, true, true, true, false],
-    };
+    let twin = toy_twin;
     let model = Plugin::cpu(twin(), constants());
     let mut on_cpu =
         Filter::on_cpu(&config, ResamplerKind::Systematic, start(&config), model).unwrap();
@@ -294,7 +298,6 @@ fn a_plugin_runs_as_islands_over_two_contexts() {
     use pf_core::plugin::CpuModel;
     use pf_gpu::engine::Islands;
     use pf_gpu::model::Plugin;
-    use pf_gpu::toy::ToyTwin;
 
     let (Some(a), Some(b), Some(c)) = (
         common::gpu_context("islands a"),
@@ -305,9 +308,7 @@ fn a_plugin_runs_as_islands_over_two_contexts() {
     };
     let targets = 3;
     let config = config(targets, 400, 7);
-    let twin = || ToyTwin {
-        angular: [false, false, false, true, true, true, false],
-    };
+    let twin = toy_twin;
     let model = |ctx: &GpuContext, island: &BatchConfig| {
         Plugin::gpu(ctx, TOY_MODEL, &island.shape, twin(), constants())
     };
@@ -386,7 +387,6 @@ fn a_plugin_runs_as_islands_over_two_contexts() {
 fn any_model_with_per_target_frames_shards_over_contexts() {
     use pf_gpu::engine::{Filter, Sharded};
     use pf_gpu::model::Plugin;
-    use pf_gpu::toy::ToyTwin;
 
     let (Some(a), Some(b), Some(c)) = (
         common::gpu_context("sharded plug-in a"),
@@ -396,9 +396,7 @@ fn any_model_with_per_target_frames_shards_over_contexts() {
         return;
     };
     let config = config(5, 200, 13);
-    let twin = || ToyTwin {
-        angular: [false, false, false, true, true, true, false],
-    };
+    let twin = toy_twin;
     let model = |ctx: &GpuContext, part: &BatchConfig| {
         Plugin::gpu(ctx, TOY_MODEL, &part.shape, twin(), constants())
     };

@@ -178,6 +178,17 @@ pub fn resampled(
     count: usize,
     seed: u64,
 ) -> Result<Vec<f32>, PfError> {
+    if t >= shape.targets
+        || states.len() != shape.state_len()
+        || log_weights.len() != shape.targets * shape.particles
+    {
+        return Err(PfError::InvalidConfig(format!(
+            "resampling target {t} of {} targets: {} states and {} log-weights do not fit",
+            shape.targets,
+            states.len(),
+            log_weights.len()
+        )));
+    }
     let row = &log_weights[t * shape.particles..(t + 1) * shape.particles];
     let weights = softmax(&row.iter().map(|&w| f64::from(w)).collect::<Vec<_>>());
     let mut ancestors = vec![0u32; count];
@@ -203,6 +214,18 @@ pub fn joined_particles(
     let (targets, dims) = islands
         .first()
         .map_or((0, 0), |(s, _, _)| (s.targets, s.dims));
+    let fits = islands.iter().all(|(s, x, lw)| {
+        (s.targets, s.dims) == (targets, dims)
+            && x.len() == s.state_len()
+            && lw.len() == s.targets * s.particles
+    });
+    if !fits {
+        return Err(PfError::InvalidConfig(
+            "joining islands of different targets or dimensions, or whose particles do not fit \
+             their shapes"
+                .into(),
+        ));
+    }
     let total: usize = islands.iter().map(|(s, _, _)| s.particles).sum();
     let shape = BatchShape::new(targets, total, dims)?;
     let mut states = vec![0.0f32; shape.state_len()];
@@ -289,5 +312,17 @@ mod tests {
         let total: f32 = log_weights[..4].iter().map(|w| w.exp()).sum();
         assert!((total - 1.0).abs() < 1e-5);
         assert!((log_weights[2].exp() - 0.375).abs() < 1e-6);
+        // Islands that do not fit are an error, not a panic.
+        let other = (
+            BatchShape::new(1, 2, 1).unwrap(),
+            vec![1.0, 2.0],
+            vec![0.0; 2],
+        );
+        let a = (shape, vec![1.0; 4], vec![0.0; 4]);
+        assert!(joined_particles(&[a.clone(), other], &[]).is_err());
+        assert!(joined_particles(&[(shape, vec![1.0; 3], vec![0.0; 4])], &[]).is_err());
+        assert!(resampled(&shape, &a.1, &a.2, 2, 3, 1).is_err());
+        assert!(resampled(&shape, &a.1[..3], &a.2, 0, 3, 1).is_err());
+        assert_eq!(resampled(&shape, &a.1, &a.2, 1, 3, 1).unwrap().len(), 3);
     }
 }

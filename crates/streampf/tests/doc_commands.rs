@@ -140,7 +140,8 @@ fn problem(command: &str, xtask: &str) -> Option<String> {
             }
         }
         ["cargo", "xtask", sub, options @ ..] => {
-            if !xtask.contains(&format!("\n  {sub}")) {
+            let named = |end: &str| xtask.contains(&format!("\n  {sub}{end}"));
+            if !(named(" ") || named("\n")) {
                 return Some(format!("cargo xtask has no command {sub}"));
             }
             let unknown = (options.iter())
@@ -199,6 +200,7 @@ fn the_checks_catch_what_they_are_for() {
         "streampf face follow --synthetic",
         "cargo xtask reproduce-figures --fast",
         "cargo xtask publish",
+        "cargo xtask fetch",
         "cargo bench --bench no_such_bench",
         "cargo run --release --example no_such_example",
         "apt-get install something",

@@ -241,17 +241,7 @@ impl<R: Resampler> BatchFilter<R> {
             None
         };
         self.step_with(dynamics, |shape, states, out| {
-            out.par_chunks_mut(shape.particles)
-                .enumerate()
-                .for_each(|(t, row)| {
-                    let mut x = vec![0.0f32; shape.dims];
-                    for (m, value) in row.iter_mut().enumerate() {
-                        for (d, v) in x.iter_mut().enumerate() {
-                            *v = states[shape.state_index(t, d, m)];
-                        }
-                        *value = model.log_likelihood(&x, &observations[t], constants);
-                    }
-                });
+            crate::plugin::measure_all(model, observations, constants, shape, states, out);
             Ok(())
         })
     }

@@ -5,7 +5,6 @@
 use bytemuck::Pod;
 use pf_core::batch::BatchShape;
 use pf_core::plugin::CpuModel;
-use rayon::prelude::*;
 
 use super::{ModelSource, WgslModel};
 use crate::context::GpuContext;
@@ -130,19 +129,8 @@ impl<O: Pod + Sync, C: Pod + Sync, T: CpuModel<O, C>> Model for Plugin<O, C, T> 
         out: &mut [f32],
     ) -> Result<(), GpuError> {
         self.check_frame(observations, shape)?;
-        out.par_chunks_mut(shape.particles)
-            .enumerate()
-            .for_each(|(t, row)| {
-                let mut x = vec![0.0f32; shape.dims];
-                for (m, value) in row.iter_mut().enumerate() {
-                    for (d, v) in x.iter_mut().enumerate() {
-                        *v = states[shape.state_index(t, d, m)];
-                    }
-                    *value = self
-                        .twin
-                        .log_likelihood(&x, &observations[t], &self.constants);
-                }
-            });
+        let (twin, constants) = (&self.twin, &self.constants);
+        pf_core::plugin::measure_all(twin, observations, constants, shape, states, out);
         Ok(())
     }
 
