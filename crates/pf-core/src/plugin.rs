@@ -4,10 +4,6 @@
 //! On the GPU the same model is a few WGSL functions (`pf_gpu::model::WgslModel`): the two must
 //! agree, and `pf_gpu::model::check_against_cpu` checks that they do on random particles.
 
-use rayon::prelude::*;
-
-use crate::batch::BatchShape;
-
 /// A model over the batch layout: `x` is one particle's state (its `D` values), `z` the target's
 /// observation this frame, `c` the model's constants.
 pub trait CpuModel<O, C>: Sync {
@@ -26,29 +22,4 @@ pub trait CpuModel<O, C>: Sync {
         let _ = (noise, c);
         next.copy_from_slice(x);
     }
-}
-
-/// The twin's log-likelihood of every particle of `states` (`[(t·D + d)·M + m]`) against each
-/// target's observation, into `out[t·M + m]`, targets on all cores: the CPU measure of a plug-in
-/// (`BatchFilter::step_model`, and `pf_gpu::model::Plugin` on the CPU engine). `observations`
-/// holds one observation per target (checked by the callers).
-pub fn measure_all<O: Sync, C: Sync, M: CpuModel<O, C>>(
-    model: &M,
-    observations: &[O],
-    constants: &C,
-    shape: &BatchShape,
-    states: &[f32],
-    out: &mut [f32],
-) {
-    out.par_chunks_mut(shape.particles)
-        .enumerate()
-        .for_each(|(t, row)| {
-            let mut x = vec![0.0f32; shape.dims];
-            for (m, value) in row.iter_mut().enumerate() {
-                for (d, v) in x.iter_mut().enumerate() {
-                    *v = states[shape.state_index(t, d, m)];
-                }
-                *value = model.log_likelihood(&x, &observations[t], constants);
-            }
-        });
 }

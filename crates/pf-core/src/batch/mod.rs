@@ -241,7 +241,7 @@ impl<R: Resampler> BatchFilter<R> {
             None
         };
         self.step_with(dynamics, |shape, states, out| {
-            crate::plugin::measure_all(model, observations, constants, shape, states, out);
+            measure_plugin(model, observations, constants, shape, states, out);
             Ok(())
         })
     }
@@ -446,6 +446,31 @@ impl<R: Resampler> BatchFilter<R> {
 }
 
 /// Initial clouds `mean_t + σ ⊙ n` for every target (n from each target's init stream), in the
+/// The twin's log-likelihood of every particle of `states` (`[(t·D + d)·M + m]`) against each
+/// target's observation, into `out[t·M + m]`, targets on all cores: the CPU measure of a plug-in
+/// (`BatchFilter::step_model`, and `pf_gpu::model::Plugin` on the CPU engine). `observations`
+/// holds one observation per target (checked by the callers).
+pub fn measure_plugin<O: Sync, C: Sync, M: CpuModel<O, C>>(
+    model: &M,
+    observations: &[O],
+    constants: &C,
+    shape: &BatchShape,
+    states: &[f32],
+    out: &mut [f32],
+) {
+    out.par_chunks_mut(shape.particles)
+        .enumerate()
+        .for_each(|(t, row)| {
+            let mut x = vec![0.0f32; shape.dims];
+            for (m, value) in row.iter_mut().enumerate() {
+                for (d, v) in x.iter_mut().enumerate() {
+                    *v = states[shape.state_index(t, d, m)];
+                }
+                *value = model.log_likelihood(&x, &observations[t], constants);
+            }
+        });
+}
+
 /// batch layout. `means` is `[t·D + d]`.
 pub fn gaussian_clouds(shape: &BatchShape, seed: u64, means: &[f32], sigma: &[f32]) -> Vec<f32> {
     let streams = RandomStreams::new(seed);

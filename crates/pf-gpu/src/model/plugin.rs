@@ -130,7 +130,7 @@ impl<O: Pod + Sync, C: Pod + Sync, T: CpuModel<O, C>> Model for Plugin<O, C, T> 
     ) -> Result<(), GpuError> {
         self.check_frame(observations, shape)?;
         let (twin, constants) = (&self.twin, &self.constants);
-        pf_core::plugin::measure_all(twin, observations, constants, shape, states, out);
+        pf_core::batch::measure_plugin(twin, observations, constants, shape, states, out);
         Ok(())
     }
 
