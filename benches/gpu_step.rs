@@ -1,6 +1,6 @@
 //! The whole filter step per frame — resample, diffuse, measure (toy 7-D Gaussian likelihood),
-//! normalise, estimate — for T ∈ {1, 16, 64} targets × M = 1000 particles: the CPU on all cores
-//! (one pf-core filter per target, targets in parallel with rayon) against the GPU driver (one
+//! normalise, estimate — for T ∈ {1, 16, 64} targets × M = 1000 particles: the same filter on the
+//! CPU engine, all cores (pf-core's batch filter, the model's CPU twin) against the GPU driver (one
 //! submission per frame, estimates and statistics read back), with the likelihood written by hand
 //! (`gpu`) and through the model plug-in (`gpu_plugin`, `pf_gpu::toy::TOY_MODEL`). Then resampling alone on the GPU
 //! for one target of N = 10^3 … 10^6 particles, against pf-core's CPU resamplers.
@@ -13,20 +13,16 @@
 //! printed at the start; set WGPU_ADAPTER_NAME to choose one.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use nalgebra::SVector;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::resample::{Metropolis, Systematic};
-use pf_core::{
-    FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStreams, Resampler,
-    Stage, StateSpace,
-};
-use pf_gpu::model::{ModelFilter, ShardedModelFilter, ShardedPending};
-use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyGaussianLikelihood, ToyObservation};
+use pf_core::{RandomStreams, Resampler, ResamplerKind, Stage};
+use pf_gpu::engine::Filter;
+use pf_gpu::model::{ModelFilter, Plugin, ShardedModelFilter, ShardedPending};
+use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyGaussianLikelihood, ToyObservation, ToyTwin};
 use pf_gpu::{
     ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
 };
-use rayon::prelude::*;
 
 const D: usize = 7;
 const M: usize = 1000;
@@ -116,39 +112,26 @@ fn bench_whole_step(c: &mut Criterion) {
             })
         });
 
-        // CPU, all cores: one pf-core filter per target, targets in parallel.
-        let space = StateSpace::<D> { angular: ANGLES };
-        let mut filters: Vec<_> = (0..targets)
-            .map(|t| {
-                ParticleFilter::new(
-                    FilterConfig {
-                        particles: M,
-                        policy: pf_core::ResamplePolicy::EveryStep,
-                        seed: 1,
-                        target: t as u32,
-                        space,
-                    },
-                    GaussianDiffusion::new(SVector::from(DIFFUSION)).unwrap(),
-                    Systematic,
-                    &SVector::from(observed(t, 0)),
-                    &SVector::from(OBS_SIGMA),
-                )
-                .unwrap()
-            })
-            .collect();
+        // CPU, all cores: the same filter on the CPU engine (pf-core's batch filter, each stage
+        // over the targets and particles in parallel), the same model's CPU twin.
+        let twin = ToyTwin { angular: ANGLES };
+        let mut cpu = Filter::on_cpu(
+            &config,
+            ResamplerKind::Systematic,
+            initial.clone(),
+            Plugin::cpu(twin, constants),
+        )
+        .unwrap();
         let mut frame = 0;
         group.bench_function(BenchmarkId::new("cpu_all_cores", targets), |b| {
             b.iter(|| {
-                let s = frame;
+                let obs: Vec<ToyObservation> = (0..targets)
+                    .map(|t| ToyObservation {
+                        z: observed(t, frame),
+                    })
+                    .collect();
                 frame += 1;
-                filters.par_iter_mut().enumerate().for_each(|(t, f)| {
-                    let obs = GaussianObservation {
-                        observed: SVector::from(observed(t, s)),
-                        sigma: SVector::from(OBS_SIGMA),
-                        space,
-                    };
-                    std::hint::black_box(f.step(&obs).unwrap());
-                });
+                std::hint::black_box(cpu.step(&obs).unwrap());
             })
         });
     }

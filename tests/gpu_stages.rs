@@ -251,6 +251,21 @@ fn normalisation_matches_cpu_within_tolerance() {
                 )
                 .map(|n| n.ess);
                 let stats = report.stats[t];
+                // The frame's log evidence (layer 0) at β = 1, whatever the status: beyond the
+                // policy, the f32 sum of M terms and the rounding of the max.
+                let evidence = batch::frame_log_evidence(
+                    &log_weights[range.clone()],
+                    &log_likelihood[range.clone()],
+                );
+                let rounding = 1e-4 + 2.0 * f64::from(f32::EPSILON) * evidence.abs();
+                prop_assert!(
+                    close(stats.log_evidence, evidence, rounding)
+                        || (evidence.is_infinite() && f64::from(stats.log_evidence) == evidence),
+                    "target {}: log evidence GPU {} vs CPU {}",
+                    t,
+                    stats.log_evidence,
+                    evidence
+                );
                 match &cpu {
                     Ok(ess) => {
                         prop_assert_eq!(stats.status, 0, "target {}", t);
@@ -304,6 +319,10 @@ fn normalisation_names_the_first_nan_particle() {
         report.stats[2].result(300),
         Err(PfError::AllWeightsZero { particles: 300 })
     );
+    // Their evidence: log Σ (1/M)·1 = 0 for the flat target, NaN, and −∞ (nothing fits).
+    assert!(report.stats[0].log_evidence.abs() < 1e-5);
+    assert!(report.stats[1].log_evidence.is_nan());
+    assert_eq!(report.stats[2].log_evidence, f32::NEG_INFINITY);
 }
 
 // ---- resampling ---------------------------------------------------------------------------------

@@ -45,7 +45,9 @@ struct TargetStats {
     resampled: u32,
     // The exponent of the last layer's weighing.
     beta: f32,
-    _pad0: u32,
+    // log sum exp(lw + ll) at beta = 1 in layer 0: the frame's log evidence (pf_core's
+    // frame_log_evidence); NaN / +inf / -inf for a NaN, a +inf, or every weight zero.
+    log_evidence: f32,
 }
 
 const PI: f32 = 3.14159265358979;

@@ -4,6 +4,8 @@
 // bisection for ESS = survival_rate * M (pf_core::anneal::survival_beta).
 // A NaN or +inf log-weight, or every log-weight -inf, sets the target's status and leaves its
 // weights uniform (the failure policy of pf-core). CPU twin: pf_core::batch::normalise_target.
+// Layer 0 also writes the frame's log evidence, log sum exp(lw + ll) at beta = 1
+// (CPU twin: pf_core::batch::frame_log_evidence).
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read_write> log_weights: array<f32>;
@@ -92,6 +94,18 @@ fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
     return total.y * total.y / total.z;
 }
 
+// This invocation's share of sum exp(lw + ll - max_at_one) over target t's particles (beta = 1).
+fn sum_exp_at_one(lid: u32, base: u32, n: u32, max_at_one: f32) -> f32 {
+    var acc = 0.0;
+    for (var i = lid; i < n; i = i + WG) {
+        let x = log_weights[base + i] + log_likelihood[base + i];
+        if (!is_neg_inf(x)) {
+            acc = acc + exp(x - max_at_one);
+        }
+    }
+    return acc;
+}
+
 // The survival rule: max_beta when it keeps rate * M effective particles, else the midpoint of
 // a 20-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta.
 fn survival_beta(lid: u32, base: u32, n: u32) -> f32 {
@@ -152,6 +166,16 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     } else if (is_neg_inf(max_at_one)) {
         status = 1u;
     }
+    if (params.layer == 0u && lid == 0u) {
+        // A failed frame's evidence: NaN, +inf, or -inf (every weight zero); else set below.
+        if (nan_at != 0xffffffffu) {
+            stats[t].log_evidence = bitcast<f32>(0x7fc00000u);
+        } else if (inf_at != 0xffffffffu) {
+            stats[t].log_evidence = bitcast<f32>(0x7f800000u);
+        } else {
+            stats[t].log_evidence = max_at_one;
+        }
+    }
     if (status != 0u) {
         let uniform_w = 1.0 / f32(n);
         let uniform_lw = -log(f32(n));
@@ -176,6 +200,13 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     if (params.survival_rate > 0.0) {
         beta = survival_beta(lid, base, n);
     }
+    // Layer 0's evidence at beta = 1, before tempering (at beta = 1 it is pass 2's sum).
+    if (params.layer == 0u && beta != 1.0) {
+        let sum_at_one = reduce_sum(lid, sum_exp_at_one(lid, base, n, max_at_one));
+        if (lid == 0u) {
+            stats[t].log_evidence = max_at_one + log(sum_at_one);
+        }
+    }
     var local_tempered_max = bitcast<f32>(0xff800000u);
     for (var i = lid; i < n; i = i + WG) {
         let lw = tempered(log_weights[base + i], log_likelihood[base + i], beta);
@@ -197,6 +228,9 @@ fn normalise(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     }
     let sum = reduce_sum(lid, local_sum);
     let log_sum_shifted = log(sum);
+    if (params.layer == 0u && beta == 1.0 && lid == 0u) {
+        stats[t].log_evidence = max_lw + log_sum_shifted;
+    }
 
     // Pass 3: normalised weights and log-weights, and sum w^2 for the ESS.
     var local_sq = 0.0;

@@ -15,21 +15,26 @@
 //!   uniforms, all reproducible from one seed;
 //! - [`anneal`]: annealed particle filtering (layers of tempered weighing and shrinking
 //!   diffusion per frame), run by the batch filter and its GPU twin;
-//! - [`ParticleFilter`]: the loop, with an ESS-triggered or every-step resampling policy, typed
-//!   errors for degenerate weights and a recovery helper.
+//! - [`batch::BatchFilter`]: the loop for T targets at once (the twin of pf-gpu's driver, drawing
+//!   the same counter-based random numbers): an ESS-triggered or every-step resampling policy,
+//!   annealing layers, typed errors for degenerate weights, and each frame's log evidence.
 //!
 //! ```
-//! use nalgebra::{vector, SVector};
-//! use pf_core::{FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, StateSpace};
+//! use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
 //! use pf_core::resample::Systematic;
 //!
-//! let dynamics = GaussianDiffusion::new(vector![0.1, 0.1])?;
-//! let mut filter = ParticleFilter::new(
-//!     FilterConfig::new(500, 42), dynamics, Systematic, &vector![0.0, 0.0], &vector![1.0, 1.0])?;
-//! let observation = GaussianObservation {
-//!     observed: vector![0.5, -0.2], sigma: vector![0.2, 0.2], space: StateSpace::euclidean() };
-//! let report = filter.step(&observation)?;
-//! assert!((report.estimate - vector![0.5, -0.2]).norm() < 0.2);
+//! // One target, 500 particles, 2 dimensions, random-walk diffusion σ = 0.1.
+//! let shape = BatchShape::new(1, 500, 2)?;
+//! let config = BatchConfig::new(shape, 42, vec![0.1, 0.1]);
+//! let start = gaussian_clouds(&shape, 42, &[0.0, 0.0], &[1.0, 1.0]);
+//! let mut filter = BatchFilter::new(&config, Systematic, start)?;
+//! let observed = [0.5f32, -0.2];
+//! let report = filter.step(|_target, _particle, x| {
+//!     -0.5 * x.iter().zip(observed).map(|(x, z)| ((x - z) / 0.2).powi(2)).sum::<f32>()
+//! })?;
+//! let error = report.estimates.iter().zip(observed).map(|(e, z)| (e - z).abs()).fold(0.0, f32::max);
+//! assert!(error < 0.2);
+//! assert!(report.log_evidence[0].is_finite());
 //! # Ok::<(), pf_core::PfError>(())
 //! ```
 //!
@@ -39,7 +44,6 @@ pub mod anneal;
 pub mod batch;
 pub mod error;
 pub mod estimate;
-pub mod filter;
 pub mod islands;
 pub mod model;
 pub mod particles;
@@ -50,8 +54,7 @@ pub mod weights;
 
 pub use error::PfError;
 pub use estimate::StateSpace;
-pub use filter::{FilterConfig, ParticleFilter, ResamplePolicy, StepReport};
-pub use model::{Dynamics, GaussianDiffusion, GaussianObservation, Likelihood, LinearGaussian};
+pub use model::{GaussianObservation, Likelihood};
 pub use particles::ParticleSet;
 pub use random::{CounterUniforms, RandomStream, RandomStreams, Stage, UniformSource};
 pub use resample::{Resampler, ResamplerKind};

@@ -1,101 +1,106 @@
-//! The filter loop: bit-identical runs from one seed, the resampling policy, and the failure
-//! policy (typed errors, recovery).
+//! The batch filter's loop: bit-identical runs from one seed, the resampling policy, the failure
+//! policy (a typed error and an honest evidence per target, the other targets untouched, a reset
+//! that resumes tracking) and the estimates.
 
-use nalgebra::{SVector, vector};
+use pf_core::batch::{BatchConfig, BatchFilter, BatchReport, BatchShape, gaussian_clouds};
 use pf_core::resample::{Rejection, Systematic};
-use pf_core::{
-    FilterConfig, GaussianDiffusion, GaussianObservation, Likelihood, ParticleFilter, PfError,
-    ResamplePolicy, Resampler, StateSpace,
-};
+use pf_core::{PfError, Resampler, StateSpace};
 
 const D: usize = 7;
+const M: usize = 1000;
+const TARGETS: usize = 2;
+const ANGLES: [usize; 3] = [3, 4, 5];
 
-fn config(seed: u64, policy: ResamplePolicy) -> FilterConfig<D> {
-    FilterConfig {
-        particles: 1000,
-        policy,
-        seed,
-        target: 3,
-        space: StateSpace::with_angles(&[3, 4, 5]).unwrap(),
-    }
+fn config(seed: u64, ess_threshold: f64) -> BatchConfig {
+    let shape = BatchShape::new(TARGETS, M, D).unwrap();
+    let mut config = BatchConfig::new(shape, seed, vec![0.1; D]);
+    config.angular = (0..D).map(|d| ANGLES.contains(&d)).collect();
+    config.ess_threshold = ess_threshold;
+    config.best = 100;
+    config
 }
 
-fn filter<R: Resampler>(
-    seed: u64,
-    policy: ResamplePolicy,
-    resampler: R,
-) -> ParticleFilter<D, GaussianDiffusion<D>, R> {
-    let sigma = SVector::<f32, D>::repeat(0.1);
-    ParticleFilter::new(
-        config(seed, policy),
-        GaussianDiffusion::new(sigma).unwrap(),
-        resampler,
-        &SVector::zeros(),
-        &SVector::repeat(0.3),
-    )
+fn filter<R: Resampler>(seed: u64, ess_threshold: f64, resampler: R) -> BatchFilter<R> {
+    let config = config(seed, ess_threshold);
+    let start = gaussian_clouds(&config.shape, seed, &[0.0; D * TARGETS], &[0.3; D]);
+    BatchFilter::new(&config, resampler, start).unwrap()
+}
+
+/// Target t's observation at step s: a point moving on every dimension, Rx by 0.1 rad a step.
+fn observed(t: usize, s: usize) -> [f32; D] {
+    let s = s as f32 * 0.05 + 0.1 * t as f32;
+    let mut z = [s, -s, 1.0, 2.0 * s, 0.2, -0.1, 0.9];
+    z[3] = pf_core::estimate::wrap_angle(z[3]);
+    z
+}
+
+fn space() -> StateSpace<D> {
+    StateSpace::with_angles(&ANGLES).unwrap()
+}
+
+/// A Gaussian likelihood (σ = 0.1, angles the short way round) about each target's observation.
+fn step<R: Resampler>(f: &mut BatchFilter<R>, s: usize) -> BatchReport {
+    f.step(|t, _, x| {
+        let z = observed(t, s);
+        let diff = space().difference(
+            &nalgebra::SVector::<f32, D>::from_column_slice(x),
+            &nalgebra::SVector::from(z),
+        );
+        -0.5 * diff.iter().map(|d| (d / 0.1).powi(2)).sum::<f32>()
+    })
     .unwrap()
 }
 
-fn observation(t: usize) -> GaussianObservation<D> {
-    let s = t as f32 * 0.05;
-    GaussianObservation {
-        observed: vector![s, -s, 1.0, 2.0 * s, 0.2, -0.1, 0.9],
-        sigma: SVector::repeat(0.1),
-        space: StateSpace::with_angles(&[3, 4, 5]).unwrap(),
+fn run<R: Resampler>(f: &mut BatchFilter<R>, steps: usize) -> Vec<u32> {
+    for s in 0..steps {
+        step(f, s);
     }
-}
-
-fn run<R: Resampler>(f: &mut ParticleFilter<D, GaussianDiffusion<D>, R>, steps: usize) -> Vec<u32> {
-    for t in 0..steps {
-        f.step(&observation(t)).unwrap();
-    }
-    f.particles()
-        .states_raw()
-        .iter()
-        .map(|x| x.to_bits())
-        .collect()
+    f.states.iter().map(|x| x.to_bits()).collect()
 }
 
 #[test]
 fn same_seed_gives_bit_identical_runs() {
     // Rejection resampling runs in parallel on the rayon pool: still bit-identical.
-    let policy = ResamplePolicy::EssBelow(0.5);
-    let a = run(&mut filter(42, policy, Rejection::default()), 30);
-    let b = run(&mut filter(42, policy, Rejection::default()), 30);
+    let a = run(&mut filter(42, 0.5, Rejection::default()), 30);
+    let b = run(&mut filter(42, 0.5, Rejection::default()), 30);
     assert_eq!(a, b);
-    let c = run(&mut filter(43, policy, Rejection::default()), 30);
+    let c = run(&mut filter(43, 0.5, Rejection::default()), 30);
     assert_ne!(a, c, "a different seed must give a different run");
 }
 
 #[test]
 fn the_filter_follows_a_7d_target_across_the_angle_wrap() {
-    let mut f = filter(5, ResamplePolicy::EveryStep, Systematic);
+    let mut f = filter(5, f64::INFINITY, Systematic);
     // Rx moves 0.1 rad per step: it crosses +π after ~31 steps. A random-walk prior lags a ramp by
     // about v(1 − K)/K ≈ 0.06 rad here (steady-state Kalman gain K ≈ 0.62), plus noise.
-    for t in 0..50 {
-        let report = f.step(&observation(t)).unwrap();
-        let err = StateSpace::<D>::with_angles(&[3, 4, 5])
-            .unwrap()
-            .difference(&report.estimate, &observation(t).observed);
-        if t >= 5 {
-            assert!(err.amax() < 0.25, "step {t}: error {err:?}");
+    for s in 0..50 {
+        let report = step(&mut f, s);
+        for t in 0..TARGETS {
+            let estimate = nalgebra::SVector::<f32, D>::from_column_slice(
+                &report.estimates[t * D..(t + 1) * D],
+            );
+            let err = space().difference(&estimate, &nalgebra::SVector::from(observed(t, s)));
+            if s >= 5 {
+                assert!(err.amax() < 0.25, "step {s} target {t}: error {err:?}");
+            }
         }
     }
 }
 
 #[test]
 fn ess_policy_resamples_only_below_the_threshold() {
-    let mut f = filter(9, ResamplePolicy::EssBelow(0.3), Systematic);
-    let mut previous_ess = None;
-    for t in 0..20 {
-        let report = f.step(&observation(t)).unwrap();
-        if let Some(prev) = previous_ess {
-            assert_eq!(report.resampled, prev < 0.3 * 1000.0, "step {t}");
-        } else {
-            assert!(
-                !report.resampled,
-                "nothing to resample before the first measurement"
-            );
+    let mut f = filter(9, 0.3, Systematic);
+    let mut previous_ess: Option<Vec<f64>> = None;
+    for s in 0..20 {
+        let report = step(&mut f, s);
+        for t in 0..TARGETS {
+            match &previous_ess {
+                Some(prev) => assert_eq!(report.resampled[t], prev[t] < 0.3 * M as f64, "step {s}"),
+                None => assert!(
+                    !report.resampled[t],
+                    "nothing to resample before the first measurement"
+                ),
+            }
         }
         previous_ess = Some(report.ess);
     }
@@ -103,107 +108,99 @@ fn ess_policy_resamples_only_below_the_threshold() {
 
 #[test]
 fn invalid_configuration_is_a_typed_error() {
-    let make = |particles, policy| {
-        ParticleFilter::new(
-            FilterConfig {
-                particles,
-                ..config(1, policy)
-            },
-            GaussianDiffusion::new(SVector::<f32, D>::repeat(0.1)).unwrap(),
-            Systematic,
-            &SVector::zeros(),
-            &SVector::repeat(0.1),
-        )
-    };
     assert!(matches!(
-        make(0, ResamplePolicy::EveryStep),
-        Err(PfError::EmptyParticleSet)
-    ));
-    assert!(matches!(
-        make(10, ResamplePolicy::EssBelow(0.0)),
+        BatchShape::new(TARGETS, 0, D),
         Err(PfError::InvalidConfig(_))
     ));
+    for threshold in [0.0, -1.0, f64::NAN] {
+        let bad = BatchConfig {
+            ess_threshold: threshold,
+            ..config(1, 1.0)
+        };
+        assert!(matches!(bad.validate(), Err(PfError::InvalidConfig(_))));
+    }
+    for sigma in [-1.0, f32::NAN] {
+        let mut bad = config(1, 1.0);
+        bad.sigma[1] = sigma;
+        assert!(matches!(bad.validate(), Err(PfError::InvalidConfig(_))));
+    }
+    let short = vec![0.0; D * M];
     assert!(matches!(
-        make(10, ResamplePolicy::EssBelow(f64::NAN)),
-        Err(PfError::InvalidConfig(_))
+        BatchFilter::new(&config(1, 1.0), Systematic, short),
+        Err(PfError::LengthMismatch { .. })
     ));
-    assert!(GaussianDiffusion::new(vector![0.1, -1.0]).is_err());
-    assert!(GaussianDiffusion::new(vector![0.1, f32::NAN]).is_err());
-}
-
-struct Rejects;
-impl Likelihood<D> for Rejects {
-    fn log_likelihood(&self, _: &SVector<f32, D>) -> f32 {
-        f32::NEG_INFINITY
-    }
-}
-
-struct NanFor(usize);
-impl Likelihood<D> for NanFor {
-    fn log_likelihood(&self, _: &SVector<f32, D>) -> f32 {
-        0.0
-    }
-    fn log_likelihoods(&self, _: &pf_core::ParticleSet<D>, out: &mut [f32]) {
-        out.fill(0.0);
-        out[self.0] = f32::NAN;
-    }
 }
 
 #[test]
-fn a_rejecting_likelihood_gives_a_typed_error_and_recovery_resumes_tracking() {
-    let mut f = filter(17, ResamplePolicy::EveryStep, Systematic);
-    for t in 0..10 {
-        f.step(&observation(t)).unwrap();
+fn a_rejecting_likelihood_fails_its_target_alone_and_a_reset_resumes_tracking() {
+    let mut f = filter(17, f64::INFINITY, Systematic);
+    for s in 0..10 {
+        step(&mut f, s);
     }
-    let good = *f.last_estimate();
-    assert_eq!(
-        f.step(&Rejects),
-        Err(PfError::AllWeightsZero { particles: 1000 })
-    );
-    // The failed step left a well-formed, equally weighted set and the last good estimate.
-    assert_eq!(*f.last_estimate(), good);
-    assert!(f.weights().iter().all(|&w| (w - 1e-3).abs() < 1e-12));
-    f.recover(&SVector::repeat(0.05)).unwrap();
-    let spread = (0..1000)
-        .map(|i| {
-            StateSpace::<D>::with_angles(&[3, 4, 5])
-                .unwrap()
-                .difference(&f.particles().state(i), &good)
-                .amax()
+    // Target 1 rejects every particle; target 0 sees its observation as before.
+    let report = f
+        .step(|t, _, x| match t {
+            0 => -0.5 * ((x[0] - observed(0, 10)[0]) / 0.1).powi(2),
+            _ => f32::NEG_INFINITY,
         })
-        .fold(0.0f32, f32::max);
-    assert!(
-        spread < 0.05 * 6.0,
-        "recovered particles lie around the last estimate (spread {spread})"
+        .unwrap();
+    assert_eq!(report.status[0], Ok(()));
+    assert_eq!(
+        report.status[1],
+        Err(PfError::AllWeightsZero { particles: M })
     );
-    for t in 10..15 {
-        let report = f.step(&observation(t)).unwrap();
-        assert!(report.estimate.iter().all(|x| x.is_finite()));
+    assert!(report.log_evidence[0].is_finite());
+    assert_eq!(report.log_evidence[1], f64::NEG_INFINITY);
+    // The failed target is left well formed and equally weighted.
+    assert!(
+        f.weights[M..]
+            .iter()
+            .all(|&w| (w - 1.0 / M as f64).abs() < 1e-12)
+    );
+    // A reset around its last good estimate resumes tracking.
+    let good = &report.estimates[D..2 * D];
+    let shape = BatchShape::new(1, M, D).unwrap();
+    let cloud = gaussian_clouds(&shape, 99, good, &[0.05; D]);
+    f.reset_target(1, &cloud).unwrap();
+    for s in 11..16 {
+        let report = step(&mut f, s);
+        assert!(report.status.iter().all(Result::is_ok));
+        assert!(report.estimates.iter().all(|x| x.is_finite()));
     }
-    assert!(f.recover(&SVector::repeat(f32::NAN)).is_err());
 }
 
 #[test]
-fn a_nan_likelihood_names_the_particle() {
-    let mut f = filter(19, ResamplePolicy::EveryStep, Systematic);
+fn a_nan_likelihood_names_the_particle_and_its_evidence_is_nan() {
+    let mut f = filter(19, f64::INFINITY, Systematic);
+    let report = f
+        .step(|t, m, _| if t == 1 && m == 123 { f32::NAN } else { 0.0 })
+        .unwrap();
     assert_eq!(
-        f.step(&NanFor(123)),
+        report.status[1],
         Err(PfError::NanLogWeight { particle: 123 })
     );
-    // Stepping again without recovery works on the equally weighted set.
-    assert!(f.step(&observation(0)).is_ok());
+    assert!(report.log_evidence[1].is_nan());
+    // A flat likelihood of 0 has evidence log Σ w = 0 (up to the f32 log-weights' rounding).
+    assert!(
+        report.log_evidence[0].abs() < 1e-5,
+        "{}",
+        report.log_evidence[0]
+    );
+    // Stepping again works on the equally weighted set.
+    assert!(step(&mut f, 0).status.iter().all(Result::is_ok));
 }
 
 #[test]
-fn best_and_max_weight_estimates_agree_with_the_mean_on_a_peaked_posterior() {
-    let mut f = filter(23, ResamplePolicy::EveryStep, Systematic);
-    for t in 0..10 {
-        f.step(&observation(t)).unwrap();
+fn best_estimates_agree_with_the_mean_on_a_peaked_posterior() {
+    let mut f = filter(23, f64::INFINITY, Systematic);
+    let mut report = step(&mut f, 0);
+    for s in 1..10 {
+        report = step(&mut f, s);
     }
-    let mean = *f.last_estimate();
-    let space = StateSpace::<D>::with_angles(&[3, 4, 5]).unwrap();
-    let best = f.best_estimate(100).unwrap();
-    let max = f.max_weight_estimate().unwrap();
-    assert!(space.difference(&best, &mean).amax() < 0.1);
-    assert!(space.difference(&max, &mean).amax() < 0.2);
+    for t in 0..TARGETS {
+        let mean = nalgebra::SVector::<f32, D>::from_column_slice(&report.estimates[t * D..][..D]);
+        let best =
+            nalgebra::SVector::<f32, D>::from_column_slice(&report.best_estimates[t * D..][..D]);
+        assert!(space().difference(&best, &mean).amax() < 0.1);
+    }
 }

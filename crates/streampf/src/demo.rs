@@ -1,8 +1,8 @@
 //! `streampf demo`: synthetic 7-D pose targets (Tx, Ty, S, Rx, Ry, Rz, α — the face tracker's
-//! state) observed with noise and tracked with the face tracker's random-walk diffusion, on the
-//! CPU (one pf-core filter per target, targets in parallel) or on the GPU (pf-gpu's driver: one
-//! submission per frame for all targets). The yaw Ry turns full circles, so the run also shows
-//! angle estimates crossing ±π.
+//! state) observed with noise and tracked with the face tracker's random-walk diffusion by the
+//! engine's one `Filter` over the toy plug-in model (`pf_gpu::toy`), on the CPU (all cores) or on
+//! the GPU (one submission per frame for all targets), with the same random numbers. The yaw Ry
+//! turns full circles, so the run also shows angle estimates crossing ±π.
 
 use std::time::{Duration, Instant};
 
@@ -10,12 +10,11 @@ use anyhow::{Context, bail};
 use clap::Args;
 use nalgebra::{SVector, vector};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
-use pf_core::{
-    FilterConfig, GaussianDiffusion, GaussianObservation, ParticleFilter, RandomStream,
-    RandomStreams, ResamplePolicy, ResamplerKind, Stage, StateSpace,
-};
-use pf_gpu::{ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler};
-use rayon::prelude::*;
+use pf_core::{RandomStream, RandomStreams, ResamplerKind, Stage, StateSpace};
+use pf_gpu::engine::Filter;
+use pf_gpu::model::Plugin;
+use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyObservation, ToyTwin};
+use pf_gpu::{ContextOptions, GpuContext, GpuResampler};
 
 type Pose = SVector<f32, 7>;
 
@@ -85,48 +84,43 @@ fn errors(space: &StateSpace<7>, estimate: &Pose, truth: &Pose) -> (f32, f32) {
     (translation, rotation)
 }
 
-/// One frame's estimates and ESS per target, from either path.
+/// One frame's estimates and ESS per target.
 struct Frame {
     estimates: Vec<Pose>,
     ess: Vec<f64>,
     resampled: usize,
 }
 
-/// The filters of every target: CPU (all cores) or GPU.
-enum Trackers {
-    Cpu(Vec<ParticleFilter<7, GaussianDiffusion<7>, Box<dyn pf_core::Resampler>>>),
-    Gpu {
-        ctx: Box<GpuContext>,
-        filter: Box<GpuFilter>,
-        likelihood: Box<pf_gpu::toy::ToyGaussianLikelihood>,
-    },
+/// The toy model (a Gaussian about each target's observation) on either engine.
+type ToyPlugin = Plugin<ToyObservation, ToyConstants, ToyTwin>;
+
+/// Every target's filter: the engine's one `Filter` over the toy model, on the CPU (all cores)
+/// or the GPU; the two draw the same random numbers.
+struct Trackers {
+    filter: Filter<ToyPlugin>,
 }
 
 impl Trackers {
-    fn new(args: &DemoArgs, policy: ResamplePolicy, space: StateSpace<7>) -> anyhow::Result<Self> {
+    fn new(args: &DemoArgs, ess_threshold: f64, space: StateSpace<7>) -> anyhow::Result<Self> {
         let start_sigma = observation_sigma() * 2.0;
+        let shape = BatchShape::new(args.targets as usize, args.particles as usize, 7)?;
+        let mut config = BatchConfig::new(shape, args.seed, diffusion_sigma().as_slice().to_vec());
+        config.angular = space.angular.to_vec();
+        config.ess_threshold = ess_threshold;
+        let means: Vec<f32> = (0..args.targets)
+            .flat_map(|k| truth(k, 0).as_slice().to_vec())
+            .collect();
+        let initial = gaussian_clouds(&shape, args.seed, &means, start_sigma.as_slice());
+        let sigma: [f32; 7] = observation_sigma().into();
+        let constants = ToyConstants::from_sigma(&sigma)?;
+        let twin = ToyTwin {
+            angular: space.angular,
+        };
         if !args.gpu {
-            let filters = (0..args.targets)
-                .map(|k| {
-                    let config = FilterConfig {
-                        particles: args.particles as usize,
-                        policy,
-                        seed: args.seed,
-                        target: k,
-                        space,
-                    };
-                    let dynamics = GaussianDiffusion::new(diffusion_sigma())?;
-                    ParticleFilter::new(
-                        config,
-                        dynamics,
-                        args.resampler.build(),
-                        &truth(k, 0),
-                        &start_sigma,
-                    )
-                })
-                .collect::<Result<Vec<_>, _>>()
-                .context("building the filters")?;
-            return Ok(Trackers::Cpu(filters));
+            let model = Plugin::cpu(twin, constants);
+            let filter = Filter::on_cpu(&config, args.resampler, initial, model)
+                .context("building the filter")?;
+            return Ok(Self { filter });
         }
         let resampler = GpuResampler::for_kind(args.resampler).context("--resampler")?;
         let options = ContextOptions {
@@ -134,106 +128,38 @@ impl Trackers {
             ..ContextOptions::default()
         };
         let ctx = GpuContext::new(&options).context("opening the GPU (see `streampf devices`)")?;
-        let shape = BatchShape::new(args.targets as usize, args.particles as usize, 7)?;
-        let config = BatchConfig {
-            shape,
-            seed: args.seed,
-            sigma: diffusion_sigma().as_slice().to_vec(),
-            bounds: None,
-            angular: space.angular.to_vec(),
-            ess_threshold: match policy {
-                ResamplePolicy::EveryStep => f64::INFINITY,
-                ResamplePolicy::EssBelow(f) => f,
-            },
-            best: 0,
-            annealing: Default::default(),
-            motion: Default::default(),
-        };
-        let means: Vec<f32> = (0..args.targets)
-            .flat_map(|k| truth(k, 0).as_slice().to_vec())
-            .collect();
-        let initial = gaussian_clouds(&shape, args.seed, &means, start_sigma.as_slice());
-        let filter = GpuFilter::new(&ctx, &config, resampler, &initial)
+        let model = Plugin::gpu(&ctx, TOY_MODEL, &shape, twin, constants)?;
+        let filter = Filter::on_gpu(ctx, &config, resampler, &initial, model)
             .context("building the GPU filter")?;
-        let mut likelihood = pf_gpu::toy::ToyGaussianLikelihood::new(
-            &ctx,
-            shape.targets,
-            observation_sigma().as_slice(),
-        )?;
-        likelihood.prepare(&ctx, &filter.likelihood_inputs())?;
-        Ok(Trackers::Gpu {
-            ctx: Box::new(ctx),
-            filter: Box::new(filter),
-            likelihood: Box::new(likelihood),
-        })
+        Ok(Self { filter })
     }
 
     fn device(&self) -> String {
-        match self {
-            Trackers::Cpu(_) => format!("CPU ({} threads)", rayon::current_num_threads()),
-            Trackers::Gpu { ctx, .. } => {
-                format!("GPU: {} ({})", ctx.adapter().name, ctx.adapter().backend)
-            }
+        match self.filter.context() {
+            None => format!("CPU ({} threads)", rayon::current_num_threads()),
+            Some(ctx) => format!("GPU: {} ({})", ctx.adapter().name, ctx.adapter().backend),
         }
     }
 
     /// One frame for every target; returns the frame and the GPU's own timing when there is one.
-    fn step(
-        &mut self,
-        observed: &[Pose],
-        space: StateSpace<7>,
-    ) -> anyhow::Result<(Frame, Option<pf_gpu::GpuTime>)> {
-        match self {
-            Trackers::Cpu(filters) => {
-                let reports = filters
-                    .par_iter_mut()
-                    .zip(observed)
-                    .map(|(f, z)| {
-                        f.step(&GaussianObservation {
-                            observed: *z,
-                            sigma: observation_sigma(),
-                            space,
-                        })
-                    })
-                    .collect::<Result<Vec<_>, _>>()?;
-                Ok((
-                    Frame {
-                        estimates: reports.iter().map(|r| r.estimate).collect(),
-                        ess: reports.iter().map(|r| r.ess).collect(),
-                        resampled: reports.iter().filter(|r| r.resampled).count(),
-                    },
-                    None,
-                ))
-            }
-            Trackers::Gpu {
-                ctx,
-                filter,
-                likelihood,
-            } => {
-                let flat: Vec<f32> = observed
-                    .iter()
-                    .flat_map(|z| z.as_slice().to_vec())
-                    .collect();
-                likelihood.upload_observations(ctx, &flat)?;
-                let report = filter.step(ctx, likelihood.as_ref())?;
-                let particles = filter.shape().particles;
-                for (k, s) in report.stats.iter().enumerate() {
-                    s.result(particles).with_context(|| format!("target {k}"))?;
-                }
-                Ok((
-                    Frame {
-                        estimates: report
-                            .estimates
-                            .chunks(7)
-                            .map(Pose::from_column_slice)
-                            .collect(),
-                        ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
-                        resampled: report.stats.iter().filter(|s| s.resampled == 1).count(),
-                    },
-                    Some(report.time),
-                ))
-            }
+    fn step(&mut self, observed: &[Pose]) -> anyhow::Result<(Frame, Option<pf_gpu::GpuTime>)> {
+        let observations: Vec<ToyObservation> = (observed.iter())
+            .map(|z| ToyObservation { z: (*z).into() })
+            .collect();
+        let report = self.filter.step(&observations)?;
+        for (k, status) in report.status.iter().enumerate() {
+            status.clone().with_context(|| format!("target {k}"))?;
         }
+        let frame = Frame {
+            estimates: report
+                .estimates
+                .chunks(7)
+                .map(Pose::from_column_slice)
+                .collect(),
+            ess: report.ess,
+            resampled: report.resampled.iter().filter(|&&r| r).count(),
+        };
+        Ok((frame, report.gpu_time))
     }
 }
 
@@ -303,8 +229,9 @@ impl Tally {
     }
 }
 
-/// The resampling policy `--ess-threshold` asks for, after the run's size is checked.
-fn checked_policy(args: &DemoArgs) -> anyhow::Result<ResamplePolicy> {
+/// The ESS fraction below which a target resamples (`--ess-threshold`; infinity: every step),
+/// after the run's size is checked.
+fn checked_ess_threshold(args: &DemoArgs) -> anyhow::Result<f64> {
     let total = u64::from(args.targets) * u64::from(args.particles);
     if total > MAX_TOTAL_PARTICLES {
         bail!(
@@ -314,16 +241,16 @@ fn checked_policy(args: &DemoArgs) -> anyhow::Result<ResamplePolicy> {
         );
     }
     Ok(match args.ess_threshold {
-        None => ResamplePolicy::EveryStep,
-        Some(f) if f > 0.0 && f <= 1.0 => ResamplePolicy::EssBelow(f),
+        None => f64::INFINITY,
+        Some(f) if f > 0.0 && f <= 1.0 => f,
         Some(f) => bail!("--ess-threshold must be a fraction in (0, 1], got {f}"),
     })
 }
 
 pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
-    let policy = checked_policy(args)?;
+    let ess_threshold = checked_ess_threshold(args)?;
     let space = StateSpace::with_angles(&ANGLES)?;
-    let mut trackers = Trackers::new(args, policy, space)?;
+    let mut trackers = Trackers::new(args, ess_threshold, space)?;
     // The sequence's noise has its own stream per target, apart from the filters'.
     let streams = RandomStreams::new(args.seed);
     let mut noise: Vec<RandomStream> = (0..args.targets)
@@ -351,7 +278,7 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
             .map(|k| observe(k, t, &mut noise[k as usize], &space))
             .collect();
         let (frame, time) = trackers
-            .step(&observed, space)
+            .step(&observed)
             .with_context(|| format!("step {t}"))?;
         if let Some(time) = time {
             gpu_time += time.duration();
@@ -370,13 +297,13 @@ pub fn run(args: &DemoArgs) -> anyhow::Result<()> {
     let elapsed = start.elapsed();
     tally.print_summary(args.steps);
     let per_step_ms = elapsed.as_secs_f64() * 1e3 / f64::from(args.steps);
-    match &trackers {
-        Trackers::Cpu(_) => outln!(
+    match trackers.filter.context() {
+        None => outln!(
             "         {per_step_ms:.3} ms per step on the CPU, all targets ({} steps in {:.2} s, observation synthesis included)",
             args.steps,
             elapsed.as_secs_f64()
         ),
-        Trackers::Gpu { .. } => outln!(
+        Some(_) => outln!(
             "         {per_step_ms:.3} ms per step on the host, {:.3} ms of it the GPU step ({gpu_time_source}), all targets ({} steps in {:.2} s)",
             gpu_time.as_secs_f64() * 1e3 / f64::from(args.steps),
             args.steps,

@@ -22,7 +22,7 @@ pub use config::{BatchConfig, BatchShape, Motion, stage_keys, stage_keys_from};
 
 pub use stages::{
     LayerBeta, Normalised, add_drift, best_weighted_means, circular_spread, diffuse,
-    normalise_target, update_velocity, weighted_means, weighted_spreads,
+    frame_log_evidence, normalise_target, update_velocity, weighted_means, weighted_spreads,
 };
 
 /// The GPU's wrap into [−π, π): `x − 2π·floor((x + π) / 2π)`. (pf-core's scalar
@@ -52,6 +52,9 @@ pub struct BatchReport {
     pub resampled: Vec<bool>,
     /// The exponent each target's last layer weighed with (1 without annealing).
     pub beta: Vec<f32>,
+    /// Each target's log evidence of this frame, log p̂(z_t | z_1:t−1) up to the likelihood's
+    /// constant ([`frame_log_evidence`]); −∞ when every weight was zero, NaN for a NaN weight.
+    pub log_evidence: Vec<f64>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
     pub status: Vec<Result<(), PfError>>,
 }
@@ -84,6 +87,8 @@ pub struct BatchFilter<R> {
     /// The normalised weights, `[t·M + m]`.
     pub weights: Vec<f64>,
     ess: Vec<f64>,
+    /// Each target's log evidence of the frame being stepped (set in layer 0).
+    log_evidence: Vec<f64>,
     ancestors: Vec<u32>,
     scratch: Vec<f32>,
     log_likelihood: Vec<f32>,
@@ -126,6 +131,7 @@ impl<R: Resampler> BatchFilter<R> {
             log_weights: vec![-(shape.particles as f32).ln(); n],
             weights: vec![1.0 / shape.particles as f64; n],
             ess: vec![shape.particles as f64; shape.targets],
+            log_evidence: vec![0.0; shape.targets],
             ancestors: vec![0; n],
             log_likelihood: vec![0.0; n],
             step: 0,
@@ -322,6 +328,7 @@ impl<R: Resampler> BatchFilter<R> {
             ess: self.ess.clone(),
             resampled,
             beta,
+            log_evidence: self.log_evidence.clone(),
             status,
         })
     }
@@ -424,8 +431,15 @@ impl<R: Resampler> BatchFilter<R> {
     }
 
     /// Weighs every target by the layer's β rule and normalises; each target's β and status.
+    /// Layer 0 also takes each target's log evidence of the frame, before any tempering.
     fn normalise_all(&mut self, layer: usize) -> (Vec<f32>, Vec<Result<(), PfError>>) {
         let m_count = self.shape.particles;
+        if layer == 0 {
+            self.log_evidence = (self.log_weights.par_chunks(m_count))
+                .zip(self.log_likelihood.par_chunks(m_count))
+                .map(|(prior, log_likelihood)| frame_log_evidence(prior, log_likelihood))
+                .collect();
+        }
         let rule = LayerBeta::of_layer(&self.annealing, layer);
         let results: Vec<Result<Normalised, PfError>> = (self.log_weights.par_chunks_mut(m_count))
             .zip(self.log_likelihood.par_chunks(m_count))

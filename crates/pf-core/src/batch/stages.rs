@@ -122,6 +122,27 @@ pub fn normalise_target(
     }
 }
 
+/// A frame's log evidence for one target, `log Σ_m exp(lw_m + ℓ_m)` in f64, from the normalised
+/// log-weights the frame starts with (`prior`, uniform after resampling) and the log-likelihoods
+/// of the predicted particles: the bootstrap filter's estimate of log p(z_t | z_1:t−1), up to the
+/// likelihood's constant. The filter takes it in the first annealing layer at β = 1, before any
+/// tempering: the later layers reweigh particles that the annealing diffusion moved, a search
+/// whose normalisers estimate no evidence. NaN when a term is NaN, +∞ when one is +∞, −∞ when
+/// every term is zero. Twin of the `log_evidence` of `normalise.wgsl`.
+pub fn frame_log_evidence(prior: &[f32], log_likelihood: &[f32]) -> f64 {
+    let terms = || prior.iter().zip(log_likelihood).map(|(&p, &l)| p + l);
+    if terms().any(f32::is_nan) {
+        return f64::NAN;
+    }
+    let max = terms().fold(f32::NEG_INFINITY, f32::max);
+    if !max.is_finite() {
+        return f64::from(max);
+    }
+    let max = f64::from(max);
+    let sum: f64 = terms().map(|x| (f64::from(x) - max).exp()).sum();
+    max + sum.ln()
+}
+
 /// Twin of the weighted-mean kernel: per target and dimension, angles on the circle.
 pub fn weighted_means(
     shape: &BatchShape,

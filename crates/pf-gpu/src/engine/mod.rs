@@ -52,6 +52,9 @@ impl GpuEngine {
             ess: report.stats.iter().map(|s| f64::from(s.ess)).collect(),
             resampled: report.stats.iter().map(|s| s.resampled != 0).collect(),
             beta: report.stats.iter().map(|s| s.beta).collect(),
+            log_evidence: (report.stats.iter())
+                .map(|s| f64::from(s.log_evidence))
+                .collect(),
             status: report.stats.iter().map(|s| s.result(particles)).collect(),
             estimates: report.estimates,
             best_estimates: report.best_estimates,
@@ -78,6 +81,10 @@ pub struct EngineReport {
     pub resampled: Vec<bool>,
     /// The exponent each target's last layer weighed with (1 without annealing).
     pub beta: Vec<f32>,
+    /// Each target's log evidence of the frame, log p̂(z_t | z_1:t−1) up to the likelihood's
+    /// constant (`pf_core::batch::frame_log_evidence`): summed over frames, the log likelihood
+    /// of the whole sequence. −∞ when every weight was zero, NaN for a NaN weight.
+    pub log_evidence: Vec<f64>,
     /// `Err` for a target whose measurement was degenerate (its weights were left uniform).
     pub status: Vec<Result<(), PfError>>,
     /// The step's GPU time (GPU engine only).
@@ -174,6 +181,7 @@ impl FilterEngine {
             ess: report.ess,
             resampled: report.resampled,
             beta: report.beta,
+            log_evidence: report.log_evidence,
             status: report.status,
             gpu_time: None,
             likelihood: LikelihoodReadbacks::default(),

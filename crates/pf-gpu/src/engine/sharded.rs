@@ -158,6 +158,7 @@ where
             ess: Vec::with_capacity(t),
             resampled: Vec::with_capacity(t),
             beta: Vec::with_capacity(t),
+            log_evidence: Vec::with_capacity(t),
             status: Vec::with_capacity(t),
             gpu_time: None,
             likelihood: LikelihoodReadbacks::default(),
@@ -174,6 +175,7 @@ where
             report.ess.extend(part.ess);
             report.resampled.extend(part.resampled);
             report.beta.extend(part.beta);
+            report.log_evidence.extend(part.log_evidence);
             report.status.extend(part.status);
             report.gpu_time = match (report.gpu_time, part.gpu_time) {
                 (Some(a), Some(b)) if a.duration() >= b.duration() => Some(a),

@@ -60,8 +60,9 @@ pub struct TargetStats {
     pub resampled: u32,
     /// The exponent β of the last layer's weighing (1 without annealing).
     pub beta: f32,
-    /// Padding to 16 bytes.
-    pub _pad: u32,
+    /// The frame's log evidence, log Σ exp(lw + ℓ) at β = 1 taken in layer 0
+    /// (`pf_core::batch::frame_log_evidence`).
+    pub log_evidence: f32,
 }
 
 impl TargetStats {
@@ -117,7 +118,7 @@ mod layout_tests {
             "TargetStats",
             size_of::<TargetStats>(),
             &fields!(TargetStats: max_log_weight, log_sum_shifted, ess, status, bad_particle,
-                resampled, beta),
+                resampled, beta, log_evidence),
         );
     }
 }
