@@ -53,6 +53,21 @@ pub fn softmax(log_values: &[f64]) -> Vec<f64> {
     exp.into_iter().map(|e| e / total).collect()
 }
 
+/// The log evidence of a frame over islands that weigh alike: the log of the mean of the islands'
+/// evidence, log (1/G)·Σ_g exp(e_g), the estimate of the pooled samples. NaN when an island's is
+/// NaN; −∞ when every island's is −∞ (or there is none).
+pub fn pooled_log_evidence(islands: &[f64]) -> f64 {
+    if islands.iter().any(|e| e.is_nan()) {
+        return f64::NAN;
+    }
+    let max = islands.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !max.is_finite() {
+        return max;
+    }
+    let mean = islands.iter().map(|e| (e - max).exp()).sum::<f64>() / islands.len() as f64;
+    max + mean.ln()
+}
+
 /// One island's results for a frame, every target: `[t·D + d]` and `[t]`.
 #[derive(Debug, Clone, Copy)]
 pub struct IslandEstimate<'a> {
@@ -256,6 +271,24 @@ mod tests {
         assert_eq!(island_sizes(7, 3).unwrap(), vec![3, 2, 2]);
         assert!(island_sizes(3, 2).is_err());
         assert!(island_sizes(100, 0).is_err());
+    }
+
+    #[test]
+    fn pooled_evidence_is_the_log_of_the_islands_mean() {
+        // Far from 0 too: log-mean-exp must not overflow.
+        for e in [-3.0, 0.0, -1e4, 800.0] {
+            assert!((pooled_log_evidence(&[e, e, e]) - e).abs() < 1e-9);
+            let half = pooled_log_evidence(&[e, f64::NEG_INFINITY]);
+            assert!((half - (e + 0.5f64.ln())).abs() < 1e-9);
+        }
+        let mixed = pooled_log_evidence(&[1.0f64.ln(), 3.0f64.ln()]);
+        assert!((mixed - 2.0f64.ln()).abs() < 1e-12);
+        assert!(pooled_log_evidence(&[0.0, f64::NAN]).is_nan());
+        assert_eq!(pooled_log_evidence(&[]), f64::NEG_INFINITY);
+        assert_eq!(
+            pooled_log_evidence(&[f64::NEG_INFINITY; 2]),
+            f64::NEG_INFINITY
+        );
     }
 
     #[test]

@@ -17,7 +17,9 @@
 //!   diffusion per frame), run by the batch filter and its GPU twin;
 //! - [`batch::BatchFilter`]: the loop for T targets at once (the twin of pf-gpu's driver, drawing
 //!   the same counter-based random numbers): an ESS-triggered or every-step resampling policy,
-//!   annealing layers, typed errors for degenerate weights, and each frame's log evidence.
+//!   annealing layers, typed errors for degenerate weights, and each frame's log evidence;
+//! - [`smooth`]: each frame's posterior given the later frames too (the marginal smoother, whole
+//!   runs or a fixed lag), with 95 % credible intervals.
 //!
 //! ```
 //! use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
@@ -50,6 +52,7 @@ pub mod particles;
 pub mod plugin;
 pub mod random;
 pub mod resample;
+pub mod smooth;
 pub mod weights;
 
 pub use error::PfError;

@@ -227,6 +227,7 @@ impl BodyTracker {
         d.set_item("pose", to_numpy(py, result.pose, &[dofs])?)?;
         d.set_item("spread", to_numpy(py, result.spread, &[dofs])?)?;
         d.set_item("ess", result.ess)?;
+        d.set_item("log_evidence", result.log_evidence)?;
         d.set_item("confidence", result.confidence)?;
         d.set_item("points", result.points)?;
         Ok(d)

@@ -480,6 +480,10 @@ fn step_dict(py: Python<'_>, out: StepOut) -> PyResult<Bound<'_, PyDict>> {
         to_numpy(py, e.iter().map(|e| e.ess).collect(), &[n])?,
     )?;
     d.set_item(
+        "log_evidence",
+        to_numpy(py, e.iter().map(|e| e.log_evidence).collect(), &[n])?,
+    )?;
+    d.set_item(
         "error",
         to_numpy(py, e.iter().map(|e| e.error).collect(), &[n])?,
     )?;

@@ -168,11 +168,10 @@ impl ParticleFilter {
         observations: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let shape = self.shape;
-        let (estimates, spreads, ess, resampled) =
-            if self.on_gpu {
-                let (_, values) =
-                    finite_f32(observations, &[Some(shape.targets), None], "observations")?;
-                py.detach(|| {
+        let (estimates, spreads, ess, resampled, log_evidence) = if self.on_gpu {
+            let (_, values) =
+                finite_f32(observations, &[Some(shape.targets), None], "observations")?;
+            py.detach(|| {
                 let mut engine = self.engine.lock().map_err(|_| poisoned())?;
                 let Engine::Gpu {
                     filter,
@@ -190,42 +189,50 @@ impl ParticleFilter {
                 }
                 let report = filter.step(&values).map_err(gpu)?;
                 check_statuses(&report.status)?;
-                Ok((report.estimates, report.spreads, report.ess, report.resampled))
-            })?
-            } else {
-                let mut engine = self.try_lock()?;
-                let Engine::Cpu { filter, likelihood } = &mut *engine else {
-                    return Err(runtime_error("the filter's engine changed"));
-                };
-                let callable = likelihood.bind(py);
-                let mut raised: Option<PyErr> = None;
-                let report = filter.step_batched(|shape, states, out| {
-                    match call_likelihood(py, callable, shape, states, observations, out) {
-                        Ok(()) => Ok(()),
-                        Err(e) => {
-                            raised = Some(e);
-                            Err(PfError::InvalidConfig("the likelihood raised".into()))
-                        }
-                    }
-                });
-                if let Some(e) = raised {
-                    return Err(e);
-                }
-                let report = report.map_err(pf)?;
-                check_statuses(&report.status)?;
-                (
+                Ok((
                     report.estimates,
                     report.spreads,
                     report.ess,
                     report.resampled,
-                )
+                    report.log_evidence,
+                ))
+            })?
+        } else {
+            let mut engine = self.try_lock()?;
+            let Engine::Cpu { filter, likelihood } = &mut *engine else {
+                return Err(runtime_error("the filter's engine changed"));
             };
+            let callable = likelihood.bind(py);
+            let mut raised: Option<PyErr> = None;
+            let report = filter.step_batched(|shape, states, out| {
+                match call_likelihood(py, callable, shape, states, observations, out) {
+                    Ok(()) => Ok(()),
+                    Err(e) => {
+                        raised = Some(e);
+                        Err(PfError::InvalidConfig("the likelihood raised".into()))
+                    }
+                }
+            });
+            if let Some(e) = raised {
+                return Err(e);
+            }
+            let report = report.map_err(pf)?;
+            check_statuses(&report.status)?;
+            (
+                report.estimates,
+                report.spreads,
+                report.ess,
+                report.resampled,
+                report.log_evidence,
+            )
+        };
         let (t, d) = (shape.targets, shape.dims);
         let out = PyDict::new(py);
         out.set_item("estimate", to_numpy(py, estimates, &[t, d])?)?;
         out.set_item("spread", to_numpy(py, spreads, &[t, d])?)?;
         out.set_item("ess", to_numpy(py, ess, &[t])?)?;
         out.set_item("resampled", to_numpy(py, resampled, &[t])?)?;
+        out.set_item("log_evidence", to_numpy(py, log_evidence, &[t])?)?;
         Ok(out)
     }
 

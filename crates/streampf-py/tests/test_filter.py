@@ -137,3 +137,57 @@ def test_bad_construction_is_a_value_error():
         streampf.ParticleFilter(initial, sigma=[0.1, 0.1], likelihood=python_likelihood, resampler="best")
     with pytest.raises(ValueError, match="WGSL model runs on the GPU"):
         streampf.ParticleFilter(initial, sigma=[0.1, 0.1], wgsl=WGSL, observation_size=2, backend="cpu")
+
+
+# A 1-D random walk observed with Gaussian noise: linear-Gaussian, so the Kalman filter gives the
+# sequence's exact log-likelihood, which each step's log_evidence summed must estimate.
+WALK, SEEN = 0.3, 0.5  # the walk's step and the observation's standard deviations
+WALK_WGSL = """
+struct Observation { y: f32 }
+struct Constants { sigma: f32, log_norm: f32 }
+
+fn log_likelihood(x: State, z: Observation, c: Constants) -> f32 {
+    let e = (x[0] - z.y) / c.sigma;
+    return -0.5 * e * e + c.log_norm;
+}
+"""
+LOG_NORM = -np.log(SEEN * np.sqrt(2 * np.pi))
+
+
+def walk_likelihood(particles, observations):
+    e = (particles[..., 0] - observations[:, None, 0]) / SEEN
+    return -0.5 * e**2 + LOG_NORM
+
+
+def kalman_log_likelihood(ys, mean, variance):
+    total = 0.0
+    for y in ys:
+        variance += WALK**2
+        s = variance + SEEN**2
+        total -= 0.5 * ((y - mean) ** 2 / s + np.log(2 * np.pi * s))
+        gain = variance / s
+        mean, variance = mean + gain * (y - mean), (1 - gain) * variance
+    return total
+
+
+def test_log_evidence_sums_to_the_kalman_log_likelihood_on_cpu_and_gpu(gpu_backend):
+    filters, particles, steps = 64, 1000, 25
+    rng = np.random.default_rng(8)
+    walk = np.cumsum(rng.normal(0, WALK, steps))
+    ys = (walk + rng.normal(0, SEEN, steps)).astype(np.float32)
+    initial = rng.normal(0, 1, (filters, particles, 1)).astype(np.float32)
+    # The filters start from their own clouds: the exact answer of each is the Kalman filter's
+    # from that cloud's mean and variance.
+    exact = np.array([kalman_log_likelihood(ys, c.mean(), c.var()) for c in initial[..., 0]])
+    gpu = streampf.ParticleFilter(
+        initial, sigma=[WALK], wgsl=WALK_WGSL, observation_size=1,
+        constants=np.array([SEEN, LOG_NORM], np.float32), seed=5, **gpu_backend,
+    )
+    cpu = streampf.ParticleFilter(initial, sigma=[WALK], likelihood=walk_likelihood, seed=5, backend="cpu")
+    for name, pf in [("gpu", gpu), ("cpu", cpu)]:
+        evidence = np.array([pf.step(np.full((filters, 1), y, np.float32))["log_evidence"] for y in ys])
+        assert evidence.shape == (steps, filters) and evidence.dtype == np.float64
+        delta = evidence.sum(axis=0) - exact
+        # Unbiased in the likelihood, so about −Var/2 in its log; four standard errors.
+        expected, standard_error = -delta.var() / 2, delta.std() / np.sqrt(filters)
+        assert abs(delta.mean() - expected) <= 4 * standard_error, (name, delta.mean(), delta.std())

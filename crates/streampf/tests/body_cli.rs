@@ -57,21 +57,24 @@ fn synth_then_track_a_directory_of_ply_and_of_depth_pngs() {
         let error = number_after(&text, "mean joint position error:");
         assert!(error > 0.0 && error < 0.15, "{format}: {text}");
         // One header and one row per frame; every pose has the skeleton's 38 values, their 38
-        // spreads, the ESS and the confidence.
+        // spreads, the ESS, the log evidence and the confidence.
         let poses = lines(&out.join("poses.csv"));
         assert_eq!(poses.len(), 7);
         assert!(poses[0].starts_with("frame,root_tx,root_ty,root_tz,root_rx"));
-        assert!(poses[0].contains(",sd_root_tx,") && poses[0].ends_with(",ess,confidence"));
+        assert!(
+            poses[0].contains(",sd_root_tx,") && poses[0].ends_with(",ess,log_evidence,confidence")
+        );
         assert!(
             poses
                 .iter()
-                .all(|l| l.split(',').count() == 1 + 38 + 38 + 2)
+                .all(|l| l.split(',').count() == 1 + 38 + 38 + 3)
         );
         for row in &poses[1..] {
             let values: Vec<f64> = row.split(',').map(|v| v.parse().unwrap()).collect();
             assert!(values[39..77].iter().all(|&sd| sd >= 0.0), "{row}");
             assert!(values[77] >= 1.0 && values[77] <= 200.0, "ESS in {row}");
-            assert!((0.0..=1.0).contains(&values[78]), "confidence in {row}");
+            assert!(values[78].is_finite(), "log evidence in {row}");
+            assert!((0.0..=1.0).contains(&values[79]), "confidence in {row}");
         }
         assert_eq!(lines(&out.join("joints.csv")).len(), 7);
         assert_eq!(lines(&out.join("errors.csv")).len(), 7);

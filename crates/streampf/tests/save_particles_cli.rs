@@ -112,7 +112,7 @@ fn body_track_saves_samples(backend: &str) {
         "
 poses = np.loadtxt(f'{out}/poses.csv', delimiter=',', skiprows=1)
 header = open(f'{out}/poses.csv').readline().strip().split(',')
-dims = sum(1 for c in header[1:] if not c.startswith('sd_') and c not in ('ess', 'confidence'))
+dims = sum(1 for c in header[1:] if not c.startswith('sd_') and c not in ('ess', 'log_evidence', 'confidence'))
 sd = header.index('sd_root_tx')
 ess = header.index('ess')
 for f in range(3):

@@ -89,6 +89,8 @@ pub struct FilterStep {
     pub pose: Vec<f32>,
     pub spread: Vec<f32>,
     pub ess: f64,
+    /// The frame's log evidence (`pf_gpu::engine::EngineReport::log_evidence`).
+    pub log_evidence: f64,
     /// M of the estimate (eq. 3's sum over the frame's points), when the GPU computed it in the
     /// step's submission; the host computes it otherwise.
     pub estimate_sum: Option<f64>,
@@ -171,6 +173,7 @@ impl Filter {
             pose: report.estimates,
             spread: report.spreads,
             ess: report.ess[0],
+            log_evidence: report.log_evidence[0],
             estimate_sum,
             gpu_time: report.gpu_time,
         })

@@ -139,6 +139,10 @@ pub struct FrameResult {
     pub spread: Vec<f32>,
     /// The effective sample size after weighing (of the last annealing layer).
     pub ess: f64,
+    /// The frame's log evidence, log p̂(frame | earlier frames) up to the likelihood's constant:
+    /// the filter's first weighing at β = 1; with islands, the log of the islands' mean evidence
+    /// (`pf_core::islands::pooled_log_evidence`).
+    pub log_evidence: f64,
     /// How much of the frame the estimated body explains, in [0, 1]: 1 − M / (I·τ²), M the sum
     /// of eq. 3's truncated squared distances of the I points from the estimate's capsules. 1:
     /// every point on a capsule's surface; 0: every point τ or more from the body.
@@ -382,6 +386,9 @@ impl BodyTracker {
             .filter_map(|s| s.gpu_time)
             .max_by_key(|t| t.duration());
         let tau = self.config.tau;
+        let log_evidence = pf_core::islands::pooled_log_evidence(
+            &steps.iter().map(|s| s.log_evidence).collect::<Vec<_>>(),
+        );
         let (pose, spread, ess, fit) = if let [one] = steps.as_slice() {
             (
                 one.pose.clone(),
@@ -417,6 +424,7 @@ impl BodyTracker {
             pose,
             spread,
             ess,
+            log_evidence,
             confidence: confidence.clamp(0.0, 1.0) as f32,
             points,
             island_weights: self.island_weights.clone(),

@@ -139,6 +139,11 @@ pub struct FaceEstimate {
     pub spread: [f32; DIMS],
     /// The effective sample size of the last weighing (of the last annealing layer).
     pub ess: f64,
+    /// The frame's log evidence for this track, log p̂(frame | earlier frames) up to the
+    /// likelihood's constant: the filter's first weighing at β = 1 (`EngineReport::log_evidence`).
+    /// Summed over a track's frames it compares models (a field of view, a template) on the
+    /// same frames; −∞ when no particle fitted.
+    pub log_evidence: f64,
     /// How well the estimate fits, in [0, 1]: 1 − ε / `failure_error`, clamped. 1 is a perfect
     /// fit; 0 means ε is at or above the failure threshold, so a track's confidence is 0 for
     /// its last `failure_frames` frames before it is declared lost.
@@ -426,12 +431,13 @@ impl FaceTracker {
             std::array::from_fn(|d| estimates[t * DIMS + d])
         };
         self.last_time = (steps.iter().filter_map(|s| s.gpu_time)).max_by_key(|t| t.duration());
-        let (mut estimates, mut spreads, mut ess, mut errors) =
-            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let (mut estimates, mut spreads, mut ess, mut log_evidence, mut errors) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for step in steps {
             estimates.extend(step.estimates);
             spreads.extend(step.spreads);
             ess.extend(step.ess);
+            log_evidence.extend(step.log_evidence);
             errors.extend(step.errors);
         }
         let checked: Vec<([f32; DIMS], f64)> = (0..slots)
@@ -472,6 +478,7 @@ impl FaceTracker {
                 error,
                 spread: std::array::from_fn(|d| spreads[slot * DIMS + d]),
                 ess: ess[slot],
+                log_evidence: log_evidence[slot],
                 confidence: confidence as f32,
                 status,
                 rect: FaceRect {

@@ -37,6 +37,7 @@ pub(crate) struct ShardStep {
     pub estimates: Vec<f32>,
     pub spreads: Vec<f32>,
     pub ess: Vec<f64>,
+    pub log_evidence: Vec<f64>,
     pub errors: Vec<f64>,
     pub gpu_time: Option<GpuTime>,
 }
@@ -208,6 +209,7 @@ impl Shard {
             estimates,
             spreads: report.spreads,
             ess: report.ess,
+            log_evidence: report.log_evidence,
             errors,
             gpu_time: report.gpu_time,
         })
@@ -249,6 +251,7 @@ fn gpu_shard_step(report: EngineReport) -> Result<ShardStep, FaceError> {
         estimates: report.point_estimates().to_vec(),
         spreads: report.spreads,
         ess: report.ess,
+        log_evidence: report.log_evidence,
         errors,
         gpu_time: report.gpu_time,
     })

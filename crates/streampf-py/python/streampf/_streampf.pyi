@@ -88,6 +88,8 @@ class FaceTracker:
         - ``rect`` (n, 4) float32: the face's rectangle at the estimate;
         - ``ess`` (n,) float64, ``error`` (n,) float64 (ε, the template's robust residual),
           ``confidence`` (n,) float32 in [0, 1] (1 − ε / failure threshold);
+        - ``log_evidence`` (n,) float64: log p̂(frame | earlier frames) per track, up to the
+          likelihood's constant (summed over frames: the track's log-likelihood);
         - ``lost`` (n,) bool: the track ended at this frame;
         - ``started``, ``restarted`` (int64): tracks the detector started or restarted before
           this frame's step.
@@ -136,7 +138,8 @@ class BodyTracker:
         """The tracked joints' positions (J, 3) for a pose (metres, camera frame)."""
     def step(self, points: npt.NDArray[np.float32]) -> Dict[str, Any]:
         """Tracks one frame of points (N, 3). Returns ``pose`` (P,) float32, ``spread`` (P,)
-        float32, ``joints`` (J, 3) float32, ``ess`` (float), ``confidence`` (float in [0, 1]:
+        float32, ``joints`` (J, 3) float32, ``ess`` (float), ``log_evidence`` (float: log
+        p̂(frame | earlier frames), up to the likelihood's constant), ``confidence`` (float in [0, 1]:
         the share of the points the estimate explains) and ``points`` (the points used, after
         thinning). ValueError for a bad array (dtype, shape, order, NaN or infinity)."""
     def step_depth(
@@ -199,7 +202,10 @@ class ParticleFilter:
     def step(self, observations: Any) -> Dict[str, np.ndarray]:
         """One step. For a WGSL model ``observations`` is float32 (T, observation_size); for a
         Python likelihood anything it accepts. Returns ``estimate`` (T, D) float32 (the weighted
-        mean), ``spread`` (T, D) float32, ``ess`` (T,) float64 and ``resampled`` (T,) bool."""
+        mean), ``spread`` (T, D) float32, ``ess`` (T,) float64, ``resampled`` (T,) bool and
+        ``log_evidence`` (T,) float64: each target's log p̂(z_t | z_1:t−1) up to the likelihood's
+        constant (include the constant in the likelihood for the true value); summed over steps,
+        the log-likelihood of the sequence."""
     def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """``(states, log_weights)``: (T, M, D) and (T, M), normalised log-weights."""
 

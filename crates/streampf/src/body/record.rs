@@ -16,13 +16,14 @@ pub(super) struct BodyFiles {
 }
 
 impl BodyFiles {
-    /// The pose, its spread per value (`sd_` + the value's name), the ESS and the confidence
+    /// The pose, its spread per value (`sd_` + the value's name), the ESS, the frame's log
+    /// evidence and the confidence
     /// (docs/OUTPUT.md).
     pub(super) fn poses_header(skeleton: &Skeleton) -> String {
         let names = skeleton.pose_names();
         let spreads: Vec<String> = names.iter().map(|n| format!("sd_{n}")).collect();
         format!(
-            "frame,{},{},ess,confidence",
+            "frame,{},{},ess,log_evidence,confidence",
             names.join(","),
             spreads.join(",")
         )

@@ -160,7 +160,11 @@ impl BodyRun {
         self.points_seen += result.points;
         let mut pose_row = result.pose.clone();
         pose_row.extend(&result.spread);
-        pose_row.extend([result.ess as f32, result.confidence]);
+        pose_row.extend([
+            result.ess as f32,
+            result.log_evidence as f32,
+            result.confidence,
+        ]);
         files.poses.row(&csv_row(frame, &pose_row))?;
         let joints = joint_row(&skeleton.tracked_joint_positions(&result.pose)?);
         files.joints.row(&csv_row(frame, &joints))?;

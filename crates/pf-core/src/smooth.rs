@@ -1,0 +1,368 @@
+//! Smoothing: each frame's posterior given the frames after it too, p(x_t | z_1:T), from the
+//! filter's weighted particles of every frame (forward filtering, backward smoothing: the
+//! marginal smoother of Doucet, Godsill & Andrieu 2000).
+//!
+//! Going backwards, frame t's particles are reweighed by how well each explains the smoothed
+//! particles of frame t+1 under the dynamics:
+//!
+//! w_{t|T}^i = w_t^i · Σ_j w_{t+1|T}^j · f(x_{t+1}^j | x_t^i) / Σ_k w_t^k · f(x_{t+1}^j | x_t^k)
+//!
+//! O(M²) per frame and target. The particles stay where the filter put them; only their weights
+//! change, so a smoothed frame is summarised like a filtered one: a weighted mean (on the circle
+//! for angles) and a 95 % credible interval from the weighted 2.5 % and 97.5 % quantiles.
+//!
+//! The dynamics are the engine's: a Gaussian random walk with σ per dimension after a known
+//! drift (the constant-velocity prediction; zero for the random walk), angles wrapped. A
+//! dimension with σ = 0 does not move, so it does not enter the density. With annealing the
+//! density is the first layer's (the model's dynamics); the later layers are a search.
+//! [`fixed_lag`] smooths frame t − L once frame t is filtered: online, with a delay of L frames.
+
+use rayon::prelude::*;
+
+use crate::batch::wrap_angle_floor;
+use crate::error::PfError;
+
+/// One target's filtered particles at one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Cloud {
+    /// The particles' states, `[d·M + m]` (a target's block of the batch layout).
+    pub states: Vec<f32>,
+    /// Their normalised weights, `[m]`.
+    pub weights: Vec<f64>,
+    /// What the dynamics add to every particle before the noise on the way to the next frame,
+    /// `[d]` (the constant-velocity drift; zeros for the random walk).
+    pub drift: Vec<f32>,
+}
+
+impl Cloud {
+    /// The cloud of target `t` of a batch: its states (`[(t·D + d)·M + m]`), weights from the
+    /// normalised log-weights (`[t·M + m]`) and its drift into the next frame.
+    pub fn of_target(
+        dims: usize,
+        particles: usize,
+        t: usize,
+        states: &[f32],
+        log_weights: &[f32],
+        drift: Vec<f32>,
+    ) -> Result<Self, PfError> {
+        let block = dims * particles;
+        let (states, log_weights) = match (
+            states.get(t * block..(t + 1) * block),
+            log_weights.get(t * particles..(t + 1) * particles),
+        ) {
+            (Some(s), Some(l)) => (s, l),
+            _ => {
+                return Err(PfError::InvalidConfig(format!(
+                    "target {t} of {} states and {} log-weights of {dims} dimensions x {particles} particles",
+                    states.len(),
+                    log_weights.len()
+                )));
+            }
+        };
+        let mut weights = vec![0.0; particles];
+        crate::weights::normalise(log_weights, &mut weights)?;
+        Ok(Self {
+            states: states.to_vec(),
+            weights,
+            drift,
+        })
+    }
+
+    fn particles(&self) -> usize {
+        self.weights.len()
+    }
+}
+
+/// The dynamics' density up to a constant: x' ~ N(x + drift, diag σ²), angle differences taken
+/// the short way round.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GaussianTransition {
+    /// σ per dimension (0: the dimension does not move and is left out of the density).
+    pub sigma: Vec<f32>,
+    /// Which dimensions are angles.
+    pub angular: Vec<bool>,
+}
+
+impl GaussianTransition {
+    fn validate(&self, cloud: &Cloud) -> Result<(), PfError> {
+        let dims = self.sigma.len();
+        if self.angular.len() != dims
+            || cloud.drift.len() != dims
+            || cloud.states.len() != dims * cloud.particles()
+        {
+            return Err(PfError::InvalidConfig(format!(
+                "smoothing {dims} dimensions ({} angle flags): a cloud of {} states, {} weights, {} drift values",
+                self.angular.len(),
+                cloud.states.len(),
+                cloud.weights.len(),
+                cloud.drift.len()
+            )));
+        }
+        if self.sigma.iter().any(|s| !(s.is_finite() && *s >= 0.0)) {
+            return Err(PfError::InvalidConfig(
+                "smoothing needs every sigma finite and >= 0".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// log f(next | from), up to a constant, with `from`'s drift added.
+    fn log_density(&self, from: &[f64], next: &[f64]) -> f64 {
+        let mut sum = 0.0;
+        for d in 0..from.len() {
+            let sigma = f64::from(self.sigma[d]);
+            if sigma == 0.0 {
+                continue;
+            }
+            let mut e = next[d] - from[d];
+            if self.angular[d] {
+                e = f64::from(wrap_angle_floor(e as f32));
+            }
+            sum += (e / sigma) * (e / sigma);
+        }
+        -0.5 * sum
+    }
+}
+
+/// Particle m of a cloud as f64, with `drift` added.
+fn particle(cloud: &Cloud, m: usize, drift: bool) -> Vec<f64> {
+    let particles = cloud.particles();
+    (0..cloud.drift.len())
+        .map(|d| {
+            let x = f64::from(cloud.states[d * particles + m]);
+            if drift {
+                x + f64::from(cloud.drift[d])
+            } else {
+                x
+            }
+        })
+        .collect()
+}
+
+/// One backward step: the smoothed weights of `current` from its filtered weights and the
+/// smoothed weights `next_smoothed` of the frame after it (`next`).
+pub fn backward_step(
+    current: &Cloud,
+    next: &Cloud,
+    next_smoothed: &[f64],
+    transition: &GaussianTransition,
+) -> Result<Vec<f64>, PfError> {
+    transition.validate(current)?;
+    transition.validate(next)?;
+    if next_smoothed.len() != next.particles() {
+        return Err(PfError::LengthMismatch {
+            what: "the next frame's smoothed weights",
+            expected: next.particles(),
+            got: next_smoothed.len(),
+        });
+    }
+    let from: Vec<Vec<f64>> = (0..current.particles())
+        .map(|i| particle(current, i, true))
+        .collect();
+    let to: Vec<Vec<f64>> = (0..next.particles())
+        .map(|j| particle(next, j, false))
+        .collect();
+    // log Σ_k w_t^k f(x_{t+1}^j | x_t^k) for each j (the predictive density at x_{t+1}^j).
+    let log_predictive: Vec<f64> = to
+        .par_iter()
+        .map(|x_next| {
+            log_sum_exp(
+                from.iter()
+                    .zip(&current.weights)
+                    .map(|(x, &w)| w.ln() + transition.log_density(x, x_next)),
+            )
+        })
+        .collect();
+    let mut smoothed: Vec<f64> = from
+        .par_iter()
+        .zip(&current.weights)
+        .map(|(x, &w)| {
+            if w == 0.0 {
+                return 0.0;
+            }
+            let share: f64 = (to.iter().zip(next_smoothed).zip(&log_predictive))
+                .filter(|((_, v), p)| **v > 0.0 && p.is_finite())
+                .map(|((x_next, &v), &p)| v * (transition.log_density(x, x_next) - p).exp())
+                .sum();
+            w * share
+        })
+        .collect();
+    let total: f64 = smoothed.iter().sum();
+    if !(total.is_finite() && total > 0.0) {
+        return Err(PfError::AllWeightsZero {
+            particles: current.particles(),
+        });
+    }
+    for w in &mut smoothed {
+        *w /= total;
+    }
+    Ok(smoothed)
+}
+
+fn log_sum_exp(values: impl Iterator<Item = f64> + Clone) -> f64 {
+    let max = values.clone().fold(f64::NEG_INFINITY, f64::max);
+    if !max.is_finite() {
+        return max;
+    }
+    max + values.map(|v| (v - max).exp()).sum::<f64>().ln()
+}
+
+/// The smoothed weights of every frame of one target's run (the last frame's are its filtered
+/// weights).
+pub fn smooth_all(
+    frames: &[Cloud],
+    transition: &GaussianTransition,
+) -> Result<Vec<Vec<f64>>, PfError> {
+    let Some(last) = frames.last() else {
+        return Ok(Vec::new());
+    };
+    let mut out = vec![Vec::new(); frames.len()];
+    out[frames.len() - 1] = last.weights.clone();
+    for t in (0..frames.len() - 1).rev() {
+        out[t] = backward_step(&frames[t], &frames[t + 1], &out[t + 1], transition)?;
+    }
+    Ok(out)
+}
+
+/// The smoothed weights of the first frame of `window` given all of it (frames t − L … t): the
+/// fixed-lag smoother's output for frame t − L once frame t is filtered.
+pub fn fixed_lag(window: &[Cloud], transition: &GaussianTransition) -> Result<Vec<f64>, PfError> {
+    let mut all = smooth_all(window, transition)?;
+    if all.is_empty() {
+        return Err(PfError::InvalidConfig(
+            "fixed-lag smoothing of an empty window".into(),
+        ));
+    }
+    Ok(all.swap_remove(0))
+}
+
+/// One value's posterior summary.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Summary {
+    /// The weighted mean (on the circle for an angle).
+    pub mean: f32,
+    /// The weighted 2.5 % quantile.
+    pub lower: f32,
+    /// The weighted 97.5 % quantile.
+    pub upper: f32,
+}
+
+/// The mean and 95 % credible interval of every dimension of `cloud` under `weights`. An angle's
+/// quantiles are taken on its differences from the circular mean (wrapped), so an interval
+/// across ±π stays narrow; its ends may lie outside [−π, π).
+pub fn summarise(cloud: &Cloud, weights: &[f64], angular: &[bool]) -> Vec<Summary> {
+    let particles = cloud.particles();
+    (0..cloud.drift.len())
+        .map(|d| {
+            let xs = &cloud.states[d * particles..(d + 1) * particles];
+            let is_angle = angular.get(d).copied().unwrap_or(false);
+            let mean = if is_angle {
+                let (s, c) = xs.iter().zip(weights).fold((0.0, 0.0), |(s, c), (&x, &w)| {
+                    (s + w * f64::from(x).sin(), c + w * f64::from(x).cos())
+                });
+                s.atan2(c)
+            } else {
+                xs.iter()
+                    .zip(weights)
+                    .map(|(&x, &w)| w * f64::from(x))
+                    .sum()
+            };
+            let mut offsets: Vec<(f64, f64)> = (xs.iter().zip(weights))
+                .map(|(&x, &w)| {
+                    let e = f64::from(x) - mean;
+                    let e = if is_angle {
+                        f64::from(wrap_angle_floor(e as f32))
+                    } else {
+                        e
+                    };
+                    (e, w)
+                })
+                .collect();
+            offsets.sort_by(|a, b| a.0.total_cmp(&b.0));
+            Summary {
+                mean: mean as f32,
+                lower: (mean + weighted_quantile(&offsets, 0.025)) as f32,
+                upper: (mean + weighted_quantile(&offsets, 0.975)) as f32,
+            }
+        })
+        .collect()
+}
+
+/// The smallest value whose cumulative weight reaches `q` (values sorted, weights summing to 1).
+fn weighted_quantile(sorted: &[(f64, f64)], q: f64) -> f64 {
+    let mut cumulative = 0.0;
+    for &(value, weight) in sorted {
+        cumulative += weight;
+        if cumulative >= q {
+            return value;
+        }
+    }
+    sorted.last().map_or(f64::NAN, |&(value, _)| value)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cloud(states: Vec<f32>, weights: Vec<f64>, drift: Vec<f32>) -> Cloud {
+        Cloud {
+            states,
+            weights,
+            drift,
+        }
+    }
+
+    #[test]
+    fn a_weighted_quantile_and_an_angle_interval_across_pi() {
+        let c = cloud(vec![3.1, -3.1, 3.0, -3.0], vec![0.25; 4], vec![0.0]);
+        let s = summarise(&c, &c.weights, &[true])[0];
+        // The mean is π (or −π), the interval about ±0.14 around it, not the whole circle.
+        assert!((s.mean.abs() - std::f32::consts::PI).abs() < 1e-4, "{s:?}");
+        assert!(s.upper - s.lower < 0.3, "{s:?}");
+        let line = cloud(
+            vec![0.0, 1.0, 2.0, 3.0],
+            vec![0.1, 0.2, 0.3, 0.4],
+            vec![0.0],
+        );
+        let s = summarise(&line, &line.weights, &[false])[0];
+        assert!((s.mean - 2.0).abs() < 1e-6);
+        assert_eq!((s.lower, s.upper), (0.0, 3.0));
+    }
+
+    #[test]
+    fn bad_inputs_are_typed_errors() {
+        let t = GaussianTransition {
+            sigma: vec![1.0],
+            angular: vec![false],
+        };
+        let a = cloud(vec![0.0, 1.0], vec![0.5, 0.5], vec![0.0]);
+        assert!(backward_step(&a, &a, &[1.0], &t).is_err());
+        let wrong_drift = cloud(vec![0.0, 1.0], vec![0.5, 0.5], vec![]);
+        assert!(backward_step(&wrong_drift, &a, &[0.5, 0.5], &t).is_err());
+        let bad_sigma = GaussianTransition {
+            sigma: vec![f32::NAN],
+            angular: vec![false],
+        };
+        assert!(backward_step(&a, &a, &[0.5, 0.5], &bad_sigma).is_err());
+        assert!(smooth_all(&[], &t).unwrap().is_empty());
+        assert!(fixed_lag(&[], &t).is_err());
+    }
+
+    #[test]
+    fn a_particle_no_future_particle_can_come_from_loses_its_weight() {
+        // Two particles at 0 and 10, σ = 1; the next frame's only particle sits at 10.
+        let t = GaussianTransition {
+            sigma: vec![1.0],
+            angular: vec![false],
+        };
+        let now = cloud(vec![0.0, 10.0], vec![0.5, 0.5], vec![0.0]);
+        let next = cloud(vec![10.0], vec![1.0], vec![0.0]);
+        let w = backward_step(&now, &next, &[1.0], &t).unwrap();
+        assert!(w[1] > 1.0 - 1e-12 && w[0] < 1e-12, "{w:?}");
+        // The drift moves the first particle onto the next frame's: now it explains it.
+        let drifting = cloud(vec![0.0, 10.0], vec![0.5, 0.5], vec![10.0]);
+        let next = cloud(vec![10.0], vec![1.0], vec![0.0]);
+        let w = backward_step(&drifting, &next, &[1.0], &t).unwrap();
+        assert!(w[0] > 1.0 - 1e-12, "{w:?}");
+    }
+}
