@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use crate::anneal::Annealing;
 use crate::error::PfError;
 use crate::plugin::CpuModel;
-use crate::random::{CounterUniforms, RandomStreams, Stage, counter_gaussian};
+use crate::random::{CounterUniforms, RandomStreams, Stage, counter_gaussian_pair};
 use crate::resample::Resampler;
 
 mod config;
@@ -22,7 +22,8 @@ pub use config::{BatchConfig, BatchShape, Motion, stage_keys, stage_keys_from};
 
 pub use stages::{
     LayerBeta, Normalised, add_drift, best_weighted_means, circular_spread, diffuse,
-    frame_log_evidence, normalise_target, update_velocity, weighted_means, weighted_spreads,
+    frame_log_evidence, normalise_target, update_velocity, weighted_means,
+    weighted_means_and_spreads, weighted_spreads,
 };
 
 /// The GPU's wrap into [−π, π): `x − 2π·floor((x + π) / 2π)`. (pf-core's scalar
@@ -256,29 +257,38 @@ impl<R: Resampler> BatchFilter<R> {
     /// (the draws of the GPU's `model_propagate`), angles wrapped.
     fn propagate_all(&mut self, propagate: &Propagate<'_>, step: u64) {
         let shape = self.shape;
-        let (mut x, mut noise, mut next) = (
-            vec![0.0f32; shape.dims],
-            vec![0.0f32; shape.dims],
-            vec![0.0f32; shape.dims],
-        );
-        for t in 0..shape.targets {
-            for m in 0..shape.particles {
-                for d in 0..shape.dims {
-                    x[d] = self.states[shape.state_index(t, d, m)];
-                    noise[d] =
-                        counter_gaussian(self.diffusion_keys[t], m as u32, d as u32, step) as f32;
+        let (keys, angular) = (&self.diffusion_keys, &self.angular);
+        // One task per target (its D·M block); each particle moved as on one core.
+        self.states
+            .par_chunks_mut(shape.dims * shape.particles)
+            .enumerate()
+            .for_each(|(t, block)| {
+                let (mut x, mut noise, mut next) = (
+                    vec![0.0f32; shape.dims],
+                    vec![0.0f32; shape.dims],
+                    vec![0.0f32; shape.dims],
+                );
+                for m in 0..shape.particles {
+                    for d in 0..shape.dims {
+                        x[d] = block[d * shape.particles + m];
+                    }
+                    for (pair, draws) in noise.chunks_mut(2).enumerate() {
+                        let (z0, z1) = counter_gaussian_pair(keys[t], m as u32, pair as u32, step);
+                        draws[0] = z0 as f32;
+                        if let Some(second) = draws.get_mut(1) {
+                            *second = z1 as f32;
+                        }
+                    }
+                    propagate(&x, &noise, &mut next);
+                    for d in 0..shape.dims {
+                        block[d * shape.particles + m] = if angular[d] {
+                            wrap_angle_floor(next[d])
+                        } else {
+                            next[d]
+                        };
+                    }
                 }
-                propagate(&x, &noise, &mut next);
-                for d in 0..shape.dims {
-                    let v = if self.angular[d] {
-                        wrap_angle_floor(next[d])
-                    } else {
-                        next[d]
-                    };
-                    self.states[shape.state_index(t, d, m)] = v;
-                }
-            }
-        }
+            });
     }
 
     /// One step with the model's own dynamics when `propagate` is given (else the Gaussian
@@ -307,7 +317,8 @@ impl<R: Resampler> BatchFilter<R> {
         } else {
             Vec::new()
         };
-        let estimates = weighted_means(&shape, &self.states, &self.weights, &self.angular);
+        let (estimates, spreads) =
+            weighted_means_and_spreads(&shape, &self.states, &self.weights, &self.angular);
         update_velocity(
             self.motion.gain(),
             &self.angular,
@@ -316,13 +327,7 @@ impl<R: Resampler> BatchFilter<R> {
             &mut self.velocity,
         );
         Ok(BatchReport {
-            spreads: weighted_spreads(
-                &shape,
-                &self.states,
-                &self.weights,
-                &self.angular,
-                &estimates,
-            ),
+            spreads,
             estimates,
             best_estimates,
             ess: self.ess.clone(),

@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::{BatchShape, wrap_angle_floor};
 use crate::anneal::{Annealing, Tempering, survival_beta, tempered};
 use crate::error::PfError;
-use crate::random::counter_gaussian;
+use crate::random::counter_gaussian_pair;
 use crate::weights;
 
 /// Twin of `diffuse.wgsl`: x += (σ_d·s)·n with n = counter_gaussian(key_t, m, d, step) and s the
@@ -27,15 +27,21 @@ pub fn diffuse(
     keys: &[[u32; 2]],
     step: u64,
 ) {
-    // One task per (target, dimension) row of M values: each value is a pure function of its
-    // indices, so the rows run on all cores with the same result.
+    // One task per (target, pair of dimensions) rows of M values: both draws of a pair come from
+    // one Philox block, and each value is a pure function of its indices, so the tasks run on
+    // all cores with the same result.
+    let m_count = shape.particles;
     states
-        .par_chunks_mut(shape.particles)
+        .par_chunks_mut(shape.dims * m_count)
         .enumerate()
-        .for_each(|(row, values)| {
-            let (t, d) = (row / shape.dims, row % shape.dims);
-            for (m, value) in values.iter_mut().enumerate() {
-                let z = counter_gaussian(keys[t], m as u32, d as u32, step);
+        .flat_map(|(t, target)| {
+            (target.par_chunks_mut(2 * m_count).enumerate())
+                .map(move |(pair, rows)| (t, pair, rows))
+        })
+        .for_each(|(t, pair, rows)| {
+            let (first, second) = rows.split_at_mut(m_count);
+            let d = 2 * pair;
+            let step_one = |value: &mut f32, d: usize, z: f64| {
                 let mut x = (f64::from(*value) + f64::from(sigma[d] * sigma_scale) * z) as f32;
                 if let Some((lo, hi)) = bounds {
                     x = x.clamp(lo[d], hi[d]);
@@ -44,6 +50,13 @@ pub fn diffuse(
                     x = wrap_angle_floor(x);
                 }
                 *value = x;
+            };
+            for m in 0..m_count {
+                let (z0, z1) = counter_gaussian_pair(keys[t], m as u32, pair as u32, step);
+                step_one(&mut first[m], d, z0);
+                if let Some(value) = second.get_mut(m) {
+                    step_one(value, d + 1, z1);
+                }
             }
         });
 }
@@ -150,12 +163,13 @@ pub fn weighted_means(
     weights: &[f64],
     angular: &[bool],
 ) -> Vec<f32> {
-    let mut out = vec![0.0; shape.targets * shape.dims];
-    for t in 0..shape.targets {
-        let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-        for d in 0..shape.dims {
-            let xs =
-                &states[shape.state_index(t, d, 0)..shape.state_index(t, d, 0) + shape.particles];
+    // One task per (target, dimension) row, each summed in index order as on one core.
+    (0..shape.targets * shape.dims)
+        .into_par_iter()
+        .map(|row| {
+            let (t, d) = (row / shape.dims, row % shape.dims);
+            let w = &weights[t * shape.particles..(t + 1) * shape.particles];
+            let xs = &states[row * shape.particles..(row + 1) * shape.particles];
             let (mut a, mut b) = (0.0f64, 0.0f64);
             for (&x, &wi) in xs.iter().zip(w) {
                 let x = f64::from(x);
@@ -167,16 +181,15 @@ pub fn weighted_means(
                     b += wi;
                 }
             }
-            out[t * shape.dims + d] = if angular[d] {
+            if angular[d] {
                 a.atan2(b) as f32
             } else if b > 0.0 {
                 (a / b) as f32
             } else {
                 0.0
-            };
-        }
-    }
-    out
+            }
+        })
+        .collect()
 }
 
 /// Twin of the spread half of the weighted-mean kernel: per target and dimension, the posterior's
@@ -190,14 +203,15 @@ pub fn weighted_spreads(
     angular: &[bool],
     means: &[f32],
 ) -> Vec<f32> {
-    let mut out = vec![0.0; shape.targets * shape.dims];
-    for t in 0..shape.targets {
-        let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-        for d in 0..shape.dims {
-            let start = shape.state_index(t, d, 0);
-            let xs = &states[start..start + shape.particles];
-            let mean = f64::from(means[t * shape.dims + d]);
-            out[t * shape.dims + d] = if angular[d] {
+    // One task per (target, dimension) row, each summed in index order as on one core.
+    (0..shape.targets * shape.dims)
+        .into_par_iter()
+        .map(|row| {
+            let (t, d) = (row / shape.dims, row % shape.dims);
+            let w = &weights[t * shape.particles..(t + 1) * shape.particles];
+            let xs = &states[row * shape.particles..(row + 1) * shape.particles];
+            let mean = f64::from(means[row]);
+            if angular[d] {
                 let (s, c) = xs
                     .iter()
                     .zip(w)
@@ -217,10 +231,50 @@ pub fn weighted_spreads(
                 } else {
                     0.0
                 }
-            };
-        }
-    }
-    out
+            }
+        })
+        .collect()
+}
+
+/// [`weighted_means`] and [`weighted_spreads`] in one pass over each row (an angle's sums of
+/// sines and cosines give both its mean and its spread): the same values, half the work.
+pub fn weighted_means_and_spreads(
+    shape: &BatchShape,
+    states: &[f32],
+    weights: &[f64],
+    angular: &[bool],
+) -> (Vec<f32>, Vec<f32>) {
+    let rows: Vec<(f32, f32)> = (0..shape.targets * shape.dims)
+        .into_par_iter()
+        .map(|row| {
+            let (t, d) = (row / shape.dims, row % shape.dims);
+            let w = &weights[t * shape.particles..(t + 1) * shape.particles];
+            let xs = &states[row * shape.particles..(row + 1) * shape.particles];
+            if angular[d] {
+                let (s, c) = xs
+                    .iter()
+                    .zip(w)
+                    .fold((0.0f64, 0.0f64), |(s, c), (&x, &wi)| {
+                        let x = f64::from(x);
+                        (s + wi * x.sin(), c + wi * x.cos())
+                    });
+                (s.atan2(c) as f32, circular_spread(s.hypot(c)) as f32)
+            } else {
+                let (a, b) = (xs.iter().zip(w)).fold((0.0f64, 0.0f64), |(a, b), (&x, &wi)| {
+                    (a + wi * f64::from(x), b + wi)
+                });
+                if b <= 0.0 {
+                    return (0.0, 0.0);
+                }
+                let mean = (a / b) as f32;
+                let m64 = f64::from(mean);
+                let sq: f64 = (xs.iter().zip(w))
+                    .fold(0.0, |sq, (&x, &wi)| sq + wi * (f64::from(x) - m64).powi(2));
+                (mean, (sq / b).sqrt() as f32)
+            }
+        })
+        .collect();
+    rows.into_iter().unzip()
 }
 
 /// √(−2 ln R) of a mean resultant length R in (0, 1] (clamped), the circular standard deviation.
@@ -241,12 +295,14 @@ pub fn best_weighted_means(
     let best = best.clamp(1, m);
     // Zero the weights of the particles left out, then take the plain weighted mean.
     let mut selected = vec![0.0f64; weights.len()];
-    for t in 0..shape.targets {
-        let w = &weights[t * m..(t + 1) * m];
-        for i in crate::estimate::heaviest(w, best) {
-            selected[t * m + i] = w[i];
-        }
-    }
+    selected
+        .par_chunks_mut(m)
+        .zip(weights.par_chunks(m))
+        .for_each(|(kept, w)| {
+            for i in crate::estimate::heaviest(w, best) {
+                kept[i] = w[i];
+            }
+        });
     weighted_means(shape, states, &selected, angular)
 }
 
