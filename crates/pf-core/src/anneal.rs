@@ -201,6 +201,21 @@ impl Annealing {
         (first..layer).fold(1.0f32, |s, _| s * self.sigma_decay)
     }
 
+    /// The random walk a particle takes through a whole frame's layers, per dimension:
+    /// √(Σ_l (σ_l·s_l)²) of each layer's σ ([`Self::layer_sigma`]) and scale
+    /// ([`Self::sigma_scale`]). The smoother's transition density uses it: the annealing layers
+    /// move the particles as well as the dynamics do.
+    pub fn frame_sigma(&self, sigma: &[f32]) -> Vec<f32> {
+        let mut variance = vec![0.0f64; sigma.len()];
+        for layer in 0..self.layers {
+            let scale = f64::from(self.sigma_scale(layer));
+            for (v, s) in variance.iter_mut().zip(self.layer_sigma(layer, sigma)) {
+                *v += (f64::from(s) * scale).powi(2);
+            }
+        }
+        variance.iter().map(|v| v.sqrt() as f32).collect()
+    }
+
     /// Layer `l`'s fixed β, or `None` when the survival rule chooses it.
     pub fn fixed_beta(&self, layer: usize) -> Option<f32> {
         match &self.tempering {

@@ -34,6 +34,9 @@ mod model;
 pub mod shards;
 mod start;
 use start::RECENT_ESTIMATES;
+
+/// Which state values the filter wraps as angles: the roll Rz (Rx and Ry are bounded to ±70°).
+pub const ANGULAR: [bool; DIMS] = [false, false, false, false, false, true, false];
 pub use start::Restart;
 
 /// The largest pitch and yaw a track may take (70°).
@@ -268,7 +271,7 @@ impl FaceTracker {
             seed: config.seed,
             sigma: config.diffusion.to_vec(),
             bounds: Some(state_bounds()),
-            angular: vec![false, false, false, false, false, true, false],
+            angular: ANGULAR.to_vec(),
             ess_threshold: f64::INFINITY,
             best: config.best.min(config.particles),
             annealing: config.annealing.clone(),
@@ -343,6 +346,20 @@ impl FaceTracker {
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
         self.check_nothing_in_flight("the particles are read")?;
         joined_particles(&self.shards)
+    }
+
+    /// The dynamics' density for smoothing (`pf_core::smooth`): the random walk of a whole
+    /// frame's annealing layers per state value, the roll the one angle the filter wraps.
+    pub fn transition(&self) -> pf_core::smooth::GaussianTransition {
+        pf_core::smooth::GaussianTransition {
+            sigma: self.config.annealing.frame_sigma(&self.config.diffusion),
+            angular: ANGULAR.to_vec(),
+        }
+    }
+
+    /// The constant-velocity gain of the dynamics (0 for the random walk).
+    pub fn motion_gain(&self) -> f32 {
+        self.config.motion.gain()
     }
 
     /// The camera the faces are seen through ([`FaceTrackerConfig::focal_length`]).

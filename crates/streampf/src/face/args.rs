@@ -232,6 +232,8 @@ pub struct TrackArgs {
     /// -1 when free). On a GPU this reads the clouds back every frame.
     #[arg(long)]
     pub save_particles: Option<PathBuf>,
+    #[command(flatten)]
+    pub smoothing: crate::smoothing::SmoothArgs,
     /// A track ends when its estimate's ε (the template's robust relative residual) stays above
     /// this for --failure-frames frames in a row.
     #[arg(long, default_value_t = FaceTrackerConfig::default().failure_error, value_parser = failure_error)]

@@ -25,6 +25,7 @@ impl InFlight {
     pub(super) fn for_run(runner: &Runner, args: &TrackArgs) -> Option<Self> {
         let allowed = matches!(runner, Runner::Fixed(tracker) if tracker.gpu_context().is_some())
             && args.save_particles.is_none()
+            && args.smoothing.mode().is_none()
             && args.rerun.is_none();
         allowed.then(|| Self(VecDeque::with_capacity(MAX_FRAMES_IN_FLIGHT)))
     }

@@ -14,6 +14,7 @@ use crate::face_io::{FrameRead, ReadAhead, Source};
 use crate::face_overlay::FaceOverlay;
 use crate::recording::Recording;
 use crate::run_output::{self, Interrupted, OutputLock, ResumePoint, SkipLog, clear_old_results};
+use crate::smoothing::SMOOTHED_FILE;
 use anyhow::{Context, bail};
 use face_tracker::extraction::FaceRect;
 use face_tracker::projection::DIMS;
@@ -21,7 +22,9 @@ use face_tracker::{FaceEstimate, GrayImage, TrackStatus};
 use std::time::Instant;
 
 mod in_flight;
+mod smoothed;
 use in_flight::InFlight;
+use smoothed::FaceSmoothing;
 
 pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let (mut source, rects, truth) = checked_input(args)?;
@@ -39,7 +42,10 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let (first, mut runner, backend_name) = start_tracks(args, &mut source, &rects, detect)?;
     let size = (first.width, first.height);
     if resume.is_none() {
-        clear_old_results(&args.out, &[STATES_FILE, ERRORS_FILE, LANDMARKS_FILE])?;
+        clear_old_results(
+            &args.out,
+            &[STATES_FILE, ERRORS_FILE, LANDMARKS_FILE, SMOOTHED_FILE],
+        )?;
     }
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
@@ -74,6 +80,9 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
             source.fps(),
         )?,
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
+        smoothing: (args.smoothing.mode())
+            .map(|lag| FaceSmoothing::create(&args.out, lag, runner.tracker()))
+            .transpose()?,
         truth,
         overlay,
         recording,
@@ -185,6 +194,9 @@ pub(super) struct FaceRun<'a> {
     skipped: SkipLog,
     /// A resumed run's first frame to write: earlier ones are only checked against the files.
     resume_from: usize,
+    /// `--smooth` / `--smooth-lag`: smoothed.csv (rewritten whole by a resumed run, which tracks
+    /// every frame again).
+    smoothing: Option<FaceSmoothing>,
     /// Frames finished and written (tracked or skipped).
     frames: usize,
 }
@@ -282,6 +294,10 @@ impl FaceRun<'_> {
         }
         let truth = self.truth.as_ref().and_then(|t| t.get(frame));
         self.record.add(frame, &estimates, "", truth)?;
+        if let Some(smoothing) = self.smoothing.as_mut() {
+            (smoothing.add(frame, runner.tracker(), &estimates, self.truth.as_deref()))
+                .context("--smooth")?;
+        }
         self.record.add_landmarks(
             frame,
             &runner.tracker().templates(),
@@ -338,6 +354,12 @@ impl FaceRun<'_> {
         let closed = self.overlay.take().map_or(Ok(()), FaceOverlay::finish);
         // Flushed whatever ended the run: the recording keeps every frame it had.
         let closed = closed.and(self.recording.take().map_or(Ok(()), Recording::finish));
+        // Smoothed whatever ended the run: smoothed.csv gets every frame tracked.
+        let truth = self.truth.as_deref();
+        let closed = closed.and(match self.smoothing.as_mut() {
+            Some(smoothing) => smoothing.finish(truth).context("--smooth"),
+            None => Ok(()),
+        });
         let written = matches!(end, LoopEnd::Done);
         self.record.summary(
             self.args,
@@ -347,6 +369,9 @@ impl FaceRun<'_> {
             &self.skipped,
             written,
         );
+        if let Some(smoothing) = &self.smoothing {
+            smoothing.print();
+        }
         if let Runner::Auto(auto) = runner
             && let Some(why) = auto.detector_fallback()
         {

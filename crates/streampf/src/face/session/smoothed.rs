@@ -1,0 +1,130 @@
+//! `--smooth` / `--smooth-lag` in a face run: each tracked face's particles go to the smoother
+//! as its frame is written; smoothed.csv gets the rows, and with ground truth the smoothed
+//! estimates' errors and their intervals' coverage are summed for the summary.
+
+use face_tracker::projection::{DIMS, STATE_NAMES};
+use face_tracker::tracker::{ANGULAR, pose_errors};
+use face_tracker::{FaceEstimate, FaceTracker, TrackStatus};
+use std::path::Path;
+
+use crate::smoothing::{Coverage, SmoothedRow, Smoother};
+
+/// A face run's smoother and what its rows scored against the truth.
+pub(super) struct FaceSmoothing {
+    smoother: Smoother,
+    lag: Option<usize>,
+    /// Summed errors of the smoothed means, and of the filtered weighted means of the same
+    /// particles (the estimate smoothing improves on).
+    errors: [(f64, f64); 2],
+    compared: usize,
+    coverage: [Coverage; 2],
+}
+
+impl FaceSmoothing {
+    /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
+    pub(super) fn create(
+        out: &Path,
+        lag: Option<usize>,
+        tracker: &FaceTracker,
+    ) -> anyhow::Result<Self> {
+        let names: Vec<String> = STATE_NAMES.iter().map(|n| n.to_string()).collect();
+        let smoother = Smoother::create(
+            out,
+            lag,
+            tracker.transition(),
+            tracker.motion_gain(),
+            &names,
+            true,
+        )?;
+        Ok(Self {
+            smoother,
+            lag,
+            errors: [(0.0, 0.0); 2],
+            compared: 0,
+            coverage: Default::default(),
+        })
+    }
+
+    /// A tracked frame: every face being tracked gives the smoother its slot's particles.
+    pub(super) fn add(
+        &mut self,
+        frame: usize,
+        tracker: &FaceTracker,
+        estimates: &[FaceEstimate],
+        truth: Option<&[Vec<[f32; DIMS]>]>,
+    ) -> anyhow::Result<()> {
+        let (shape, states, log_weights) = tracker.particles()?;
+        let (m, block) = (shape.particles, shape.dims * shape.particles);
+        let clouds = (estimates.iter())
+            .filter(|e| e.status == TrackStatus::Tracking)
+            .filter_map(|e| {
+                let states = states.get(e.slot * block..(e.slot + 1) * block)?;
+                let log_weights = log_weights.get(e.slot * m..(e.slot + 1) * m)?;
+                Some((e.track, states.to_vec(), log_weights.to_vec()))
+            })
+            .collect();
+        let rows = self.smoother.add_frame(frame, clouds)?;
+        self.score(&rows, truth);
+        Ok(())
+    }
+
+    /// Smooths and writes what is still waiting (the run's end, however it ended).
+    pub(super) fn finish(&mut self, truth: Option<&[Vec<[f32; DIMS]>]>) -> anyhow::Result<()> {
+        let rows = self.smoother.finish()?;
+        self.score(&rows, truth);
+        Ok(())
+    }
+
+    fn score(&mut self, rows: &[SmoothedRow], truth: Option<&[Vec<[f32; DIMS]>]>) {
+        let Some(truth) = truth else { return };
+        for row in rows {
+            let Some(t) = truth.get(row.frame).and_then(|f| f.get(row.track)) else {
+                continue;
+            };
+            if !t.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            for (k, values) in [&row.values, &row.filtered].into_iter().enumerate() {
+                let state: [f32; DIMS] = std::array::from_fn(|d| values[d].mean);
+                let (te, re) = pose_errors(&state, t);
+                self.errors[k].0 += f64::from(te);
+                self.errors[k].1 += f64::from(re);
+                self.coverage[k].add(values, t, &ANGULAR);
+            }
+            self.compared += 1;
+        }
+    }
+
+    /// The summary's line for smoothed.csv (and, with ground truth, its errors and coverage).
+    pub(super) fn print(&self) {
+        let how = match self.lag {
+            None => "over the whole run".to_string(),
+            Some(lag) => format!("with a lag of {lag} frames"),
+        };
+        if self.compared == 0 {
+            outln!("smoothed {how}: wrote smoothed.csv");
+            return;
+        }
+        let n = self.compared as f64;
+        let coverage = |k: usize| -> String {
+            (STATE_NAMES.iter().zip(self.coverage[k].percent()))
+                .map(|(name, p)| format!("{name} {p:.0} %"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        };
+        let [(st, sr), (ft, fr)] = self.errors;
+        outln!(
+            "smoothed {how}: mean translation error: {:.2} px, mean rotation error: {:.2} deg ({} face-frames; the filter's weighted mean of the same particles: {:.2} px, {:.2} deg)",
+            st / n,
+            sr / n,
+            self.compared,
+            ft / n,
+            fr / n
+        );
+        outln!(
+            "the smoothed 95 % intervals held the truth: {} (the filtered ones: {})",
+            coverage(0),
+            coverage(1)
+        );
+    }
+}

@@ -1,0 +1,251 @@
+//! `--smooth full` and `--smooth-lag L`: every tracked frame smoothed by the frames after it
+//! (`pf_core::smooth`, the marginal smoother), written to smoothed.csv with each value's
+//! smoothed mean and 95 % credible interval. `full` smooths each track over the whole run when
+//! it ends (or the run does); `--smooth-lag L` writes frame t − L once frame t is tracked. A run
+//! that is interrupted or fails smooths and writes what it had tracked.
+
+use std::collections::{BTreeMap, VecDeque};
+use std::path::Path;
+
+use anyhow::Context;
+use clap::Args;
+use pf_core::smooth::{Cloud, GaussianTransition, Summary, fixed_lag, smooth_all, summarise};
+
+use crate::run_output::CsvStream;
+
+/// The file the smoothed values go to.
+pub const SMOOTHED_FILE: &str = "smoothed.csv";
+
+#[derive(Debug, Clone, Default, Args)]
+pub struct SmoothArgs {
+    /// Also write smoothed.csv: every tracked frame's values smoothed over the whole run (each
+    /// track's when it ends), with 95 % credible intervals. Keeps every frame's particles in
+    /// memory (particles × values × 4 bytes a track a frame) and reads them back from a GPU.
+    #[arg(long, value_parser = ["full"], conflicts_with = "smooth_lag")]
+    pub smooth: Option<String>,
+    /// Also write smoothed.csv online: frame t − L smoothed by the frames up to t, written once
+    /// frame t is tracked. Costs L backward passes of particles² a track a frame.
+    #[arg(long, value_name = "L", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    pub smooth_lag: Option<u32>,
+}
+
+impl SmoothArgs {
+    /// `None`: no smoothing; `Some(None)`: the whole run; `Some(Some(L))`: a lag of L frames.
+    pub fn mode(&self) -> Option<Option<usize>> {
+        match (&self.smooth, self.smooth_lag) {
+            (_, Some(lag)) => Some(Some(lag as usize)),
+            (Some(_), None) => Some(None),
+            (None, None) => None,
+        }
+    }
+}
+
+/// One smoothed row: a track's values at a frame, smoothed and (to compare) as filtered.
+pub struct SmoothedRow {
+    pub frame: usize,
+    pub track: usize,
+    pub values: Vec<Summary>,
+    /// The same particles under their filtered weights: the filter's weighted mean and interval.
+    pub filtered: Vec<Summary>,
+}
+
+/// A track's frames waiting to be smoothed, and its last filtered mean (for the drift).
+#[derive(Default)]
+struct TrackFrames {
+    frames: VecDeque<(usize, Cloud)>,
+    last_mean: Option<Vec<f32>>,
+}
+
+/// The smoother of a run: the filtered clouds of every track, smoothed.csv, and the rows made.
+pub struct Smoother {
+    lag: Option<usize>,
+    transition: GaussianTransition,
+    /// The constant-velocity gain: the drift into the next frame is this × the last motion.
+    gain: f32,
+    tracks: BTreeMap<usize, TrackFrames>,
+    file: CsvStream,
+    with_track: bool,
+}
+
+impl Smoother {
+    /// smoothed.csv in `out` (created, or truncated: a resumed run re-tracks every frame) with
+    /// `frame`, `track` (when `with_track`), then `NAME`, `NAME_lo`, `NAME_hi` for each value.
+    pub fn create(
+        out: &Path,
+        lag: Option<usize>,
+        transition: GaussianTransition,
+        gain: f32,
+        names: &[String],
+        with_track: bool,
+    ) -> anyhow::Result<Self> {
+        let columns: Vec<String> = (names.iter())
+            .map(|n| format!("{n},{n}_lo,{n}_hi"))
+            .collect();
+        let lead = if with_track { "frame,track" } else { "frame" };
+        let header = format!("{lead},{}", columns.join(","));
+        Ok(Self {
+            lag,
+            transition,
+            gain,
+            tracks: BTreeMap::new(),
+            file: CsvStream::create(&out.join(SMOOTHED_FILE), &header)?,
+            with_track,
+        })
+    }
+
+    /// Frame `frame`'s filtered clouds, `(track, states [d·M + m], log-weights [m])` of each
+    /// tracked target; a track that is not among them has ended and is smoothed to its end.
+    /// Returns the rows written.
+    pub fn add_frame(
+        &mut self,
+        frame: usize,
+        clouds: Vec<(usize, Vec<f32>, Vec<f32>)>,
+    ) -> anyhow::Result<Vec<SmoothedRow>> {
+        let seen: Vec<usize> = clouds.iter().map(|(track, ..)| *track).collect();
+        let ended: Vec<usize> = (self.tracks.keys())
+            .filter(|t| !seen.contains(t))
+            .copied()
+            .collect();
+        let mut rows = Vec::new();
+        for track in ended {
+            rows.extend(self.flush_track(track)?);
+        }
+        for (track, states, log_weights) in clouds {
+            let dims = self.transition.sigma.len();
+            let particles = log_weights.len();
+            let mut cloud =
+                Cloud::of_target(dims, particles, 0, &states, &log_weights, vec![0.0; dims])
+                    .with_context(|| format!("smoothing track {track} at frame {frame}"))?;
+            let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular))
+                .iter()
+                .map(|s| s.mean)
+                .collect();
+            let entry = self.tracks.entry(track).or_default();
+            cloud.drift = drift(
+                self.gain,
+                entry.last_mean.as_deref(),
+                &mean,
+                &self.transition.angular,
+            );
+            entry.last_mean = Some(mean);
+            entry.frames.push_back((frame, cloud));
+            if let Some(lag) = self.lag
+                && entry.frames.len() > lag
+            {
+                let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
+                let weights = fixed_lag(&window, &self.transition)?;
+                let (first_frame, first) = entry.frames.pop_front().context("a lag window")?;
+                rows.push(self.row(first_frame, track, &first, &weights)?);
+            }
+        }
+        self.file.end_frame()?;
+        Ok(rows)
+    }
+
+    /// Smooths and writes every track's frames still waiting (at the end of the run, however it
+    /// ended).
+    pub fn finish(&mut self) -> anyhow::Result<Vec<SmoothedRow>> {
+        let tracks: Vec<usize> = self.tracks.keys().copied().collect();
+        let mut rows = Vec::new();
+        for track in tracks {
+            rows.extend(self.flush_track(track)?);
+        }
+        self.file.end_frame()?;
+        Ok(rows)
+    }
+
+    fn flush_track(&mut self, track: usize) -> anyhow::Result<Vec<SmoothedRow>> {
+        let Some(waiting) = self.tracks.remove(&track) else {
+            return Ok(Vec::new());
+        };
+        let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
+        let weights = smooth_all(&clouds, &self.transition)
+            .with_context(|| format!("smoothing track {track}"))?;
+        (waiting.frames.iter().zip(&weights))
+            .map(|((frame, cloud), w)| self.row(*frame, track, cloud, w))
+            .collect()
+    }
+
+    fn row(
+        &mut self,
+        frame: usize,
+        track: usize,
+        cloud: &Cloud,
+        weights: &[f64],
+    ) -> anyhow::Result<SmoothedRow> {
+        let values = summarise(cloud, weights, &self.transition.angular);
+        let numbers: Vec<String> = (values.iter())
+            .map(|s| format!("{},{},{}", s.mean, s.lower, s.upper))
+            .collect();
+        let lead = if self.with_track {
+            format!("{frame},{track}")
+        } else {
+            frame.to_string()
+        };
+        self.file.row(&format!("{lead},{}", numbers.join(",")))?;
+        Ok(SmoothedRow {
+            frame,
+            track,
+            values,
+            filtered: summarise(cloud, &cloud.weights, &self.transition.angular),
+        })
+    }
+}
+
+/// The drift the dynamics add on the way to the next frame: `gain` × the last motion of the
+/// filtered mean (angles the short way round); none for a track's first frame.
+fn drift(gain: f32, previous: Option<&[f32]>, mean: &[f32], angular: &[bool]) -> Vec<f32> {
+    match previous {
+        Some(previous) if gain > 0.0 => (mean.iter().zip(previous).zip(angular))
+            .map(|((&now, &before), &angle)| {
+                let motion = now - before;
+                gain * if angle {
+                    pf_core::batch::wrap_angle_floor(motion)
+                } else {
+                    motion
+                }
+            })
+            .collect(),
+        _ => vec![0.0; mean.len()],
+    }
+}
+
+/// How often the truth lay within the smoothed 95 % interval, per value (angles wrapped), and
+/// the count of rows compared.
+#[derive(Default)]
+pub struct Coverage {
+    pub within: Vec<usize>,
+    pub rows: usize,
+}
+
+impl Coverage {
+    /// Adds one row against its true values.
+    pub fn add(&mut self, values: &[Summary], truth: &[f32], angular: &[bool]) {
+        if self.within.len() != values.len() {
+            self.within = vec![0; values.len()];
+        }
+        for (d, (s, &t)) in values.iter().zip(truth).enumerate() {
+            let offset = |x: f32| {
+                let e = t - x;
+                if angular.get(d).copied().unwrap_or(false) {
+                    pf_core::batch::wrap_angle_floor(e)
+                } else {
+                    e
+                }
+            };
+            // The truth from the mean, within the interval's reach on each side.
+            let from_mean = offset(s.mean);
+            if from_mean >= s.lower - s.mean && from_mean <= s.upper - s.mean {
+                self.within[d] += 1;
+            }
+        }
+        self.rows += 1;
+    }
+
+    /// Each value's share within its interval, in percent.
+    pub fn percent(&self) -> Vec<f64> {
+        (self.within.iter())
+            .map(|&w| 100.0 * w as f64 / self.rows.max(1) as f64)
+            .collect()
+    }
+}
