@@ -106,6 +106,20 @@ impl GaussianTransition {
         Ok(())
     }
 
+    /// The density of the values `dims` alone (σ 0 for the others, which then do not enter it):
+    /// one block of a blocked smoother (Finke & Singh 2017), which smooths groups of values
+    /// apart so that the backward weights do not collapse onto a few particles in many
+    /// dimensions.
+    pub fn block(&self, dims: &[usize]) -> Self {
+        let sigma = (self.sigma.iter().enumerate())
+            .map(|(d, &s)| if dims.contains(&d) { s } else { 0.0 })
+            .collect();
+        Self {
+            sigma,
+            angular: self.angular.clone(),
+        }
+    }
+
     /// log f(next | from), up to a constant, with `from`'s drift added.
     fn log_density(&self, from: &[f64], next: &[f64]) -> f64 {
         let mut sum = 0.0;
@@ -346,6 +360,25 @@ mod tests {
         assert!(backward_step(&a, &a, &[0.5, 0.5], &bad_sigma).is_err());
         assert!(smooth_all(&[], &t).unwrap().is_empty());
         assert!(fixed_lag(&[], &t).is_err());
+    }
+
+    #[test]
+    fn a_block_weighs_by_its_own_values_alone() {
+        // Two 2-D particles; the next frame's one particle matches the first in value 0 and
+        // the second in value 1.
+        let t = GaussianTransition {
+            sigma: vec![1.0, 1.0],
+            angular: vec![false, false],
+        };
+        let now = cloud(vec![0.0, 9.0, 0.0, 9.0], vec![0.5, 0.5], vec![0.0, 0.0]);
+        let next = cloud(vec![0.0, 9.0], vec![1.0], vec![0.0, 0.0]);
+        let by_first = backward_step(&now, &next, &[1.0], &t.block(&[0])).unwrap();
+        let by_second = backward_step(&now, &next, &[1.0], &t.block(&[1])).unwrap();
+        assert!(
+            by_first[0] > 0.99 && by_second[1] > 0.99,
+            "{by_first:?} {by_second:?}"
+        );
+        assert_eq!(t.block(&[1]).sigma, vec![0.0, 1.0]);
     }
 
     #[test]

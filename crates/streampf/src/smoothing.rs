@@ -2,7 +2,9 @@
 //! (`pf_core::smooth`, the marginal smoother), written to smoothed.csv with each value's
 //! smoothed mean and 95 % credible interval. `full` smooths each track over the whole run when
 //! it ends (or the run does); `--smooth-lag L` writes frame t − L once frame t is tracked. A run
-//! that is interrupted or fails smooths and writes what it had tracked.
+//! that is interrupted or fails smooths and writes what it had tracked. Each value is smoothed
+//! as its own block (a blocked smoother, Finke & Singh 2017): the particles' filtered weights
+//! carry what the values share, and the backward weights of many values at once collapse.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
@@ -60,6 +62,9 @@ struct TrackFrames {
 pub struct Smoother {
     lag: Option<usize>,
     transition: GaussianTransition,
+    /// The blocks smoothed apart (each with the transition of its values alone) and each
+    /// block's transition.
+    blocks: Vec<(Vec<usize>, GaussianTransition)>,
     /// The constant-velocity gain: the drift into the next frame is this × the last motion.
     gain: f32,
     tracks: BTreeMap<usize, TrackFrames>,
@@ -83,8 +88,16 @@ impl Smoother {
             .collect();
         let lead = if with_track { "frame,track" } else { "frame" };
         let header = format!("{lead},{}", columns.join(","));
+        // One block per value: smoothed with all values' density at once, the backward weights
+        // of the 38-value body collapsed onto a few samples (its joint error rose from 3.5 to
+        // 4.7 cm, its intervals held the truth for 12 % of the values); value by value they
+        // do not (3.6 cm, 56 %), and the 7-value face gains a little too.
+        let blocks = (0..transition.sigma.len())
+            .map(|d| (vec![d], transition.block(&[d])))
+            .collect();
         Ok(Self {
             lag,
+            blocks,
             transition,
             gain,
             tracks: BTreeMap::new(),
@@ -133,7 +146,9 @@ impl Smoother {
                 && entry.frames.len() > lag
             {
                 let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
-                let weights = fixed_lag(&window, &self.transition)?;
+                let weights = (self.blocks.iter())
+                    .map(|(_, t)| fixed_lag(&window, t))
+                    .collect::<Result<Vec<_>, _>>()?;
                 let (first_frame, first) = entry.frames.pop_front().context("a lag window")?;
                 rows.push(self.row(first_frame, track, &first, &weights)?);
             }
@@ -159,21 +174,34 @@ impl Smoother {
             return Ok(Vec::new());
         };
         let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
-        let weights = smooth_all(&clouds, &self.transition)
+        // [block][frame][particle]
+        let weights = (self.blocks.iter())
+            .map(|(_, t)| smooth_all(&clouds, t))
+            .collect::<Result<Vec<_>, _>>()
             .with_context(|| format!("smoothing track {track}"))?;
-        (waiting.frames.iter().zip(&weights))
-            .map(|((frame, cloud), w)| self.row(*frame, track, cloud, w))
+        (waiting.frames.iter().enumerate())
+            .map(|(k, (frame, cloud))| {
+                let per_block: Vec<Vec<f64>> = weights.iter().map(|b| b[k].clone()).collect();
+                self.row(*frame, track, cloud, &per_block)
+            })
             .collect()
     }
 
+    /// A row from each block's smoothed weights (`weights[b]` for the values of block b).
     fn row(
         &mut self,
         frame: usize,
         track: usize,
         cloud: &Cloud,
-        weights: &[f64],
+        weights: &[Vec<f64>],
     ) -> anyhow::Result<SmoothedRow> {
-        let values = summarise(cloud, weights, &self.transition.angular);
+        let mut values = summarise(cloud, &cloud.weights, &self.transition.angular);
+        for ((dims, _), w) in self.blocks.iter().zip(weights) {
+            let block = summarise(cloud, w, &self.transition.angular);
+            for &d in dims {
+                values[d] = block[d];
+            }
+        }
         let numbers: Vec<String> = (values.iter())
             .map(|s| format!("{},{},{}", s.mean, s.lower, s.upper))
             .collect();

@@ -185,6 +185,30 @@ pub(crate) fn island_seed(seed: u64, island: usize) -> u64 {
     part_seed(seed, island)
 }
 
+/// The random walk's σ per pose value (the root's translation, the root's rotations, the
+/// joints) and which values are angles (the root's rotations).
+pub(crate) fn diffusion(skeleton: &Skeleton, config: &TrackerConfig) -> (Vec<f32>, Vec<bool>) {
+    let dims = skeleton.dofs();
+    let mut sigma = vec![config.joint_sigma; dims];
+    sigma[..3].fill(config.translation_sigma);
+    sigma[3..ROOT_DOFS].fill(config.rotation_sigma);
+    let mut angular = vec![false; dims];
+    angular[3..ROOT_DOFS].fill(true);
+    (sigma, angular)
+}
+
+/// A frame's annealing layers: the configuration's, partitioned by the skeleton when asked.
+pub(crate) fn annealing(
+    skeleton: &Skeleton,
+    config: &TrackerConfig,
+) -> Result<pf_core::anneal::Annealing, BodyError> {
+    if config.partitioned {
+        super::partitioned_schedule(skeleton, &config.annealing)
+    } else {
+        Ok(config.annealing.clone())
+    }
+}
+
 /// One filter of `config.particles` samples around `initial_pose`, on the CPU (`ctx` `None`) or
 /// a GPU; island `island` draws its own random numbers (island 0 those of a lone filter).
 pub(crate) fn new_filter(
@@ -197,11 +221,7 @@ pub(crate) fn new_filter(
     let dims = skeleton.dofs();
     let seed = island_seed(config.seed, island);
     let shape = BatchShape::new(1, config.particles, dims)?;
-    let mut sigma = vec![config.joint_sigma; dims];
-    sigma[..3].fill(config.translation_sigma);
-    sigma[3..ROOT_DOFS].fill(config.rotation_sigma);
-    let mut angular = vec![false; dims];
-    angular[3..ROOT_DOFS].fill(true);
+    let (sigma, angular) = diffusion(skeleton, config);
     let (lower, upper) = skeleton.limits();
     let mut start = initial_pose.to_vec();
     for d in 0..dims {
@@ -215,11 +235,7 @@ pub(crate) fn new_filter(
         angular,
         ess_threshold: f64::INFINITY,
         best: 0,
-        annealing: if config.partitioned {
-            super::partitioned_schedule(skeleton, &config.annealing)?
-        } else {
-            config.annealing.clone()
-        },
+        annealing: annealing(skeleton, config)?,
         motion: config.motion,
     };
     batch.validate()?;

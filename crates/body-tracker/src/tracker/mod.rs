@@ -222,6 +222,19 @@ impl BodyTracker {
         &self.skeleton
     }
 
+    /// The dynamics' density for smoothing (`pf_core::smooth`): the random walk of a whole
+    /// frame's annealing layers per pose value, the root's rotations the angles.
+    pub fn transition(&self) -> Result<pf_core::smooth::GaussianTransition, BodyError> {
+        let (sigma, angular) = filter::diffusion(&self.skeleton, &self.config);
+        let sigma = filter::annealing(&self.skeleton, &self.config)?.frame_sigma(&sigma);
+        Ok(pf_core::smooth::GaussianTransition { sigma, angular })
+    }
+
+    /// The constant-velocity gain of the dynamics (0 for the random walk).
+    pub fn motion_gain(&self) -> f32 {
+        self.config.motion.gain()
+    }
+
     /// The particles after the last step: the batch shape (1 × J × θ's length), the poses in the
     /// batch layout `[d·J + j]` and the normalised log-weights (islands' particles one after
     /// another, each island's weights times its island weight). On the GPU this reads them back

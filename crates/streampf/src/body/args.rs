@@ -169,6 +169,8 @@ pub struct TrackArgs {
     /// log_weights_FRAME.npy (1, J). On a GPU this reads the cloud back every frame.
     #[arg(long)]
     pub save_particles: Option<PathBuf>,
+    #[command(flatten)]
+    pub smoothing: crate::smoothing::SmoothArgs,
     /// Continue an interrupted run in --out instead of starting over: the frames it wrote are
     /// tracked again (each row checked against the file: different inputs or settings are
     /// refused at the first row that differs) and the run goes on from its last frame.

@@ -8,6 +8,7 @@ use super::inputs::{Source, open_backend, open_sequence, pose_from_points};
 use crate::annotated::Annotated;
 use crate::recording::Recording;
 use crate::run_output::{self, Interrupted, OutputLock, ResumePoint, clear_old_results};
+use crate::smoothing::SMOOTHED_FILE;
 use anyhow::{Context, bail};
 use body_tracker::sequence::read_pose_csv;
 use body_tracker::{BodyTracker, Skeleton, TrackerConfig};
@@ -21,8 +22,10 @@ use super::{ERRORS_FILE, JOINTS_FILE, POSES_FILE};
 
 mod frames;
 mod run;
+mod smoothed;
 use frames::FrameLoop;
 use run::BodyRun;
+use smoothed::BodySmoothing;
 
 pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     check_overlay_path(args)?;
@@ -61,12 +64,17 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
         .transpose()?;
     let bar = crate::console::progress_bar(frames, args.quiet);
-    let mut run = BodyRun::new(&args.out)?;
+    let smoothing = (args.smoothing.mode())
+        .map(|lag| BodySmoothing::create(&args.out, lag, &tracker))
+        .transpose()?;
+    let mut run = BodyRun::new(&args.out, smoothing)?;
     let started = Instant::now();
     // Two frames in flight on one GPU (the GPU steps frame t + 1 while frame t is read back and
     // written) where nothing reads the particles between frames; the same results.
-    let streaming =
-        tracker.gpu_context().is_some() && args.save_particles.is_none() && recording.is_none();
+    let streaming = tracker.gpu_context().is_some()
+        && args.save_particles.is_none()
+        && recording.is_none()
+        && run.smoothing.is_none();
     run.frames_in_flight = streaming;
     let end = FrameLoop {
         args,
@@ -84,7 +92,14 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     .run(&source, frames, first_points, &bar);
     bar.finish_and_clear();
-    finish_run(args, &run, overlay, recording, started, end)
+    finish_run(
+        args,
+        &mut run,
+        (&skeleton, truth.as_deref()),
+        (overlay, recording),
+        started,
+        end,
+    )
 }
 
 /// An overlay must be a path it can write and not the input; a video overlay cannot be resumed.
@@ -140,7 +155,10 @@ fn tracker_config(args: &TrackArgs) -> anyhow::Result<TrackerConfig> {
 fn resume_point(args: &TrackArgs, skeleton: &Skeleton) -> anyhow::Result<Option<ResumePoint>> {
     let poses = args.out.join(POSES_FILE);
     if !args.resume {
-        clear_old_results(&args.out, &[POSES_FILE, JOINTS_FILE, ERRORS_FILE])?;
+        clear_old_results(
+            &args.out,
+            &[POSES_FILE, JOINTS_FILE, ERRORS_FILE, SMOOTHED_FILE],
+        )?;
         return Ok(None);
     }
     let point = ResumePoint::of(&poses, &BodyFiles::poses_header(skeleton))?;
@@ -159,22 +177,30 @@ fn resume_point(args: &TrackArgs, skeleton: &Skeleton) -> anyhow::Result<Option<
 /// prints the summary and turns how the loop ended into the run's result.
 fn finish_run(
     args: &TrackArgs,
-    run: &BodyRun,
-    overlay: Option<BodyOverlay>,
-    recording: Option<Recording>,
+    run: &mut BodyRun,
+    (skeleton, truth): (&Skeleton, Option<&[Vec<f32>]>),
+    (overlay, recording): (Option<BodyOverlay>, Option<Recording>),
     started: Instant,
     mut end: LoopEnd,
 ) -> anyhow::Result<()> {
     let closed = overlay.map_or(Ok(()), |overlay| overlay.out.finish());
     let closed = closed.and(recording.map_or(Ok(()), Recording::finish));
+    // Smoothed whatever ended the run: smoothed.csv gets every frame tracked.
+    let closed = closed.and(match run.smoothing.as_mut() {
+        Some(smoothing) => smoothing.finish(skeleton, truth).context("--smooth"),
+        None => Ok(()),
+    });
     if let (Err(e), LoopEnd::Done | LoopEnd::Interrupted) = (closed, &end) {
-        end = LoopEnd::Failed(e.context("finishing --overlay or --rerun"));
+        end = LoopEnd::Failed(e.context("finishing --overlay, --rerun or --smooth"));
     }
     run.summary(
         args,
         started.elapsed().as_secs_f64(),
         matches!(end, LoopEnd::Done),
     );
+    if let Some(smoothing) = &run.smoothing {
+        smoothing.print();
+    }
     match end {
         LoopEnd::Done => Ok(()),
         LoopEnd::Interrupted => Err(Interrupted {

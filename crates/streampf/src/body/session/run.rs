@@ -32,10 +32,15 @@ pub(super) struct BodyRun {
     pub(super) gpu_time: f64,
     /// Whether the frames were tracked with two in flight.
     pub(super) frames_in_flight: bool,
+    /// `--smooth` / `--smooth-lag`: smoothed.csv.
+    pub(super) smoothing: Option<super::smoothed::BodySmoothing>,
 }
 
 impl BodyRun {
-    pub(super) fn new(out: &Path) -> anyhow::Result<Self> {
+    pub(super) fn new(
+        out: &Path,
+        smoothing: Option<super::smoothed::BodySmoothing>,
+    ) -> anyhow::Result<Self> {
         Ok(Self {
             frames: 0,
             errors: Vec::new(),
@@ -46,6 +51,7 @@ impl BodyRun {
             tracking_time: 0.0,
             gpu_time: 0.0,
             frames_in_flight: false,
+            smoothing,
         })
     }
 
@@ -197,6 +203,9 @@ impl BodyRun {
                 CsvStream::end_frame_in_all(&mut [&mut files.poses, &mut files.joints, errors])?
             }
             None => CsvStream::end_frame_in_all(&mut [&mut files.poses, &mut files.joints])?,
+        }
+        if let Some(smoothing) = self.smoothing.as_mut() {
+            smoothing.add(frame, tracker, truth).context("--smooth")?;
         }
         // Counted once the frame is in the files (a frame that failed to write is dropped).
         if let (Some(truth), Some(error)) = (truth, joint_error) {

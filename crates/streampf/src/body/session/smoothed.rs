@@ -1,0 +1,113 @@
+//! `--smooth` / `--smooth-lag` in a body run: each frame's samples go to the smoother as the
+//! frame is written; smoothed.csv gets the rows, and with ground truth the smoothed poses'
+//! joint errors and their intervals' coverage are summed for the summary.
+
+use body_tracker::{BodyTracker, Skeleton, mean_joint_error};
+use std::path::Path;
+
+use crate::smoothing::{Coverage, SmoothedRow, Smoother};
+
+/// A body run's smoother and what its rows scored against the truth.
+pub(in crate::body) struct BodySmoothing {
+    smoother: Smoother,
+    lag: Option<usize>,
+    angular: Vec<bool>,
+    /// Summed joint errors of the smoothed means and of the filtered weighted means of the
+    /// same samples.
+    errors: [f64; 2],
+    compared: usize,
+    coverage: [Coverage; 2],
+}
+
+impl BodySmoothing {
+    /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
+    pub(in crate::body) fn create(
+        out: &Path,
+        lag: Option<usize>,
+        tracker: &BodyTracker,
+    ) -> anyhow::Result<Self> {
+        let names = tracker.skeleton().pose_names();
+        let transition = tracker.transition()?;
+        let angular = transition.angular.clone();
+        let smoother =
+            Smoother::create(out, lag, transition, tracker.motion_gain(), &names, false)?;
+        Ok(Self {
+            smoother,
+            lag,
+            angular,
+            errors: [0.0; 2],
+            compared: 0,
+            coverage: Default::default(),
+        })
+    }
+
+    /// A written frame: the tracker's samples go to the smoother.
+    pub(in crate::body) fn add(
+        &mut self,
+        frame: usize,
+        tracker: &BodyTracker,
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
+        let (_, states, log_weights) = tracker.particles()?;
+        let rows = self
+            .smoother
+            .add_frame(frame, vec![(0, states, log_weights)])?;
+        self.score(tracker.skeleton(), &rows, truth)
+    }
+
+    /// Smooths and writes what is still waiting (the run's end, however it ended).
+    pub(in crate::body) fn finish(
+        &mut self,
+        skeleton: &Skeleton,
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
+        let rows = self.smoother.finish()?;
+        self.score(skeleton, &rows, truth)
+    }
+
+    fn score(
+        &mut self,
+        skeleton: &Skeleton,
+        rows: &[SmoothedRow],
+        truth: Option<&[Vec<f32>]>,
+    ) -> anyhow::Result<()> {
+        let Some(truth) = truth else { return Ok(()) };
+        for row in rows {
+            let Some(t) = truth.get(row.frame) else {
+                continue;
+            };
+            for (k, values) in [&row.values, &row.filtered].into_iter().enumerate() {
+                let pose: Vec<f32> = values.iter().map(|s| s.mean).collect();
+                self.errors[k] += f64::from(mean_joint_error(skeleton, &pose, t)?);
+                self.coverage[k].add(values, t, &self.angular);
+            }
+            self.compared += 1;
+        }
+        Ok(())
+    }
+
+    /// The summary's lines for smoothed.csv (and, with ground truth, its errors and coverage).
+    pub(in crate::body) fn print(&self) {
+        let how = match self.lag {
+            None => "over the whole run".to_string(),
+            Some(lag) => format!("with a lag of {lag} frames"),
+        };
+        if self.compared == 0 {
+            outln!("smoothed {how}: wrote smoothed.csv");
+            return;
+        }
+        let n = self.compared as f64;
+        let share = |k: usize| {
+            let p = self.coverage[k].percent();
+            p.iter().sum::<f64>() / p.len().max(1) as f64
+        };
+        outln!(
+            "smoothed {how}: mean joint position error: {:.4} m over {} frames (the filter's weighted mean of the same samples: {:.4} m); the 95 % intervals held the truth for {:.0}% of the pose values (the filtered ones: {:.0}%)",
+            self.errors[0] / n,
+            self.compared,
+            self.errors[1] / n,
+            share(0),
+            share(1)
+        );
+    }
+}
