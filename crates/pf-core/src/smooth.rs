@@ -119,38 +119,61 @@ impl GaussianTransition {
             angular: self.angular.clone(),
         }
     }
+}
 
-    /// log f(next | from), up to a constant, with `from`'s drift added.
+/// The transition's density over the values that move (σ > 0), laid out for many pairs: the
+/// O(M²) loops touch only those values.
+struct Kernel {
+    active: Vec<usize>,
+    inv_sigma: Vec<f64>,
+    angular: Vec<bool>,
+}
+
+impl Kernel {
+    fn new(transition: &GaussianTransition) -> Self {
+        let active: Vec<usize> = (0..transition.sigma.len())
+            .filter(|&d| transition.sigma[d] > 0.0)
+            .collect();
+        Self {
+            inv_sigma: active
+                .iter()
+                .map(|&d| 1.0 / f64::from(transition.sigma[d]))
+                .collect(),
+            angular: active.iter().map(|&d| transition.angular[d]).collect(),
+            active,
+        }
+    }
+
+    /// Every particle's moving values, `[m·A + a]`, with the drift added when `drift`.
+    fn points(&self, cloud: &Cloud, drift: bool) -> Vec<f64> {
+        let particles = cloud.particles();
+        let mut out = Vec::with_capacity(particles * self.active.len());
+        for m in 0..particles {
+            for &d in &self.active {
+                let x = f64::from(cloud.states[d * particles + m]);
+                out.push(if drift {
+                    x + f64::from(cloud.drift[d])
+                } else {
+                    x
+                });
+            }
+        }
+        out
+    }
+
+    /// log f(next | from), up to a constant (`from` with its drift).
     fn log_density(&self, from: &[f64], next: &[f64]) -> f64 {
         let mut sum = 0.0;
-        for d in 0..from.len() {
-            let sigma = f64::from(self.sigma[d]);
-            if sigma == 0.0 {
-                continue;
-            }
-            let mut e = next[d] - from[d];
-            if self.angular[d] {
+        for a in 0..from.len() {
+            let mut e = next[a] - from[a];
+            if self.angular[a] {
                 e = f64::from(wrap_angle_floor(e as f32));
             }
-            sum += (e / sigma) * (e / sigma);
+            let z = e * self.inv_sigma[a];
+            sum += z * z;
         }
         -0.5 * sum
     }
-}
-
-/// Particle m of a cloud as f64, with `drift` added.
-fn particle(cloud: &Cloud, m: usize, drift: bool) -> Vec<f64> {
-    let particles = cloud.particles();
-    (0..cloud.drift.len())
-        .map(|d| {
-            let x = f64::from(cloud.states[d * particles + m]);
-            if drift {
-                x + f64::from(cloud.drift[d])
-            } else {
-                x
-            }
-        })
-        .collect()
 }
 
 /// One backward step: the smoothed weights of `current` from its filtered weights and the
@@ -170,35 +193,36 @@ pub fn backward_step(
             got: next_smoothed.len(),
         });
     }
-    let from: Vec<Vec<f64>> = (0..current.particles())
-        .map(|i| particle(current, i, true))
-        .collect();
-    let to: Vec<Vec<f64>> = (0..next.particles())
-        .map(|j| particle(next, j, false))
-        .collect();
+    let kernel = Kernel::new(transition);
+    let width = kernel.active.len().max(1);
+    let (from, to) = (kernel.points(current, true), kernel.points(next, false));
+    let log_w: Vec<f64> = current.weights.iter().map(|w| w.ln()).collect();
     // log Σ_k w_t^k f(x_{t+1}^j | x_t^k) for each j (the predictive density at x_{t+1}^j).
-    let log_predictive: Vec<f64> = to
-        .par_iter()
-        .map(|x_next| {
-            log_sum_exp(
-                from.iter()
-                    .zip(&current.weights)
-                    .map(|(x, &w)| w.ln() + transition.log_density(x, x_next)),
-            )
+    let log_predictive: Vec<f64> = (0..next.particles())
+        .into_par_iter()
+        .map(|j| {
+            let x_next = &to[j * width..][..kernel.active.len()];
+            let terms = (0..current.particles()).map(|i| {
+                log_w[i] + kernel.log_density(&from[i * width..][..kernel.active.len()], x_next)
+            });
+            streaming_log_sum_exp(terms)
         })
         .collect();
-    let mut smoothed: Vec<f64> = from
-        .par_iter()
-        .zip(&current.weights)
-        .map(|(x, &w)| {
-            if w == 0.0 {
+    let mut smoothed: Vec<f64> = (0..current.particles())
+        .into_par_iter()
+        .map(|i| {
+            if current.weights[i] == 0.0 {
                 return 0.0;
             }
-            let share: f64 = (to.iter().zip(next_smoothed).zip(&log_predictive))
-                .filter(|((_, v), p)| **v > 0.0 && p.is_finite())
-                .map(|((x_next, &v), &p)| v * (transition.log_density(x, x_next) - p).exp())
+            let x = &from[i * width..][..kernel.active.len()];
+            let share: f64 = (0..next.particles())
+                .filter(|&j| next_smoothed[j] > 0.0 && log_predictive[j].is_finite())
+                .map(|j| {
+                    let x_next = &to[j * width..][..kernel.active.len()];
+                    next_smoothed[j] * (kernel.log_density(x, x_next) - log_predictive[j]).exp()
+                })
                 .sum();
-            w * share
+            current.weights[i] * share
         })
         .collect();
     let total: f64 = smoothed.iter().sum();
@@ -213,12 +237,26 @@ pub fn backward_step(
     Ok(smoothed)
 }
 
-fn log_sum_exp(values: impl Iterator<Item = f64> + Clone) -> f64 {
-    let max = values.clone().fold(f64::NEG_INFINITY, f64::max);
-    if !max.is_finite() {
+/// log Σ exp(v) in one pass (the sum rescaled whenever a larger value comes).
+fn streaming_log_sum_exp(values: impl Iterator<Item = f64>) -> f64 {
+    let (mut max, mut sum) = (f64::NEG_INFINITY, 0.0f64);
+    for v in values {
+        if v == f64::NEG_INFINITY {
+            continue;
+        }
+        if v <= max {
+            sum += (v - max).exp();
+        } else if v.is_finite() {
+            sum = sum * (max - v).exp() + 1.0;
+            max = v;
+        } else if v.is_nan() || v == f64::INFINITY {
+            return v;
+        }
+    }
+    if max == f64::NEG_INFINITY {
         return max;
     }
-    max + values.map(|v| (v - max).exp()).sum::<f64>().ln()
+    max + sum.ln()
 }
 
 /// The smoothed weights of every frame of one target's run (the last frame's are its filtered
