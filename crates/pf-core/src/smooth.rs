@@ -288,6 +288,26 @@ pub fn fixed_lag(window: &[Cloud], transition: &GaussianTransition) -> Result<Ve
     Ok(all.swap_remove(0))
 }
 
+/// Every frame's smoothed summary (`[frame][value]`) with each value smoothed as its own block
+/// ([`GaussianTransition::block`]): the blocked smoother the trackers' `--smooth` runs.
+pub fn smooth_values(
+    frames: &[Cloud],
+    transition: &GaussianTransition,
+) -> Result<Vec<Vec<Summary>>, PfError> {
+    let dims = transition.sigma.len();
+    let mut out: Vec<Vec<Summary>> = frames
+        .iter()
+        .map(|c| summarise(c, &c.weights, &transition.angular))
+        .collect();
+    for d in 0..dims {
+        let weights = smooth_all(frames, &transition.block(&[d]))?;
+        for ((summary, cloud), w) in out.iter_mut().zip(frames).zip(&weights) {
+            summary[d] = summarise(cloud, w, &transition.angular)[d];
+        }
+    }
+    Ok(out)
+}
+
 /// One value's posterior summary.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Summary {

@@ -7,6 +7,7 @@ use std::sync::{Mutex, TryLockError};
 use numpy::PyUntypedArrayMethods;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
+use pf_core::smooth::{Cloud, GaussianTransition, smooth_values};
 use pf_core::{PfError, Resampler, ResamplerKind};
 use pf_gpu::GpuResampler;
 use pf_gpu::model::{ModelSource, RawModelFilter};
@@ -34,6 +35,9 @@ enum Engine {
 #[pyclass(module = "streampf._streampf")]
 pub struct ParticleFilter {
     engine: Mutex<Engine>,
+    /// `smooth=True`: every step's particles (batch layout) and log-weights, and the dynamics'
+    /// density the smoother reweighs by.
+    history: Option<(Mutex<Vec<(Vec<f32>, Vec<f32>)>>, GaussianTransition)>,
     shape: BatchShape,
     device: String,
     /// Whether the model is WGSL on the GPU (else a Python likelihood on the CPU).
@@ -83,7 +87,7 @@ impl ParticleFilter {
         initial, *, sigma, wgsl = None, likelihood = None, observation_size = None,
         constants = None, name = "model", angular = None, bounds = None,
         resampler = "systematic", layers = 1, seed = 1, backend = "auto",
-        allow_software = false
+        allow_software = false, smooth = false
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -102,6 +106,7 @@ impl ParticleFilter {
         seed: i128,
         backend: &str,
         allow_software: bool,
+        smooth: bool,
     ) -> PyResult<Self> {
         let observation_size: Option<usize> = whole_opt("observation_size", observation_size)?;
         let (dims, values) = finite_f32(initial, &[None, None, None], "initial")?;
@@ -141,7 +146,21 @@ impl ParticleFilter {
             }
         };
         let on_gpu = matches!(engine, Engine::Gpu { .. });
+        if smooth
+            && let Engine::Gpu { filter, .. } = &engine
+            && filter.model().propagates()
+        {
+            return Err(value_error(
+                "smooth=True needs the dynamics' density: the random walk's (sigma=) is known, \
+                 a WGSL propagate's is not",
+            ));
+        }
+        let transition = GaussianTransition {
+            sigma: config.annealing.frame_sigma(&config.sigma),
+            angular: config.angular.clone(),
+        };
         Ok(Self {
+            history: smooth.then(|| (Mutex::new(Vec::new()), transition)),
             on_gpu,
             engine: Mutex::new(engine),
             shape,
@@ -233,19 +252,58 @@ impl ParticleFilter {
         out.set_item("ess", to_numpy(py, ess, &[t])?)?;
         out.set_item("resampled", to_numpy(py, resampled, &[t])?)?;
         out.set_item("log_evidence", to_numpy(py, log_evidence, &[t])?)?;
+        self.keep_for_smoothing(py)?;
+        Ok(out)
+    }
+
+    /// Every step's values smoothed by the steps after it (needs `smooth=True`): a dict of
+    /// `mean`, `lower`, `upper` (the 95 % credible interval), each (steps, T, D) float32.
+    fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let Some((history, transition)) = &self.history else {
+            return Err(value_error(
+                "smoothed() needs ParticleFilter(..., smooth=True)",
+            ));
+        };
+        let kept = history.lock().map_err(|_| poisoned())?.clone();
+        let shape = self.shape;
+        let (t, d) = (shape.targets, shape.dims);
+        let steps = kept.len();
+        let mut columns = [
+            vec![0.0f32; steps * t * d],
+            vec![0.0; steps * t * d],
+            vec![0.0; steps * t * d],
+        ];
+        let per_target = py.detach(|| {
+            (0..t)
+                .map(|target| {
+                    let clouds = (kept.iter())
+                        .map(|(states, lw)| {
+                            Cloud::of_target(d, shape.particles, target, states, lw, vec![0.0; d])
+                        })
+                        .collect::<Result<Vec<_>, _>>()?;
+                    smooth_values(&clouds, transition)
+                })
+                .collect::<Result<Vec<_>, PfError>>()
+        });
+        for (target, frames) in per_target.map_err(pf)?.into_iter().enumerate() {
+            for (step, values) in frames.into_iter().enumerate() {
+                for (dim, s) in values.into_iter().enumerate() {
+                    let at = (step * t + target) * d + dim;
+                    (columns[0][at], columns[1][at], columns[2][at]) = (s.mean, s.lower, s.upper);
+                }
+            }
+        }
+        let out = PyDict::new(py);
+        for (name, values) in ["mean", "lower", "upper"].into_iter().zip(columns) {
+            out.set_item(name, to_numpy(py, values, &[steps, t, d])?)?;
+        }
         Ok(out)
     }
 
     /// The particles after the last step: `(states, log_weights)`, shapes (T, M, D) and (T, M).
     fn particles<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let shape = self.shape;
-        let (states, log_weights) = {
-            let engine = self.try_lock()?;
-            match &*engine {
-                Engine::Cpu { filter, .. } => (filter.states.clone(), filter.log_weights.clone()),
-                Engine::Gpu { filter, .. } => py.detach(|| filter.particles()).map_err(gpu)?,
-            }
-        };
+        let (states, log_weights) = self.batch_particles(py)?;
         let (t, m, d) = (shape.targets, shape.particles, shape.dims);
         Ok((
             to_numpy(py, from_batch_layout(&states, &shape), &[t, m, d])?,
@@ -356,6 +414,24 @@ fn poisoned() -> PyErr {
 }
 
 impl ParticleFilter {
+    /// The particles after the last step in the batch layout, and their log-weights.
+    fn batch_particles(&self, py: Python<'_>) -> PyResult<(Vec<f32>, Vec<f32>)> {
+        let engine = self.try_lock()?;
+        Ok(match &*engine {
+            Engine::Cpu { filter, .. } => (filter.states.clone(), filter.log_weights.clone()),
+            Engine::Gpu { filter, .. } => py.detach(|| filter.particles()).map_err(gpu)?,
+        })
+    }
+
+    /// With `smooth=True`, keeps the step's particles for [`Self::smoothed`].
+    fn keep_for_smoothing(&self, py: Python<'_>) -> PyResult<()> {
+        if let Some((history, _)) = &self.history {
+            let particles = self.batch_particles(py)?;
+            history.lock().map_err(|_| poisoned())?.push(particles);
+        }
+        Ok(())
+    }
+
     /// The engine, or an error when another thread is stepping this filter (waiting here while
     /// holding the GIL could deadlock with a Python likelihood that needs it).
     fn try_lock(&self) -> PyResult<std::sync::MutexGuard<'_, Engine>> {

@@ -191,3 +191,62 @@ def test_log_evidence_sums_to_the_kalman_log_likelihood_on_cpu_and_gpu(gpu_backe
         # Unbiased in the likelihood, so about −Var/2 in its log; four standard errors.
         expected, standard_error = -delta.var() / 2, delta.std() / np.sqrt(filters)
         assert abs(delta.mean() - expected) <= 4 * standard_error, (name, delta.mean(), delta.std())
+
+
+def kalman_smoother(ys, mean, variance):
+    """Rauch–Tung–Striebel for the random walk: each step's smoothed mean and variance."""
+    filtered, predicted = [], []
+    for y in ys:
+        variance += WALK**2
+        predicted.append((mean, variance))
+        gain = variance / (variance + SEEN**2)
+        mean, variance = mean + gain * (y - mean), (1 - gain) * variance
+        filtered.append((mean, variance))
+    smoothed = list(filtered)
+    for t in range(len(ys) - 2, -1, -1):
+        (mf, pf), (mp, pp), (ms, ps) = filtered[t], predicted[t + 1], smoothed[t + 1]
+        g = pf / pp
+        smoothed[t] = (mf + g * (ms - mp), pf + g * g * (ps - pp))
+    return np.array(smoothed)
+
+
+def test_smoothed_means_match_rauch_tung_striebel_on_cpu_and_gpu(gpu_backend):
+    filters, particles, steps = 24, 800, 20
+    rng = np.random.default_rng(9)
+    ys = (np.cumsum(rng.normal(0, WALK, steps)) + rng.normal(0, SEEN, steps)).astype(np.float32)
+    initial = rng.normal(0, 1, (filters, particles, 1)).astype(np.float32)
+    exact = np.array([kalman_smoother(ys, c.mean(), c.var()) for c in initial[..., 0]])  # (T, S, 2)
+    gpu = streampf.ParticleFilter(
+        initial, sigma=[WALK], wgsl=WALK_WGSL, observation_size=1,
+        constants=np.array([SEEN, LOG_NORM], np.float32), seed=3, smooth=True, **gpu_backend,
+    )
+    cpu = streampf.ParticleFilter(
+        initial, sigma=[WALK], likelihood=walk_likelihood, seed=3, backend="cpu", smooth=True
+    )
+    for name, pf in [("gpu", gpu), ("cpu", cpu)]:
+        for y in ys:
+            pf.step(np.full((filters, 1), y, np.float32))
+        s = pf.smoothed()
+        assert s["mean"].shape == (steps, filters, 1) and s["mean"].dtype == np.float32
+        assert np.all(s["lower"] <= s["mean"]) and np.all(s["mean"] <= s["upper"])
+        sd = np.sqrt(exact[..., 1]).T  # (S, T)
+        errors = (s["mean"][..., 0] - exact[..., 0].T) / sd
+        # Each step's average over the filters within four standard errors (plus 0.02 sd).
+        bound = 4 * errors.std(axis=1, ddof=1) / np.sqrt(filters) + 0.02
+        assert np.all(np.abs(errors.mean(axis=1)) <= bound), (name, errors.mean(axis=1), bound)
+    with pytest.raises(ValueError, match="smooth=True"):
+        streampf.ParticleFilter(initial, sigma=[WALK], likelihood=walk_likelihood, backend="cpu").smoothed()
+
+
+def test_smoothing_a_wgsl_propagate_is_refused(gpu_backend):
+    own_dynamics = WALK_WGSL + """
+fn propagate(x: State, n: State, c: Constants) -> State {
+    return State(x[0] + 0.5 * n[0]);
+}
+"""
+    initial = np.zeros((2, 64, 1), np.float32)
+    with pytest.raises(ValueError, match="propagate"):
+        streampf.ParticleFilter(
+            initial, sigma=[WALK], wgsl=own_dynamics, observation_size=1,
+            constants=np.array([SEEN, LOG_NORM], np.float32), smooth=True, **gpu_backend,
+        )

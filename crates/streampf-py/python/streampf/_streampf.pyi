@@ -173,7 +173,8 @@ class ParticleFilter:
 
     ``resampler``: "systematic", "stratified", "metropolis" (GPU and CPU), "multinomial",
     "residual", "rejection" (CPU). ``layers`` > 1 anneals (survival rate 0.5, noise ×0.7 a
-    layer). The GPU and CPU paths draw the same random numbers.
+    layer). The GPU and CPU paths draw the same random numbers. ``smooth=True`` keeps every
+    step's particles for ``smoothed()`` (not with a WGSL ``propagate``, whose density is unknown).
     """
 
     def __init__(
@@ -193,6 +194,7 @@ class ParticleFilter:
         seed: int = 1,
         backend: str = "auto",
         allow_software: bool = False,
+        smooth: bool = False,
     ) -> None: ...
     @property
     def device(self) -> str: ...
@@ -208,6 +210,11 @@ class ParticleFilter:
         the log-likelihood of the sequence."""
     def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """``(states, log_weights)``: (T, M, D) and (T, M), normalised log-weights."""
+    def smoothed(self) -> Dict[str, np.ndarray]:
+        """Every step so far smoothed by the steps after it (needs ``smooth=True``): ``mean``,
+        ``lower`` and ``upper`` (a 95 % credible interval), each (steps, T, D) float32. The
+        marginal particle smoother, each value its own block, the random walk's density (all
+        annealing layers' together)."""
 
 def synthetic_faces(
     frames: int = 30,
