@@ -11,7 +11,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use clap::Args;
-use pf_core::smooth::{Cloud, GaussianTransition, Summary, fixed_lag, smooth_all, summarise};
+use pf_core::smooth::{Cloud, GaussianTransition, Summary, smooth_values, summarise};
 
 use crate::run_output::CsvStream;
 
@@ -61,10 +61,12 @@ struct TrackFrames {
 /// The smoother of a run: the filtered clouds of every track, smoothed.csv, and the rows made.
 pub struct Smoother {
     lag: Option<usize>,
+    /// The dynamics' density. Each value is smoothed as its own block
+    /// (`pf_core::smooth::smooth_values`): with the 38 body values at once the backward weights
+    /// collapsed onto a few samples (joint error 3.5 → 4.7 cm, the intervals holding the truth
+    /// for 12 % of the values); value by value they do not (3.6 cm, 56 %), and the face gains a
+    /// little too.
     transition: GaussianTransition,
-    /// The blocks smoothed apart (each with the transition of its values alone) and each
-    /// block's transition.
-    blocks: Vec<(Vec<usize>, GaussianTransition)>,
     /// The constant-velocity gain: the drift into the next frame is this × the last motion.
     gain: f32,
     tracks: BTreeMap<usize, TrackFrames>,
@@ -88,16 +90,8 @@ impl Smoother {
             .collect();
         let lead = if with_track { "frame,track" } else { "frame" };
         let header = format!("{lead},{}", columns.join(","));
-        // One block per value: smoothed with all values' density at once, the backward weights
-        // of the 38-value body collapsed onto a few samples (its joint error rose from 3.5 to
-        // 4.7 cm, its intervals held the truth for 12 % of the values); value by value they
-        // do not (3.6 cm, 56 %), and the 7-value face gains a little too.
-        let blocks = (0..transition.sigma.len())
-            .map(|d| (vec![d], transition.block(&[d])))
-            .collect();
         Ok(Self {
             lag,
-            blocks,
             transition,
             gain,
             tracks: BTreeMap::new(),
@@ -146,11 +140,10 @@ impl Smoother {
                 && entry.frames.len() > lag
             {
                 let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
-                let weights = (self.blocks.iter())
-                    .map(|(_, t)| fixed_lag(&window, t))
-                    .collect::<Result<Vec<_>, _>>()?;
+                let values = smooth_values(&window, &self.transition)?;
                 let (first_frame, first) = entry.frames.pop_front().context("a lag window")?;
-                rows.push(self.row(first_frame, track, &first, &weights)?);
+                let first_values = values.into_iter().next().context("a lag window")?;
+                rows.push(self.row(first_frame, track, &first, first_values)?);
             }
         }
         self.file.end_frame()?;
@@ -174,34 +167,21 @@ impl Smoother {
             return Ok(Vec::new());
         };
         let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
-        // [block][frame][particle]
-        let weights = (self.blocks.iter())
-            .map(|(_, t)| smooth_all(&clouds, t))
-            .collect::<Result<Vec<_>, _>>()
+        let values = smooth_values(&clouds, &self.transition)
             .with_context(|| format!("smoothing track {track}"))?;
-        (waiting.frames.iter().enumerate())
-            .map(|(k, (frame, cloud))| {
-                let per_block: Vec<Vec<f64>> = weights.iter().map(|b| b[k].clone()).collect();
-                self.row(*frame, track, cloud, &per_block)
-            })
+        (waiting.frames.iter().zip(values))
+            .map(|((frame, cloud), values)| self.row(*frame, track, cloud, values))
             .collect()
     }
 
-    /// A row from each block's smoothed weights (`weights[b]` for the values of block b).
+    /// A row of smoothed `values`, written (the same particles' filtered summary kept beside).
     fn row(
         &mut self,
         frame: usize,
         track: usize,
         cloud: &Cloud,
-        weights: &[Vec<f64>],
+        values: Vec<Summary>,
     ) -> anyhow::Result<SmoothedRow> {
-        let mut values = summarise(cloud, &cloud.weights, &self.transition.angular);
-        for ((dims, _), w) in self.blocks.iter().zip(weights) {
-            let block = summarise(cloud, w, &self.transition.angular);
-            for &d in dims {
-                values[d] = block[d];
-            }
-        }
         let numbers: Vec<String> = (values.iter())
             .map(|s| format!("{},{},{}", s.mean, s.lower, s.upper))
             .collect();
