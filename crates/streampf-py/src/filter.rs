@@ -31,13 +31,43 @@ enum Engine {
     },
 }
 
+/// `smooth=True`'s record: every step's particles (batch layout) and log-weights, and the
+/// dynamics' density the smoother reweighs by.
+struct History {
+    steps: Mutex<Vec<(Vec<f32>, Vec<f32>)>>,
+    transition: GaussianTransition,
+}
+
+impl History {
+    /// The record for `smooth`, refused for a WGSL `propagate` (its density is unknown).
+    fn for_filter(smooth: bool, engine: &Engine, config: &BatchConfig) -> PyResult<Option<Self>> {
+        if !smooth {
+            return Ok(None);
+        }
+        if let Engine::Gpu { filter, .. } = engine
+            && filter.model().propagates()
+        {
+            return Err(value_error(
+                "smooth=True needs the dynamics' density: the random walk's (sigma=) is known, \
+                 a WGSL propagate's is not",
+            ));
+        }
+        Ok(Some(Self {
+            steps: Mutex::new(Vec::new()),
+            transition: GaussianTransition {
+                sigma: config.annealing.frame_sigma(&config.sigma),
+                angular: config.angular.clone(),
+            },
+        }))
+    }
+}
+
 /// A particle filter whose model you supply: see the stub for the arguments.
 #[pyclass(module = "streampf._streampf")]
 pub struct ParticleFilter {
     engine: Mutex<Engine>,
-    /// `smooth=True`: every step's particles (batch layout) and log-weights, and the dynamics'
-    /// density the smoother reweighs by.
-    history: Option<(Mutex<Vec<(Vec<f32>, Vec<f32>)>>, GaussianTransition)>,
+    /// `smooth=True`: every step's particles, for `smoothed()`.
+    history: Option<History>,
     shape: BatchShape,
     device: String,
     /// Whether the model is WGSL on the GPU (else a Python likelihood on the CPU).
@@ -146,21 +176,8 @@ impl ParticleFilter {
             }
         };
         let on_gpu = matches!(engine, Engine::Gpu { .. });
-        if smooth
-            && let Engine::Gpu { filter, .. } = &engine
-            && filter.model().propagates()
-        {
-            return Err(value_error(
-                "smooth=True needs the dynamics' density: the random walk's (sigma=) is known, \
-                 a WGSL propagate's is not",
-            ));
-        }
-        let transition = GaussianTransition {
-            sigma: config.annealing.frame_sigma(&config.sigma),
-            angular: config.angular.clone(),
-        };
         Ok(Self {
-            history: smooth.then(|| (Mutex::new(Vec::new()), transition)),
+            history: History::for_filter(smooth, &engine, &config)?,
             on_gpu,
             engine: Mutex::new(engine),
             shape,
@@ -259,12 +276,12 @@ impl ParticleFilter {
     /// Every step's values smoothed by the steps after it (needs `smooth=True`): a dict of
     /// `mean`, `lower`, `upper` (the 95 % credible interval), each (steps, T, D) float32.
     fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let Some((history, transition)) = &self.history else {
+        let Some(History { steps, transition }) = &self.history else {
             return Err(value_error(
                 "smoothed() needs ParticleFilter(..., smooth=True)",
             ));
         };
-        let kept = history.lock().map_err(|_| poisoned())?.clone();
+        let kept = steps.lock().map_err(|_| poisoned())?.clone();
         let shape = self.shape;
         let (t, d) = (shape.targets, shape.dims);
         let steps = kept.len();
@@ -425,9 +442,13 @@ impl ParticleFilter {
 
     /// With `smooth=True`, keeps the step's particles for [`Self::smoothed`].
     fn keep_for_smoothing(&self, py: Python<'_>) -> PyResult<()> {
-        if let Some((history, _)) = &self.history {
+        if let Some(history) = &self.history {
             let particles = self.batch_particles(py)?;
-            history.lock().map_err(|_| poisoned())?.push(particles);
+            history
+                .steps
+                .lock()
+                .map_err(|_| poisoned())?
+                .push(particles);
         }
         Ok(())
     }
