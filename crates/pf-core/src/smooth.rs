@@ -22,6 +22,10 @@ use rayon::prelude::*;
 use crate::batch::wrap_angle_floor;
 use crate::error::PfError;
 
+/// A target's number, its particles' states (`[d·M + m]`) and their normalised log-weights: what
+/// a tracker hands a smoother each frame.
+pub type TargetParticles = (usize, Vec<f32>, Vec<f32>);
+
 /// One target's filtered particles at one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Cloud {

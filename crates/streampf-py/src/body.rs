@@ -1,5 +1,6 @@
 //! `streampf.BodyTracker`: the articulated body tracker on numpy point clouds or depth images.
 
+use crate::smoothing::{Smoothing, rows_dict};
 use std::sync::Mutex;
 
 use body_tracker::camera::{DepthImage, Intrinsics};
@@ -20,6 +21,9 @@ use crate::errors::{body, runtime_error, value_error, whole, whole_opt};
 pub struct BodyTracker {
     /// Locked only with the GIL released.
     tracker: Mutex<body_tracker::BodyTracker>,
+    /// `smooth=True`: every frame's samples, for `smoothed()` (locked with the GIL released,
+    /// after `tracker` when both are).
+    smoothing: Mutex<Option<Smoothing>>,
     skeleton: Skeleton,
     device: String,
 }
@@ -54,7 +58,8 @@ impl BodyTracker {
     #[new]
     #[pyo3(signature = (
         initial_pose = None, *, capsules = 19, skeleton = None, particles = 1500,
-        backend = "auto", allow_software = false, seed = 1, layers = None, partitioned = true
+        backend = "auto", allow_software = false, seed = 1, layers = None, partitioned = true,
+        smooth = false
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -68,6 +73,7 @@ impl BodyTracker {
         seed: i128,
         layers: Option<i128>,
         partitioned: bool,
+        smooth: bool,
     ) -> PyResult<Self> {
         let capsules: usize = whole("capsules", capsules)?;
         let particles: usize = whole("particles", particles)?;
@@ -90,7 +96,15 @@ impl BodyTracker {
         let tracker = py
             .detach(|| body_tracker::BodyTracker::new(for_tracker, &start, config, backend))
             .map_err(body)?;
+        let smoothing = match smooth {
+            true => Some(Smoothing::new(
+                tracker.transition().map_err(body)?,
+                tracker.motion_gain(),
+            )),
+            false => None,
+        };
         Ok(Self {
+            smoothing: Mutex::new(smoothing),
             tracker: Mutex::new(tracker),
             skeleton,
             device,
@@ -185,6 +199,20 @@ impl BodyTracker {
         self.track(py, points)
     }
 
+    /// Every frame so far, smoothed by the frames after it (needs `smooth=True`): `frame`, and
+    /// the pose's smoothed `mean`, `lower`, `upper` (a 95 % interval), each (frames, P).
+    fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let rows = py.detach(|| match &*self.smoothing.lock().map_err(|_| poisoned())? {
+            Some(smoothing) => smoothing.rows(),
+            None => Err(value_error(
+                "smoothed() needs BodyTracker(..., smooth=True)",
+            )),
+        })?;
+        let out = rows_dict(py, &rows, self.skeleton.dofs())?;
+        out.del_item("track")?;
+        Ok(out)
+    }
+
     /// The particles after the last step: `(poses, log_weights)`, shapes (J, P) and (J,).
     fn particles<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
         let (shape, states, log_weights) = py.detach(|| {
@@ -205,6 +233,10 @@ impl BodyTracker {
     }
 }
 
+fn poisoned() -> PyErr {
+    runtime_error("the tracker failed in another thread and cannot go on")
+}
+
 impl BodyTracker {
     fn lock(&self) -> PyResult<std::sync::MutexGuard<'_, body_tracker::BodyTracker>> {
         self.tracker
@@ -220,7 +252,16 @@ impl BodyTracker {
         if points.is_empty() {
             return Err(value_error("a frame needs at least one point"));
         }
-        let result: FrameResult = py.detach(|| self.lock()?.step(&points).map_err(body))?;
+        let result: FrameResult = py.detach(|| {
+            let mut tracker = self.lock()?;
+            let result = tracker.step(&points).map_err(body)?;
+            let mut smoothing = self.smoothing.lock().map_err(|_| poisoned())?;
+            if let Some(smoothing) = smoothing.as_mut() {
+                let (_, states, log_weights) = tracker.particles().map_err(body)?;
+                smoothing.add(vec![(0, states, log_weights)])?;
+            }
+            Ok::<_, PyErr>(result)
+        })?;
         let d = PyDict::new(py);
         let dofs = result.pose.len();
         d.set_item("joints", joints_array(py, &self.skeleton, &result.pose)?)?;

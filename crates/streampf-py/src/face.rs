@@ -1,5 +1,6 @@
 //! `streampf.FaceTracker`: the face tracker on numpy frames, with or without the detector.
 
+use crate::smoothing::{Smoothing, rows_dict};
 use std::sync::Mutex;
 
 use face_tracker::detect::{Cascade, DetectConfig, DetectorPlacement, FaceDetector, GpuCascade};
@@ -38,6 +39,36 @@ struct Inner {
     engine: Engine,
     /// Frames stepped.
     frames: usize,
+    /// `smooth=True`: every frame's clouds, for `smoothed()`.
+    smoothing: Option<Smoothing>,
+}
+
+impl Inner {
+    /// A tracker with no frame stepped, smoothing when `smooth`.
+    fn new(engine: Engine, smooth: bool) -> Self {
+        let smoothing = smooth.then(|| {
+            let tracker = engine.tracker();
+            Smoothing::new(tracker.transition(), tracker.motion_gain())
+        });
+        Self {
+            engine,
+            frames: 0,
+            smoothing,
+        }
+    }
+
+    /// A step's estimates to the smoother, when smoothing.
+    fn smooth(&mut self, estimates: &[FaceEstimate]) -> PyResult<()> {
+        if let Some(smoothing) = self.smoothing.as_mut() {
+            smoothing.add(
+                self.engine
+                    .tracker()
+                    .track_clouds(estimates)
+                    .map_err(face)?,
+            )?;
+        }
+        Ok(())
+    }
 }
 
 /// What a step found, as the Python dict's arrays are built from it.
@@ -222,7 +253,8 @@ impl FaceTracker {
     #[pyo3(signature = (
         width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
-        layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto"
+        layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto",
+        smooth = false
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -243,6 +275,7 @@ impl FaceTracker {
         detector: &str,
         fov: Option<f32>,
         face_model: &str,
+        smooth: bool,
     ) -> PyResult<Self> {
         let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
@@ -281,7 +314,7 @@ impl FaceTracker {
             .detach(|| build_engine(size, max_faces, built_in, config, backend, detecting))
             .map_err(face)?;
         Ok(Self {
-            inner: Mutex::new(Inner { engine, frames: 0 }),
+            inner: Mutex::new(Inner::new(engine, smooth)),
             buffer: Mutex::new(Vec::new()),
             size,
             order,
@@ -355,6 +388,7 @@ impl FaceTracker {
                 };
                 let estimates = tracker.step_pixels(width, height, pixels).map_err(face)?;
                 inner.frames += 1;
+                inner.smooth(&estimates)?;
                 Ok(StepOut {
                     estimates,
                     started: Vec::new(),
@@ -370,12 +404,25 @@ impl FaceTracker {
             let out = self.lock().and_then(|mut inner| {
                 let out = step_engine(&mut inner.engine, &image).map_err(face)?;
                 inner.frames += 1;
+                inner.smooth(&out.estimates)?;
                 Ok(out)
             });
             (out, image)
         });
         *self.buffer.lock().unwrap_or_else(|e| e.into_inner()) = image.data;
         step_dict(py, out?)
+    }
+
+    /// Every tracked face-frame so far, smoothed by the frames after it (needs `smooth=True`):
+    /// `frame`, `track`, and the state's smoothed `mean`, `lower`, `upper` (a 95 % interval).
+    fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let rows = py.detach(|| match &self.lock()?.smoothing {
+            Some(smoothing) => smoothing.rows(),
+            None => Err(value_error(
+                "smoothed() needs FaceTracker(..., smooth=True)",
+            )),
+        })?;
+        rows_dict(py, &rows, face_tracker::projection::DIMS)
     }
 
     /// The particles after the last step: `(states, log_weights)` with shapes

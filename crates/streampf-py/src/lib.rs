@@ -16,6 +16,7 @@ mod errors;
 mod face;
 mod filter;
 mod settings;
+mod smoothing;
 mod synthetic;
 mod video;
 

@@ -97,3 +97,19 @@ def test_bad_inputs_are_value_errors(walk):
         tracker.step_depth(depth, -1.0, k["fy"], k["cx"], k["cy"])
     with pytest.raises(ValueError, match="capsules"):
         streampf.BodyTracker(capsules=3)
+
+
+def test_smoothing_gives_every_frame_with_an_interval(walk):
+    tracker = streampf.BodyTracker(walk["truth"][0], particles=128, backend="cpu", smooth=True)
+    for points in walk["points"][:6]:
+        tracker.step(points)
+    s = tracker.smoothed()
+    assert list(s["frame"]) == list(range(6)) and "track" not in s
+    dofs = len(walk["pose_names"])
+    assert s["mean"].shape == s["lower"].shape == s["upper"].shape == (6, dofs)
+    assert np.all(s["lower"] <= s["mean"]) and np.all(s["mean"] <= s["upper"])
+    # Near the truth, as the filter is (the bound of the filter's own test, per value in metres
+    # and radians, loose: smoothing reweighs the same samples).
+    assert np.abs(s["mean"][:, :3] - walk["truth"][:6, :3]).max() < 0.2
+    with pytest.raises(ValueError, match="smooth=True"):
+        streampf.BodyTracker(walk["truth"][0], particles=64, backend="cpu").smoothed()

@@ -205,3 +205,30 @@ def test_particles_come_back_per_slot(two_face_video):
     # The estimate lies within the cloud.
     for slot in result["slot"]:
         assert states[slot, :, 0].min() <= result["state"][slot, 0] <= states[slot, :, 0].max()
+
+
+def test_smoothing_gives_every_tracked_face_frame_with_an_interval(two_face_video):
+    video = two_face_video
+    frames = video["frames"][:10]
+    height, width = frames.shape[1:3]
+    tracker = streampf.FaceTracker(
+        width, height, max_faces=2, particles=300, backend="cpu", face_model="generic", smooth=True
+    )
+    for rect in video["rects"]:
+        tracker.add_face(frames[0], tuple(float(v) for v in rect))
+    assert tracker.smoothed()["mean"].shape == (0, 7)
+    states = [tracker.step(frame)["state"] for frame in frames]
+    s = tracker.smoothed()
+    assert list(s["frame"]) == [f for f in range(10) for _ in range(2)]
+    assert list(s["track"]) == [0, 1] * 10
+    assert s["mean"].shape == s["lower"].shape == s["upper"].shape == (20, 7)
+    # An angle's ends are offsets about its circular mean: every interval holds its mean.
+    assert np.all(s["lower"] <= s["mean"]) and np.all(s["mean"] <= s["upper"])
+    # The smoothed centres stay near the filtered ones (a few pixels, not a different face).
+    filtered = np.stack(states).reshape(-1, 7)
+    assert np.abs(s["mean"][:, :2] - filtered[:, :2]).max() < 10.0
+    # Smoothing reads the state so far and leaves the tracker as it was: it tracks on.
+    assert tracker.step(video["frames"][10])["state"].shape == (2, 7)
+    assert tracker.smoothed()["mean"].shape == (22, 7)
+    with pytest.raises(ValueError, match="smooth=True"):
+        streampf.FaceTracker(width, height, backend="cpu").smoothed()

@@ -16,7 +16,7 @@ mod gpu;
 mod recording;
 mod run_output;
 mod settings;
-mod smoothing;
+pub mod smoothing;
 mod video;
 
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};

@@ -11,7 +11,9 @@ use std::path::Path;
 
 use anyhow::Context;
 use clap::Args;
-use pf_core::smooth::{Cloud, GaussianTransition, Summary, smooth_values, summarise};
+use pf_core::smooth::{
+    Cloud, GaussianTransition, Summary, TargetParticles, smooth_values, summarise,
+};
 
 use crate::run_output::CsvStream;
 
@@ -43,6 +45,7 @@ impl SmoothArgs {
 }
 
 /// One smoothed row: a track's values at a frame, smoothed and (to compare) as filtered.
+#[derive(Debug, Clone)]
 pub struct SmoothedRow {
     pub frame: usize,
     pub track: usize,
@@ -52,14 +55,17 @@ pub struct SmoothedRow {
 }
 
 /// A track's frames waiting to be smoothed, and its last filtered mean (for the drift).
-#[derive(Default)]
+#[derive(Default, Clone)]
 struct TrackFrames {
     frames: VecDeque<(usize, Cloud)>,
     last_mean: Option<Vec<f32>>,
 }
 
-/// The smoother of a run: the filtered clouds of every track, smoothed.csv, and the rows made.
-pub struct Smoother {
+/// The smoothing of tracks as they are filtered, without I/O (the CLI's `Smoother` writes its
+/// rows to smoothed.csv; Python's trackers return them): each track's filtered clouds and their
+/// drift, smoothed when the track ends (or the run does) or, with a lag, L frames behind.
+#[derive(Clone)]
+pub struct TrackSmoother {
     lag: Option<usize>,
     /// The dynamics' density. Each value is smoothed as its own block
     /// (`pf_core::smooth::smooth_values`): with the 38 body values at once the backward weights
@@ -70,6 +76,125 @@ pub struct Smoother {
     /// The constant-velocity gain: the drift into the next frame is this × the last motion.
     gain: f32,
     tracks: BTreeMap<usize, TrackFrames>,
+}
+
+impl TrackSmoother {
+    /// Smoothing with `lag` (`None`: each track whole) under `transition`, the dynamics adding
+    /// `gain` × each track's last motion.
+    pub fn new(lag: Option<usize>, transition: GaussianTransition, gain: f32) -> Self {
+        Self {
+            lag,
+            transition,
+            gain,
+            tracks: BTreeMap::new(),
+        }
+    }
+
+    /// The dynamics' density the smoother reweighs by.
+    pub fn transition(&self) -> &GaussianTransition {
+        &self.transition
+    }
+
+    /// Frame `frame`'s filtered clouds, `(track, states [d·M + m], log-weights [m])` of each
+    /// tracked target; a track that is not among them has ended and is smoothed to its end.
+    /// Returns the rows smoothed.
+    pub fn add_frame(
+        &mut self,
+        frame: usize,
+        clouds: Vec<TargetParticles>,
+    ) -> anyhow::Result<Vec<SmoothedRow>> {
+        let seen: Vec<usize> = clouds.iter().map(|(track, ..)| *track).collect();
+        let ended: Vec<usize> = (self.tracks.keys())
+            .filter(|t| !seen.contains(t))
+            .copied()
+            .collect();
+        let mut rows = Vec::new();
+        for track in ended {
+            rows.extend(self.flush_track(track)?);
+        }
+        for (track, states, log_weights) in clouds {
+            rows.extend(self.add_cloud(frame, track, &states, &log_weights)?);
+        }
+        Ok(rows)
+    }
+
+    /// Smooths every track's frames still waiting (at the end of the run, however it ended).
+    pub fn finish(&mut self) -> anyhow::Result<Vec<SmoothedRow>> {
+        let tracks: Vec<usize> = self.tracks.keys().copied().collect();
+        let mut rows = Vec::new();
+        for track in tracks {
+            rows.extend(self.flush_track(track)?);
+        }
+        Ok(rows)
+    }
+
+    /// One track's cloud at `frame`, with its drift; with a lag, the row L frames back.
+    fn add_cloud(
+        &mut self,
+        frame: usize,
+        track: usize,
+        states: &[f32],
+        log_weights: &[f32],
+    ) -> anyhow::Result<Option<SmoothedRow>> {
+        let dims = self.transition.sigma.len();
+        let mut cloud = Cloud::of_target(
+            dims,
+            log_weights.len(),
+            0,
+            states,
+            log_weights,
+            vec![0.0; dims],
+        )
+        .with_context(|| format!("smoothing track {track} at frame {frame}"))?;
+        let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular))
+            .iter()
+            .map(|s| s.mean)
+            .collect();
+        let entry = self.tracks.entry(track).or_default();
+        cloud.drift = drift(
+            self.gain,
+            entry.last_mean.as_deref(),
+            &mean,
+            &self.transition.angular,
+        );
+        entry.last_mean = Some(mean);
+        entry.frames.push_back((frame, cloud));
+        if self.lag.is_none_or(|lag| entry.frames.len() <= lag) {
+            return Ok(None);
+        }
+        let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
+        let values = smooth_values(&window, &self.transition)?;
+        let (first_frame, first) = entry.frames.pop_front().context("a lag window")?;
+        let first_values = values.into_iter().next().context("a lag window")?;
+        Ok(Some(self.row(first_frame, track, &first, first_values)))
+    }
+
+    fn flush_track(&mut self, track: usize) -> anyhow::Result<Vec<SmoothedRow>> {
+        let Some(waiting) = self.tracks.remove(&track) else {
+            return Ok(Vec::new());
+        };
+        let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
+        let values = smooth_values(&clouds, &self.transition)
+            .with_context(|| format!("smoothing track {track}"))?;
+        Ok((waiting.frames.iter().zip(values))
+            .map(|((frame, cloud), values)| self.row(*frame, track, cloud, values))
+            .collect())
+    }
+
+    /// A row of smoothed `values`, the same particles' filtered summary beside them.
+    fn row(&self, frame: usize, track: usize, cloud: &Cloud, values: Vec<Summary>) -> SmoothedRow {
+        SmoothedRow {
+            frame,
+            track,
+            values,
+            filtered: summarise(cloud, &cloud.weights, &self.transition.angular),
+        }
+    }
+}
+
+/// The smoother of a run: a [`TrackSmoother`] whose rows go to smoothed.csv.
+pub struct Smoother {
+    tracks: TrackSmoother,
     file: CsvStream,
     with_track: bool,
 }
@@ -91,112 +216,43 @@ impl Smoother {
         let lead = if with_track { "frame,track" } else { "frame" };
         let header = format!("{lead},{}", columns.join(","));
         Ok(Self {
-            lag,
-            transition,
-            gain,
-            tracks: BTreeMap::new(),
+            tracks: TrackSmoother::new(lag, transition, gain),
             file: CsvStream::create(&out.join(SMOOTHED_FILE), &header)?,
             with_track,
         })
     }
 
-    /// Frame `frame`'s filtered clouds, `(track, states [d·M + m], log-weights [m])` of each
-    /// tracked target; a track that is not among them has ended and is smoothed to its end.
-    /// Returns the rows written.
+    /// [`TrackSmoother::add_frame`], its rows written.
     pub fn add_frame(
         &mut self,
         frame: usize,
-        clouds: Vec<(usize, Vec<f32>, Vec<f32>)>,
+        clouds: Vec<TargetParticles>,
     ) -> anyhow::Result<Vec<SmoothedRow>> {
-        let seen: Vec<usize> = clouds.iter().map(|(track, ..)| *track).collect();
-        let ended: Vec<usize> = (self.tracks.keys())
-            .filter(|t| !seen.contains(t))
-            .copied()
-            .collect();
-        let mut rows = Vec::new();
-        for track in ended {
-            rows.extend(self.flush_track(track)?);
-        }
-        for (track, states, log_weights) in clouds {
-            let dims = self.transition.sigma.len();
-            let particles = log_weights.len();
-            let mut cloud =
-                Cloud::of_target(dims, particles, 0, &states, &log_weights, vec![0.0; dims])
-                    .with_context(|| format!("smoothing track {track} at frame {frame}"))?;
-            let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular))
-                .iter()
-                .map(|s| s.mean)
-                .collect();
-            let entry = self.tracks.entry(track).or_default();
-            cloud.drift = drift(
-                self.gain,
-                entry.last_mean.as_deref(),
-                &mean,
-                &self.transition.angular,
-            );
-            entry.last_mean = Some(mean);
-            entry.frames.push_back((frame, cloud));
-            if let Some(lag) = self.lag
-                && entry.frames.len() > lag
-            {
-                let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
-                let values = smooth_values(&window, &self.transition)?;
-                let (first_frame, first) = entry.frames.pop_front().context("a lag window")?;
-                let first_values = values.into_iter().next().context("a lag window")?;
-                rows.push(self.row(first_frame, track, &first, first_values)?);
-            }
-        }
-        self.file.end_frame()?;
+        let rows = self.tracks.add_frame(frame, clouds)?;
+        self.write(&rows)?;
         Ok(rows)
     }
 
-    /// Smooths and writes every track's frames still waiting (at the end of the run, however it
-    /// ended).
+    /// [`TrackSmoother::finish`], its rows written.
     pub fn finish(&mut self) -> anyhow::Result<Vec<SmoothedRow>> {
-        let tracks: Vec<usize> = self.tracks.keys().copied().collect();
-        let mut rows = Vec::new();
-        for track in tracks {
-            rows.extend(self.flush_track(track)?);
-        }
-        self.file.end_frame()?;
+        let rows = self.tracks.finish()?;
+        self.write(&rows)?;
         Ok(rows)
     }
 
-    fn flush_track(&mut self, track: usize) -> anyhow::Result<Vec<SmoothedRow>> {
-        let Some(waiting) = self.tracks.remove(&track) else {
-            return Ok(Vec::new());
-        };
-        let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = smooth_values(&clouds, &self.transition)
-            .with_context(|| format!("smoothing track {track}"))?;
-        (waiting.frames.iter().zip(values))
-            .map(|((frame, cloud), values)| self.row(*frame, track, cloud, values))
-            .collect()
-    }
-
-    /// A row of smoothed `values`, written (the same particles' filtered summary kept beside).
-    fn row(
-        &mut self,
-        frame: usize,
-        track: usize,
-        cloud: &Cloud,
-        values: Vec<Summary>,
-    ) -> anyhow::Result<SmoothedRow> {
-        let numbers: Vec<String> = (values.iter())
-            .map(|s| format!("{},{},{}", s.mean, s.lower, s.upper))
-            .collect();
-        let lead = if self.with_track {
-            format!("{frame},{track}")
-        } else {
-            frame.to_string()
-        };
-        self.file.row(&format!("{lead},{}", numbers.join(",")))?;
-        Ok(SmoothedRow {
-            frame,
-            track,
-            values,
-            filtered: summarise(cloud, &cloud.weights, &self.transition.angular),
-        })
+    fn write(&mut self, rows: &[SmoothedRow]) -> anyhow::Result<()> {
+        for row in rows {
+            let numbers: Vec<String> = (row.values.iter())
+                .map(|s| format!("{},{},{}", s.mean, s.lower, s.upper))
+                .collect();
+            let lead = if self.with_track {
+                format!("{},{}", row.frame, row.track)
+            } else {
+                row.frame.to_string()
+            };
+            self.file.row(&format!("{lead},{}", numbers.join(",")))?;
+        }
+        self.file.end_frame()
     }
 }
 

@@ -357,6 +357,25 @@ impl FaceTracker {
         }
     }
 
+    /// Each face being tracked among `estimates` (the last step's) with its slot's particles:
+    /// `(track, states [d·M + m], normalised log-weights [m])`, what a smoother takes. On the GPU
+    /// this reads the particles back.
+    pub fn track_clouds(
+        &self,
+        estimates: &[FaceEstimate],
+    ) -> Result<Vec<pf_core::smooth::TargetParticles>, FaceError> {
+        let (shape, states, log_weights) = self.particles()?;
+        let (m, block) = (shape.particles, shape.dims * shape.particles);
+        Ok((estimates.iter())
+            .filter(|e| e.status == TrackStatus::Tracking)
+            .filter_map(|e| {
+                let states = states.get(e.slot * block..(e.slot + 1) * block)?;
+                let log_weights = log_weights.get(e.slot * m..(e.slot + 1) * m)?;
+                Some((e.track, states.to_vec(), log_weights.to_vec()))
+            })
+            .collect())
+    }
+
     /// The constant-velocity gain of the dynamics (0 for the random walk).
     pub fn motion_gain(&self) -> f32 {
         self.config.motion.gain()

@@ -61,7 +61,13 @@ class FaceTracker:
         detector: str = "auto",
         fov: Optional[float] = None,
         face_model: str = "auto",
+        smooth: bool = False,
     ) -> None: ...
+    def smoothed(self) -> Dict[str, np.ndarray]:
+        """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it
+        (each track whole, a running one over the frames it has): ``frame`` and ``track`` (n,)
+        int64, the state's ``mean``, ``lower`` and ``upper`` (a 95 % interval), (n, 7) float32,
+        in frame and track order. Reads the clouds back every frame on a GPU."""
     @property
     def device(self) -> str:
         """"CPU", or the GPUs' names."""
@@ -124,7 +130,12 @@ class BodyTracker:
         seed: int = 1,
         layers: Optional[int] = None,
         partitioned: bool = True,
+        smooth: bool = False,
     ) -> None: ...
+    def smoothed(self) -> Dict[str, np.ndarray]:
+        """With ``smooth=True``: every frame so far smoothed by the frames after it: ``frame``
+        (n,) int64 and the pose's ``mean``, ``lower`` and ``upper`` (a 95 % interval), (n, P)
+        float32."""
     @property
     def device(self) -> str: ...
     @property

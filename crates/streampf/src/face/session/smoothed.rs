@@ -4,7 +4,7 @@
 
 use face_tracker::projection::{DIMS, STATE_NAMES};
 use face_tracker::tracker::{ANGULAR, pose_errors};
-use face_tracker::{FaceEstimate, FaceTracker, TrackStatus};
+use face_tracker::{FaceEstimate, FaceTracker};
 use std::path::Path;
 
 use crate::smoothing::{Coverage, SmoothedRow, Smoother};
@@ -53,16 +53,7 @@ impl FaceSmoothing {
         estimates: &[FaceEstimate],
         truth: Option<&[Vec<[f32; DIMS]>]>,
     ) -> anyhow::Result<()> {
-        let (shape, states, log_weights) = tracker.particles()?;
-        let (m, block) = (shape.particles, shape.dims * shape.particles);
-        let clouds = (estimates.iter())
-            .filter(|e| e.status == TrackStatus::Tracking)
-            .filter_map(|e| {
-                let states = states.get(e.slot * block..(e.slot + 1) * block)?;
-                let log_weights = log_weights.get(e.slot * m..(e.slot + 1) * m)?;
-                Some((e.track, states.to_vec(), log_weights.to_vec()))
-            })
-            .collect();
+        let clouds = tracker.track_clouds(estimates)?;
         let rows = self.smoother.add_frame(frame, clouds)?;
         self.score(&rows, truth);
         Ok(())

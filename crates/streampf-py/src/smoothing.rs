@@ -1,0 +1,72 @@
+//! `smooth=True` on `FaceTracker` and `BodyTracker`: every frame's filtered clouds go to the
+//! command line's smoother (`streampf::smoothing::TrackSmoother`, each track whole); `smoothed()`
+//! smooths what was tracked so far, the tracks still running included, and returns it as numpy
+//! arrays.
+
+use pf_core::smooth::{GaussianTransition, TargetParticles};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use streampf::smoothing::{SmoothedRow, TrackSmoother};
+
+use crate::arrays::to_numpy;
+use crate::errors::runtime_error;
+
+/// A tracker's smoothing: the smoother, the rows of the tracks that ended, the frames seen.
+pub struct Smoothing {
+    smoother: TrackSmoother,
+    ended: Vec<SmoothedRow>,
+    frames: usize,
+}
+
+impl Smoothing {
+    /// Whole-track smoothing under the tracker's dynamics.
+    pub fn new(transition: GaussianTransition, gain: f32) -> Self {
+        Self {
+            smoother: TrackSmoother::new(None, transition, gain),
+            ended: Vec::new(),
+            frames: 0,
+        }
+    }
+
+    /// The next frame's clouds, `(track, states [d·M + m], log-weights [m])` of each target
+    /// tracked in it.
+    pub fn add(&mut self, clouds: Vec<TargetParticles>) -> PyResult<()> {
+        let rows = (self.smoother.add_frame(self.frames, clouds))
+            .map_err(|e| runtime_error(format!("smoothing: {e:#}")))?;
+        self.ended.extend(rows);
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Every frame tracked so far, smoothed (a running track over the frames it has), in frame
+    /// and track order.
+    pub fn rows(&self) -> PyResult<Vec<SmoothedRow>> {
+        let running = (self.smoother.clone().finish())
+            .map_err(|e| runtime_error(format!("smoothing: {e:#}")))?;
+        let mut rows: Vec<SmoothedRow> = self.ended.iter().cloned().chain(running).collect();
+        rows.sort_by_key(|r| (r.frame, r.track));
+        Ok(rows)
+    }
+}
+
+/// The rows as a dict: `frame` and `track` (n,) int64, `mean`, `lower`, `upper` (n, D) float32.
+pub fn rows_dict<'py>(
+    py: Python<'py>,
+    rows: &[SmoothedRow],
+    dims: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    let n = rows.len();
+    let out = PyDict::new(py);
+    let ints = |f: fn(&SmoothedRow) -> usize| rows.iter().map(|r| f(r) as i64).collect::<Vec<_>>();
+    out.set_item("frame", to_numpy(py, ints(|r| r.frame), &[n])?)?;
+    out.set_item("track", to_numpy(py, ints(|r| r.track), &[n])?)?;
+    let column = |pick: fn(&pf_core::smooth::Summary) -> f32| -> Vec<f32> {
+        rows.iter()
+            .flat_map(|r| r.values.iter().map(pick))
+            .collect()
+    };
+    out.set_item("mean", to_numpy(py, column(|s| s.mean), &[n, dims])?)?;
+    out.set_item("lower", to_numpy(py, column(|s| s.lower), &[n, dims])?)?;
+    out.set_item("upper", to_numpy(py, column(|s| s.upper), &[n, dims])?)?;
+    Ok(out)
+}
