@@ -678,7 +678,8 @@ fn weighted_mean_and_spread_match_cpu_within_tolerance() {
             let report = gpu
                 .run_stages(ctx, &[GpuStage::Estimate], &NoLikelihood)
                 .unwrap();
-            let want = batch::weighted_means(&shape, &states, &w64, &angular);
+            let (want, spreads) =
+                batch::weighted_means_and_spreads(&shape, &states, &w64, &angular);
             for (i, (&g, &c)) in report.estimates.iter().zip(&want).enumerate() {
                 let d = i % shape.dims;
                 // Angles: the circular mean is ill-conditioned when the resultant vector is short
@@ -693,7 +694,6 @@ fn weighted_mean_and_spread_match_cpu_within_tolerance() {
             // The spreads about the CPU's means: standard deviations within 1e-3 of the value
             // range; for angles the resultant length R = exp(-s²/2) within 1e-3 (R is what is
             // summed; s = √(−2 ln R) is steep as R → 0).
-            let spreads = batch::weighted_spreads(&shape, &states, &w64, &angular, &want);
             for (i, (&g, &c)) in report.spreads.iter().zip(&spreads).enumerate() {
                 let ok = if angular[i % shape.dims] {
                     let r = |s: f32| (-0.5 * s * s).exp();

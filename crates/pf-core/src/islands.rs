@@ -11,7 +11,7 @@
 //! island whose draw names another restarts from a resample of that island's particles.
 //! pf-gpu's `engine::Islands` steps the islands and calls these.
 
-use crate::batch::{BatchShape, weighted_means, weighted_spreads};
+use crate::batch::{BatchShape, weighted_means_and_spreads};
 use crate::error::PfError;
 use crate::random::CounterUniforms;
 use crate::resample::{Resampler, Systematic};
@@ -132,8 +132,7 @@ pub fn combine(
                 estimates[d * count + g] = island.estimates[t * dims + d];
             }
         }
-        let mean = weighted_means(&shape, &estimates, &weights, angular);
-        let between = weighted_spreads(&shape, &estimates, &weights, angular, &mean);
+        let (mean, between) = weighted_means_and_spreads(&shape, &estimates, &weights, angular);
         for (d, between) in between.iter().enumerate() {
             let within: f64 = (islands.iter().zip(&weights))
                 .map(|(i, w)| w * f64::from(i.spreads[t * dims + d]).powi(2))

@@ -23,7 +23,7 @@ pub use config::{BatchConfig, BatchShape, Motion, stage_keys, stage_keys_from};
 pub use stages::{
     LayerBeta, Normalised, add_drift, best_weighted_means, circular_spread, diffuse,
     frame_log_evidence, normalise_target, update_velocity, weighted_means,
-    weighted_means_and_spreads, weighted_spreads,
+    weighted_means_and_spreads,
 };
 
 /// The GPU's wrap into [−π, π): `x − 2π·floor((x + π) / 2π)`. (pf-core's scalar
@@ -45,7 +45,7 @@ pub struct BatchReport {
     pub estimates: Vec<f32>,
     /// The best-M′ weighted means, `[t·D + d]` (empty when `best` is 0).
     pub best_estimates: Vec<f32>,
-    /// The posterior's spread about the weighted means, `[t·D + d]` ([`weighted_spreads`]).
+    /// The posterior's spread about the weighted means, `[t·D + d]` ([`weighted_means_and_spreads`]).
     pub spreads: Vec<f32>,
     /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,

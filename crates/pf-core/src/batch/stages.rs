@@ -163,118 +163,68 @@ pub fn weighted_means(
     weights: &[f64],
     angular: &[bool],
 ) -> Vec<f32> {
-    // One task per (target, dimension) row, each summed in index order as on one core.
-    (0..shape.targets * shape.dims)
-        .into_par_iter()
-        .map(|row| {
-            let (t, d) = (row / shape.dims, row % shape.dims);
-            let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-            let xs = &states[row * shape.particles..(row + 1) * shape.particles];
-            let (mut a, mut b) = (0.0f64, 0.0f64);
-            for (&x, &wi) in xs.iter().zip(w) {
-                let x = f64::from(x);
-                if angular[d] {
-                    a += wi * x.sin();
-                    b += wi * x.cos();
-                } else {
-                    a += wi * x;
-                    b += wi;
-                }
-            }
-            if angular[d] {
-                a.atan2(b) as f32
-            } else if b > 0.0 {
-                (a / b) as f32
-            } else {
-                0.0
-            }
-        })
+    let rows = (0..shape.targets * shape.dims).into_par_iter();
+    rows.map(|row| row_moments(shape, states, weights, angular, row, false).0)
         .collect()
 }
 
-/// Twin of the spread half of the weighted-mean kernel: per target and dimension, the posterior's
-/// spread about `means` (`[t·D + d]`, from [`weighted_means`]): the weighted standard deviation,
-/// or for an angle the circular standard deviation √(−2 ln R), R the length of the weighted mean
-/// unit vector (0 for one direction; it grows without bound as the directions fill the circle).
-pub fn weighted_spreads(
-    shape: &BatchShape,
-    states: &[f32],
-    weights: &[f64],
-    angular: &[bool],
-    means: &[f32],
-) -> Vec<f32> {
-    // One task per (target, dimension) row, each summed in index order as on one core.
-    (0..shape.targets * shape.dims)
-        .into_par_iter()
-        .map(|row| {
-            let (t, d) = (row / shape.dims, row % shape.dims);
-            let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-            let xs = &states[row * shape.particles..(row + 1) * shape.particles];
-            let mean = f64::from(means[row]);
-            if angular[d] {
-                let (s, c) = xs
-                    .iter()
-                    .zip(w)
-                    .fold((0.0f64, 0.0f64), |(s, c), (&x, &wi)| {
-                        (s + wi * f64::from(x).sin(), c + wi * f64::from(x).cos())
-                    });
-                circular_spread(s.hypot(c)) as f32
-            } else {
-                let (sq, total) = xs
-                    .iter()
-                    .zip(w)
-                    .fold((0.0f64, 0.0f64), |(sq, n), (&x, &wi)| {
-                        (sq + wi * (f64::from(x) - mean).powi(2), n + wi)
-                    });
-                if total > 0.0 {
-                    (sq / total).sqrt() as f32
-                } else {
-                    0.0
-                }
-            }
-        })
-        .collect()
-}
-
-/// [`weighted_means`] and [`weighted_spreads`] in one pass over each row (an angle's sums of
-/// sines and cosines give both its mean and its spread): the same values, half the work.
+/// Twin of the whole weighted-mean kernel: per target and dimension the weighted mean and the
+/// posterior's spread about it — the weighted standard deviation, or for an angle the circular
+/// standard deviation √(−2 ln R), R the length of the weighted mean unit vector (0 for one
+/// direction; it grows without bound as the directions fill the circle). An angle's sums of
+/// sines and cosines give both its mean and its spread in one pass.
 pub fn weighted_means_and_spreads(
     shape: &BatchShape,
     states: &[f32],
     weights: &[f64],
     angular: &[bool],
 ) -> (Vec<f32>, Vec<f32>) {
-    let rows: Vec<(f32, f32)> = (0..shape.targets * shape.dims)
-        .into_par_iter()
-        .map(|row| {
-            let (t, d) = (row / shape.dims, row % shape.dims);
-            let w = &weights[t * shape.particles..(t + 1) * shape.particles];
-            let xs = &states[row * shape.particles..(row + 1) * shape.particles];
-            if angular[d] {
-                let (s, c) = xs
-                    .iter()
-                    .zip(w)
-                    .fold((0.0f64, 0.0f64), |(s, c), (&x, &wi)| {
-                        let x = f64::from(x);
-                        (s + wi * x.sin(), c + wi * x.cos())
-                    });
-                (s.atan2(c) as f32, circular_spread(s.hypot(c)) as f32)
-            } else {
-                let (a, b) = (xs.iter().zip(w)).fold((0.0f64, 0.0f64), |(a, b), (&x, &wi)| {
-                    (a + wi * f64::from(x), b + wi)
-                });
-                if b <= 0.0 {
-                    return (0.0, 0.0);
-                }
-                let mean = (a / b) as f32;
-                let m64 = f64::from(mean);
-                let sq: f64 = (xs.iter().zip(w))
-                    .fold(0.0, |sq, (&x, &wi)| sq + wi * (f64::from(x) - m64).powi(2));
-                (mean, (sq / b).sqrt() as f32)
-            }
-        })
+    let rows = (0..shape.targets * shape.dims).into_par_iter();
+    let moments: Vec<(f32, f32)> = rows
+        .map(|row| row_moments(shape, states, weights, angular, row, true))
         .collect();
-    rows.into_iter().unzip()
+    moments.into_iter().unzip()
+}
+
+/// One (target, dimension) row's weighted mean and, when `with_spread`, its spread (else 0),
+/// summed in index order as on one core (rows run on all cores with the same result).
+fn row_moments(
+    shape: &BatchShape,
+    states: &[f32],
+    weights: &[f64],
+    angular: &[bool],
+    row: usize,
+    with_spread: bool,
+) -> (f32, f32) {
+    let (t, d) = (row / shape.dims, row % shape.dims);
+    let w = &weights[t * shape.particles..(t + 1) * shape.particles];
+    let xs = &states[row * shape.particles..(row + 1) * shape.particles];
+    if angular[d] {
+        let (s, c) = (xs.iter().zip(w)).fold((0.0f64, 0.0f64), |(s, c), (&x, &wi)| {
+            let x = f64::from(x);
+            (s + wi * x.sin(), c + wi * x.cos())
+        });
+        let spread = if with_spread {
+            circular_spread(s.hypot(c)) as f32
+        } else {
+            0.0
+        };
+        return (s.atan2(c) as f32, spread);
+    }
+    let (a, b) = (xs.iter().zip(w)).fold((0.0f64, 0.0f64), |(a, b), (&x, &wi)| {
+        (a + wi * f64::from(x), b + wi)
+    });
+    if b <= 0.0 {
+        return (0.0, 0.0);
+    }
+    let mean = (a / b) as f32;
+    if !with_spread {
+        return (mean, 0.0);
+    }
+    let m64 = f64::from(mean);
+    let sq: f64 =
+        (xs.iter().zip(w)).fold(0.0, |sq, (&x, &wi)| sq + wi * (f64::from(x) - m64).powi(2));
+    (mean, (sq / b).sqrt() as f32)
 }
 
 /// √(−2 ln R) of a mean resultant length R in (0, 1] (clamped), the circular standard deviation.

@@ -73,7 +73,7 @@ pub struct EngineReport {
     /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
     pub best_estimates: Vec<f32>,
     /// The posterior's spread about the weighted means, `[t·D + d]`: the weighted standard
-    /// deviation, circular for angles (`pf_core::batch::weighted_spreads`).
+    /// deviation, circular for angles (`pf_core::batch::weighted_means_and_spreads`).
     pub spreads: Vec<f32>,
     /// Each target's effective sample size after weighing.
     pub ess: Vec<f64>,

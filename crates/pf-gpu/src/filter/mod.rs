@@ -107,7 +107,7 @@ pub struct GpuStepReport {
     /// The best-M′ weighted means, `[t·D + d]` (empty when the configuration's `best` is 0).
     pub best_estimates: Vec<f32>,
     /// The posterior's spread about the weighted mean, `[t·D + d]`: the weighted standard
-    /// deviation, circular for angles (`pf_core::batch::weighted_spreads`).
+    /// deviation, circular for angles (`pf_core::batch::weighted_means_and_spreads`).
     pub spreads: Vec<f32>,
     /// The step's duration: GPU timestamps where the adapter has them, else wall clock.
     pub time: GpuTime,
