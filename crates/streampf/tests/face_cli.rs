@@ -443,12 +443,7 @@ fn frames_in_flight_write_what_one_frame_at_a_time_writes() {
         (streampf(&args), out)
     };
     let (streamed, streamed_dir) = run("in-flight", &[]);
-    if !streamed.status.success() && failure(&streamed).contains("no GPU adapter was found") {
-        assert!(
-            std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
-            "this test needs a GPU adapter (or Mesa's lavapipe); set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly"
-        );
-        eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
+    if !streamed.status.success() && common::skipped_for_no_gpu(&failure(&streamed)) {
         return;
     }
     assert!(ok(&streamed).contains("(two frames in flight)"));

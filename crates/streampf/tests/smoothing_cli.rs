@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{failure, ok, scratch, streampf};
+use common::{failure, ok, scratch, skipped_for_no_gpu, streampf};
 use std::collections::BTreeSet;
 use std::path::Path;
 use std::process::Command;
@@ -154,13 +154,7 @@ fn body_smoothing_writes_every_frame_and_a_device_fault_keeps_the_written_ones()
         .output()
         .unwrap();
     let err = failure(&run);
-    if err.contains("no GPU adapter was found") {
-        assert!(
-            std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
-            "this test needs a GPU adapter (or Mesa's lavapipe); set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly.\n{err}"
-        );
-        eprintln!("SKIPPED (the device-fault half): no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
-    } else {
+    if !skipped_for_no_gpu(&err) {
         assert!(
             err.contains("device was lost") && err.contains("frame 4"),
             "{err}"

@@ -45,6 +45,22 @@ pub fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// Whether a run's error `stderr` says it found no GPU adapter: allowed (said on stderr) only
+/// when the run opted out with STREAMPF_ALLOW_NO_GPU=1; without it the test fails, saying how to
+/// get one. A GPU test never passes silently for lack of an adapter.
+pub fn skipped_for_no_gpu(stderr: &str) -> bool {
+    if !stderr.contains("no GPU adapter was found") {
+        return false;
+    }
+    assert!(
+        std::env::var("STREAMPF_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
+        "this test needs a GPU adapter (or Mesa's lavapipe: apt-get install mesa-vulkan-drivers); \
+         set STREAMPF_ALLOW_NO_GPU=1 to skip it explicitly.\n{stderr}"
+    );
+    eprintln!("SKIPPED: no GPU adapter and STREAMPF_ALLOW_NO_GPU=1");
+    true
+}
+
 /// The number after `label` in `text`.
 pub fn number_after(text: &str, label: &str) -> f64 {
     let start = text

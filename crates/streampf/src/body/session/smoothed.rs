@@ -88,10 +88,7 @@ impl BodySmoothing {
 
     /// The summary's lines for smoothed.csv (and, with ground truth, its errors and coverage).
     pub(in crate::body) fn print(&self) {
-        let how = match self.lag {
-            None => "over the whole run".to_string(),
-            Some(lag) => format!("with a lag of {lag} frames"),
-        };
+        let how = crate::smoothing::how(self.lag);
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");
             return;
