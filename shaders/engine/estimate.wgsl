@@ -2,7 +2,7 @@
 // (angles as the mean of unit vectors, atan2(sum w sin, sum w cos)), and the posterior's spread
 // about it: the weighted standard deviation, or for an angle the circular one, sqrt(-2 ln R) with
 // R the length of the weighted mean unit vector. One workgroup per target.
-// CPU twins: pf_core::batch::weighted_means and pf_core::batch::weighted_spreads.
+// CPU twins: pf_core::batch::weighted_means and pf_core::batch::weighted_means_and_spreads.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> states: array<f32>;
