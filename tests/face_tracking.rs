@@ -226,20 +226,22 @@ fn true_rect(video: &FaceSynthConfig, face: usize, frame: usize) -> FaceRect {
 
 /// A track restarted on a new template while its face is turned goes on from its pose: its
 /// rotation and scale stay near the truth after the restart, where starting again from R = 0
-/// and S = 1 would be off by the whole turn.
+/// and S = 1 would be off by the whole turn. Judged on the median of three filter seeds: with
+/// 256 particles one seed's 10 frames after the restart scatter (2.1–4.6° over seeds 1–5 on
+/// lavapipe), while the failure this guards against is off by the whole turn (over 15°).
 #[test]
 fn a_restarted_track_keeps_its_pose_on_cpu() {
-    restarted_track_keeps_its_pose(FaceBackend::Cpu);
+    restarted_track_keeps_its_pose(|| FaceBackend::Cpu);
 }
 
 #[test]
 fn a_restarted_track_keeps_its_pose_on_gpu() {
     if let Some(context) = common::gpu_context("a restarted track on the GPU") {
-        restarted_track_keeps_its_pose(FaceBackend::Gpu(Box::new(context)));
+        restarted_track_keeps_its_pose(|| FaceBackend::Gpu(Box::new(context.clone())));
     }
 }
 
-fn restarted_track_keeps_its_pose(backend: FaceBackend) {
+fn restarted_track_keeps_its_pose(backend: impl Fn() -> FaceBackend) {
     let video = FaceSynthConfig {
         faces: 1,
         occlusion: false,
@@ -247,9 +249,6 @@ fn restarted_track_keeps_its_pose(backend: FaceBackend) {
     };
     let model = FaceModel::generic(129).unwrap();
     let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
-    let first = renderer.render(0).unwrap();
-    let rect = initial_rect(&video, 0);
-    let mut tracker = FaceTracker::new(&first, &[rect], &model, config(), backend).unwrap();
     // The restart comes at the largest turn from the first frame's pose in frames 8–19.
     let mut unturned = face_state(&video, 0, 0);
     (unturned[RX], unturned[RY], unturned[RZ]) = (0.0, 0.0, 0.0);
@@ -257,19 +256,65 @@ fn restarted_track_keeps_its_pose(backend: FaceBackend) {
     let restart_at = (8..20)
         .max_by(|&a, &b| turn(a).total_cmp(&turn(b)))
         .unwrap();
+    assert!(
+        turn(restart_at) > 15.0,
+        "the face turned only {}°",
+        turn(restart_at)
+    );
+    let mut runs: Vec<(f32, f32)> = (1..=3)
+        .map(|seed| {
+            let config = FaceTrackerConfig { seed, ..config() };
+            errors_after_restart(&video, &renderer, &model, config, backend(), restart_at)
+        })
+        .collect();
+    eprintln!(
+        "turned {:.1}° at the restart (frame {restart_at}); after it, seeds 1–3: {runs:?} (rotation °, scale share)",
+        turn(restart_at)
+    );
+    let median = |runs: &mut Vec<(f32, f32)>, key: fn(&(f32, f32)) -> f32| {
+        runs.sort_by(|a, b| key(a).total_cmp(&key(b)));
+        key(&runs[1])
+    };
+    let rotation = median(&mut runs, |r| r.0);
+    let scale = median(&mut runs, |r| r.1);
+    assert!(
+        rotation <= MAX_ROTATION_DEG,
+        "median rotation error {rotation}° after the restart"
+    );
+    assert!(
+        scale <= 0.05,
+        "median scale off by {scale} after the restart"
+    );
+}
+
+/// The mean rotation error (°) and relative scale error of the one face over the frames after a
+/// restart on the template taken at `restart_at`.
+fn errors_after_restart(
+    video: &FaceSynthConfig,
+    renderer: &FaceVideoRenderer,
+    model: &FaceModel,
+    config: FaceTrackerConfig,
+    backend: FaceBackend,
+    restart_at: usize,
+) -> (f32, f32) {
+    let first = renderer.render(0).unwrap();
+    let rect = initial_rect(video, 0);
+    let mut tracker = FaceTracker::new(&first, &[rect], model, config, backend).unwrap();
+    let mut unturned = face_state(video, 0, 0);
+    (unturned[RX], unturned[RY], unturned[RZ]) = (0.0, 0.0, 0.0);
     let (mut rotation_after, mut scale_after) = (Vec::new(), Vec::new());
     for frame in 0..video.frames {
         let image = renderer.render(frame).unwrap();
         let e = tracker.step(&image).unwrap().remove(0);
         assert_eq!(e.status, TrackStatus::Tracking, "frame {frame}");
-        let truth = face_state(&video, 0, frame);
+        let truth = face_state(video, 0, frame);
         if frame > restart_at {
             rotation_after.push(pose_errors(&e.state, &truth).1);
             // S is relative to the rectangle the track started from.
             scale_after.push((e.state[SCALE] * unturned[SCALE] / truth[SCALE] - 1.0).abs());
         }
         if frame == restart_at {
-            let rect = true_rect(&video, 0, frame);
+            let rect = true_rect(video, 0, frame);
             let restart = tracker
                 .template_for_restart(0, &image, &rect, frame)
                 .unwrap();
@@ -277,22 +322,7 @@ fn restarted_track_keeps_its_pose(backend: FaceBackend) {
         }
     }
     let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
-    let (rotation, scale) = (mean(&rotation_after), mean(&scale_after));
-    eprintln!(
-        "turned {:.1}° at the restart (frame {restart_at}); after it: rotation error {rotation:.2}°, scale error {:.1} %",
-        turn(restart_at),
-        100.0 * scale
-    );
-    assert!(
-        turn(restart_at) > 15.0,
-        "the face turned only {}°",
-        turn(restart_at)
-    );
-    assert!(
-        rotation <= MAX_ROTATION_DEG,
-        "rotation error {rotation}° after the restart"
-    );
-    assert!(scale <= 0.05, "scale off by {scale} after the restart");
+    (mean(&rotation_after), mean(&scale_after))
 }
 
 /// Every frame's estimates, stepped one at a time or with two frames in flight.

@@ -5,8 +5,18 @@
 //!
 //! Tolerance (the tolerance policy in ARCHITECTURE.md): ε agrees to 1e-4 relative plus 1e-5, plus what each point's ρ can move
 //! when its projection moves by 1e-3 px (f32 rounding of the projection is ~1e-4 px at these
-//! sizes; bilinear sampling is continuous, so this bounds the change in I), all over the number of
-//! visible points. Two flips are allowed and counted: a point within 1e-3 px of the frame's edge
+//! sizes; bilinear sampling is continuous, so this bounds the change in I) and its sample moves by
+//! the texture unit's rounding (below), all over the number of visible points.
+//!
+//! The texture unit's bound: the GPU samples through the hardware filter, whose weights carry 8
+//! fractional bits (`pf_gpu::image`); the CPU twin rounds its weights to the nearest 1/256, and a
+//! unit may truncate instead, so each weight may differ from the exact one by up to 1/256 on the
+//! GPU and 1/512 on the CPU. A bilinear value moves by at most the cell's range (largest minus
+//! smallest of its four levels) times the weight's change, per axis: both samples lie within
+//! 2·range/256 of the exact bilinear value. One more level is allowed for a unit that returns the
+//! filtered value at 8-bit precision (Mesa's lavapipe filters 8-bit textures in 8-bit arithmetic).
+//! A coordinate off by half a pixel, or a filter other than bilinear, moves a sample by up to half
+//! the range and fails. Two flips are allowed and counted: a point within 1e-3 px of the frame's edge
 //! (inside or outside decides between its ρ and 1), and a point whose rotated normal has
 //! |n_z| < 1e-5 (visible or occluded: it moves ε by at most 1/(N−1), or to 1 when it carries the
 //! visible count across the minimum share). Through a pinhole, a point nearer the camera than a
@@ -82,6 +92,17 @@ fn state(rng: &mut pf_core::RandomStream, width: u32, height: u32) -> [f32; DIMS
     ]
 }
 
+/// The texture unit's bound on a sample at (x, y) against the exact bilinear value, in levels
+/// (see the module doc).
+fn texture_unit_bound(image: &GrayImage, x: f32, y: f32) -> f32 {
+    let x0 = (x as u32).min(image.width - 2);
+    let y0 = (y as u32).min(image.height - 2);
+    let cell = [(0, 0), (1, 0), (0, 1), (1, 1)].map(|(dx, dy)| image.at(x0 + dx, y0 + dy));
+    let range = cell.iter().cloned().fold(f32::NEG_INFINITY, f32::max)
+        - cell.iter().cloned().fold(f32::INFINITY, f32::min);
+    2.0 * range / 256.0 + 1.0
+}
+
 /// The allowed |ε_GPU − ε_CPU| for one particle (see the module doc).
 fn tolerance(
     s: &[f32; DIMS],
@@ -120,14 +141,24 @@ fn tolerance(
             (0.0, SHIFT),
             (0.0, -SHIFT),
         ]
-        .map(|(dx, dy)| image.bilinear(p.x + dx, p.y + dy));
+        .map(|(dx, dy)| {
+            let (x, y) = (p.x + dx, p.y + dy);
+            image
+                .bilinear(x, y)
+                .map(|v| (v, texture_unit_bound(image, x, y)))
+        });
         if shifted.iter().any(|v| v.is_none()) {
             if shifted.iter().any(|v| v.is_some()) {
                 flips += 1;
             }
             continue;
         }
-        let kappas = shifted.map(|v| (pose.alpha * v.unwrap_or(0.0) - q.gray) / q.gray);
+        // Each sample widened by the texture unit's bound, both ways (α > 0).
+        let kappas = shifted.map(|v| {
+            let (level, bound) = v.unwrap_or((0.0, 0.0));
+            [level - bound, level + bound].map(|l| (pose.alpha * l - q.gray) / q.gray)
+        });
+        let kappas = kappas.as_flattened();
         let lo = kappas.iter().cloned().fold(f32::INFINITY, f32::min);
         let hi = kappas.iter().cloned().fold(f32::NEG_INFINITY, f32::max);
         let rhos = [

@@ -11,14 +11,15 @@
 // paper's), or through a pinhole (inverse_focal = 1/f > 0) that point magnified by
 // 1 / (1 - S (R P)_z / f) about the principal point (through_lens; CPU twin
 // face_tracker::likelihood::Lens::apply); a point at or behind the camera counts as outside the frame.
-// I(p) bilinear, kappa =
+// I(p) bilinear, through the texture unit's filter (pf_gpu::image: 8-bit fractional weights; the
+// CPU twin rounds its weights the same way), kappa =
 // (alpha I(p) - J) / J, rho = kappa^2 / (kappa^2 + 1), computed as d^2 / (d^2 + J^2) with d =
 // alpha I(p) - J (the same value, one division); a point outside the frame has rho = 1.
 // epsilon = mean rho over those points (1 when fewer than min_visible_share of the points face
 // the camera), log pi = -sharpness ln max(epsilon, floor).
 //
-// Layouts: states (the filter's, common.wgsl); frame: 8-bit gray levels, pixel i = y * width + x
-// in byte i % 4 (little-endian) of word i / 4, a quarter of an f32 frame's upload; points of
+// Layouts: states (the filter's, common.wgsl); frame: an R8Unorm texture of the 8-bit gray levels
+// (pf_gpu::GrayTexture) with a linear, clamp-to-edge sampler; points of
 // face t at [(t * max_points + i) * 2] = (P, J) and [.. + 1] = (N, 0), point_counts[t];
 // log_likelihood and errors [t * M + m]. weigh_estimates checks each face's pose estimate
 // (pose_estimates [t * 7 + d], the filter's estimate) and writes its epsilon to
@@ -36,15 +37,17 @@ struct FaceParams {
     inverse_focal: f32,
     principal_x: f32,
     principal_y: f32,
-    _pad2: u32,
-    _pad3: u32,
+    // 1 / width and 1 / height: pixel (x, y) is the texture's ((x + 0.5) / width, (y + 0.5) / height).
+    texel_x: f32,
+    texel_y: f32,
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> states: array<f32>;
 @group(0) @binding(2) var<storage, read_write> log_likelihood: array<f32>;
 @group(0) @binding(3) var<uniform> fp: FaceParams;
-@group(0) @binding(4) var<storage, read> frame: array<u32>;
+@group(0) @binding(4) var frame: texture_2d<f32>;
+@group(0) @binding(10) var frame_sampler: sampler;
 @group(0) @binding(5) var<storage, read> points: array<vec4<f32>>;
 @group(0) @binding(6) var<storage, read> point_counts: array<u32>;
 @group(0) @binding(7) var<storage, read_write> errors: array<f32>;
@@ -73,25 +76,17 @@ fn rotation_z(a: f32) -> mat3x3<f32> {
     return mat3x3<f32>(vec3<f32>(c, s, 0.0), vec3<f32>(-s, c, 0.0), vec3<f32>(0.0, 0.0, 1.0));
 }
 
-fn pixel(x: u32, y: u32) -> f32 {
-    let i = y * fp.width + x;
-    return f32(extractBits(frame[i >> 2u], (i & 3u) * 8u, 8u));
-}
-
-// Bilinear sample at (x, y), or -1 outside [0, w-1] x [0, h-1] (as GrayImage::bilinear).
+// Bilinear sample at (x, y) through the texture unit, or -1 outside [0, w-1] x [0, h-1] (as
+// GrayImage::bilinear; the CPU twin is face_tracker::likelihood's Pixels::bilinear). Inside,
+// clamp-to-edge makes the last row and column interpolate within their cell, as the CPU's does.
 fn bilinear(x: f32, y: f32) -> f32 {
     let w1 = f32(fp.width - 1u);
     let h1 = f32(fp.height - 1u);
     if (!(x >= 0.0 && y >= 0.0 && x <= w1 && y <= h1)) {
         return -1.0;
     }
-    let x0 = min(u32(floor(x)), fp.width - 2u);
-    let y0 = min(u32(floor(y)), fp.height - 2u);
-    let fx = x - f32(x0);
-    let fy = y - f32(y0);
-    let top = pixel(x0, y0) * (1.0 - fx) + pixel(x0 + 1u, y0) * fx;
-    let bottom = pixel(x0, y0 + 1u) * (1.0 - fx) + pixel(x0 + 1u, y0 + 1u) * fx;
-    return top * (1.0 - fy) + bottom * fy;
+    let at = vec2<f32>((x + 0.5) * fp.texel_x, (y + 0.5) * fp.texel_y);
+    return 255.0 * textureSampleLevel(frame, frame_sampler, at, 0.0).r;
 }
 
 // Lens::MIN_DISTANCE_SHARE.

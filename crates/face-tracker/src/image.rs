@@ -2,8 +2,8 @@
 //! between CPU and GPU cannot jump a pixel).
 //!
 //! Frames are [`GrayImage`]: 8-bit levels, as cameras, video decoders and image files give them
-//! and as the GPU kernel reads them (four to a word), so a frame reaches the GPU without a
-//! conversion, and both backends see the same pixels. Image processing that needs sub-level
+//! and as the GPU kernels read them (a texture of 8-bit levels for the likelihood, four to a word
+//! for the detector), so a frame reaches the GPU without a conversion, and both backends see the same pixels. Image processing that needs sub-level
 //! precision (the smoothing and Laplacian of template extraction) works on [`FloatImage`].
 
 use std::path::Path;

@@ -19,6 +19,7 @@ pub use error::{GpuError, NO_ADAPTER_HELP};
 pub mod context;
 pub mod engine;
 pub mod filter;
+pub mod image;
 pub mod kernels;
 pub mod model;
 pub mod random;
@@ -31,6 +32,7 @@ pub use filter::{
     GpuFilter, GpuLikelihood, GpuResampler, GpuStage, GpuStepReport, LikelihoodInputs,
     LikelihoodPhase, LikelihoodReadbacks, NoLikelihood, PendingStep, ReadbackSource, TargetStats,
 };
+pub use image::GrayTexture;
 pub use kernels::Kernel;
 pub use stream::{DeviceStream, Readback, ReadbackSet};
 pub use timing::GpuTime;

@@ -1,6 +1,6 @@
 //! The launcher of the face paper's sparse-template likelihood (`shaders/face/likelihood.wgsl`, [`super::SHADER`])
-//! over plain layouts: the frame as 8-bit gray levels (four to a `u32`, a quarter of the bytes an
-//! f32 frame would upload), and per face up to `max_points` feature
+//! over plain layouts: the frame as a texture of 8-bit gray levels, read through the texture unit's
+//! bilinear filter ([`pf_gpu::GrayTexture`]), and per face up to `max_points` feature
 //! points as two `[f32; 4]` each, (P, J) and (N, 0). It is a [`GpuLikelihood`]: inside the GPU
 //! filter it reads the particles where they are and writes log π = −sharpness·ln ε, and it keeps
 //! ε per particle for failure detection. CPU twin: [`super::residual_error`], in this module's parent.
@@ -9,6 +9,7 @@ use bytemuck::{Pod, Zeroable};
 
 use pf_gpu::GpuContext;
 use pf_gpu::GpuError;
+use pf_gpu::GrayTexture;
 use pf_gpu::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
 use pf_gpu::kernels::{Kernel, stage_source};
 use pf_gpu::stream::DeviceStream;
@@ -46,7 +47,9 @@ struct FaceParams {
     inverse_focal: f32,
     principal_x: f32,
     principal_y: f32,
-    _pad: [u32; 2],
+    /// 1/width and 1/height: where the texture's pixel centres lie.
+    texel_x: f32,
+    texel_y: f32,
 }
 
 /// The check of each face's estimate: ε per face, read back with the step
@@ -63,8 +66,8 @@ pub struct FaceLikelihoodGpu {
     max_points: usize,
     width: u32,
     height: u32,
-    /// The frame's 8-bit gray levels, four to a word (byte i of the frame is byte i of the buffer).
-    frame: DeviceStream<u32>,
+    /// The frame's 8-bit gray levels.
+    frame: GrayTexture,
     points: DeviceStream<[f32; 4]>,
     counts: DeviceStream<u32>,
     errors: Option<DeviceStream<f32>>,
@@ -106,12 +109,11 @@ impl FaceLikelihoodGpu {
             )));
         }
         check_weighing(&lens, sharpness, min_error, min_visible_share)?;
-        let pixels = width as usize * height as usize;
         let point_values = faces
             .checked_mul(max_points * 2)
             .filter(|&n| n <= u32::MAX as usize)
             .ok_or_else(|| GpuError::InvalidConfig("too many feature points".into()))?;
-        let frame = DeviceStream::zeroed(ctx, "face frame", pixels.div_ceil(4))?;
+        let frame = GrayTexture::new(ctx, "face frame", width, height)?;
         let points = DeviceStream::zeroed(ctx, "feature points", point_values)?;
         let counts = DeviceStream::zeroed(ctx, "feature point counts", faces)?;
         let entry = match dispatch {
@@ -136,7 +138,8 @@ impl FaceLikelihoodGpu {
             inverse_focal: lens.inverse_focal,
             principal_x: lens.principal[0],
             principal_y: lens.principal[1],
-            _pad: [0; 2],
+            texel_x: 1.0 / width as f32,
+            texel_y: 1.0 / height as f32,
         };
         let params = params_per_dispatch(ctx, dispatch, faces, every_face)?;
         Ok(Self {
@@ -165,25 +168,7 @@ impl FaceLikelihoodGpu {
 
     /// This frame's 8-bit gray levels, `[y·width + x]`: the one upload of a frame.
     pub fn upload_frame(&self, ctx: &GpuContext, gray: &[u8]) -> Result<(), GpuError> {
-        let pixels = self.width as usize * self.height as usize;
-        if gray.len() != pixels {
-            return Err(GpuError::LengthMismatch {
-                what: format!("face frame ({}x{} pixels)", self.width, self.height),
-                expected: pixels,
-                got: gray.len(),
-            });
-        }
-        // Writes are whole words: a frame whose pixel count is not a multiple of four is padded.
-        let whole = pixels - pixels % 4;
-        // One write: splitting the copy into staging memory over the cores measured slower on
-        // an H200 host (0.20 ms against 0.11–0.13 ms for 1024x768, with the wait).
-        self.frame.upload_bytes_at(ctx, 0, &gray[..whole])?;
-        if whole < pixels {
-            let mut tail = [0u8; 4];
-            tail[..pixels - whole].copy_from_slice(&gray[whole..]);
-            self.frame.upload_bytes_at(ctx, whole, &tail)?;
-        }
-        Ok(())
+        self.frame.upload(ctx, gray)
     }
 
     /// Face `face`'s template: `[(P, J), (N, 0)]` per point, at most `max_points` points.
@@ -253,6 +238,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
                         (2, inputs.log_likelihood.binding()),
                         (3, p.as_entire_binding()),
                         (4, self.frame.binding()),
+                        (10, self.frame.sampler_binding()),
                         (5, self.points.binding()),
                         (6, self.counts.binding()),
                         (7, errors.binding()),
@@ -269,6 +255,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
                 (0, inputs.params.as_entire_binding()),
                 (3, self.params[0].as_entire_binding()),
                 (4, self.frame.binding()),
+                (10, self.frame.sampler_binding()),
                 (5, self.points.binding()),
                 (6, self.counts.binding()),
                 (8, inputs.estimates.binding()),
@@ -383,7 +370,7 @@ mod layout_tests {
             "FaceParams",
             size_of::<FaceParams>(),
             &fields!(FaceParams: width, height, max_points, face_offset, sharpness, min_error,
-                min_visible_share, inverse_focal, principal_x, principal_y),
+                min_visible_share, inverse_focal, principal_x, principal_y, texel_x, texel_y),
         );
     }
 }

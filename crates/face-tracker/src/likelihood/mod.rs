@@ -2,7 +2,8 @@
 //! kernel is tested against, on one thread (the Fig. 6 baseline) and on all cores.
 //!
 //! For a particle x and a template {(P, N, J)}: each point that faces the camera is projected to
-//! p, the frame is sampled bilinearly there, and κ = (α·I(p) − J)/J; ε = (1/N) Σ ρ(κ) with
+//! p, the frame is sampled bilinearly there (with the weights rounded to 8 bits, as the GPU's
+//! texture unit rounds them), and κ = (α·I(p) − J)/J; ε = (1/N) Σ ρ(κ) with
 //! ρ(κ) = κ²/(κ² + 1) over the N points that face the camera. A point that projects outside the
 //! frame counts with ρ = 1, the largest value ρ takes, so a face leaving the frame loses weight.
 //! A pose that shows less than [`MIN_VISIBLE_SHARE`] of the template's points has ε = 1: the
@@ -15,6 +16,7 @@
 //! or a pinhole of known focal length ([`residual_error_through`]), which magnifies each point
 //! by its depth about the principal point.
 
+use pf_gpu::image::quantised_weight;
 use rayon::prelude::*;
 
 #[cfg(target_arch = "x86_64")]
@@ -139,11 +141,17 @@ impl<'a> Pixels<'a> {
         [upper[0], upper[1], lower[0], lower[1]].map(f32::from)
     }
 
-    /// [`GrayImage::bilinear`] at a point [`Pixels::inside`] the frame.
+    /// The bilinear interpolation at a point [`Pixels::inside`] the frame as the GPU's texture
+    /// unit computes it (the twin of `bilinear` in `shaders/face/likelihood.wgsl`): the weights
+    /// rounded to 8 fractional bits ([`quantised_weight`]), so within 1/512 of
+    /// [`GrayImage::bilinear`]'s per axis.
     #[inline]
     fn bilinear(&self, x: f32, y: f32) -> f32 {
         let (x0, y0) = self.cell(x, y);
-        let (fx, fy) = (x - x0 as f32, y - y0 as f32);
+        let (fx, fy) = (
+            quantised_weight(x - x0 as f32),
+            quantised_weight(y - y0 as f32),
+        );
         let [top_left, top_right, bottom_left, bottom_right] =
             self.corners(y0 as usize * self.width + x0 as usize);
         let top = top_left * (1.0 - fx) + top_right * fx;
@@ -305,9 +313,11 @@ fn lanes_through<const GATHER: bool, const PINHOLE: bool>(
             sample_lanes(&pixels, &u, &v)
         };
         for l in 0..LANES {
-            let top = top_left[l] * (1.0 - fx[l]) + top_right[l] * fx[l];
-            let bottom = bottom_left[l] * (1.0 - fx[l]) + bottom_right[l] * fx[l];
-            let intensity = top * (1.0 - fy[l]) + bottom * fy[l];
+            // The texture unit's weights, as Pixels::bilinear.
+            let (fx, fy) = (quantised_weight(fx[l]), quantised_weight(fy[l]));
+            let top = top_left[l] * (1.0 - fx) + top_right[l] * fx;
+            let bottom = bottom_left[l] * (1.0 - fx) + bottom_right[l] * fx;
+            let intensity = top * (1.0 - fy) + bottom * fy;
             let rho = f64::from(rho_of_residual(poses.alpha[l] * intensity - q.gray, q.gray));
             let term = if inside[l] { rho } else { 1.0 };
             // Adding 0.0 leaves a sum of non-negative terms unchanged, bit for bit.
