@@ -21,6 +21,7 @@ pub mod engine;
 pub mod filter;
 pub mod image;
 pub mod kernels;
+pub mod load;
 pub mod model;
 pub mod random;
 pub mod stream;

@@ -67,7 +67,7 @@ pub fn face_backend(contexts: Vec<GpuContext>, choice: Choice) -> FaceBackend {
     let mut contexts = contexts;
     match (choice, contexts.len()) {
         (_, 0) => FaceBackend::Cpu,
-        (Choice::AllGpus, _) => FaceBackend::Gpus(contexts),
+        (Choice::AllGpus, n) if n > 1 => FaceBackend::Gpus(contexts),
         _ => FaceBackend::Gpu(Box::new(contexts.remove(0))),
     }
 }

@@ -296,7 +296,11 @@ impl FaceTracker {
         let photographed = built_in.is_photographed(false);
         let config = config(particles, seed, layers, focal_length(fov, width)?)?;
         let cascade = load_cascade(detect, cascade)?;
-        let backend = face_backend(open(py, choice, allow_software)?, choice);
+        // All GPUs: as many as the faces' work pays for (face_tracker's gpus_for_load).
+        let mut contexts = open(py, choice, allow_software)?;
+        let paid = face_tracker::tracker::shards::gpus_for_load(max_faces, &config, contexts.len());
+        contexts.truncate(paid.max(1));
+        let backend = face_backend(contexts, choice);
         let device = device_names(&backend);
         let detecting = match cascade {
             Some(cascade) => {

@@ -36,6 +36,57 @@ pub fn all(allow_software: bool) -> anyhow::Result<Vec<GpuContext>> {
         .context("opening the GPUs (see `streampf devices`)")
 }
 
+/// The GPUs a run of several uses: `forced` (`--gpus N`) when given, else as many as `pays_for`
+/// says of those there are (it gets their count); the choice is said unless `quiet`.
+pub fn by_load(
+    mut contexts: Vec<GpuContext>,
+    forced: Option<u32>,
+    pays_for: impl Fn(usize) -> usize,
+    quiet: bool,
+) -> anyhow::Result<Vec<GpuContext>> {
+    let available = contexts.len();
+    let used = match forced {
+        Some(n) if n == 0 || n as usize > available => anyhow::bail!(
+            "--gpus {n}: this machine has {available} usable GPU(s) (see `streampf devices`)"
+        ),
+        Some(n) => n as usize,
+        None => pays_for(available).clamp(1, available.max(1)),
+    };
+    if !quiet && available > 1 {
+        let why = match forced {
+            Some(_) => "as --gpus asks",
+            None => "as many as a frame's work pays for; --gpus N chooses",
+        };
+        errln!("using {used} of {available} GPUs ({why})");
+    }
+    contexts.truncate(used);
+    Ok(contexts)
+}
+
+/// `--backend auto` on a machine of several hardware GPUs whose frame's work pays for more than
+/// one (`pays_for` of their count), or `--gpus N` given: those GPUs. `None` otherwise: then
+/// [`preferred`] picks one or the CPU.
+pub fn several_preferred(
+    forced: Option<u32>,
+    pays_for: impl Fn(usize) -> usize,
+    quiet: bool,
+) -> anyhow::Result<Option<Vec<GpuContext>>> {
+    let hardware = pf_gpu::list_adapters()
+        .map(|adapters| adapters.iter().filter(|a| !a.is_software()).count())
+        .unwrap_or(0);
+    let wanted = forced.map_or_else(|| pays_for(hardware), |n| n as usize);
+    if hardware < 2 || wanted < 2 {
+        if forced.is_some_and(|n| n as usize > hardware.max(1)) {
+            anyhow::bail!(
+                "--gpus {}: this machine has {hardware} hardware GPU(s) (see `streampf devices`)",
+                forced.unwrap_or(0)
+            );
+        }
+        return Ok(None);
+    }
+    by_load(all(false)?, forced, pays_for, quiet).map(Some)
+}
+
 /// `--backend auto`: the GPU when there is one, else `None` (the CPU), said unless `quiet`.
 pub fn preferred(allow_software: bool, quiet: bool) -> Option<GpuContext> {
     match GpuContext::new(&options(allow_software)) {

@@ -476,3 +476,69 @@ fn frames_in_flight_write_what_one_frame_at_a_time_writes() {
         std::fs::remove_dir_all(dir).unwrap();
     }
 }
+
+/// `--gpus N` chooses how many of several GPUs a run uses: refused with --backend cpu or gpu,
+/// beyond the GPUs there are, or at 0; on lavapipe (one adapter) `--gpus 1` runs. The body's
+/// option is the same code (`streampf::gpu::by_load`).
+#[test]
+fn gpus_is_checked_against_the_backend_and_the_machine() {
+    let out = scratch("gpus-option");
+    let o = out.to_str().unwrap();
+    let run = |extra: &[&str]| {
+        let mut args = vec![
+            "face",
+            "track",
+            "--synthetic",
+            "--faces",
+            "1",
+            "--frames",
+            "2",
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--particles",
+            "50",
+            "--out",
+            o,
+        ];
+        args.extend_from_slice(extra);
+        streampf(&args)
+    };
+    for backend in ["cpu", "gpu"] {
+        let err = failure(&run(&["--backend", backend, "--gpus", "2"]));
+        assert!(err.contains("--gpus chooses how many GPUs"), "{err}");
+    }
+    let err = failure(&run(&["--backend", "all-gpus", "--gpus", "0"]));
+    assert!(err.contains("--gpus"), "{err}");
+    let too_many = run(&[
+        "--backend",
+        "all-gpus",
+        "--allow-software",
+        "--gpus",
+        "1024",
+    ]);
+    let stderr = String::from_utf8_lossy(&too_many.stderr).to_string();
+    if common::skipped_for_no_gpu(&stderr) {
+        return;
+    }
+    let err = failure(&too_many);
+    assert!(err.contains("this machine has"), "{err}");
+    let one = run(&["--backend", "all-gpus", "--allow-software", "--gpus", "1"]);
+    assert!(ok(&one).contains("tracked 1 face"));
+    let body = streampf(&[
+        "body",
+        "track",
+        "--synthetic",
+        "--frames",
+        "2",
+        "--backend",
+        "cpu",
+        "--gpus",
+        "2",
+        "--out",
+        o,
+    ]);
+    let err = failure(&body);
+    assert!(err.contains("--gpus chooses how many GPUs"), "{err}");
+}

@@ -42,6 +42,27 @@ pub(crate) struct ShardStep {
     pub gpu_time: Option<GpuTime>,
 }
 
+/// Template points a face is weighed at when the load is modelled (the paper's templates have
+/// about 230; a template's real count is known only once its face is found).
+pub const NOMINAL_TEMPLATE_POINTS: usize = 230;
+
+/// Template samples a frame must give each GPU for a split over GPUs to pay: 32 faces of 1 000
+/// particles × 5 layers × 230 points. Measured on NVIDIA H200s: 4 faces over two GPUs ran at 0.8×
+/// one GPU's rate, 64 faces over four at 1.12×, 256 over two at 1.33× (1.69× with frames in
+/// flight): below about 30 faces a GPU, a step is its fixed chain of dispatches, not its work.
+pub const SAMPLES_PER_GPU: f64 = 32.0 * 1000.0 * 5.0 * NOMINAL_TEMPLATE_POINTS as f64;
+
+/// How many of `available` GPUs a tracker of `capacity` face slots under `config` pays for:
+/// its template samples per frame (slots × particles × annealing layers ×
+/// [`NOMINAL_TEMPLATE_POINTS`]) over [`SAMPLES_PER_GPU`], at least one, at most one per slot.
+pub fn gpus_for_load(capacity: usize, config: &FaceTrackerConfig, available: usize) -> usize {
+    let samples = capacity as f64
+        * config.particles as f64
+        * config.annealing.layers.max(1) as f64
+        * NOMINAL_TEMPLATE_POINTS as f64;
+    pf_gpu::load::gpus_for_work(samples, SAMPLES_PER_GPU, available.min(capacity.max(1)))
+}
+
 /// The slots of each of `shards` shards: `capacity` split as evenly as possible, each at least 1.
 pub(crate) fn shard_sizes(capacity: usize, shards: usize) -> Result<Vec<usize>, FaceError> {
     if shards == 0 || capacity < shards {
@@ -309,4 +330,28 @@ pub(crate) fn joined_particles(
         states,
         log_weights,
     ))
+}
+
+#[cfg(test)]
+mod load_tests {
+    use super::gpus_for_load;
+    use crate::tracker::FaceTrackerConfig;
+
+    #[test]
+    fn faces_split_over_gpus_only_where_the_work_pays() {
+        let defaults = FaceTrackerConfig::default();
+        // The synthetic video's four faces stay on one GPU (split, they ran at 0.8× one GPU's rate).
+        assert_eq!(gpus_for_load(4, &defaults, 4), 1);
+        assert_eq!(gpus_for_load(31, &defaults, 4), 1);
+        assert_eq!(gpus_for_load(64, &defaults, 4), 2);
+        assert_eq!(gpus_for_load(256, &defaults, 4), 4);
+        assert_eq!(gpus_for_load(256, &defaults, 1), 1);
+        assert_eq!(gpus_for_load(256, &defaults, 0), 0);
+        // Never more GPUs than slots.
+        let heavy = FaceTrackerConfig {
+            particles: 1_000_000,
+            ..defaults
+        };
+        assert_eq!(gpus_for_load(2, &heavy, 8), 2);
+    }
 }

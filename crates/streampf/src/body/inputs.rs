@@ -39,14 +39,36 @@ impl Source {
     }
 }
 
-pub(super) fn open_backend(args: &TrackArgs) -> anyhow::Result<Backend> {
+/// The backend `--backend` asks for; several GPUs only as many as `pays_for` (of their count)
+/// says a frame's work pays for, or `--gpus`.
+pub(super) fn open_backend(
+    args: &TrackArgs,
+    pays_for: impl Fn(usize) -> usize,
+) -> anyhow::Result<Backend> {
+    if args.gpus.is_some() && matches!(args.backend, BackendArg::Cpu | BackendArg::Gpu) {
+        anyhow::bail!(
+            "--gpus chooses how many GPUs --backend all-gpus or auto uses; --backend cpu and gpu use none or one"
+        );
+    }
+    let several = |contexts: Vec<pf_gpu::GpuContext>| match <[_; 1]>::try_from(contexts) {
+        Ok([one]) => Backend::Gpu(Box::new(one)),
+        Err(contexts) => Backend::SplitGpus(contexts),
+    };
     Ok(match args.backend {
         BackendArg::Cpu => Backend::Cpu,
         BackendArg::Gpu => Backend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
-        BackendArg::AllGpus => Backend::SplitGpus(crate::gpu::all(args.allow_software)?),
-        BackendArg::Auto => match crate::gpu::preferred(args.allow_software, args.quiet) {
-            Some(ctx) => Backend::Gpu(Box::new(ctx)),
-            None => Backend::Cpu,
+        BackendArg::AllGpus => several(crate::gpu::by_load(
+            crate::gpu::all(args.allow_software)?,
+            args.gpus,
+            pays_for,
+            args.quiet,
+        )?),
+        BackendArg::Auto => match crate::gpu::several_preferred(args.gpus, pays_for, args.quiet)? {
+            Some(contexts) => several(contexts),
+            None => match crate::gpu::preferred(args.allow_software, args.quiet) {
+                Some(ctx) => Backend::Gpu(Box::new(ctx)),
+                None => Backend::Cpu,
+            },
         },
     })
 }

@@ -245,6 +245,10 @@ pub struct TrackArgs {
     pub particles: u32,
     #[arg(long, value_enum, default_value_t = BackendArg::Auto)]
     pub backend: BackendArg,
+    /// With --backend all-gpus or auto: how many GPUs to use (default: as many as a frame's work
+    /// pays for, said when the run starts; docs/BENCHMARKS.md, "Several GPUs").
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(1..=1024))]
+    pub gpus: Option<u32>,
     /// Accept a software GPU adapter (Mesa's lavapipe) for --backend gpu.
     #[arg(long)]
     pub allow_software: bool,

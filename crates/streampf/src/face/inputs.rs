@@ -91,14 +91,36 @@ pub(super) fn read_truth(
     Ok(out)
 }
 
-pub(super) fn open_backend(args: &TrackArgs) -> anyhow::Result<FaceBackend> {
+/// The backend `--backend` asks for; several GPUs only as many as `pays_for` (of their count)
+/// says a frame's work pays for, or `--gpus`.
+pub(super) fn open_backend(
+    args: &TrackArgs,
+    pays_for: impl Fn(usize) -> usize,
+) -> anyhow::Result<FaceBackend> {
+    if args.gpus.is_some() && matches!(args.backend, BackendArg::Cpu | BackendArg::Gpu) {
+        bail!(
+            "--gpus chooses how many GPUs --backend all-gpus or auto uses; --backend cpu and gpu use none or one"
+        );
+    }
+    let several = |contexts: Vec<pf_gpu::GpuContext>| match <[_; 1]>::try_from(contexts) {
+        Ok([one]) => FaceBackend::Gpu(Box::new(one)),
+        Err(contexts) => FaceBackend::Gpus(contexts),
+    };
     Ok(match args.backend {
         BackendArg::Cpu => FaceBackend::Cpu,
         BackendArg::Gpu => FaceBackend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
-        BackendArg::AllGpus => FaceBackend::Gpus(crate::gpu::all(args.allow_software)?),
-        BackendArg::Auto => match crate::gpu::preferred(args.allow_software, args.quiet) {
-            Some(ctx) => FaceBackend::Gpu(Box::new(ctx)),
-            None => FaceBackend::Cpu,
+        BackendArg::AllGpus => several(crate::gpu::by_load(
+            crate::gpu::all(args.allow_software)?,
+            args.gpus,
+            pays_for,
+            args.quiet,
+        )?),
+        BackendArg::Auto => match crate::gpu::several_preferred(args.gpus, pays_for, args.quiet)? {
+            Some(contexts) => several(contexts),
+            None => match crate::gpu::preferred(args.allow_software, args.quiet) {
+                Some(ctx) => FaceBackend::Gpu(Box::new(ctx)),
+                None => FaceBackend::Cpu,
+            },
         },
     })
 }

@@ -76,7 +76,14 @@ pub(super) fn build_runner(
     } else {
         None
     };
-    let backend = open_backend(args)?;
+    // The slots a run can fill: the rectangles, or the detector's most faces.
+    let capacity = match detect {
+        true => (args.max_faces.unwrap_or(DEFAULT_MAX_FACES) as usize).max(rects.len()),
+        false => rects.len(),
+    };
+    let backend = open_backend(args, |available| {
+        face_tracker::tracker::shards::gpus_for_load(capacity, &config, available)
+    })?;
     let backend_name = backend_description(&backend);
     let personaliser = load_personaliser(args)?;
     if args.landmarks_out && personaliser.is_none() {

@@ -11,6 +11,7 @@ use crate::run_output::{self, Interrupted, OutputLock, ResumePoint, clear_old_re
 use crate::smoothing::SMOOTHED_FILE;
 use anyhow::{Context, bail};
 use body_tracker::sequence::read_pose_csv;
+use body_tracker::tracker::islands;
 use body_tracker::{BodyTracker, Skeleton, TrackerConfig};
 use nalgebra::Vector3;
 use std::collections::VecDeque;
@@ -42,9 +43,12 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .min(args.max_frames.map_or(usize::MAX, |n| n as usize));
     let first_points = source.points(&skeleton, 0)?;
     let start = start_pose(args, &skeleton, truth.as_deref(), &first_points)?;
-    let backend = open_backend(args)?;
+    let config = tracker_config(args)?;
+    let backend = open_backend(args, |available| {
+        islands::gpus_for_load(&skeleton, &config, first_points.len(), available)
+    })?;
     let backend_name = backend.describe();
-    let mut tracker = BodyTracker::new(skeleton.clone(), &start, tracker_config(args)?, backend)?;
+    let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend)?;
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("--save-particles: creating {}", dir.display()))?;
