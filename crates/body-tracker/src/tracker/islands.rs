@@ -23,13 +23,14 @@ use crate::error::BodyError;
 use crate::likelihood::{CapsuleLikelihoodParams, Rays, culled_sum_of_squared_distances_parallel};
 use crate::skeleton::{ROOT_DOFS, Skeleton};
 
-/// Ray-capsule tests a frame must give each GPU for an island to pay for its GPU. A body step
-/// has a fixed chain of dispatches per annealing layer (about 4 ms at the defaults on an NVIDIA
-/// H100, where the likelihood's 0.6 G tests take a fraction of a millisecond), and the fast
-/// kernel tests about 2 G pairs a millisecond: an island pays once its tests cost about as much
-/// as the chain. Measured on two NVIDIA H200s: 7 000 samples × 8 layers × 14 771 points × 48
-/// capsules (40 G tests a frame) ran 1.91× as fast on two GPUs as on one.
-pub const TESTS_PER_GPU: f64 = 8.0e9;
+/// Ray-capsule tests a frame must give each GPU for an island to pay for its GPU. Unlike a face
+/// step, a body step's time grows with its samples (the kinematics and the likelihood run per
+/// sample and layer), and every split measured paid: on four NVIDIA H100s, `body track
+/// --synthetic` at the defaults (1 500 samples × 8 layers × 1 040 points × 48 capsules, 0.6 G
+/// tests a frame) ran at 231, 333 and 428 frames/s on one, two and four GPUs (0.15 G tests a
+/// GPU at four); 7 000 samples at 1024×768 (40 G) at 31.4, 59.8 and 110.6. Below the smallest
+/// share measured to pay, one GPU.
+pub const TESTS_PER_GPU: f64 = 1.0e8;
 
 /// How many of `available` GPUs a frame of `points` points pays for under `config`: its
 /// ray-capsule tests (samples × annealing layers × points × capsules) over [`TESTS_PER_GPU`], at
@@ -118,9 +119,14 @@ mod tests {
     fn islands_only_where_the_tests_pay_for_them() {
         let skeleton = crate::human::human_skeleton(48).unwrap();
         let defaults = super::super::TrackerConfig::default();
-        // The synthetic default (about 1 040 points) stays on one GPU; the paper's frame of
-        // 43 000 points at 7 000 samples takes four.
-        assert_eq!(gpus_for_load(&skeleton, &defaults, 1040, 4), 1);
+        // The synthetic default (about 1 040 points, 0.6 G tests) takes four; 100 samples of
+        // it (40 M) one; the paper's frame of 43 000 points at 7 000 samples four.
+        assert_eq!(gpus_for_load(&skeleton, &defaults, 1040, 4), 4);
+        let light = super::super::TrackerConfig {
+            particles: 100,
+            ..defaults.clone()
+        };
+        assert_eq!(gpus_for_load(&skeleton, &light, 1040, 4), 1);
         let paper = super::super::TrackerConfig {
             particles: 7000,
             max_points: 50_000,
