@@ -22,6 +22,7 @@
 //! - [`auto`]: fully automatic tracking: the detector in its own thread starts tracks.
 
 pub mod auto;
+pub mod camera;
 pub mod detect;
 pub mod error;
 pub mod extraction;

@@ -14,6 +14,7 @@ use body_tracker::ply::{parse_ply, ply_ascii, write_ply_binary};
 use body_tracker::sequence::{read_numeric_csv, read_pose_csv};
 use body_tracker::skeleton::Skeleton;
 use face_tracker::GrayImage;
+use face_tracker::camera::Calibration;
 use face_tracker::detect::Cascade;
 use face_tracker::landmarks::ShapePredictor;
 use face_tracker::landmarks::pts::parse_pts;
@@ -63,6 +64,14 @@ fn through(scratch: &Path, name: &str, read: fn(&Path) -> Result<(), String>) ->
     })
 }
 
+/// A calibration as OpenCV's calibration sample writes it (`face track --calibration`).
+const OPENCV_CALIBRATION_YAML: &str = "%YAML:1.0\n---\nimage_width: 640\nimage_height: 480\n\
+    camera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ 6.5746697944293521e+02, 0., 3.1950000000000000e+02, 0.,\n       6.5746697944293521e+02, 2.3950000000000000e+02, 0., 0., 1. ]\n\
+    distortion_coefficients: !!opencv-matrix\n   rows: 5\n   cols: 1\n   dt: d\n   data: [ -4.18e-01, 5.07e-01, 0., 0., -5.78e-01 ]\n";
+
+/// The same in OpenCV's JSON.
+const OPENCV_CALIBRATION_JSON: &str = r#"{"imageSize": [640, 480], "cameraMatrix": {"type_id": "opencv-matrix", "rows": 3, "cols": 3, "dt": "d", "data": [657.5, 0.0, 319.5, 0.0, 657.5, 239.5, 0.0, 0.0, 1.0]}, "distCoeffs": [0.1, 0.0, 0.0, 0.0]}"#;
+
 /// The face tracker's inputs: the landmark model, `.pts` files, frames and the Haar cascade.
 fn face_targets(scratch: &Path) -> Result<Vec<Target>, String> {
     let frame = GrayImage::new(24, 16, (0..24 * 16).map(|i| (i * 7 % 251) as u8).collect())
@@ -81,6 +90,18 @@ fn face_targets(scratch: &Path) -> Result<Vec<Target>, String> {
             name: "pts",
             seeds: vec![pts_text(68).into_bytes(), pts_text(3).into_bytes()],
             parse: Box::new(|b| parse_pts(&String::from_utf8_lossy(b)).map(drop)),
+        },
+        Target {
+            name: "opencv-calibration",
+            seeds: vec![
+                OPENCV_CALIBRATION_YAML.as_bytes().to_vec(),
+                OPENCV_CALIBRATION_JSON.as_bytes().to_vec(),
+            ],
+            parse: Box::new(|b| {
+                Calibration::parse(&String::from_utf8_lossy(b))
+                    .map(drop)
+                    .map_err(|e| e.to_string())
+            }),
         },
         Target {
             name: "image-frame",

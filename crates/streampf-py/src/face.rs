@@ -18,6 +18,7 @@ use pyo3::types::PyDict;
 use crate::arrays::{ChannelOrder, contiguous, gray_frame, to_numpy};
 use crate::backend::{Choice, face_backend, open};
 use crate::errors::{face, runtime_error, value_error, whole, whole_opt};
+use face_tracker::camera::{Calibration, Intrinsics};
 
 /// The tracker behind the Python object: faces from the caller's rectangles only, or from the
 /// detector as well.
@@ -121,6 +122,42 @@ pub(crate) fn focal_length(fov: Option<f32>, width: u32) -> PyResult<Option<f32>
     let focal = face_tracker::likelihood::Lens::focal_length_for(fov, width)
         .map_err(|e| value_error(format!("fov, the camera's horizontal field of view: {e}")))?;
     Ok(Some(focal))
+}
+
+/// `camera=`: (fx, fy, cx, cy) in pixels, or the path of an OpenCV calibration file (YAML or
+/// JSON; scaled to frames of `size` when it was made at another size of the same shape), as
+/// `face track --camera` and `--calibration` take them; not with `fov`.
+fn camera_of(
+    camera: Option<&Bound<'_, PyAny>>,
+    fov: Option<f32>,
+    size: (u32, u32),
+) -> PyResult<Option<Intrinsics>> {
+    let Some(camera) = camera.filter(|c| !c.is_none()) else {
+        return Ok(None);
+    };
+    if fov.is_some() {
+        return Err(value_error(
+            "give camera= or fov=, not both: a calibrated camera has its own field of view",
+        ));
+    }
+    let bad = |e: face_tracker::FaceError| value_error(format!("camera: {e}"));
+    if let Ok(path) = camera.extract::<std::path::PathBuf>() {
+        let calibration = Calibration::load(&path).map_err(bad)?;
+        return match calibration.image_size {
+            Some(calibrated) => calibration
+                .intrinsics
+                .for_frames(calibrated, size)
+                .map(Some)
+                .map_err(bad),
+            None => Ok(Some(calibration.intrinsics)),
+        };
+    }
+    let (fx, fy, cx, cy): (f32, f32, f32, f32) = camera.extract().map_err(|_| {
+        value_error(
+            "camera must be (fx, fy, cx, cy) in pixels or the path of an OpenCV calibration file",
+        )
+    })?;
+    Intrinsics::new(fx, fy, cx, cy).map(Some).map_err(bad)
 }
 
 /// The detector's cascade when `detect` is on (OpenCV's frontal cascade unless `cascade` names
@@ -254,7 +291,7 @@ impl FaceTracker {
         width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
         layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto",
-        smooth = false
+        smooth = false, camera = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -276,6 +313,7 @@ impl FaceTracker {
         fov: Option<f32>,
         face_model: &str,
         smooth: bool,
+        camera: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
@@ -295,6 +333,10 @@ impl FaceTracker {
         // Frames from arrays are real frames (a synthetic video is asked for by name).
         let photographed = built_in.is_photographed(false);
         let config = config(particles, seed, layers, focal_length(fov, width)?)?;
+        let config = match camera_of(camera, fov, (width, height))? {
+            Some(camera) => config.with_camera(&camera),
+            None => config,
+        };
         let cascade = load_cascade(detect, cascade)?;
         // All GPUs: as many as the faces' work pays for (face_tracker's gpus_for_load).
         let mut contexts = open(py, choice, allow_software)?;

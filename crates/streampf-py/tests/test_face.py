@@ -151,6 +151,31 @@ def test_a_close_camera_is_tracked_through_its_lens():
         streampf.synthetic_faces(2, fov=180.0)
 
 
+def test_a_calibrated_camera_is_the_same_pinhole_as_its_field_of_view(tmp_path):
+    # 80° across 320 pixels: fx = fy = 160 / tan(40°), the principal point the frame's middle.
+    video = streampf.synthetic_faces(6, width=320, height=240, faces=1, half_width=30.0, fov=80.0)
+    focal = float(np.float32(160.0 / np.tan(np.radians(40.0))))
+    by_fov, _ = track(video, particles=64, backend="cpu", fov=80.0)
+    by_camera, _ = track(video, particles=64, backend="cpu", camera=(focal, focal, 159.5, 119.5))
+    np.testing.assert_allclose(by_camera, by_fov, atol=1e-3)
+    # The same camera as OpenCV's FileStorage writes it, calibrated at twice the size.
+    calibration = tmp_path / "camera.json"
+    calibration.write_text(
+        '{"image_width": 640, "image_height": 480, "camera_matrix": {"type_id": "opencv-matrix", '
+        f'"rows": 3, "cols": 3, "dt": "d", "data": [{2 * focal!r}, 0, 319.5, 0, {2 * focal!r}, 239.5, 0, 0, 1]}}}}'
+    )
+    by_file, _ = track(video, particles=64, backend="cpu", camera=str(calibration))
+    np.testing.assert_allclose(by_file, by_fov, atol=1e-3)
+    with pytest.raises(ValueError, match="not both"):
+        streampf.FaceTracker(320, 240, fov=60.0, camera=(300.0, 300.0, 160.0, 120.0))
+    with pytest.raises(ValueError, match="square pixels"):
+        streampf.FaceTracker(320, 240, camera=(300.0, 600.0, 160.0, 120.0))
+    with pytest.raises(ValueError, match=r"\(fx, fy, cx, cy\)"):
+        streampf.FaceTracker(320, 240, camera=(300.0, 300.0))
+    with pytest.raises(ValueError, match="no-such-file"):
+        streampf.FaceTracker(320, 240, camera=str(tmp_path / "no-such-file.yml"))
+
+
 def test_the_face_model_is_chosen_by_the_command_lines_rule(two_face_video):
     # Frames from arrays are real frames: the photographed head, as `face track` picks for a
     # video; the generic head (the synthetic video's) when asked for.

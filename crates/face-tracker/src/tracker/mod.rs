@@ -81,14 +81,36 @@ pub struct FaceTrackerConfig {
     /// seen through that pinhole ([`Lens`]). `None`: weak perspective, the paper's, right for
     /// a camera far from the faces (docs/ACCURACY.md, "The camera's lens").
     pub focal_length: Option<f32>,
+    /// Where the camera's axis meets the frame (pixels; a calibration's cx, cy), with
+    /// `focal_length`. `None`: the frame's middle.
+    pub principal_point: Option<[f32; 2]>,
 }
 
 impl FaceTrackerConfig {
     /// The lens faces are seen through in frames of `frame_size`.
     pub fn lens(&self, (width, height): (u32, u32)) -> Result<Lens, FaceError> {
-        match self.focal_length {
-            None => Ok(Lens::WEAK),
-            Some(focal) => Ok(Lens::pinhole(focal, width, height)?),
+        let Some(focal) = self.focal_length else {
+            return Ok(Lens::WEAK);
+        };
+        let mut lens = Lens::pinhole(focal, width, height)?;
+        if let Some(principal) = self.principal_point {
+            if !principal.iter().all(|c| c.is_finite()) {
+                return Err(FaceError::InvalidInput(format!(
+                    "the principal point must be finite (pixels), got {principal:?}"
+                )));
+            }
+            lens.principal = principal;
+        }
+        Ok(lens)
+    }
+
+    /// This config seeing faces through a calibrated camera (`focal_length` the mean of fx and fy,
+    /// `principal_point` (cx, cy)).
+    pub fn with_camera(self, camera: &crate::camera::Intrinsics) -> Self {
+        Self {
+            focal_length: Some(camera.focal_length()),
+            principal_point: Some([camera.cx, camera.cy]),
+            ..self
         }
     }
 }
@@ -112,6 +134,7 @@ impl Default for FaceTrackerConfig {
             annealing: Annealing::survival(5, 0.5, 0.6),
             motion: Motion::ConstantVelocity { gain: 0.5 },
             focal_length: None,
+            principal_point: None,
         }
     }
 }

@@ -35,6 +35,9 @@ class FaceTracker:
     camera's horizontal field of view in degrees (1 to 170): faces are seen through a pinhole of
     that angle instead of the paper's weak perspective, which reads a near face's turns as larger
     than they are (docs/ACCURACY.md, "The camera's lens"); give it when you know your camera's.
+    ``camera``: instead of ``fov``, the camera's intrinsics ``(fx, fy, cx, cy)`` in pixels, or the
+    path of a calibration file as OpenCV's FileStorage writes it (YAML or JSON; scaled when the
+    frames are the calibrated images resized), as ``face track --camera`` / ``--calibration``.
     ``face_model``: the built-in head the points' depths come from, "auto" (the photographed
     head, as ``face track`` picks for real frames), "photographed" or "generic" (the synthetic
     video's heads: track ``synthetic_faces`` frames with it).
@@ -62,6 +65,7 @@ class FaceTracker:
         fov: Optional[float] = None,
         face_model: str = "auto",
         smooth: bool = False,
+        camera: Union[Tuple[float, float, float, float], str, PathLike, None] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it

@@ -166,6 +166,15 @@ pub struct TrackArgs {
     /// Track a synthetic video generated in memory (see the video options).
     #[arg(long)]
     pub synthetic: bool,
+    /// The camera's intrinsics in pixels, fx,fy,cx,cy (OpenCV's camera matrix): faces are seen
+    /// through that pinhole, as with --fov but with its own principal point. For real input.
+    #[arg(long, value_name = "FX,FY,CX,CY", conflicts_with_all = ["fov", "calibration", "synthetic"])]
+    pub camera: Option<String>,
+    /// A camera calibration as OpenCV's FileStorage writes it (YAML or JSON: camera_matrix or K,
+    /// optionally the distortion and image_width/image_height), used as --camera is; scaled when
+    /// the frames are the calibrated images resized. Distortion is not applied (said when given).
+    #[arg(long, value_name = "FILE", conflicts_with_all = ["fov", "synthetic"])]
+    pub calibration: Option<PathBuf>,
     /// A V4L2 camera, for example /dev/video0 (built with `--features webcam`).
     #[arg(long, conflicts_with_all = ["synthetic", "input"])]
     pub webcam: Option<PathBuf>,

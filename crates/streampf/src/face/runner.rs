@@ -4,7 +4,8 @@
 use super::DEFAULT_MAX_FACES;
 use super::args::{TrackArgs, focal_length};
 use super::inputs::{load_cascade, load_personaliser, open_backend, open_detector};
-use anyhow::bail;
+use anyhow::{Context, bail};
+use face_tracker::camera::{Calibration, Intrinsics};
 use face_tracker::detect::DetectConfig;
 use face_tracker::extraction::{ExtractionConfig, FaceRect};
 use face_tracker::model::{BuiltInModel, FaceModel};
@@ -161,8 +162,54 @@ fn face_model(args: &TrackArgs) -> anyhow::Result<FaceModel> {
     })
 }
 
+/// The camera `--camera` or `--calibration` gives for frames of `size` pixels, said unless quiet
+/// (with a note when the calibration has distortion, which the tracker does not apply).
+fn camera(args: &TrackArgs, size: (u32, u32)) -> anyhow::Result<Option<Intrinsics>> {
+    let camera = match (&args.camera, &args.calibration) {
+        (Some(text), _) => Intrinsics::parse(text).context("--camera")?,
+        (None, Some(path)) => {
+            let calibration = Calibration::load(path).context("--calibration")?;
+            if calibration.distorts() && !args.quiet {
+                errln!(
+                    "note: {} has lens distortion {:?}; the tracker models a pinhole without it                      (undistort the video for the calibration's full accuracy)",
+                    path.display(),
+                    calibration.distortion
+                );
+            }
+            let intrinsics = calibration.intrinsics;
+            match calibration.image_size {
+                Some(calibrated) => intrinsics
+                    .for_frames(calibrated, size)
+                    .with_context(|| format!("--calibration {}", path.display()))?,
+                None => intrinsics,
+            }
+        }
+        (None, None) => return Ok(None),
+    };
+    if !args.quiet {
+        errln!(
+            "camera: fx {:.1}, fy {:.1}, principal point ({:.1}, {:.1}): a {:.1}° horizontal field of view",
+            camera.fx,
+            camera.fy,
+            camera.cx,
+            camera.cy,
+            camera.horizontal_fov(size.0)
+        );
+    }
+    Ok(Some(camera))
+}
+
 /// The tracker's settings from the command line (frames of `size` pixels).
 fn tracker_config(args: &TrackArgs, size: (u32, u32)) -> anyhow::Result<FaceTrackerConfig> {
+    let config = settings_of(args, size)?;
+    Ok(match camera(args, size)? {
+        Some(camera) => config.with_camera(&camera),
+        None => config,
+    })
+}
+
+/// The tracker's settings from the command line but the camera's.
+fn settings_of(args: &TrackArgs, size: (u32, u32)) -> anyhow::Result<FaceTrackerConfig> {
     let defaults = FaceTrackerConfig::default();
     Ok(FaceTrackerConfig {
         particles: args.particles as usize,
