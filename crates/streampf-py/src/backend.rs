@@ -63,8 +63,17 @@ pub fn open(py: Python<'_>, choice: Choice, allow_software: bool) -> PyResult<Ve
     .map_err(opening_error)
 }
 
-pub fn face_backend(contexts: Vec<GpuContext>, choice: Choice) -> FaceBackend {
+/// The face tracker's backend: on `all-gpus`, as many GPUs as `max_faces` faces under `config`
+/// pay for (`face_tracker`'s `gpus_for_load`, as `face track` uses).
+pub fn face_backend(
+    contexts: Vec<GpuContext>,
+    choice: Choice,
+    max_faces: usize,
+    config: &face_tracker::FaceTrackerConfig,
+) -> FaceBackend {
     let mut contexts = contexts;
+    let paid = face_tracker::tracker::shards::gpus_for_load(max_faces, config, contexts.len());
+    contexts.truncate(paid.max(1));
     match (choice, contexts.len()) {
         (_, 0) => FaceBackend::Cpu,
         (Choice::AllGpus, n) if n > 1 => FaceBackend::Gpus(contexts),

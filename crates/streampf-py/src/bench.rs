@@ -50,13 +50,13 @@ pub fn _rust_face_step_times<'py>(
         .map_err(face)?;
     let choice = Choice::parse(backend)?;
     let contexts = open(py, choice, allow_software)?;
-    let backend = face_backend(contexts, choice);
     let config = FaceTrackerConfig {
         particles,
         best: (particles / 10).max(1),
         seed,
         ..FaceTrackerConfig::default()
     };
+    let backend = face_backend(contexts, choice, rects.len().max(1), &config);
     let times = py
         .detach(|| -> Result<Vec<f64>, face_tracker::FaceError> {
             let model = FaceModel::generic(129)?;

@@ -18,7 +18,6 @@ use pyo3::types::PyDict;
 use crate::arrays::{ChannelOrder, contiguous, gray_frame, to_numpy};
 use crate::backend::{Choice, face_backend, open};
 use crate::errors::{face, runtime_error, value_error, whole, whole_opt};
-use face_tracker::camera::{Calibration, Intrinsics};
 
 /// The tracker behind the Python object: faces from the caller's rectangles only, or from the
 /// detector as well.
@@ -97,12 +96,7 @@ pub struct FaceTracker {
     photographed: bool,
 }
 
-fn config(
-    particles: usize,
-    seed: u64,
-    layers: Option<usize>,
-    focal_length: Option<f32>,
-) -> PyResult<FaceTrackerConfig> {
+fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTrackerConfig> {
     let defaults = FaceTrackerConfig::default();
     let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
     Ok(FaceTrackerConfig {
@@ -110,54 +104,8 @@ fn config(
         best: (particles / 10).max(1),
         seed,
         annealing,
-        focal_length,
         ..defaults
     })
-}
-
-/// The focal length in pixels of a camera `fov` degrees across a `width`-pixel frame (`fov`
-/// within 1 to 170, as `face track --fov`); `None` (weak perspective) without one.
-pub(crate) fn focal_length(fov: Option<f32>, width: u32) -> PyResult<Option<f32>> {
-    let Some(fov) = fov else { return Ok(None) };
-    let focal = face_tracker::likelihood::Lens::focal_length_for(fov, width)
-        .map_err(|e| value_error(format!("fov, the camera's horizontal field of view: {e}")))?;
-    Ok(Some(focal))
-}
-
-/// `camera=`: (fx, fy, cx, cy) in pixels, or the path of an OpenCV calibration file (YAML or
-/// JSON; scaled to frames of `size` when it was made at another size of the same shape), as
-/// `face track --camera` and `--calibration` take them; not with `fov`.
-fn camera_of(
-    camera: Option<&Bound<'_, PyAny>>,
-    fov: Option<f32>,
-    size: (u32, u32),
-) -> PyResult<Option<Intrinsics>> {
-    let Some(camera) = camera.filter(|c| !c.is_none()) else {
-        return Ok(None);
-    };
-    if fov.is_some() {
-        return Err(value_error(
-            "give camera= or fov=, not both: a calibrated camera has its own field of view",
-        ));
-    }
-    let bad = |e: face_tracker::FaceError| value_error(format!("camera: {e}"));
-    if let Ok(path) = camera.extract::<std::path::PathBuf>() {
-        let calibration = Calibration::load(&path).map_err(bad)?;
-        return match calibration.image_size {
-            Some(calibrated) => calibration
-                .intrinsics
-                .for_frames(calibrated, size)
-                .map(Some)
-                .map_err(bad),
-            None => Ok(Some(calibration.intrinsics)),
-        };
-    }
-    let (fx, fy, cx, cy): (f32, f32, f32, f32) = camera.extract().map_err(|_| {
-        value_error(
-            "camera must be (fx, fy, cx, cy) in pixels or the path of an OpenCV calibration file",
-        )
-    })?;
-    Intrinsics::new(fx, fy, cx, cy).map(Some).map_err(bad)
 }
 
 /// The detector's cascade when `detect` is on (OpenCV's frontal cascade unless `cascade` names
@@ -332,17 +280,11 @@ impl FaceTracker {
             .map_err(|e: face_tracker::FaceError| value_error(format!("face_model: {e}")))?;
         // Frames from arrays are real frames (a synthetic video is asked for by name).
         let photographed = built_in.is_photographed(false);
-        let config = config(particles, seed, layers, focal_length(fov, width)?)?;
-        let config = match camera_of(camera, fov, (width, height))? {
-            Some(camera) => config.with_camera(&camera),
-            None => config,
-        };
+        let config = config(particles, seed, layers)?;
+        let config = crate::camera::with_lens(config, fov, camera, (width, height))?;
         let cascade = load_cascade(detect, cascade)?;
-        // All GPUs: as many as the faces' work pays for (face_tracker's gpus_for_load).
-        let mut contexts = open(py, choice, allow_software)?;
-        let paid = face_tracker::tracker::shards::gpus_for_load(max_faces, &config, contexts.len());
-        contexts.truncate(paid.max(1));
-        let backend = face_backend(contexts, choice);
+        let contexts = open(py, choice, allow_software)?;
+        let backend = face_backend(contexts, choice, max_faces, &config);
         let device = device_names(&backend);
         let detecting = match cascade {
             Some(cascade) => {

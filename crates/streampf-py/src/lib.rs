@@ -12,6 +12,7 @@ mod arrays;
 mod backend;
 mod bench;
 mod body;
+mod camera;
 mod errors;
 mod face;
 mod filter;

@@ -37,7 +37,7 @@ pub fn synthetic_faces(
     let faces: usize = whole("faces", faces)?;
     let seed: u64 = whole("seed", seed)?;
     let config = FaceSynthConfig {
-        focal_length: crate::face::focal_length(fov, width)?,
+        focal_length: crate::camera::focal_length(fov, width)?,
         width,
         height,
         frames,
