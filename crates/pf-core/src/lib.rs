@@ -47,12 +47,14 @@ pub mod batch;
 pub mod error;
 pub mod estimate;
 pub mod islands;
+pub mod kalman;
 pub mod model;
 pub mod particles;
 pub mod plugin;
 pub mod random;
 pub mod resample;
 pub mod smooth;
+pub mod smooth_tracks;
 pub mod weights;
 
 pub use error::PfError;

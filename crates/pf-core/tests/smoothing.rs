@@ -37,26 +37,12 @@ fn simulate(seed: u64) -> Vec<f64> {
 
 /// The RTS smoother's means and variances from the prior N(0, 1).
 fn rts(ys: &[f64]) -> Vec<(f64, f64)> {
-    let (mut m, mut p) = (0.0, 1.0);
-    let mut filtered = Vec::new();
-    let mut predicted = Vec::new();
-    for &y in ys {
-        p += SIGMA_P * SIGMA_P;
-        predicted.push((m, p));
-        let k = p / (p + SIGMA_R * SIGMA_R);
-        m += k * (y - m);
-        p *= 1.0 - k;
-        filtered.push((m, p));
+    pf_core::kalman::RandomWalk {
+        step: SIGMA_P,
+        noise: SIGMA_R,
+        prior: (0.0, 1.0),
     }
-    let mut smoothed = filtered.clone();
-    for t in (0..ys.len() - 1).rev() {
-        let (mf, pf) = filtered[t];
-        let (mp, pp) = predicted[t + 1];
-        let (ms, ps) = smoothed[t + 1];
-        let g = pf / pp;
-        smoothed[t] = (mf + g * (ms - mp), pf + g * g * (ps - pp));
-    }
-    smoothed
+    .smooth(ys)
 }
 
 /// Every frame's cloud of every filter, `[frame][filter]`.

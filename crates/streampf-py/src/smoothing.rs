@@ -1,12 +1,12 @@
 //! `smooth=True` on `FaceTracker` and `BodyTracker`: every frame's filtered clouds go to the
-//! command line's smoother (`streampf::smoothing::TrackSmoother`, each track whole); `smoothed()`
+//! command line's smoother (`pf_core::smooth_tracks::TrackSmoother`, each track whole); `smoothed()`
 //! smooths what was tracked so far, the tracks still running included, and returns it as numpy
 //! arrays.
 
 use pf_core::smooth::{GaussianTransition, TargetParticles};
+use pf_core::smooth_tracks::{SmoothedRow, TrackSmoother};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use streampf::smoothing::{SmoothedRow, TrackSmoother};
 
 use crate::arrays::to_numpy;
 use crate::errors::runtime_error;

@@ -6,14 +6,11 @@
 //! as its own block (a blocked smoother, Finke & Singh 2017): the particles' filtered weights
 //! carry what the values share, and the backward weights of many values at once collapse.
 
-use std::collections::{BTreeMap, VecDeque};
 use std::path::Path;
 
-use anyhow::Context;
 use clap::Args;
-use pf_core::smooth::{
-    Cloud, GaussianTransition, Summary, TargetParticles, smooth_values, summarise,
-};
+use pf_core::smooth::{GaussianTransition, TargetParticles};
+pub use pf_core::smooth_tracks::{Coverage, SmoothedRow, TrackSmoother};
 
 use crate::run_output::CsvStream;
 
@@ -40,154 +37,6 @@ impl SmoothArgs {
             (_, Some(lag)) => Some(Some(lag as usize)),
             (Some(_), None) => Some(None),
             (None, None) => None,
-        }
-    }
-}
-
-/// One smoothed row: a track's values at a frame, smoothed and (to compare) as filtered.
-#[derive(Debug, Clone)]
-pub struct SmoothedRow {
-    pub frame: usize,
-    pub track: usize,
-    pub values: Vec<Summary>,
-    /// The same particles under their filtered weights: the filter's weighted mean and interval.
-    pub filtered: Vec<Summary>,
-}
-
-/// A track's frames waiting to be smoothed, and its last filtered mean (for the drift).
-#[derive(Default, Clone)]
-struct TrackFrames {
-    frames: VecDeque<(usize, Cloud)>,
-    last_mean: Option<Vec<f32>>,
-}
-
-/// The smoothing of tracks as they are filtered, without I/O (the CLI's `Smoother` writes its
-/// rows to smoothed.csv; Python's trackers return them): each track's filtered clouds and their
-/// drift, smoothed when the track ends (or the run does) or, with a lag, L frames behind.
-#[derive(Clone)]
-pub struct TrackSmoother {
-    lag: Option<usize>,
-    /// The dynamics' density. Each value is smoothed as its own block
-    /// (`pf_core::smooth::smooth_values`): on the synthetic walk (400 samples, CPU) the 38 body
-    /// values smoothed at once collapsed the backward weights onto a few samples (joint error
-    /// 3.5 → 4.7 cm, the intervals holding the truth for 12 % of the values); value by value
-    /// they do not (3.6 cm, 56 %), and the face gains a little too.
-    transition: GaussianTransition,
-    /// The constant-velocity gain: the drift into the next frame is this × the last motion.
-    gain: f32,
-    tracks: BTreeMap<usize, TrackFrames>,
-}
-
-impl TrackSmoother {
-    /// Smoothing with `lag` (`None`: each track whole) under `transition`, the dynamics adding
-    /// `gain` × each track's last motion.
-    pub fn new(lag: Option<usize>, transition: GaussianTransition, gain: f32) -> Self {
-        Self {
-            lag,
-            transition,
-            gain,
-            tracks: BTreeMap::new(),
-        }
-    }
-
-    /// The dynamics' density the smoother reweighs by.
-    pub fn transition(&self) -> &GaussianTransition {
-        &self.transition
-    }
-
-    /// Frame `frame`'s filtered clouds, `(track, states [d·M + m], log-weights [m])` of each
-    /// tracked target; a track that is not among them has ended and is smoothed to its end.
-    /// Returns the rows smoothed.
-    pub fn add_frame(
-        &mut self,
-        frame: usize,
-        clouds: Vec<TargetParticles>,
-    ) -> anyhow::Result<Vec<SmoothedRow>> {
-        let seen: Vec<usize> = clouds.iter().map(|(track, ..)| *track).collect();
-        let ended: Vec<usize> = (self.tracks.keys())
-            .filter(|t| !seen.contains(t))
-            .copied()
-            .collect();
-        let mut rows = Vec::new();
-        for track in ended {
-            rows.extend(self.flush_track(track)?);
-        }
-        for (track, states, log_weights) in clouds {
-            rows.extend(self.add_cloud(frame, track, &states, &log_weights)?);
-        }
-        Ok(rows)
-    }
-
-    /// Smooths every track's frames still waiting (at the end of the run, however it ended).
-    pub fn finish(&mut self) -> anyhow::Result<Vec<SmoothedRow>> {
-        let tracks: Vec<usize> = self.tracks.keys().copied().collect();
-        let mut rows = Vec::new();
-        for track in tracks {
-            rows.extend(self.flush_track(track)?);
-        }
-        Ok(rows)
-    }
-
-    /// One track's cloud at `frame`, with its drift; with a lag, the row L frames back.
-    fn add_cloud(
-        &mut self,
-        frame: usize,
-        track: usize,
-        states: &[f32],
-        log_weights: &[f32],
-    ) -> anyhow::Result<Option<SmoothedRow>> {
-        let dims = self.transition.sigma.len();
-        let mut cloud = Cloud::of_target(
-            dims,
-            log_weights.len(),
-            0,
-            states,
-            log_weights,
-            vec![0.0; dims],
-        )
-        .with_context(|| format!("smoothing track {track} at frame {frame}"))?;
-        let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular))
-            .iter()
-            .map(|s| s.mean)
-            .collect();
-        let entry = self.tracks.entry(track).or_default();
-        cloud.drift = drift(
-            self.gain,
-            entry.last_mean.as_deref(),
-            &mean,
-            &self.transition.angular,
-        );
-        entry.last_mean = Some(mean);
-        entry.frames.push_back((frame, cloud));
-        if self.lag.is_none_or(|lag| entry.frames.len() <= lag) {
-            return Ok(None);
-        }
-        let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = smooth_values(&window, &self.transition)?;
-        let (first_frame, first) = entry.frames.pop_front().context("a lag window")?;
-        let first_values = values.into_iter().next().context("a lag window")?;
-        Ok(Some(self.row(first_frame, track, &first, first_values)))
-    }
-
-    fn flush_track(&mut self, track: usize) -> anyhow::Result<Vec<SmoothedRow>> {
-        let Some(waiting) = self.tracks.remove(&track) else {
-            return Ok(Vec::new());
-        };
-        let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = smooth_values(&clouds, &self.transition)
-            .with_context(|| format!("smoothing track {track}"))?;
-        Ok((waiting.frames.iter().zip(values))
-            .map(|((frame, cloud), values)| self.row(*frame, track, cloud, values))
-            .collect())
-    }
-
-    /// A row of smoothed `values`, the same particles' filtered summary beside them.
-    fn row(&self, frame: usize, track: usize, cloud: &Cloud, values: Vec<Summary>) -> SmoothedRow {
-        SmoothedRow {
-            frame,
-            track,
-            values,
-            filtered: summarise(cloud, &cloud.weights, &self.transition.angular),
         }
     }
 }
@@ -228,14 +77,16 @@ impl Smoother {
         frame: usize,
         clouds: Vec<TargetParticles>,
     ) -> anyhow::Result<Vec<SmoothedRow>> {
-        let rows = self.tracks.add_frame(frame, clouds)?;
+        let rows = (self.tracks.add_frame(frame, clouds))
+            .map_err(|e| anyhow::anyhow!("smoothing frame {frame}: {e}"))?;
         self.write(&rows)?;
         Ok(rows)
     }
 
     /// [`TrackSmoother::finish`], its rows written.
     pub fn finish(&mut self) -> anyhow::Result<Vec<SmoothedRow>> {
-        let rows = self.tracks.finish()?;
+        let rows = (self.tracks.finish())
+            .map_err(|e| anyhow::anyhow!("smoothing the tracks at the run's end: {e}"))?;
         self.write(&rows)?;
         Ok(rows)
     }
@@ -261,63 +112,5 @@ pub fn how(lag: Option<usize>) -> String {
     match lag {
         None => "over the whole run".to_string(),
         Some(lag) => format!("with a lag of {lag} frames"),
-    }
-}
-
-/// The drift the dynamics add on the way to the next frame: `gain` × the last motion of the
-/// filtered mean (angles the short way round); none for a track's first frame.
-fn drift(gain: f32, previous: Option<&[f32]>, mean: &[f32], angular: &[bool]) -> Vec<f32> {
-    match previous {
-        Some(previous) if gain > 0.0 => (mean.iter().zip(previous).zip(angular))
-            .map(|((&now, &before), &angle)| {
-                let motion = now - before;
-                gain * if angle {
-                    pf_core::batch::wrap_angle_floor(motion)
-                } else {
-                    motion
-                }
-            })
-            .collect(),
-        _ => vec![0.0; mean.len()],
-    }
-}
-
-/// How often the truth lay within the smoothed 95 % interval, per value (angles wrapped), and
-/// the count of rows compared.
-#[derive(Default)]
-pub struct Coverage {
-    pub within: Vec<usize>,
-    pub rows: usize,
-}
-
-impl Coverage {
-    /// Adds one row against its true values.
-    pub fn add(&mut self, values: &[Summary], truth: &[f32], angular: &[bool]) {
-        if self.within.len() != values.len() {
-            self.within = vec![0; values.len()];
-        }
-        for (d, (s, &t)) in values.iter().zip(truth).enumerate() {
-            let offset = |x: f32| {
-                let e = t - x;
-                if angular.get(d).copied().unwrap_or(false) {
-                    pf_core::batch::wrap_angle_floor(e)
-                } else {
-                    e
-                }
-            };
-            // The truth from the mean, within the interval's reach on each side.
-            let from_mean = offset(s.mean);
-            if from_mean >= s.lower - s.mean && from_mean <= s.upper - s.mean {
-                self.within[d] += 1;
-            }
-        }
-        self.rows += 1;
-    }
-
-    /// Each value's share within its interval, in percent.
-    pub fn percent(&self) -> Vec<f64> {
-        (self.within.iter())
-            .map(|&w| 100.0 * w as f64 / self.rows.max(1) as f64)
-            .collect()
     }
 }

@@ -5,6 +5,7 @@
 mod accuracy;
 mod body_speed;
 mod face_speed;
+mod posterior;
 mod resamplers;
 
 use indicatif::ProgressBar;
@@ -63,7 +64,7 @@ pub struct Experiment {
 }
 
 /// Every experiment, in the report's order.
-pub const EXPERIMENTS: [Experiment; 7] = [
+pub const EXPERIMENTS: [Experiment; 8] = [
     Experiment {
         name: "face-fig6",
         about: "face paper Fig. 6: weighting time against particles",
@@ -99,6 +100,12 @@ pub const EXPERIMENTS: [Experiment; 7] = [
         about: "per-frame and per-joint body error on the synthetic walk-wave, with the flat baseline",
         steps: accuracy::body_steps,
         run: accuracy::body,
+    },
+    Experiment {
+        name: "posterior",
+        about: "smoothed trajectories with 95 % intervals: a random walk against RTS, a face's yaw",
+        steps: posterior::steps,
+        run: posterior::run,
     },
     Experiment {
         name: "resamplers",
