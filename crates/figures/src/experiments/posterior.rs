@@ -129,8 +129,8 @@ fn walk_panel() -> anyhow::Result<Panel> {
     let weights = smooth_all(&clouds, &transition)?;
     let mut panel = Panel::new(
         "a random walk in noise: particle smoother against RTS",
-        ("frame", ""),
-        ("x", ""),
+        ("frame", "frame"),
+        ("x", "units"),
     );
     for (t, ((cloud, w), (&x, &y))) in clouds
         .iter()
@@ -198,7 +198,7 @@ fn face_panel(run: &mut Run) -> anyhow::Result<(Panel, String)> {
     rows.sort_by_key(|r| (r.track, r.frame));
     let mut panel = Panel::new(
         "face 0's yaw: filtered and smoothed",
-        ("frame", ""),
+        ("frame", "frame"),
         ("yaw (°)", "deg"),
     );
     let (mut smoothed, mut filtered) = (Coverage::default(), Coverage::default());
