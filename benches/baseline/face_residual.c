@@ -2,7 +2,9 @@
  * single-threaded C loop a programmer would write: the yardstick the Rust reference
  * (face_tracker::likelihood::residual_error) must be at least as fast as. Same arithmetic:
  * R = Rx Ry Rz, a point is visible when (R N)_z >= 0, p = S R2x3 P + (Tx, Ty), bilinear
- * sampling of 8-bit levels inside [0, w-1] x [0, h-1] (outside: rho = 1),
+ * sampling of 8-bit levels inside [0, w-1] x [0, h-1] (outside: rho = 1) with the weights
+ * rounded to 8 fractional bits as a GPU's texture unit rounds them
+ * (pf_gpu::image::quantised_weight),
  * kappa = (alpha I - J) / J, rho = kappa^2 / (kappa^2 + 1) as d^2 / (d^2 + J^2) with
  * d = alpha I - J (one division), summed in double; epsilon = 1 when
  * fewer than min_visible_share of the points are visible.
@@ -41,7 +43,8 @@ double streampf_face_residual_c(const float state[7], const float *points, size_
         uint32_t x0 = (uint32_t)x, y0 = (uint32_t)y;
         if (x0 > width - 2) x0 = width - 2;
         if (y0 > height - 2) y0 = height - 2;
-        float fx = x - (float)x0, fy = y - (float)y0;
+        float fx = (float)(int32_t)((x - (float)x0) * 256.0f + 0.5f) * (1.0f / 256.0f);
+        float fy = (float)(int32_t)((y - (float)y0) * 256.0f + 0.5f) * (1.0f / 256.0f);
         const uint8_t *p = pixels + (size_t)y0 * width + x0;
         float top = p[0] * (1.0f - fx) + p[1] * fx;
         float bottom = p[width] * (1.0f - fx) + p[width + 1] * fx;
