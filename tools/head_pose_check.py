@@ -36,6 +36,10 @@ A talking head turns far only now and then, so a whole clip's spread is mostly s
 there about its own mean, and the comparison over them. The stretch is chosen by the
 reference's motion alone, never by the tracker's agreement with it.
 
+Per axis it also reports the jitter, the median |change| from one paired frame to the next, of
+the tracker and of the reference. STATES_CSV may be a smoothed.csv (`face track --smooth full`
+or `--smooth-lag L`) to check the smoothed trajectory.
+
     python3 tools/head_pose_check.py VIDEO STATES_CSV [--reference mesh|six-point]
         [--json OUT.json] [--min-frames 30] [--max-frames N] [--smooth 5] [--widest 300]
 
@@ -175,13 +179,18 @@ def six_point_reference(video, max_frames=None):
 
 
 def tracker_rows(states_csv):
-    """{track: [(frame, tx, ty, (pitch, yaw, roll))]} of the rows being tracked."""
+    """{track: [(frame, tx, ty, (pitch, yaw, roll))]} of the rows being tracked: from states.csv,
+    or from smoothed.csv (`face track --smooth full` or `--smooth-lag L`: every row is a tracked
+    face's, its angles rx, ry, rz in radians, the same convention as states.csv's *_deg)."""
     tracks = {}
     with open(states_csv, newline="") as f:
         for row in csv.DictReader(f):
-            if row["status"] != "tracking":
+            if "status" not in row:
+                angles = tuple(math.degrees(float(row[a])) for a in ("rx", "ry", "rz"))
+            elif row["status"] != "tracking":
                 continue
-            angles = tuple(float(row[f"{a}_deg"]) for a in AXES)
+            else:
+                angles = tuple(float(row[f"{a}_deg"]) for a in AXES)
             tracks.setdefault(int(row["track"]), []).append(
                 (int(row["frame"]), float(row["tx"]), float(row["ty"]), angles)
             )
@@ -200,6 +209,13 @@ def compare(ours, theirs):
         "reference_sd_deg": float(sd_b),
         "mean_abs_diff_deg": float(np.abs((a - a.mean()) - (b - b.mean())).mean()),
     }
+
+
+def frame_to_frame_jitter(frames, values):
+    """The median |change| from one frame to the next, over consecutive paired frames only."""
+    frames, values = np.asarray(frames), np.asarray(values)
+    steps = np.flatnonzero(np.diff(frames) == 1)
+    return float(np.median(np.abs(values[steps + 1] - values[steps]))) if len(steps) else float("nan")
 
 
 def smoothed(frames, values, window):
@@ -281,6 +297,8 @@ def main():
         results[track] = {"frames": len(pairs)}
         for k, axis in enumerate(AXES):
             results[track][axis] = compare(ours[:, k], theirs[:, k])
+            results[track][axis]["tracker_jitter_deg"] = frame_to_frame_jitter(frames, ours[:, k])
+            results[track][axis]["reference_jitter_deg"] = frame_to_frame_jitter(frames, theirs[:, k])
         if args.smooth > 1:
             slow = smoothed(frames, theirs, args.smooth)
             results[track]["smoothed"] = {
@@ -328,10 +346,16 @@ def main():
 def print_axes(result):
     for axis in AXES:
         c = result[axis]
+        jitter = (
+            f", jitter (median |frame-to-frame change|) {c['tracker_jitter_deg']:.2f}° vs "
+            f"{c['reference_jitter_deg']:.2f}°"
+            if "tracker_jitter_deg" in c
+            else ""
+        )
         print(
             f"  {axis:5}: r {c['r']:.2f}, sd {c['tracker_sd_deg']:.1f}° vs "
             f"{c['reference_sd_deg']:.1f}° (ratio {c['sd_ratio']:.2f}), mean |difference| "
-            f"after offset {c['mean_abs_diff_deg']:.1f}°"
+            f"after offset {c['mean_abs_diff_deg']:.1f}°{jitter}"
         )
 
 
