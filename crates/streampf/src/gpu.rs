@@ -36,12 +36,50 @@ pub fn all(allow_software: bool) -> anyhow::Result<Vec<GpuContext>> {
         .context("opening the GPUs (see `streampf devices`)")
 }
 
+/// `--backend` of `face track` and `body track`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendArg {
+    /// The GPUs when there are (as many as the work pays for), else the CPU.
+    Auto,
+    Cpu,
+    /// The whole step on one GPU.
+    Gpu,
+    /// Several GPUs, as many as a frame's work pays for, each the whole step for its share (a
+    /// share of the faces, or an island of the body's samples).
+    AllGpus,
+}
+
+/// The GPUs `backend` runs on (none: the CPU): several only as many as `pays_for` (of their
+/// count) says a frame's work pays for, or `gpus` (`--gpus N`, with `all-gpus` or `auto` only).
+pub fn open(
+    backend: BackendArg,
+    allow_software: bool,
+    gpus: Option<u32>,
+    quiet: bool,
+    pays_for: &dyn Fn(usize) -> usize,
+) -> anyhow::Result<Vec<GpuContext>> {
+    if gpus.is_some() && matches!(backend, BackendArg::Cpu | BackendArg::Gpu) {
+        anyhow::bail!(
+            "--gpus chooses how many GPUs --backend all-gpus or auto uses; --backend cpu and gpu use none or one"
+        );
+    }
+    Ok(match backend {
+        BackendArg::Cpu => Vec::new(),
+        BackendArg::Gpu => vec![required(allow_software)?],
+        BackendArg::AllGpus => by_load(all(allow_software)?, gpus, pays_for, quiet)?,
+        BackendArg::Auto => match several_preferred(gpus, pays_for, quiet)? {
+            Some(contexts) => contexts,
+            None => preferred(allow_software, quiet).into_iter().collect(),
+        },
+    })
+}
+
 /// The GPUs a run of several uses: `forced` (`--gpus N`) when given, else as many as `pays_for`
 /// says of those there are (it gets their count); the choice is said unless `quiet`.
-pub fn by_load(
+fn by_load(
     mut contexts: Vec<GpuContext>,
     forced: Option<u32>,
-    pays_for: impl Fn(usize) -> usize,
+    pays_for: &dyn Fn(usize) -> usize,
     quiet: bool,
 ) -> anyhow::Result<Vec<GpuContext>> {
     let available = contexts.len();
@@ -66,9 +104,9 @@ pub fn by_load(
 /// `--backend auto` on a machine of several hardware GPUs whose frame's work pays for more than
 /// one (`pays_for` of their count), or `--gpus N` given: those GPUs. `None` otherwise: then
 /// [`preferred`] picks one or the CPU.
-pub fn several_preferred(
+fn several_preferred(
     forced: Option<u32>,
-    pays_for: impl Fn(usize) -> usize,
+    pays_for: &dyn Fn(usize) -> usize,
     quiet: bool,
 ) -> anyhow::Result<Option<Vec<GpuContext>>> {
     let hardware = pf_gpu::list_adapters()

@@ -31,7 +31,8 @@ const VARIANTS: [(&str, &str, bool, bool); 3] = [
     (FLAT, "flat", true, true),
 ];
 
-fn face_video(quick: bool) -> (FaceSynthConfig, usize) {
+/// The face video and particles of the accuracy and posterior figures (quick: small).
+pub(super) fn face_video(quick: bool) -> (FaceSynthConfig, usize) {
     if quick {
         let video = FaceSynthConfig {
             width: 320,

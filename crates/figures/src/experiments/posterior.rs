@@ -7,7 +7,7 @@
 
 use face_tracker::model::FaceModel;
 use face_tracker::projection::RY;
-use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect};
+use face_tracker::synth::{FaceVideoRenderer, face_state, initial_rect};
 use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig};
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
 use pf_core::kalman::RandomWalk;
@@ -17,6 +17,7 @@ use pf_core::smooth_tracks::{Coverage, SmoothedRow, TrackSmoother};
 use pf_core::{RandomStreams, Stage};
 
 use super::Run;
+use super::accuracy::face_video;
 use super::face_speed::reopen;
 use crate::record::{Figure, Panel, Point};
 
@@ -27,22 +28,6 @@ const WALK: RandomWalk = RandomWalk {
 };
 const WALK_FRAMES: usize = 40;
 const WALK_PARTICLES: usize = 1000;
-
-fn face_video(quick: bool) -> (FaceSynthConfig, usize) {
-    if quick {
-        let video = FaceSynthConfig {
-            width: 320,
-            height: 240,
-            frames: 12,
-            faces: 1,
-            half_width: 30.0,
-            ..FaceSynthConfig::paper(12)
-        };
-        (video, 200)
-    } else {
-        (FaceSynthConfig::paper(100), 1000)
-    }
-}
 
 pub fn steps(quick: bool) -> u64 {
     1 + face_video(quick).0.frames as u64

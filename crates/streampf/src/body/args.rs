@@ -103,16 +103,7 @@ pub struct SynthArgs {
     pub sequence: SequenceArgs,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum BackendArg {
-    /// A hardware GPU when there is one, else the CPU.
-    Auto,
-    Cpu,
-    /// The whole step on one GPU.
-    Gpu,
-    /// An island of the samples on every GPU, each the whole filter step on its GPU.
-    AllGpus,
-}
+pub use crate::gpu::BackendArg;
 
 #[derive(Debug, Clone, Args)]
 pub struct TrackArgs {

@@ -1,7 +1,7 @@
 //! What `body track` reads before it tracks: the sequence (a directory or a generated one),
 //! its starting pose and the engines it steps on.
 
-use super::args::{BackendArg, TrackArgs};
+use super::args::TrackArgs;
 use anyhow::bail;
 use body_tracker::human::standing_pose;
 use body_tracker::sequence::SequenceDir;
@@ -39,37 +39,17 @@ impl Source {
     }
 }
 
-/// The backend `--backend` asks for; several GPUs only as many as `pays_for` (of their count)
-/// says a frame's work pays for, or `--gpus`.
+/// The backend `--backend` asks for ([`crate::gpu::open`]).
 pub(super) fn open_backend(
     args: &TrackArgs,
     pays_for: impl Fn(usize) -> usize,
 ) -> anyhow::Result<Backend> {
-    if args.gpus.is_some() && matches!(args.backend, BackendArg::Cpu | BackendArg::Gpu) {
-        anyhow::bail!(
-            "--gpus chooses how many GPUs --backend all-gpus or auto uses; --backend cpu and gpu use none or one"
-        );
-    }
-    let several = |contexts: Vec<pf_gpu::GpuContext>| match <[_; 1]>::try_from(contexts) {
-        Ok([one]) => Backend::Gpu(Box::new(one)),
-        Err(contexts) => Backend::SplitGpus(contexts),
-    };
-    Ok(match args.backend {
-        BackendArg::Cpu => Backend::Cpu,
-        BackendArg::Gpu => Backend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
-        BackendArg::AllGpus => several(crate::gpu::by_load(
-            crate::gpu::all(args.allow_software)?,
-            args.gpus,
-            pays_for,
-            args.quiet,
-        )?),
-        BackendArg::Auto => match crate::gpu::several_preferred(args.gpus, pays_for, args.quiet)? {
-            Some(contexts) => several(contexts),
-            None => match crate::gpu::preferred(args.allow_software, args.quiet) {
-                Some(ctx) => Backend::Gpu(Box::new(ctx)),
-                None => Backend::Cpu,
-            },
-        },
+    let (backend, gpus) = (args.backend, args.gpus);
+    let mut contexts = crate::gpu::open(backend, args.allow_software, gpus, args.quiet, &pays_for)?;
+    Ok(match contexts.len() {
+        0 => Backend::Cpu,
+        1 => Backend::Gpu(Box::new(contexts.remove(0))),
+        _ => Backend::SplitGpus(contexts),
     })
 }
 

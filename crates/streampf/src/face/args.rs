@@ -110,16 +110,7 @@ pub struct SynthArgs {
     pub video: VideoArgs,
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum BackendArg {
-    /// A hardware GPU when there is one, else the CPU.
-    Auto,
-    Cpu,
-    /// The whole step on one GPU.
-    Gpu,
-    /// The faces' slots split over every GPU, each running the whole step for its share.
-    AllGpus,
-}
+pub use crate::gpu::BackendArg;
 
 /// The built-in face models a template's points take their depths from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

@@ -1,7 +1,7 @@
 //! What `face track` reads before it tracks: the video, webcam or frames, the faces' rectangles,
 //! the ground truth, the detector and its cascade, the personalising model and the GPUs.
 
-use super::args::{BackendArg, DetectorArg, TrackArgs};
+use super::args::{DetectorArg, TrackArgs};
 use super::{RECTS_FILE, TRUTH_FILE, model};
 use crate::face_io::Source;
 use anyhow::{Context, bail};
@@ -91,37 +91,17 @@ pub(super) fn read_truth(
     Ok(out)
 }
 
-/// The backend `--backend` asks for; several GPUs only as many as `pays_for` (of their count)
-/// says a frame's work pays for, or `--gpus`.
+/// The backend `--backend` asks for ([`crate::gpu::open`]).
 pub(super) fn open_backend(
     args: &TrackArgs,
     pays_for: impl Fn(usize) -> usize,
 ) -> anyhow::Result<FaceBackend> {
-    if args.gpus.is_some() && matches!(args.backend, BackendArg::Cpu | BackendArg::Gpu) {
-        bail!(
-            "--gpus chooses how many GPUs --backend all-gpus or auto uses; --backend cpu and gpu use none or one"
-        );
-    }
-    let several = |contexts: Vec<pf_gpu::GpuContext>| match <[_; 1]>::try_from(contexts) {
-        Ok([one]) => FaceBackend::Gpu(Box::new(one)),
-        Err(contexts) => FaceBackend::Gpus(contexts),
-    };
-    Ok(match args.backend {
-        BackendArg::Cpu => FaceBackend::Cpu,
-        BackendArg::Gpu => FaceBackend::Gpu(Box::new(crate::gpu::required(args.allow_software)?)),
-        BackendArg::AllGpus => several(crate::gpu::by_load(
-            crate::gpu::all(args.allow_software)?,
-            args.gpus,
-            pays_for,
-            args.quiet,
-        )?),
-        BackendArg::Auto => match crate::gpu::several_preferred(args.gpus, pays_for, args.quiet)? {
-            Some(contexts) => several(contexts),
-            None => match crate::gpu::preferred(args.allow_software, args.quiet) {
-                Some(ctx) => FaceBackend::Gpu(Box::new(ctx)),
-                None => FaceBackend::Cpu,
-            },
-        },
+    let (backend, gpus) = (args.backend, args.gpus);
+    let mut contexts = crate::gpu::open(backend, args.allow_software, gpus, args.quiet, &pays_for)?;
+    Ok(match contexts.len() {
+        0 => FaceBackend::Cpu,
+        1 => FaceBackend::Gpu(Box::new(contexts.remove(0))),
+        _ => FaceBackend::Gpus(contexts),
     })
 }
 
