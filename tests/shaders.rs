@@ -16,8 +16,15 @@ fn root() -> &'static Path {
     Path::new(env!("CARGO_MANIFEST_DIR"))
 }
 
-/// The libraries prepended to other files (`stage_source`), checked as part of those.
-const LIBRARIES: [&str; 2] = ["engine/philox.wgsl", "engine/common.wgsl"];
+/// The libraries prepended to other files (`stage_source`, and the stages' own in
+/// `pf_gpu::kernels::sources`), checked as part of those.
+const LIBRARIES: [&str; 5] = [
+    "engine/philox.wgsl",
+    "engine/common.wgsl",
+    "engine/move_particle.wgsl",
+    "engine/normalise_target.wgsl",
+    "engine/resample_target.wgsl",
+];
 
 /// Every shader file but the libraries (its path under `shaders/`) with the source it is
 /// compiled as.

@@ -1,7 +1,5 @@
-// Diffusion: x_d += (sigma_ld * s) * n (sigma_ld: the layer's sigma of dimension d, 0 where a
-// partitioned layer keeps d still; s: the annealing layer's scale, 1 without), n ~ N(0, 1) from
-// counter_gaussian(key_t, m, d, step); optional clamping to [lower, upper]; angle dimensions
-// wrapped. One invocation per (particle, target).
+// Diffusion: every particle moved by the layer's dynamics (moved_value, move_particle.wgsl). One
+// invocation per (particle, target).
 // CPU twin: pf_core::batch::diffuse (with pf_core::anneal::Annealing::layer_sigma).
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -25,19 +23,6 @@ fn diffuse(@builtin(global_invocation_id) gid: vec3<u32>) {
     let step = vec2<u32>(params.step_lo, params.step_hi);
     for (var d = 0u; d < params.dims; d = d + 1u) {
         let i = state_index(t, d, m);
-        var x = states[i];
-        if (params.velocity_gain > 0.0 && params.layer == 0u) {
-            x = x + velocity[t * params.dims + d];
-        }
-        let sigma_d = sigma[params.layer * params.dims + d];
-        x = x + (sigma_d * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
-        // A NaN state stays NaN (clamp would turn it into a bound), so the failure policy sees it.
-        if (params.has_bounds == 1u && !is_nan(x)) {
-            x = clamp(x, lower[d], upper[d]);
-        }
-        if (is_angle(d)) {
-            x = wrap_angle(x);
-        }
-        states[i] = x;
+        states[i] = moved_value(t, d, m, states[i], step);
     }
 }

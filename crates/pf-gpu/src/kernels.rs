@@ -12,12 +12,37 @@ pub mod sources {
     pub const PHILOX: &str = include_str!("../../../shaders/engine/philox.wgsl");
     /// `Params`, `TargetStats` and helpers shared by the stages (a library).
     pub const COMMON: &str = include_str!("../../../shaders/engine/common.wgsl");
-    /// The diffusion stage.
-    pub const DIFFUSE: &str = include_str!("../../../shaders/engine/diffuse.wgsl");
-    /// The normalisation stage.
-    pub const NORMALISE: &str = include_str!("../../../shaders/engine/normalise.wgsl");
-    /// The resamplers.
-    pub const RESAMPLE: &str = include_str!("../../../shaders/engine/resample.wgsl");
+    /// The diffusion stage (with the move of one value it shares with the fused layer).
+    pub const DIFFUSE: &str = concat!(
+        include_str!("../../../shaders/engine/move_particle.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/diffuse.wgsl")
+    );
+    /// The normalisation stage (with the normalisation of one target it shares with the fused
+    /// layer).
+    pub const NORMALISE: &str = concat!(
+        include_str!("../../../shaders/engine/normalise_target.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/normalise.wgsl")
+    );
+    /// The resamplers (with the one-workgroup resampling of a target it shares with the fused
+    /// layer).
+    pub const RESAMPLE: &str = concat!(
+        include_str!("../../../shaders/engine/resample_target.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/resample.wgsl")
+    );
+    /// The fused annealing layer: normalise the previous layer, resample, gather and move, one
+    /// workgroup per target (`STAGE_CAPACITY` set to M by `filter::fused`).
+    pub const LAYER: &str = concat!(
+        include_str!("../../../shaders/engine/normalise_target.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/resample_target.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/move_particle.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/layer.wgsl")
+    );
     /// The gather stage.
     pub const GATHER: &str = include_str!("../../../shaders/engine/gather.wgsl");
     /// The estimates.
@@ -28,13 +53,14 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 6] = [
+    pub const STAGES: [(&str, &str); 7] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
         ("resample.wgsl", RESAMPLE),
         ("gather.wgsl", GATHER),
         ("estimate.wgsl", ESTIMATE),
+        ("layer.wgsl", LAYER),
     ];
 }
 

@@ -13,7 +13,10 @@ use pf_core::batch::BatchShape;
 pub struct LikelihoodInputs<'a> {
     /// Targets × particles × dimensions.
     pub shape: BatchShape,
-    /// The frame parameters (uniform buffer, `Params` of `shaders/engine/common.wgsl`).
+    /// The frame parameters (uniform buffer, `Params` of `shaders/engine/common.wgsl`). A
+    /// likelihood reads the shape from it, and in `Propagate` the step its draws are keyed by:
+    /// the fused step holds the frame's first layer's block there for the whole frame, the
+    /// staged one each layer's in turn.
     pub params: &'a wgpu::Buffer,
     /// States, `[(t·D + d)·M + m]`, already diffused when the likelihood runs.
     pub states: &'a DeviceStream<f32>,

@@ -9,11 +9,13 @@ use pf_core::ResamplerKind;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape};
 
+mod fused;
 mod likelihood;
 mod params;
 mod record;
 mod setup;
 
+pub use fused::{StepLayout, fused_layout_refusal, fused_workgroup_bytes};
 pub use likelihood::{
     GpuLikelihood, LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood,
     ReadbackSource,
@@ -97,6 +99,18 @@ pub enum GpuStage {
     Estimate,
 }
 
+impl GpuStage {
+    /// Every stage: a frame's whole step.
+    pub const ALL: [GpuStage; 6] = [
+        GpuStage::Resample,
+        GpuStage::Gather,
+        GpuStage::Diffuse,
+        GpuStage::Likelihood,
+        GpuStage::Normalise,
+        GpuStage::Estimate,
+    ];
+}
+
 /// What one GPU step read back.
 #[derive(Debug, Clone, PartialEq)]
 pub struct GpuStepReport {
@@ -132,8 +146,15 @@ pub struct GpuFilter {
     params_buffer: wgpu::Buffer,
     /// The frame's annealing layers (one for plain Condensation).
     annealing: Annealing,
-    /// One parameter block per layer, copied into `params_buffer` before that layer runs.
+    /// One parameter block per layer, `layer_stride` bytes apart: copied into `params_buffer`
+    /// before that layer runs (staged), or bound in place (fused).
     layer_params: wgpu::Buffer,
+    layer_stride: u64,
+    /// How a whole step is recorded, and the fused layer's kernels where it fits.
+    layout: StepLayout,
+    fused: Option<fused::FusedLayers>,
+    /// Why the fused step does not fit (`None` when it does).
+    fused_refusal: Option<String>,
     /// Every device stream, created once (some only for the bind groups).
     streams: Streams,
     stages: Stages,
@@ -186,9 +207,23 @@ impl GpuFilter {
         check_fits(ctx, &shape, initial_states)?;
         let params = FrameParams::for_config(config, resampler);
         let params_buffer = uniform_buffer(ctx, &params)?;
-        let layer_params = layer_params_buffer(ctx, config.annealing.layers)?;
+        let layer_stride = fused::layer_stride(ctx);
+        let layer_params = layer_params_buffer(ctx, config.annealing.layers, layer_stride)?;
         let streams = Streams::new(ctx, config, initial_states)?;
         let stages = Stages::new(ctx, config.best > 0)?;
+        let layers = fused::LayerParams {
+            buffer: &layer_params,
+            stride: layer_stride,
+            count: config.annealing.layers,
+        };
+        let (fused, fused_refusal) = fused::FusedLayers::where_fits(
+            ctx,
+            &shape,
+            resampler,
+            &streams,
+            &stages.normalise,
+            &layers,
+        )?;
         let groups = BindGroups::new(ctx, &stages, &streams, &params_buffer)?;
         let resample_steps = resample_dispatches(
             ctx,
@@ -215,6 +250,14 @@ impl GpuFilter {
             params_buffer,
             annealing: config.annealing.clone(),
             layer_params,
+            layer_stride,
+            layout: if fused.is_some() {
+                StepLayout::Fused
+            } else {
+                StepLayout::Staged
+            },
+            fused,
+            fused_refusal,
             step_backs,
             next_back: 0,
             in_flight: 0,
@@ -281,13 +324,7 @@ impl GpuFilter {
         encoder: &mut wgpu::CommandEncoder,
         likelihood: &dyn GpuLikelihood,
     ) {
-        use GpuStage::*;
-        self.record_stages(
-            ctx,
-            encoder,
-            &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
-            likelihood,
-        );
+        self.record_stages(ctx, encoder, &GpuStage::ALL, likelihood);
     }
 
     /// Runs only `stages` (in the step's order) as one submission: the stage-by-stage tests.
@@ -496,12 +533,7 @@ impl GpuFilter {
         ctx: &GpuContext,
         likelihood: &dyn GpuLikelihood,
     ) -> Result<GpuStepReport, GpuError> {
-        use GpuStage::*;
-        self.run_stages(
-            ctx,
-            &[Resample, Gather, Diffuse, Likelihood, Normalise, Estimate],
-            likelihood,
-        )
+        self.run_stages(ctx, &GpuStage::ALL, likelihood)
     }
 
     /// Reads the particle states back (tests and debugging; allocates).

@@ -4,7 +4,7 @@
 
 use super::{
     FrameParams, GpuFilter, GpuLikelihood, GpuStage, LikelihoodPhase, STEP_BACK_BEST,
-    STEP_BACK_ESTIMATES, STEP_BACK_OWN, STEP_BACK_SPREADS, STEP_BACK_STATS, groups_for,
+    STEP_BACK_ESTIMATES, STEP_BACK_OWN, STEP_BACK_SPREADS, STEP_BACK_STATS, StepLayout, groups_for,
 };
 use crate::context::GpuContext;
 
@@ -27,13 +27,28 @@ impl GpuFilter {
             })
             .collect();
         self.step += layers as u64;
-        ctx.queue
-            .write_buffer(&self.layer_params, 0, bytemuck::cast_slice(&blocks));
+        let mut strided = vec![0u8; layers * self.layer_stride as usize];
+        for (layer, block) in blocks.iter().enumerate() {
+            let at = layer * self.layer_stride as usize;
+            strided[at..at + std::mem::size_of::<FrameParams>()]
+                .copy_from_slice(bytemuck::bytes_of(block));
+        }
+        ctx.queue.write_buffer(&self.layer_params, 0, &strided);
+
+        let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
+        if let (true, StepLayout::Fused, Some(fused)) = (whole_step, self.layout, &self.fused) {
+            // The likelihood's view of the parameters: the frame's first layer (its shape, and
+            // the step a likelihood's own dynamics draw with).
+            ctx.queue
+                .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&blocks[0]));
+            self.record_fused(encoder, fused, likelihood);
+            return;
+        }
         let block_bytes = std::mem::size_of::<FrameParams>() as u64;
         for layer in 0..layers {
             encoder.copy_buffer_to_buffer(
                 &self.layer_params,
-                layer as u64 * block_bytes,
+                layer as u64 * self.layer_stride,
                 &self.params_buffer,
                 0,
                 block_bytes,
@@ -49,23 +64,32 @@ impl GpuFilter {
 
     /// The estimate's pass: the weighted (and best-M′) means, then the likelihood's work on them.
     fn record_estimate(&self, encoder: &mut wgpu::CommandEncoder, likelihood: &dyn GpuLikelihood) {
-        let per_target = [1, self.shape.targets as u32, 1];
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("estimate"),
             timestamp_writes: None,
         });
+        self.record_estimate_into(&mut pass, likelihood);
+    }
+
+    /// The estimate's dispatches into `pass`.
+    pub(super) fn record_estimate_into(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        let per_target = [1, self.shape.targets as u32, 1];
         self.stages
             .estimate
-            .record(&mut pass, &self.groups.estimate, per_target);
+            .record(pass, &self.groups.estimate, per_target);
         if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
-            k.record(&mut pass, g, per_target);
+            k.record(pass, g, per_target);
         }
-        likelihood.record(LikelihoodPhase::AfterEstimate, &mut pass);
+        likelihood.record(LikelihoodPhase::AfterEstimate, pass);
     }
 
     /// The step's results copied into its staging buffer: the likelihood's named readbacks, the
     /// estimates, statistics, best-M′ estimates and spreads.
-    fn record_copies_back(
+    pub(super) fn record_copies_back(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         likelihood: &dyn GpuLikelihood,

@@ -97,17 +97,21 @@ impl FrameParams {
     }
 }
 
-/// The parameter blocks of a frame's annealing layers, one per layer, each copied into the
-/// uniform buffer before its layer's dispatches (so that one submission runs every layer).
+/// The parameter blocks of a frame's annealing layers, one per layer, `stride` bytes apart: each
+/// copied into the uniform buffer before its layer's dispatches (the staged step), or bound where
+/// it lies (the fused step), so that one submission runs every layer.
 pub(super) fn layer_params_buffer(
     ctx: &GpuContext,
     layers: usize,
+    stride: u64,
 ) -> Result<wgpu::Buffer, GpuError> {
     ctx.scoped("creating the layer parameter buffer", || {
         ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("annealing layer params"),
-            size: (layers * std::mem::size_of::<FrameParams>()) as u64,
-            usage: wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST,
+            size: layers as u64 * stride,
+            usage: wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST
+                | wgpu::BufferUsages::UNIFORM,
             mapped_at_creation: false,
         })
     })

@@ -1,0 +1,262 @@
+//! The fused step (`shaders/engine/layer.wgsl`): each annealing layer is one dispatch of one
+//! workgroup per target that normalises the layer before it, resamples, gathers its ancestors'
+//! states through workgroup memory and moves them, then the likelihood's own dispatches; the frame
+//! ends with the last layer's normalisation and the estimate. All of it is one compute pass: each
+//! layer's parameters are a slice of one uniform buffer, bound by a bind group of its own, so no
+//! copy splits the pass. The staged step (`record.rs`: resample, gather, copy, diffuse,
+//! likelihood, normalise per layer) stays as the reference and for what the fused one does not
+//! cover (Metropolis resampling, more particles than a workgroup holds).
+//!
+//! Both draw the same random numbers in the same order, so they give the same particles (the
+//! `fused_step` tests check it, and each against the CPU twin `pf_core::batch::BatchFilter`).
+
+use pf_core::batch::BatchShape;
+
+use super::SINGLE_WORKGROUP_SCAN_LIMIT;
+use super::setup::Streams;
+use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::kernels::{Kernel, sources, stage_source};
+
+/// How a [`GpuFilter`] records a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepLayout {
+    /// One dispatch per layer for selection and moving (`layer.wgsl`): the default wherever it
+    /// fits ([`fused_layout_refusal`]).
+    Fused,
+    /// Every stage its own dispatch, as `run_stages` records them: the reference.
+    Staged,
+}
+
+/// Storage buffers the fused kernel binds.
+const FUSED_STORAGE_BUFFERS: u32 = 13;
+
+/// Bytes of workgroup memory the fused kernel needs for `particles` a target: one dimension of
+/// them staged, plus the scan's and the normalisation's partial sums.
+pub fn fused_workgroup_bytes(particles: usize) -> u64 {
+    let staged = 4 * particles as u64;
+    let scan = 256 * 4 + 4;
+    let normalise = 256 * 4 + 256 * 16 + 2 * 4;
+    staged + scan + normalise
+}
+
+/// Why the fused step cannot run `shape` with `resampler` on this adapter (`None`: it can).
+pub fn fused_layout_refusal(
+    ctx: &GpuContext,
+    shape: &BatchShape,
+    resampler: GpuResampler,
+) -> Option<String> {
+    let limits = ctx.limits();
+    if let GpuResampler::Metropolis(_) = resampler {
+        return Some("Metropolis resampling runs per offspring, not per target".into());
+    }
+    if shape.particles > SINGLE_WORKGROUP_SCAN_LIMIT {
+        return Some(format!(
+            "{} particles a target are more than one workgroup resamples ({SINGLE_WORKGROUP_SCAN_LIMIT})",
+            shape.particles
+        ));
+    }
+    let bytes = fused_workgroup_bytes(shape.particles);
+    if bytes > u64::from(limits.max_compute_workgroup_storage_size) {
+        return Some(format!(
+            "{} particles need {bytes} bytes of workgroup memory; the adapter has {}",
+            shape.particles, limits.max_compute_workgroup_storage_size
+        ));
+    }
+    if limits.max_storage_buffers_per_shader_stage < FUSED_STORAGE_BUFFERS {
+        return Some(format!(
+            "the fused kernel binds {FUSED_STORAGE_BUFFERS} storage buffers; the adapter allows {}",
+            limits.max_storage_buffers_per_shader_stage
+        ));
+    }
+    None
+}
+
+/// The fused layer's kernels and bind groups, built once.
+pub(super) struct FusedLayers {
+    /// Normalise the previous layer, select, move (every layer but a propagating likelihood's
+    /// first).
+    moving: Kernel,
+    /// Normalise the previous layer and select only (layer 0 of a likelihood that propagates).
+    selecting: Kernel,
+    /// `moving`'s bind group per layer (its parameter slice and the one before it).
+    moving_groups: Vec<wgpu::BindGroup>,
+    selecting_group: wgpu::BindGroup,
+    /// The normalise stage bound to the last layer's parameters.
+    last_normalise: wgpu::BindGroup,
+}
+
+/// The layer kernel's source for `particles` a target (its workgroup array sized to them).
+fn layer_source(particles: usize) -> String {
+    stage_source(sources::LAYER).replace(
+        "const STAGE_CAPACITY: u32 = 4096u;",
+        &format!("const STAGE_CAPACITY: u32 = {}u;", particles.max(1)),
+    )
+}
+
+impl FusedLayers {
+    /// The fused layer for this filter where it fits, else why not.
+    pub(super) fn where_fits(
+        ctx: &GpuContext,
+        shape: &BatchShape,
+        resampler: GpuResampler,
+        streams: &Streams,
+        normalise: &Kernel,
+        layers: &LayerParams<'_>,
+    ) -> Result<(Option<Self>, Option<String>), GpuError> {
+        Ok(match fused_layout_refusal(ctx, shape, resampler) {
+            None => (
+                Some(Self::new(
+                    ctx, shape, resampler, streams, normalise, layers,
+                )?),
+                None,
+            ),
+            Some(why) => (None, Some(why)),
+        })
+    }
+
+    /// Builds the kernels for `resampler` (systematic or stratified) and binds each layer's
+    /// parameter slice of `layer_params` (`stride` bytes apart).
+    fn new(
+        ctx: &GpuContext,
+        shape: &BatchShape,
+        resampler: GpuResampler,
+        streams: &Streams,
+        normalise: &Kernel,
+        layers: &LayerParams<'_>,
+    ) -> Result<Self, GpuError> {
+        let source = layer_source(shape.particles);
+        let prefix = if resampler == GpuResampler::Stratified {
+            "stratified"
+        } else {
+            "systematic"
+        };
+        let moving = Kernel::new(ctx, "fused layer", &source, &format!("{prefix}_layer"))?;
+        let selecting = Kernel::new(ctx, "fused select", &source, &format!("{prefix}_select"))?;
+        let bind = |kernel: &Kernel, layer: usize| {
+            let previous = layer.saturating_sub(1);
+            let s = streams;
+            kernel.bind(
+                ctx,
+                &[
+                    (0, layers.slice(layer)),
+                    (1, layers.slice(previous)),
+                    (2, s.log_weights.binding()),
+                    (3, s.log_likelihood.binding()),
+                    (4, s.weights.binding()),
+                    (5, s.stats.binding()),
+                    (6, s.cdf.binding()),
+                    (7, s.ancestors.binding()),
+                    (8, s.resampling_keys.binding()),
+                    (9, s.states.binding()),
+                    (10, s.sigma.binding()),
+                    (11, s.lower.binding()),
+                    (12, s.upper.binding()),
+                    (13, s.diffusion_keys.binding()),
+                    (14, s.velocity.binding()),
+                ],
+            )
+        };
+        let moving_groups = (0..layers.count)
+            .map(|layer| bind(&moving, layer))
+            .collect::<Result<Vec<_>, _>>()?;
+        let selecting_group = bind(&selecting, 0)?;
+        let last_normalise = normalise.bind(
+            ctx,
+            &[
+                (0, layers.slice(layers.count - 1)),
+                (1, streams.log_weights.binding()),
+                (2, streams.log_likelihood.binding()),
+                (3, streams.weights.binding()),
+                (4, streams.stats.binding()),
+            ],
+        )?;
+        Ok(Self {
+            moving,
+            selecting,
+            moving_groups,
+            selecting_group,
+            last_normalise,
+        })
+    }
+}
+
+/// The per-layer parameter blocks in one uniform buffer, `stride` bytes apart (the adapter's
+/// uniform offset alignment).
+pub(super) struct LayerParams<'a> {
+    pub buffer: &'a wgpu::Buffer,
+    pub stride: u64,
+    pub count: usize,
+}
+
+impl LayerParams<'_> {
+    fn slice(&self, layer: usize) -> wgpu::BindingResource<'_> {
+        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+            buffer: self.buffer,
+            offset: layer as u64 * self.stride,
+            size: wgpu::BufferSize::new(std::mem::size_of::<FrameParams>() as u64),
+        })
+    }
+}
+
+/// Bytes between two layers' parameter blocks: a block rounded up to the uniform offset
+/// alignment.
+pub(super) fn layer_stride(ctx: &GpuContext) -> u64 {
+    let block = std::mem::size_of::<FrameParams>() as u64;
+    block.next_multiple_of(u64::from(ctx.limits().min_uniform_buffer_offset_alignment))
+}
+
+impl GpuFilter {
+    /// How a whole step is recorded: [`StepLayout::Fused`] by default where it fits.
+    pub fn step_layout(&self) -> StepLayout {
+        self.layout
+    }
+
+    /// Records whole steps as `layout` from the next step on (the same particles either way);
+    /// [`StepLayout::Fused`] is refused, with the reason, where it does not fit.
+    pub fn set_step_layout(&mut self, layout: StepLayout) -> Result<(), GpuError> {
+        if let (StepLayout::Fused, Some(why)) = (layout, &self.fused_refusal) {
+            return Err(GpuError::InvalidConfig(format!(
+                "the fused step does not fit this filter: {why}"
+            )));
+        }
+        self.layout = layout;
+        Ok(())
+    }
+
+    /// Records a frame's whole step the fused way, in one compute pass (the layers' parameters
+    /// written by [`GpuFilter::write_layer_params`] first).
+    pub(super) fn record_fused(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        fused: &FusedLayers,
+        likelihood: &dyn GpuLikelihood,
+    ) {
+        let per_target = [1, self.shape.targets as u32, 1];
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("fused step"),
+                timestamp_writes: None,
+            });
+            for layer in 0..self.annealing.layers {
+                if layer == 0 && likelihood.propagates() {
+                    fused
+                        .selecting
+                        .record(&mut pass, &fused.selecting_group, per_target);
+                    likelihood.record(LikelihoodPhase::Propagate, &mut pass);
+                } else {
+                    fused
+                        .moving
+                        .record(&mut pass, &fused.moving_groups[layer], per_target);
+                }
+                likelihood.record(LikelihoodPhase::Measure, &mut pass);
+            }
+            self.stages
+                .normalise
+                .record(&mut pass, &fused.last_normalise, per_target);
+            self.record_estimate_into(&mut pass, likelihood);
+        }
+        self.record_copies_back(encoder, likelihood);
+    }
+}

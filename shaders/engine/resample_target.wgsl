@@ -1,0 +1,107 @@
+// Resampling one target in one workgroup of 256 invocations (SCAN_WG): the ancestors of the
+// target's M offspring from its normalised weights, by a parallel prefix sum into cdf[] and a
+// binary search per offspring (systematic: one uniform per target; stratified: one per offspring).
+// A library: the including kernel declares params, weights, cdf, ancestors, stats and
+// resample_keys (resample.wgsl for the resample stage, layer.wgsl for the fused layer).
+// CPU twins: pf_core::resample::{Systematic, Stratified} fed CounterUniforms with the target's
+// resampling key.
+
+const SCAN_WG: u32 = 256u;
+var<workgroup> chunk_sums: array<f32, 256>;
+var<workgroup> due: u32;
+
+fn resampling_due(t: u32) -> bool {
+    return stats[t].ess < params.ess_threshold * f32(params.particles);
+}
+
+// The CDF is summed in parallel, so rounding can leave a zero-weight particle a hair above its
+// predecessor (or a point a hair past the end); the search would then pick a particle that must
+// never be picked. Move to the nearest positive weight: forward first, then backward.
+fn positive_weight_near(base: u32, i: u32, n: u32) -> u32 {
+    for (var j = i; j < n; j = j + 1u) {
+        if (weights[base + j] > 0.0) {
+            return j;
+        }
+    }
+    var j = i;
+    while (j > 0u && !(weights[base + j] > 0.0)) {
+        j = j - 1u;
+    }
+    return j;
+}
+
+// The uniform of offspring k: one per target (systematic) or one per offspring (stratified).
+fn ordered_uniform(t: u32, k: u32, stratified: bool) -> f32 {
+    var particle = 0u;
+    if (stratified) {
+        particle = k;
+    }
+    let block = philox4x32_10(vec4<u32>(particle, 0u, params.step_lo, params.step_hi), resample_keys[t]);
+    return unit_from_word(block.x);
+}
+
+// The smallest i with point < cdf[base + i] (n - 1 when none), moved to a positive weight.
+fn search_cdf(base: u32, n: u32, point: f32) -> u32 {
+    var lo = 0u;
+    var hi = n - 1u;
+    while (lo < hi) {
+        let mid = (lo + hi) / 2u;
+        if (cdf[base + mid] <= point) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    return positive_weight_near(base, lo, n);
+}
+
+fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
+    let n = params.particles;
+    let base = t * n;
+    if (lid == 0u) {
+        due = select(0u, 1u, resampling_due(t));
+        stats[t].resampled = due;
+    }
+    workgroupBarrier();
+    if (workgroupUniformLoad(&due) == 0u) {
+        for (var k = lid; k < n; k = k + SCAN_WG) {
+            ancestors[base + k] = k;
+        }
+        return;
+    }
+    // Chunk sums, then an inclusive Hillis-Steele scan over the 256 chunks.
+    let chunk = (n + SCAN_WG - 1u) / SCAN_WG;
+    let begin = min(lid * chunk, n);
+    let end = min(begin + chunk, n);
+    var sum = 0.0;
+    for (var i = begin; i < end; i = i + 1u) {
+        sum = sum + weights[base + i];
+    }
+    chunk_sums[lid] = sum;
+    workgroupBarrier();
+    for (var offset = 1u; offset < SCAN_WG; offset = offset * 2u) {
+        var add = 0.0;
+        if (lid >= offset) {
+            add = chunk_sums[lid - offset];
+        }
+        workgroupBarrier();
+        chunk_sums[lid] = chunk_sums[lid] + add;
+        workgroupBarrier();
+    }
+    var running = 0.0;
+    if (lid > 0u) {
+        running = chunk_sums[lid - 1u];
+    }
+    for (var i = begin; i < end; i = i + 1u) {
+        running = running + weights[base + i];
+        cdf[base + i] = running;
+    }
+    let total = chunk_sums[SCAN_WG - 1u];
+    storageBarrier();
+    workgroupBarrier();
+
+    for (var k = lid; k < n; k = k + SCAN_WG) {
+        let point = (f32(k) + ordered_uniform(t, k, stratified)) / f32(n) * total;
+        ancestors[base + k] = search_cdf(base, n, point);
+    }
+}
