@@ -9,6 +9,11 @@
 //! (`plugin_over_gpus_7d_1000`: `ShardedModelFilter`, two frames in flight) against the same
 //! filter on one GPU, for 256 and 1024 targets.
 //!
+//! Then the annealed step (five survival-rule layers, the face tracker's schedule) of the plug-in
+//! model for T ∈ {1, 16, 64, 256} targets, fused (`StepLayout::Fused`, the default: a layer is
+//! one engine dispatch and the model's) against staged (every stage its own dispatch), each with
+//! the GPU's own time printed (timestamps, median of 50 steps).
+//!
 //! Every GPU timing includes the submission, the device wait and the readback. The adapter is
 //! printed at the start; set WGPU_ADAPTER_NAME to choose one.
 
@@ -22,6 +27,7 @@ use pf_gpu::model::{ModelFilter, Plugin, ShardedModelFilter, ShardedPending};
 use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyGaussianLikelihood, ToyObservation, ToyTwin};
 use pf_gpu::{
     ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
+    StepLayout,
 };
 
 const D: usize = 7;
@@ -269,8 +275,78 @@ fn bench_plugin_over_gpus(c: &mut Criterion) {
     group.finish();
 }
 
+/// The plug-in model with the face tracker's five annealing layers, fused against staged.
+fn bench_annealed_layouts(c: &mut Criterion) {
+    let ctx = context();
+    let mut group = c.benchmark_group("annealed_step_7d_1000");
+    group.sample_size(20);
+    for &targets in &[1usize, 16, 64, 256] {
+        group.throughput(Throughput::Elements((targets * M) as u64));
+        let shape = BatchShape::new(targets, M, D).unwrap();
+        let config = BatchConfig {
+            shape,
+            seed: 1,
+            sigma: DIFFUSION.to_vec(),
+            bounds: None,
+            angular: ANGLES.to_vec(),
+            ess_threshold: f64::INFINITY,
+            best: 0,
+            annealing: Annealing::survival(5, 0.5, 0.7),
+            motion: Default::default(),
+        };
+        let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
+        let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+        let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
+        for layout in [StepLayout::Fused, StepLayout::Staged] {
+            let mut plugin = ModelFilter::new(
+                &ctx,
+                &config,
+                GpuResampler::Systematic,
+                &initial,
+                TOY_MODEL,
+                &constants,
+            )
+            .unwrap();
+            plugin
+                .gpu_parts()
+                .unwrap()
+                .1
+                .set_step_layout(layout)
+                .unwrap();
+            let mut frame = 0;
+            let mut step = move |plugin: &mut ModelFilter<ToyObservation, ToyConstants>| {
+                let obs: Vec<ToyObservation> = (0..targets)
+                    .map(|t| ToyObservation {
+                        z: observed(t, frame),
+                    })
+                    .collect();
+                frame += 1;
+                plugin.step(&obs).unwrap()
+            };
+            let name = format!("{layout:?}").to_lowercase();
+            let mut reported = false;
+            group.bench_function(BenchmarkId::new(&name, targets), |b| {
+                b.iter(|| std::hint::black_box(step(&mut plugin)));
+                if !reported {
+                    let mut own: Vec<f64> = (0..50)
+                        .filter_map(|_| step(&mut plugin).gpu_time)
+                        .map(|t| t.duration().as_secs_f64() * 1e6)
+                        .collect();
+                    own.sort_by(f64::total_cmp);
+                    if let Some(median) = own.get(own.len() / 2) {
+                        eprintln!("annealed step, {name}, {targets} targets: GPU's own time {median:.1} us (median of 50)");
+                    }
+                    reported = true;
+                }
+            });
+        }
+    }
+    group.finish();
+}
+
 criterion_group!(
     benches,
+    bench_annealed_layouts,
     bench_whole_step,
     bench_resampling_alone,
     bench_plugin_over_gpus
