@@ -371,3 +371,25 @@ fn metropolis_and_huge_clouds_keep_the_staged_step() {
     let error = filter.set_step_layout(StepLayout::Fused).unwrap_err();
     assert!(error.to_string().contains("does not fit"), "{error}");
 }
+
+/// The fused step is the default for few values a target, the staged one for many (where one
+/// workgroup a target would gather and move them alone); both can be chosen where they fit.
+#[test]
+fn the_default_layout_follows_the_values_a_target() {
+    let Some(ctx) = common::gpu_context("fused step default") else {
+        return;
+    };
+    let layout_of = |particles: usize, dims: usize| {
+        let shape = BatchShape::new(3, particles, dims).unwrap();
+        let config = BatchConfig::new(shape, 1, vec![0.1; dims]);
+        let states = vec![0.0; shape.state_len()];
+        pf_gpu::GpuFilter::new(&ctx, &config, GpuResampler::Stratified, &states).unwrap()
+    };
+    let face_like = layout_of(1000, 7);
+    assert_eq!(face_like.step_layout(), StepLayout::Fused);
+    let values = pf_gpu::FUSED_DEFAULT_MAX_VALUES;
+    let mut body_like = layout_of(values / 8 + 1, 8);
+    assert_eq!(body_like.step_layout(), StepLayout::Staged);
+    body_like.set_step_layout(StepLayout::Fused).unwrap();
+    assert_eq!(body_like.step_layout(), StepLayout::Fused);
+}

@@ -15,7 +15,9 @@ mod params;
 mod record;
 mod setup;
 
-pub use fused::{StepLayout, fused_layout_refusal, fused_workgroup_bytes};
+pub use fused::{
+    FUSED_DEFAULT_MAX_VALUES, StepLayout, fused_layout_refusal, fused_workgroup_bytes,
+};
 pub use likelihood::{
     GpuLikelihood, LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood,
     ReadbackSource,
@@ -251,11 +253,7 @@ impl GpuFilter {
             annealing: config.annealing.clone(),
             layer_params,
             layer_stride,
-            layout: if fused.is_some() {
-                StepLayout::Fused
-            } else {
-                StepLayout::Staged
-            },
+            layout: fused::default_layout(&shape, fused.is_some()),
             fused,
             fused_refusal,
             step_backs,
