@@ -14,6 +14,11 @@
 //! one engine dispatch and the model's) against staged (every stage its own dispatch), each with
 //! the GPU's own time printed (timestamps, median of 50 steps).
 //!
+//! Then the marginal backward smoother (`pf_gpu::smooth::GpuSmoother`, each of the 7 values its
+//! own block, 1 000 particles): a whole run of 1 000 frames × 64 targets, and the fixed-lag
+//! smoother's window (8 frames behind: 9 frames × 64 targets) that a frame recomputes, against the
+//! CPU twin (`pf_core::smooth::smooth_values`, all cores) on the window of 4 targets.
+//!
 //! Every GPU timing includes the submission, the device wait and the readback. The adapter is
 //! printed at the start; set WGPU_ADAPTER_NAME to choose one.
 
@@ -21,9 +26,11 @@ use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_m
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::resample::{Metropolis, Systematic};
+use pf_core::smooth::{Cloud, GaussianTransition, smooth_values};
 use pf_core::{RandomStreams, Resampler, ResamplerKind, Stage};
 use pf_gpu::engine::Filter;
 use pf_gpu::model::{ModelFilter, Plugin, ShardedModelFilter, ShardedPending};
+use pf_gpu::smooth::GpuSmoother;
 use pf_gpu::toy::{TOY_MODEL, ToyConstants, ToyGaussianLikelihood, ToyObservation, ToyTwin};
 use pf_gpu::{
     ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
@@ -344,8 +351,54 @@ fn bench_annealed_layouts(c: &mut Criterion) {
     group.finish();
 }
 
+/// A track of `frames` random clouds of M particles in D values (the smoother's time does not
+/// depend on the values).
+fn random_track(frames: usize, seed: u64) -> Vec<Cloud> {
+    (0..frames)
+        .map(|f| {
+            let shape = BatchShape::new(1, M, D).unwrap();
+            let states = gaussian_clouds(&shape, seed + f as u64, &[0.0; D], &[1.0; D]);
+            Cloud {
+                states,
+                weights: vec![1.0 / M as f64; M],
+                drift: vec![0.01; D],
+            }
+        })
+        .collect()
+}
+
+fn bench_smoother(c: &mut Criterion) {
+    let ctx = context();
+    let smoother = GpuSmoother::new(&ctx).unwrap();
+    let transition = GaussianTransition {
+        sigma: DIFFUSION.to_vec(),
+        angular: ANGLES.to_vec(),
+    };
+    let mut group = c.benchmark_group("smoother_7d_1000");
+    group.sample_size(10);
+    let window: Vec<Vec<Cloud>> = (0..64).map(|t| random_track(9, 100 * t)).collect();
+    let views: Vec<&[Cloud]> = window.iter().map(Vec::as_slice).collect();
+    group.bench_function("gpu_fixed_lag_8_window_64_targets", |b| {
+        b.iter(|| std::hint::black_box(smoother.smooth(&ctx, &views, &transition).unwrap()))
+    });
+    group.bench_function("cpu_fixed_lag_8_window_4_targets", |b| {
+        b.iter(|| {
+            for track in &window[..4] {
+                std::hint::black_box(smooth_values(track, &transition).unwrap());
+            }
+        })
+    });
+    let run: Vec<Vec<Cloud>> = (0..64).map(|t| random_track(1000, 10_000 * t)).collect();
+    let views: Vec<&[Cloud]> = run.iter().map(Vec::as_slice).collect();
+    group.bench_function("gpu_full_run_1000_frames_64_targets", |b| {
+        b.iter(|| std::hint::black_box(smoother.smooth(&ctx, &views, &transition).unwrap()))
+    });
+    group.finish();
+}
+
 criterion_group!(
     benches,
+    bench_smoother,
     bench_annealed_layouts,
     bench_whole_step,
     bench_resampling_alone,

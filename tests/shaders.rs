@@ -43,6 +43,7 @@ fn every_module() -> Vec<(&'static str, String)> {
             "face/likelihood.wgsl",
             stage_source(face_tracker::likelihood::SHADER),
         ),
+        ("engine/smooth.wgsl", pf_gpu::smooth::SHADER.to_string()),
         ("face/detect.wgsl", face_tracker::detect::SHADER.to_string()),
         (
             "body/likelihood.wgsl",

@@ -198,7 +198,12 @@ pub fn backward_step(
         });
     }
     let kernel = Kernel::new(transition);
-    let width = kernel.active.len().max(1);
+    if kernel.active.is_empty() {
+        // No value moves: the density is the same for every pair, and the future says nothing
+        // about which particle the present was.
+        return Ok(current.weights.clone());
+    }
+    let width = kernel.active.len();
     let (from, to) = (kernel.points(current, true), kernel.points(next, false));
     let log_w: Vec<f64> = current.weights.iter().map(|w| w.ln()).collect();
     // log Σ_k w_t^k f(x_{t+1}^j | x_t^k) for each j (the predictive density at x_{t+1}^j).
@@ -441,6 +446,18 @@ mod tests {
             "{by_first:?} {by_second:?}"
         );
         assert_eq!(t.block(&[1]).sigma, vec![0.0, 1.0]);
+    }
+
+    #[test]
+    fn values_that_do_not_move_keep_their_filtered_weights() {
+        let current = cloud(vec![0.0, 1.0, 2.0], vec![0.2, 0.3, 0.5], vec![0.0]);
+        let next = cloud(vec![5.0, 6.0, 7.0], vec![0.6, 0.2, 0.2], vec![0.0]);
+        let still = GaussianTransition {
+            sigma: vec![0.0],
+            angular: vec![false],
+        };
+        let smoothed = backward_step(&current, &next, &next.weights, &still).unwrap();
+        assert_eq!(smoothed, current.weights);
     }
 
     #[test]

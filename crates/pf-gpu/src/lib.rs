@@ -24,6 +24,7 @@ pub mod kernels;
 pub mod load;
 pub mod model;
 pub mod random;
+pub mod smooth;
 pub mod stream;
 pub mod timing;
 pub mod toy;
