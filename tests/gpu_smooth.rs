@@ -12,6 +12,7 @@
 mod common;
 
 use pf_core::smooth::{Cloud, GaussianTransition, smooth_all, smooth_values};
+use pf_core::smooth_tracks::TrackSmoother;
 use pf_gpu::smooth::GpuSmoother;
 use proptest::prelude::*;
 
@@ -174,4 +175,58 @@ fn mismatched_clouds_are_refused() {
     let one = [good];
     let error = smoother.smooth(&ctx, &[&one[..]], &bad_sigma).unwrap_err();
     assert!(error.to_string().contains("sigma"), "{error}");
+}
+
+/// The trackers' smoother (`TrackSmoother`) on the GPU writes the rows it writes on the CPU: the
+/// same frames and tracks, every smoothed mean within 0.05 of the CPU's (values over ±3), online
+/// with a lag and over whole tracks.
+#[test]
+fn the_track_smoother_on_the_gpu_writes_the_cpus_rows() {
+    let Some(ctx) = common::gpu_context("track smoother on the GPU") else {
+        return;
+    };
+    let transition = GaussianTransition {
+        sigma: vec![0.5, 0.0, 1.5],
+        angular: vec![false, false, true],
+    };
+    let on_gpu = std::sync::Arc::new(pf_gpu::smooth::OnGpu::new(&ctx).unwrap());
+    for lag in [None, Some(2)] {
+        let mut cpu = TrackSmoother::new(lag, transition.clone(), 0.5);
+        let mut gpu = TrackSmoother::new(lag, transition.clone(), 0.5).on(on_gpu.clone());
+        let (mut rows_cpu, mut rows_gpu) = (Vec::new(), Vec::new());
+        for frame in 0..6 {
+            // Track 0 all along, track 1 from frame 1 to 3.
+            let tracks: Vec<usize> = (0..2)
+                .filter(|&t| t == 0 || (1..=3).contains(&frame))
+                .collect();
+            let clouds = |_: ()| -> Vec<(usize, Vec<f32>, Vec<f32>)> {
+                tracks
+                    .iter()
+                    .map(|&t| {
+                        let c = cloud(50, 3, (frame * 10 + t) as u64, false);
+                        let log_weights = c.weights.iter().map(|w| (*w as f32).ln()).collect();
+                        (t, c.states, log_weights)
+                    })
+                    .collect()
+            };
+            rows_cpu.extend(cpu.add_frame(frame, clouds(())).unwrap());
+            rows_gpu.extend(gpu.add_frame(frame, clouds(())).unwrap());
+        }
+        rows_cpu.extend(cpu.finish().unwrap());
+        rows_gpu.extend(gpu.finish().unwrap());
+        assert_eq!(rows_cpu.len(), rows_gpu.len(), "lag {lag:?}");
+        for (c, g) in rows_cpu.iter().zip(&rows_gpu) {
+            assert_eq!((c.frame, c.track), (g.frame, g.track));
+            for d in [0usize, 1] {
+                let (a, b) = (c.values[d].mean, g.values[d].mean);
+                assert!(
+                    (a - b).abs() <= 0.05,
+                    "lag {lag:?} frame {} track {} value {d}: CPU {a} GPU {b}",
+                    c.frame,
+                    c.track
+                );
+            }
+        }
+    }
+    assert!(!on_gpu.fell_back());
 }

@@ -317,6 +317,31 @@ pub fn smooth_values(
     Ok(out)
 }
 
+/// What smooths one track's frames value by value (the work of [`smooth_values`]): the CPU
+/// ([`CpuSmoother`]) or a GPU (`pf_gpu::smooth::GpuSmoother` behind `pf_gpu::smooth::OnGpu`).
+pub trait ValueSmoother: Send + Sync {
+    /// Every frame's smoothed summary, `[frame][value]`.
+    fn smooth_values(
+        &self,
+        frames: &[Cloud],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError>;
+}
+
+/// [`smooth_values`] on the CPU's cores.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CpuSmoother;
+
+impl ValueSmoother for CpuSmoother {
+    fn smooth_values(
+        &self,
+        frames: &[Cloud],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError> {
+        smooth_values(frames, transition)
+    }
+}
+
 /// One value's posterior summary.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Summary {

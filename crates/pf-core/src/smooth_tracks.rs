@@ -5,10 +5,11 @@
 //! these rows to smoothed.csv; Python's trackers return them.
 
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
 
 use crate::error::PfError;
 use crate::smooth::{
-    Cloud, GaussianTransition, Summary, TargetParticles, smooth_values, summarise,
+    Cloud, CpuSmoother, GaussianTransition, Summary, TargetParticles, ValueSmoother, summarise,
 };
 
 /// One smoothed row: a track's values at a frame, smoothed and (to compare) as filtered.
@@ -46,6 +47,8 @@ pub struct TrackSmoother {
     /// The constant-velocity gain: the drift into the next frame is this × the last motion.
     gain: f32,
     tracks: BTreeMap<usize, TrackFrames>,
+    /// Where the smoothing runs: the CPU unless [`TrackSmoother::on`] says otherwise.
+    backend: Arc<dyn ValueSmoother>,
 }
 
 impl TrackSmoother {
@@ -57,7 +60,13 @@ impl TrackSmoother {
             transition,
             gain,
             tracks: BTreeMap::new(),
+            backend: Arc::new(CpuSmoother),
         }
+    }
+
+    /// The same smoother running its backward passes on `backend` (a GPU's, say).
+    pub fn on(self, backend: Arc<dyn ValueSmoother>) -> Self {
+        Self { backend, ..self }
     }
 
     /// The dynamics' density the smoother reweighs by.
@@ -132,7 +141,7 @@ impl TrackSmoother {
             return Ok(None);
         }
         let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = smooth_values(&window, &self.transition)?;
+        let values = self.backend.smooth_values(&window, &self.transition)?;
         let lag_window = || PfError::InvalidConfig("an empty lag window".into());
         let (first_frame, first) = entry.frames.pop_front().ok_or_else(lag_window)?;
         let first_values = values.into_iter().next().ok_or_else(lag_window)?;
@@ -144,7 +153,7 @@ impl TrackSmoother {
             return Ok(Vec::new());
         };
         let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = smooth_values(&clouds, &self.transition)?;
+        let values = self.backend.smooth_values(&clouds, &self.transition)?;
         Ok((waiting.frames.iter().zip(values))
             .map(|((frame, cloud), values)| self.row(*frame, track, cloud, values))
             .collect())

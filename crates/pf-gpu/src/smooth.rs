@@ -8,7 +8,8 @@
 //! `tests/gpu_smooth.rs` holds the two to the tolerance it states.
 
 use bytemuck::{Pod, Zeroable};
-use pf_core::smooth::{Cloud, GaussianTransition, Summary, summarise};
+use pf_core::PfError;
+use pf_core::smooth::{Cloud, GaussianTransition, Summary, ValueSmoother, summarise};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -371,6 +372,60 @@ fn normalise_slots(weights: &mut [f32], particles: usize) {
         if total > 0.0 && total.is_finite() {
             for w in slot {
                 *w = (f64::from(*w) / total) as f32;
+            }
+        }
+    }
+}
+
+/// A GPU smoothing tracks for `pf_core::smooth_tracks::TrackSmoother` (`TrackSmoother::on`): the
+/// trackers' `--smooth` on a GPU backend. A track the device cannot smooth (lost, out of memory)
+/// is smoothed on the CPU instead, so that a run that meets a device fault still writes every
+/// row it had tracked; [`OnGpu::fell_back`] tells whether that happened.
+pub struct OnGpu {
+    ctx: GpuContext,
+    smoother: GpuSmoother,
+    fell_back: std::sync::atomic::AtomicBool,
+}
+
+impl OnGpu {
+    /// The smoother's kernels built on `ctx` (the filter's GPU).
+    pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
+        Ok(Self {
+            ctx: ctx.clone(),
+            smoother: GpuSmoother::new(ctx)?,
+            fell_back: std::sync::atomic::AtomicBool::new(false),
+        })
+    }
+
+    /// Whether a track was smoothed on the CPU because the device failed.
+    pub fn fell_back(&self) -> bool {
+        self.fell_back.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    fn on_device(
+        &self,
+        frames: &[Cloud],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, GpuError> {
+        let weights = self.smoother.smooth(&self.ctx, &[frames], transition)?;
+        weights.summaries(0, frames, &transition.angular)
+    }
+}
+
+impl ValueSmoother for OnGpu {
+    fn smooth_values(
+        &self,
+        frames: &[Cloud],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError> {
+        match self.on_device(frames, transition) {
+            Ok(values) => Ok(values),
+            // Bad input is refused the same on the CPU; a device fault is not the track's.
+            Err(GpuError::InvalidConfig(message)) => Err(PfError::InvalidConfig(message)),
+            Err(_) => {
+                self.fell_back
+                    .store(true, std::sync::atomic::Ordering::Relaxed);
+                pf_core::smooth::smooth_values(frames, transition)
             }
         }
     }

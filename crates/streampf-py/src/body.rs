@@ -100,7 +100,8 @@ impl BodyTracker {
             true => Some(Smoothing::new(
                 tracker.transition().map_err(body)?,
                 tracker.motion_gain(),
-            )),
+                tracker.gpu_context(),
+            )?),
             false => None,
         };
         Ok(Self {

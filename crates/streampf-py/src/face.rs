@@ -45,16 +45,23 @@ struct Inner {
 
 impl Inner {
     /// A tracker with no frame stepped, smoothing when `smooth`.
-    fn new(engine: Engine, smooth: bool) -> Self {
-        let smoothing = smooth.then(|| {
-            let tracker = engine.tracker();
-            Smoothing::new(tracker.transition(), tracker.motion_gain())
-        });
-        Self {
+    fn new(engine: Engine, smooth: bool) -> PyResult<Self> {
+        let smoothing = match smooth {
+            true => {
+                let tracker = engine.tracker();
+                Some(Smoothing::new(
+                    tracker.transition(),
+                    tracker.motion_gain(),
+                    tracker.gpu_context(),
+                )?)
+            }
+            false => None,
+        };
+        Ok(Self {
             engine,
             frames: 0,
             smoothing,
-        }
+        })
     }
 
     /// A step's estimates to the smoother, when smoothing.
@@ -302,7 +309,7 @@ impl FaceTracker {
             .detach(|| build_engine(size, max_faces, built_in, config, backend, detecting))
             .map_err(face)?;
         Ok(Self {
-            inner: Mutex::new(Inner::new(engine, smooth)),
+            inner: Mutex::new(Inner::new(engine, smooth)?),
             buffer: Mutex::new(Vec::new()),
             size,
             order,

@@ -19,13 +19,24 @@ pub struct Smoothing {
 }
 
 impl Smoothing {
-    /// Whole-track smoothing under the tracker's dynamics.
-    pub fn new(transition: GaussianTransition, gain: f32) -> Self {
-        Self {
-            smoother: TrackSmoother::new(None, transition, gain),
+    /// Whole-track smoothing under the tracker's dynamics, on `gpu` (the tracker's GPU) when it
+    /// has one (`pf_gpu::smooth::OnGpu`), else on the CPU's cores.
+    pub fn new(
+        transition: GaussianTransition,
+        gain: f32,
+        gpu: Option<&pf_gpu::GpuContext>,
+    ) -> PyResult<Self> {
+        let mut smoother = TrackSmoother::new(None, transition, gain);
+        if let Some(ctx) = gpu {
+            let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)
+                .map_err(|e| runtime_error(format!("building the GPU smoother: {e}")))?;
+            smoother = smoother.on(std::sync::Arc::new(on_gpu));
+        }
+        Ok(Self {
+            smoother,
             ended: Vec::new(),
             frames: 0,
-        }
+        })
     }
 
     /// The next frame's clouds, `(track, states [d·M + m], log-weights [m])` of each target

@@ -51,6 +51,8 @@ pub struct Smoother {
 impl Smoother {
     /// smoothed.csv in `out` (created, or truncated: a resumed run re-tracks every frame) with
     /// `frame`, `track` (when `with_track`), then `NAME`, `NAME_lo`, `NAME_hi` for each value.
+    /// With `gpu`, the backward passes run on that GPU (`pf_gpu::smooth::OnGpu`; the tracker's
+    /// own), else on the CPU's cores.
     pub fn create(
         out: &Path,
         lag: Option<usize>,
@@ -58,14 +60,21 @@ impl Smoother {
         gain: f32,
         names: &[String],
         with_track: bool,
+        gpu: Option<&pf_gpu::GpuContext>,
     ) -> anyhow::Result<Self> {
         let columns: Vec<String> = (names.iter())
             .map(|n| format!("{n},{n}_lo,{n}_hi"))
             .collect();
         let lead = if with_track { "frame,track" } else { "frame" };
         let header = format!("{lead},{}", columns.join(","));
+        let mut tracks = TrackSmoother::new(lag, transition, gain);
+        if let Some(ctx) = gpu {
+            let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)
+                .map_err(|e| anyhow::anyhow!("building the GPU smoother: {e}"))?;
+            tracks = tracks.on(std::sync::Arc::new(on_gpu));
+        }
         Ok(Self {
-            tracks: TrackSmoother::new(lag, transition, gain),
+            tracks,
             file: CsvStream::create(&out.join(SMOOTHED_FILE), &header)?,
             with_track,
         })

@@ -98,6 +98,53 @@ fn face_smoothing_writes_a_row_per_tracked_face_frame_whole_run_or_lagged() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A GPU run smooths on its GPU (`pf_gpu::smooth::OnGpu`): the same rows, each mean within its
+/// interval, and the whole run's rows beside the lagged ones agree at a track's last frame.
+#[test]
+fn face_smoothing_on_the_gpu_writes_every_tracked_row() {
+    let dir = scratch("face-smoothing-gpu");
+    let run = |out: &Path, smoothing: &str, value: &str| {
+        Command::new(env!("CARGO_BIN_EXE_streampf"))
+            .args([
+                "face",
+                "track",
+                "--synthetic",
+                "--max-frames",
+                "12",
+                "--particles",
+                "200",
+                "--backend",
+                "gpu",
+                "--allow-software",
+                smoothing,
+                value,
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .env("NODEVICE_SELECT", "1")
+            .output()
+            .unwrap()
+    };
+    let full = run(&dir.join("full"), "--smooth", "full");
+    if !full.status.success() && skipped_for_no_gpu(&failure(&full)) {
+        return;
+    }
+    let text = ok(&full);
+    assert!(text.contains("smoothed over the whole run"), "{text}");
+    let (header, smoothed) = rows(&dir.join("full/smoothed.csv"));
+    check_intervals(&header, &smoothed, 2);
+    let (states_header, states) = rows(&dir.join("full/states.csv"));
+    let status = states_header.iter().position(|c| c == "status").unwrap();
+    let tracked = states.iter().filter(|r| r[status] == "tracking").count();
+    assert_eq!(smoothed.len(), tracked);
+    ok(&run(&dir.join("lag"), "--smooth-lag", "3"));
+    let (_, lagged) = rows(&dir.join("lag/smoothed.csv"));
+    assert_eq!(lagged.len(), tracked);
+    let last = |rows: &[Vec<String>]| rows.iter().find(|r| r[0] == "11" && r[1] == "0").cloned();
+    assert_eq!(last(&smoothed), last(&lagged));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn body_smoothing_writes_every_frame_and_a_device_fault_keeps_the_written_ones() {
     let dir = scratch("body-smoothing");
@@ -129,7 +176,8 @@ fn body_smoothing_writes_every_frame_and_a_device_fault_keeps_the_written_ones()
     check_intervals(&header, &smoothed, 1);
     let frames: Vec<&str> = smoothed.iter().map(|r| r[0].as_str()).collect();
     assert_eq!(frames, ["0", "1", "2", "3", "4", "5"]);
-    // A device lost at frame 4: frames 0-3 were written, and smoothed.
+    // A device lost at frame 4: frames 0-3 were written, and smoothed (on the CPU: the GPU
+    // smoother hands a track its lost device cannot smooth to the CPU).
     let out = dir.join("fault");
     let run = Command::new(env!("CARGO_BIN_EXE_streampf"))
         .args([

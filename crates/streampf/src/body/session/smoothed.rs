@@ -29,8 +29,15 @@ impl BodySmoothing {
         let names = tracker.skeleton().pose_names();
         let transition = tracker.transition()?;
         let angular = transition.angular.clone();
-        let smoother =
-            Smoother::create(out, lag, transition, tracker.motion_gain(), &names, false)?;
+        let smoother = Smoother::create(
+            out,
+            lag,
+            transition,
+            tracker.motion_gain(),
+            &names,
+            false,
+            tracker.gpu_context(),
+        )?;
         Ok(Self {
             smoother,
             lag,

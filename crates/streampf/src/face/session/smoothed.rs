@@ -35,6 +35,7 @@ impl FaceSmoothing {
             tracker.motion_gain(),
             &names,
             true,
+            tracker.gpu_context(),
         )?;
         Ok(Self {
             smoother,
