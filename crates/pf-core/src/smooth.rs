@@ -326,6 +326,18 @@ pub trait ValueSmoother: Send + Sync {
         frames: &[Cloud],
         transition: &GaussianTransition,
     ) -> Result<Vec<Vec<Summary>>, PfError>;
+
+    /// [`ValueSmoother::smooth_values`] of several tracks, `[track][frame][value]`: one call for
+    /// all of them where the backend gains from it (a GPU's one submission).
+    fn smooth_many(
+        &self,
+        tracks: &[&[Cloud]],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Vec<Summary>>>, PfError> {
+        (tracks.iter())
+            .map(|frames| self.smooth_values(frames, transition))
+            .collect()
+    }
 }
 
 /// [`smooth_values`] on the CPU's cores.

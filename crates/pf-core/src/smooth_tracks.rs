@@ -76,7 +76,8 @@ impl TrackSmoother {
 
     /// Frame `frame`'s filtered clouds, `(track, states [d·M + m], log-weights [m])` of each
     /// tracked target; a track that is not among them has ended and is smoothed to its end.
-    /// Returns the rows smoothed.
+    /// Returns the rows smoothed. The tracks' windows (and the ended tracks) go to the backend
+    /// together, in one call each.
     pub fn add_frame(
         &mut self,
         frame: usize,
@@ -87,34 +88,32 @@ impl TrackSmoother {
             .filter(|t| !seen.contains(t))
             .copied()
             .collect();
-        let mut rows = Vec::new();
-        for track in ended {
-            rows.extend(self.flush_track(track)?);
-        }
+        let mut rows = self.flush_tracks(&ended)?;
+        let mut due = Vec::new();
         for (track, states, log_weights) in clouds {
-            rows.extend(self.add_cloud(frame, track, &states, &log_weights)?);
+            if self.add_cloud(frame, track, &states, &log_weights)? {
+                due.push(track);
+            }
         }
+        rows.extend(self.smooth_windows(&due)?);
         Ok(rows)
     }
 
     /// Smooths every track's frames still waiting (at the end of the run, however it ended).
     pub fn finish(&mut self) -> Result<Vec<SmoothedRow>, PfError> {
         let tracks: Vec<usize> = self.tracks.keys().copied().collect();
-        let mut rows = Vec::new();
-        for track in tracks {
-            rows.extend(self.flush_track(track)?);
-        }
-        Ok(rows)
+        self.flush_tracks(&tracks)
     }
 
-    /// One track's cloud at `frame`, with its drift; with a lag, the row L frames back.
+    /// One track's cloud at `frame`, with its drift; whether its lag window is now full (its
+    /// first frame is due).
     fn add_cloud(
         &mut self,
         frame: usize,
         track: usize,
         states: &[f32],
         log_weights: &[f32],
-    ) -> Result<Option<SmoothedRow>, PfError> {
+    ) -> Result<bool, PfError> {
         let dims = self.transition.sigma.len();
         let mut cloud = Cloud::of_target(
             dims,
@@ -137,26 +136,46 @@ impl TrackSmoother {
         );
         entry.last_mean = Some(mean);
         entry.frames.push_back((frame, cloud));
-        if self.lag.is_none_or(|lag| entry.frames.len() <= lag) {
-            return Ok(None);
-        }
-        let window: Vec<Cloud> = entry.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = self.backend.smooth_values(&window, &self.transition)?;
-        let lag_window = || PfError::InvalidConfig("an empty lag window".into());
-        let (first_frame, first) = entry.frames.pop_front().ok_or_else(lag_window)?;
-        let first_values = values.into_iter().next().ok_or_else(lag_window)?;
-        Ok(Some(self.row(first_frame, track, &first, first_values)))
+        Ok(self.lag.is_some_and(|lag| entry.frames.len() > lag))
     }
 
-    fn flush_track(&mut self, track: usize) -> Result<Vec<SmoothedRow>, PfError> {
-        let Some(waiting) = self.tracks.remove(&track) else {
-            return Ok(Vec::new());
-        };
-        let clouds: Vec<Cloud> = waiting.frames.iter().map(|(_, c)| c.clone()).collect();
-        let values = self.backend.smooth_values(&clouds, &self.transition)?;
-        Ok((waiting.frames.iter().zip(values))
-            .map(|((frame, cloud), values)| self.row(*frame, track, cloud, values))
-            .collect())
+    /// The first frame of each of `tracks`' full lag windows, smoothed by the window (all
+    /// windows in one call), and dropped from the window.
+    fn smooth_windows(&mut self, tracks: &[usize]) -> Result<Vec<SmoothedRow>, PfError> {
+        let windows: Vec<Vec<Cloud>> = (tracks.iter())
+            .filter_map(|t| self.tracks.get(t))
+            .map(|w| w.frames.iter().map(|(_, c)| c.clone()).collect())
+            .collect();
+        let views: Vec<&[Cloud]> = windows.iter().map(Vec::as_slice).collect();
+        let values = self.backend.smooth_many(&views, &self.transition)?;
+        let lag_window = || PfError::InvalidConfig("an empty lag window".into());
+        let mut rows = Vec::with_capacity(tracks.len());
+        for (&track, track_values) in tracks.iter().zip(values) {
+            let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
+            let (first_frame, first) = entry.frames.pop_front().ok_or_else(lag_window)?;
+            let first_values = track_values.into_iter().next().ok_or_else(lag_window)?;
+            rows.push(self.row(first_frame, track, &first, first_values));
+        }
+        Ok(rows)
+    }
+
+    /// Every frame `tracks` still hold, smoothed (all of them in one call), the tracks ended.
+    fn flush_tracks(&mut self, tracks: &[usize]) -> Result<Vec<SmoothedRow>, PfError> {
+        let waiting: Vec<(usize, TrackFrames)> = (tracks.iter())
+            .filter_map(|t| self.tracks.remove(t).map(|w| (*t, w)))
+            .collect();
+        let clouds: Vec<Vec<Cloud>> = (waiting.iter())
+            .map(|(_, w)| w.frames.iter().map(|(_, c)| c.clone()).collect())
+            .collect();
+        let views: Vec<&[Cloud]> = clouds.iter().map(Vec::as_slice).collect();
+        let values = self.backend.smooth_many(&views, &self.transition)?;
+        let mut rows = Vec::new();
+        for ((track, w), track_values) in waiting.iter().zip(values) {
+            for ((frame, cloud), v) in w.frames.iter().zip(track_values) {
+                rows.push(self.row(*frame, *track, cloud, v));
+            }
+        }
+        Ok(rows)
     }
 
     /// A row of smoothed `values`, the same particles' filtered summary beside them.

@@ -402,13 +402,19 @@ impl OnGpu {
         self.fell_back.load(std::sync::atomic::Ordering::Relaxed)
     }
 
+    /// Every track smoothed in one call on the device.
     fn on_device(
         &self,
-        frames: &[Cloud],
+        tracks: &[&[Cloud]],
         transition: &GaussianTransition,
-    ) -> Result<Vec<Vec<Summary>>, GpuError> {
-        let weights = self.smoother.smooth(&self.ctx, &[frames], transition)?;
-        weights.summaries(0, frames, &transition.angular)
+    ) -> Result<Vec<Vec<Vec<Summary>>>, GpuError> {
+        if tracks.is_empty() {
+            return Ok(Vec::new());
+        }
+        let weights = self.smoother.smooth(&self.ctx, tracks, transition)?;
+        (tracks.iter().enumerate())
+            .map(|(r, frames)| weights.summaries(r, frames, &transition.angular))
+            .collect()
     }
 }
 
@@ -418,14 +424,25 @@ impl ValueSmoother for OnGpu {
         frames: &[Cloud],
         transition: &GaussianTransition,
     ) -> Result<Vec<Vec<Summary>>, PfError> {
-        match self.on_device(frames, transition) {
+        let mut one = self.smooth_many(&[frames], transition)?;
+        Ok(one.pop().unwrap_or_default())
+    }
+
+    fn smooth_many(
+        &self,
+        tracks: &[&[Cloud]],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Vec<Summary>>>, PfError> {
+        match self.on_device(tracks, transition) {
             Ok(values) => Ok(values),
-            // Bad input is refused the same on the CPU; a device fault is not the track's.
+            // Bad input is refused the same on the CPU; a device fault is not the tracks'.
             Err(GpuError::InvalidConfig(message)) => Err(PfError::InvalidConfig(message)),
             Err(_) => {
                 self.fell_back
                     .store(true, std::sync::atomic::Ordering::Relaxed);
-                pf_core::smooth::smooth_values(frames, transition)
+                (tracks.iter())
+                    .map(|frames| pf_core::smooth::smooth_values(frames, transition))
+                    .collect()
             }
         }
     }
