@@ -304,14 +304,14 @@ pub fn smooth_values(
     transition: &GaussianTransition,
 ) -> Result<Vec<Vec<Summary>>, PfError> {
     let dims = transition.sigma.len();
-    let mut out: Vec<Vec<Summary>> = frames
-        .iter()
-        .map(|c| summarise(c, &c.weights, &transition.angular))
-        .collect();
+    for cloud in frames {
+        transition.validate(cloud)?;
+    }
+    let mut out: Vec<Vec<Summary>> = frames.iter().map(|_| Vec::with_capacity(dims)).collect();
     for d in 0..dims {
         let weights = smooth_all(frames, &transition.block(&[d]))?;
         for ((summary, cloud), w) in out.iter_mut().zip(frames).zip(&weights) {
-            summary[d] = summarise(cloud, w, &transition.angular)[d];
+            summary.push(summarise_value(cloud, w, &transition.angular, d));
         }
     }
     Ok(out)
@@ -369,41 +369,45 @@ pub struct Summary {
 /// quantiles are taken on its differences from the circular mean (wrapped), so an interval
 /// across ±π stays narrow; its ends may lie outside [−π, π).
 pub fn summarise(cloud: &Cloud, weights: &[f64], angular: &[bool]) -> Vec<Summary> {
-    let particles = cloud.particles();
     (0..cloud.drift.len())
-        .map(|d| {
-            let xs = &cloud.states[d * particles..(d + 1) * particles];
-            let is_angle = angular.get(d).copied().unwrap_or(false);
-            let mean = if is_angle {
-                let (s, c) = xs.iter().zip(weights).fold((0.0, 0.0), |(s, c), (&x, &w)| {
-                    (s + w * f64::from(x).sin(), c + w * f64::from(x).cos())
-                });
-                s.atan2(c)
-            } else {
-                xs.iter()
-                    .zip(weights)
-                    .map(|(&x, &w)| w * f64::from(x))
-                    .sum()
-            };
-            let mut offsets: Vec<(f64, f64)> = (xs.iter().zip(weights))
-                .map(|(&x, &w)| {
-                    let e = f64::from(x) - mean;
-                    let e = if is_angle {
-                        f64::from(wrap_angle_floor(e as f32))
-                    } else {
-                        e
-                    };
-                    (e, w)
-                })
-                .collect();
-            offsets.sort_by(|a, b| a.0.total_cmp(&b.0));
-            Summary {
-                mean: mean as f32,
-                lower: (mean + weighted_quantile(&offsets, 0.025)) as f32,
-                upper: (mean + weighted_quantile(&offsets, 0.975)) as f32,
-            }
-        })
+        .map(|d| summarise_value(cloud, weights, angular, d))
         .collect()
+}
+
+/// Value `d`'s summary alone (what [`summarise`] gives for it): a blocked smoother's value has
+/// weights of its own, so it is summarised on its own.
+pub fn summarise_value(cloud: &Cloud, weights: &[f64], angular: &[bool], d: usize) -> Summary {
+    let particles = cloud.particles();
+    let xs = &cloud.states[d * particles..(d + 1) * particles];
+    let is_angle = angular.get(d).copied().unwrap_or(false);
+    let mean = if is_angle {
+        let (s, c) = xs.iter().zip(weights).fold((0.0, 0.0), |(s, c), (&x, &w)| {
+            (s + w * f64::from(x).sin(), c + w * f64::from(x).cos())
+        });
+        s.atan2(c)
+    } else {
+        xs.iter()
+            .zip(weights)
+            .map(|(&x, &w)| w * f64::from(x))
+            .sum()
+    };
+    let mut offsets: Vec<(f64, f64)> = (xs.iter().zip(weights))
+        .map(|(&x, &w)| {
+            let e = f64::from(x) - mean;
+            let e = if is_angle {
+                f64::from(wrap_angle_floor(e as f32))
+            } else {
+                e
+            };
+            (e, w)
+        })
+        .collect();
+    offsets.sort_by(|a, b| a.0.total_cmp(&b.0));
+    Summary {
+        mean: mean as f32,
+        lower: (mean + weighted_quantile(&offsets, 0.025)) as f32,
+        upper: (mean + weighted_quantile(&offsets, 0.975)) as f32,
+    }
 }
 
 /// The smallest value whose cumulative weight reaches `q` (values sorted, weights summing to 1).

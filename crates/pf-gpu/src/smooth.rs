@@ -9,7 +9,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use pf_core::PfError;
-use pf_core::smooth::{Cloud, GaussianTransition, Summary, ValueSmoother, summarise};
+use pf_core::smooth::{Cloud, GaussianTransition, Summary, ValueSmoother, summarise_value};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -83,7 +83,7 @@ impl SmoothedWeights {
                     ))
                 })?;
                 let w: Vec<f64> = w.iter().map(|&v| f64::from(v)).collect();
-                row.push(summarise(cloud, &w, angular)[d]);
+                row.push(summarise_value(cloud, &w, angular, d));
             }
             out.push(row);
         }
