@@ -338,6 +338,38 @@ pub trait ValueSmoother: Send + Sync {
             .map(|frames| self.smooth_values(frames, transition))
             .collect()
     }
+
+    /// The smoothed summary of each track's first frame alone, `[track][value]`: what a
+    /// fixed-lag smoother writes each frame (its window's first frame, given the window).
+    fn smooth_first_many(
+        &self,
+        tracks: &[&[Cloud]],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError> {
+        (tracks.iter())
+            .map(|frames| smooth_first_values(frames, transition))
+            .collect()
+    }
+}
+
+/// The smoothed summary of `frames`' first frame given all of them, value by value (the first
+/// row of [`smooth_values`], the other frames left unsummarised).
+pub fn smooth_first_values(
+    frames: &[Cloud],
+    transition: &GaussianTransition,
+) -> Result<Vec<Summary>, PfError> {
+    let Some(first) = frames.first() else {
+        return Err(PfError::InvalidConfig("smoothing an empty window".into()));
+    };
+    for cloud in frames {
+        transition.validate(cloud)?;
+    }
+    (0..transition.sigma.len())
+        .map(|d| {
+            let weights = fixed_lag(frames, &transition.block(&[d]))?;
+            Ok(summarise_value(first, &weights, &transition.angular, d))
+        })
+        .collect()
 }
 
 /// [`smooth_values`] on the CPU's cores.
@@ -487,6 +519,27 @@ mod tests {
             "{by_first:?} {by_second:?}"
         );
         assert_eq!(t.block(&[1]).sigma, vec![0.0, 1.0]);
+    }
+
+    #[test]
+    fn the_first_frame_alone_is_the_first_row_of_every_frame() {
+        let frames: Vec<Cloud> = (0..4)
+            .map(|f| {
+                let f = f as f32;
+                cloud(
+                    vec![f, f + 0.5, f - 0.3, 1.0 - f, 0.2 * f, 0.1],
+                    vec![0.2, 0.5, 0.3],
+                    vec![0.1, -0.1],
+                )
+            })
+            .collect();
+        let transition = GaussianTransition {
+            sigma: vec![0.7, 0.4],
+            angular: vec![false, true],
+        };
+        let all = smooth_values(&frames, &transition).unwrap();
+        assert_eq!(smooth_first_values(&frames, &transition).unwrap(), all[0]);
+        assert!(smooth_first_values(&[], &transition).is_err());
     }
 
     #[test]

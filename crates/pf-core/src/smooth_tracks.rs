@@ -147,13 +147,12 @@ impl TrackSmoother {
             .map(|w| w.frames.iter().map(|(_, c)| c.clone()).collect())
             .collect();
         let views: Vec<&[Cloud]> = windows.iter().map(Vec::as_slice).collect();
-        let values = self.backend.smooth_many(&views, &self.transition)?;
+        let values = self.backend.smooth_first_many(&views, &self.transition)?;
         let lag_window = || PfError::InvalidConfig("an empty lag window".into());
         let mut rows = Vec::with_capacity(tracks.len());
-        for (&track, track_values) in tracks.iter().zip(values) {
+        for (&track, first_values) in tracks.iter().zip(values) {
             let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
             let (first_frame, first) = entry.frames.pop_front().ok_or_else(lag_window)?;
-            let first_values = track_values.into_iter().next().ok_or_else(lag_window)?;
             rows.push(self.row(first_frame, track, &first, first_values));
         }
         Ok(rows)

@@ -73,21 +73,30 @@ impl SmoothedWeights {
         frames: &[Cloud],
         angular: &[bool],
     ) -> Result<Vec<Vec<Summary>>, GpuError> {
-        let mut out = Vec::with_capacity(frames.len());
-        for (f, cloud) in frames.iter().enumerate() {
-            let mut row = Vec::with_capacity(self.dims);
-            for d in 0..self.dims {
-                let w = self.get(track, f, d).ok_or_else(|| {
+        (frames.iter().enumerate())
+            .map(|(f, cloud)| self.frame_summary(track, f, cloud, angular))
+            .collect()
+    }
+
+    /// Frame `frame`'s smoothed summary of track `track` (`[value]`); `cloud` is that frame's.
+    pub fn frame_summary(
+        &self,
+        track: usize,
+        frame: usize,
+        cloud: &Cloud,
+        angular: &[bool],
+    ) -> Result<Vec<Summary>, GpuError> {
+        (0..self.dims)
+            .map(|d| {
+                let w = self.get(track, frame, d).ok_or_else(|| {
                     GpuError::InvalidConfig(format!(
-                        "track {track} has no smoothed frame {f} (value {d})"
+                        "track {track} has no smoothed frame {frame} (value {d})"
                     ))
                 })?;
                 let w: Vec<f64> = w.iter().map(|&v| f64::from(v)).collect();
-                row.push(summarise_value(cloud, &w, angular, d));
-            }
-            out.push(row);
-        }
-        Ok(out)
+                Ok(summarise_value(cloud, &w, angular, d))
+            })
+            .collect()
     }
 }
 
@@ -402,19 +411,39 @@ impl OnGpu {
         self.fell_back.load(std::sync::atomic::Ordering::Relaxed)
     }
 
-    /// Every track smoothed in one call on the device.
-    fn on_device(
+    /// Every track smoothed in one call on the device, each summarised by `summary(weights,
+    /// track, its frames)`.
+    fn on_device<T>(
         &self,
         tracks: &[&[Cloud]],
         transition: &GaussianTransition,
-    ) -> Result<Vec<Vec<Vec<Summary>>>, GpuError> {
+        summary: impl Fn(&SmoothedWeights, usize, &[Cloud]) -> Result<T, GpuError>,
+    ) -> Result<Vec<T>, GpuError> {
         if tracks.is_empty() {
             return Ok(Vec::new());
         }
         let weights = self.smoother.smooth(&self.ctx, tracks, transition)?;
         (tracks.iter().enumerate())
-            .map(|(r, frames)| weights.summaries(r, frames, &transition.angular))
+            .map(|(r, frames)| summary(&weights, r, frames))
             .collect()
+    }
+
+    /// `on_device`, or the CPU's `cpu` where the device failed (bad input is refused the same
+    /// on the CPU; a device fault is not the tracks').
+    fn or_on_cpu<T>(
+        &self,
+        on_device: Result<Vec<T>, GpuError>,
+        cpu: impl FnOnce() -> Result<Vec<T>, PfError>,
+    ) -> Result<Vec<T>, PfError> {
+        match on_device {
+            Ok(values) => Ok(values),
+            Err(GpuError::InvalidConfig(message)) => Err(PfError::InvalidConfig(message)),
+            Err(_) => {
+                self.fell_back
+                    .store(true, std::sync::atomic::Ordering::Relaxed);
+                cpu()
+            }
+        }
     }
 }
 
@@ -433,17 +462,33 @@ impl ValueSmoother for OnGpu {
         tracks: &[&[Cloud]],
         transition: &GaussianTransition,
     ) -> Result<Vec<Vec<Vec<Summary>>>, PfError> {
-        match self.on_device(tracks, transition) {
-            Ok(values) => Ok(values),
-            // Bad input is refused the same on the CPU; a device fault is not the tracks'.
-            Err(GpuError::InvalidConfig(message)) => Err(PfError::InvalidConfig(message)),
-            Err(_) => {
-                self.fell_back
-                    .store(true, std::sync::atomic::Ordering::Relaxed);
-                (tracks.iter())
-                    .map(|frames| pf_core::smooth::smooth_values(frames, transition))
-                    .collect()
-            }
-        }
+        let angular = &transition.angular;
+        let on_device = self.on_device(tracks, transition, |w, r, frames| {
+            w.summaries(r, frames, angular)
+        });
+        self.or_on_cpu(on_device, || {
+            (tracks.iter())
+                .map(|frames| pf_core::smooth::smooth_values(frames, transition))
+                .collect()
+        })
+    }
+
+    fn smooth_first_many(
+        &self,
+        tracks: &[&[Cloud]],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError> {
+        let angular = &transition.angular;
+        let on_device = self.on_device(tracks, transition, |w, r, frames| {
+            let first = frames
+                .first()
+                .ok_or_else(|| GpuError::InvalidConfig("smoothing an empty window".into()))?;
+            w.frame_summary(r, 0, first, angular)
+        });
+        self.or_on_cpu(on_device, || {
+            (tracks.iter())
+                .map(|frames| pf_core::smooth::smooth_first_values(frames, transition))
+                .collect()
+        })
     }
 }
