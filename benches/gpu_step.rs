@@ -66,26 +66,25 @@ fn context() -> GpuContext {
     ctx
 }
 
+/// The toy tracker's filter for `targets` targets (systematic resampling every step, no bounds)
+/// with `annealing`, and its starting clouds about each target's first observation.
+fn toy_batch(targets: usize, annealing: Annealing) -> (BatchConfig, Vec<f32>) {
+    let shape = BatchShape::new(targets, M, D).unwrap();
+    let mut config = BatchConfig::new(shape, 1, DIFFUSION.to_vec());
+    config.angular = ANGLES.to_vec();
+    config.annealing = annealing;
+    let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
+    let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+    (config, initial)
+}
+
 fn bench_whole_step(c: &mut Criterion) {
     let ctx = context();
     let mut group = c.benchmark_group("whole_step_7d_1000");
     group.sample_size(20);
     for &targets in &[1usize, 16, 64] {
         group.throughput(Throughput::Elements((targets * M) as u64));
-        let shape = BatchShape::new(targets, M, D).unwrap();
-        let config = BatchConfig {
-            shape,
-            seed: 1,
-            sigma: DIFFUSION.to_vec(),
-            bounds: None,
-            angular: ANGLES.to_vec(),
-            ess_threshold: f64::INFINITY,
-            best: 0,
-            annealing: Default::default(),
-            motion: Default::default(),
-        };
-        let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
-        let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+        let (config, initial) = toy_batch(targets, Default::default());
 
         // GPU: one submission per frame.
         let mut gpu = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &initial).unwrap();
@@ -232,12 +231,7 @@ fn bench_plugin_over_gpus(c: &mut Criterion) {
     let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
     for &targets in &[256usize, 1024] {
         group.throughput(Throughput::Elements((targets * M) as u64));
-        let shape = BatchShape::new(targets, M, D).unwrap();
-        let mut config = BatchConfig::new(shape, 1, DIFFUSION.to_vec());
-        config.angular = ANGLES.to_vec();
-        config.annealing = Annealing::survival(5, 0.5, 0.6);
-        let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
-        let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+        let (config, initial) = toy_batch(targets, Annealing::survival(5, 0.5, 0.6));
         let mut counts = vec![1, gpus];
         counts.dedup();
         for count in counts {
@@ -289,20 +283,7 @@ fn bench_annealed_layouts(c: &mut Criterion) {
     group.sample_size(20);
     for &targets in &[1usize, 16, 64, 256] {
         group.throughput(Throughput::Elements((targets * M) as u64));
-        let shape = BatchShape::new(targets, M, D).unwrap();
-        let config = BatchConfig {
-            shape,
-            seed: 1,
-            sigma: DIFFUSION.to_vec(),
-            bounds: None,
-            angular: ANGLES.to_vec(),
-            ess_threshold: f64::INFINITY,
-            best: 0,
-            annealing: Annealing::survival(5, 0.5, 0.7),
-            motion: Default::default(),
-        };
-        let means: Vec<f32> = (0..targets).flat_map(|t| observed(t, 0)).collect();
-        let initial = gaussian_clouds(&shape, 1, &means, &OBS_SIGMA);
+        let (config, initial) = toy_batch(targets, Annealing::survival(5, 0.5, 0.7));
         let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
         for layout in [StepLayout::Fused, StepLayout::Staged] {
             let mut plugin = ModelFilter::new(

@@ -311,7 +311,7 @@ pub fn smooth_values(
     for d in 0..dims {
         let weights = smooth_all(frames, &transition.block(&[d]))?;
         for ((summary, cloud), w) in out.iter_mut().zip(frames).zip(&weights) {
-            summary.push(summarise_value(cloud, w, &transition.angular, d));
+            summary.push(value_summary(cloud, w, &transition.angular, d));
         }
     }
     Ok(out)
@@ -367,7 +367,7 @@ pub fn smooth_first_values(
     (0..transition.sigma.len())
         .map(|d| {
             let weights = fixed_lag(frames, &transition.block(&[d]))?;
-            Ok(summarise_value(first, &weights, &transition.angular, d))
+            Ok(value_summary(first, &weights, &transition.angular, d))
         })
         .collect()
 }
@@ -402,13 +402,32 @@ pub struct Summary {
 /// across ±π stays narrow; its ends may lie outside [−π, π).
 pub fn summarise(cloud: &Cloud, weights: &[f64], angular: &[bool]) -> Vec<Summary> {
     (0..cloud.drift.len())
-        .map(|d| summarise_value(cloud, weights, angular, d))
+        .map(|d| value_summary(cloud, weights, angular, d))
         .collect()
 }
 
 /// Value `d`'s summary alone (what [`summarise`] gives for it): a blocked smoother's value has
-/// weights of its own, so it is summarised on its own.
-pub fn summarise_value(cloud: &Cloud, weights: &[f64], angular: &[bool], d: usize) -> Summary {
+/// weights of its own, so it is summarised on its own. An error names a value the cloud does not
+/// have or weights that are not one per particle.
+pub fn summarise_value(
+    cloud: &Cloud,
+    weights: &[f64],
+    angular: &[bool],
+    d: usize,
+) -> Result<Summary, PfError> {
+    let particles = cloud.particles();
+    if weights.len() != particles || cloud.states.len() < (d + 1) * particles {
+        return Err(PfError::InvalidConfig(format!(
+            "summarising value {d} of a cloud of {} states and {particles} particles with {} weights",
+            cloud.states.len(),
+            weights.len()
+        )));
+    }
+    Ok(value_summary(cloud, weights, angular, d))
+}
+
+/// [`summarise_value`] of a cloud already checked against its weights and values.
+fn value_summary(cloud: &Cloud, weights: &[f64], angular: &[bool], d: usize) -> Summary {
     let particles = cloud.particles();
     let xs = &cloud.states[d * particles..(d + 1) * particles];
     let is_angle = angular.get(d).copied().unwrap_or(false);
@@ -540,6 +559,14 @@ mod tests {
         let all = smooth_values(&frames, &transition).unwrap();
         assert_eq!(smooth_first_values(&frames, &transition).unwrap(), all[0]);
         assert!(smooth_first_values(&[], &transition).is_err());
+        // One value alone: the same summary, and a value or weights the cloud lacks refused.
+        let w = &frames[0].weights;
+        assert_eq!(
+            summarise_value(&frames[0], w, &transition.angular, 1).unwrap(),
+            summarise(&frames[0], w, &transition.angular)[1]
+        );
+        assert!(summarise_value(&frames[0], w, &transition.angular, 2).is_err());
+        assert!(summarise_value(&frames[0], &w[..2], &transition.angular, 0).is_err());
     }
 
     #[test]

@@ -9,7 +9,9 @@
 
 use bytemuck::{Pod, Zeroable};
 use pf_core::PfError;
-use pf_core::smooth::{Cloud, GaussianTransition, Summary, ValueSmoother, summarise_value};
+use pf_core::smooth::{
+    Cloud, CpuSmoother, GaussianTransition, Summary, ValueSmoother, summarise_value,
+};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -94,7 +96,8 @@ impl SmoothedWeights {
                     ))
                 })?;
                 let w: Vec<f64> = w.iter().map(|&v| f64::from(v)).collect();
-                Ok(summarise_value(cloud, &w, angular, d))
+                summarise_value(cloud, &w, angular, d)
+                    .map_err(|e| GpuError::InvalidConfig(e.to_string()))
             })
             .collect()
     }
@@ -466,11 +469,7 @@ impl ValueSmoother for OnGpu {
         let on_device = self.on_device(tracks, transition, |w, r, frames| {
             w.summaries(r, frames, angular)
         });
-        self.or_on_cpu(on_device, || {
-            (tracks.iter())
-                .map(|frames| pf_core::smooth::smooth_values(frames, transition))
-                .collect()
-        })
+        self.or_on_cpu(on_device, || CpuSmoother.smooth_many(tracks, transition))
     }
 
     fn smooth_first_many(
@@ -486,9 +485,7 @@ impl ValueSmoother for OnGpu {
             w.frame_summary(r, 0, first, angular)
         });
         self.or_on_cpu(on_device, || {
-            (tracks.iter())
-                .map(|frames| pf_core::smooth::smooth_first_values(frames, transition))
-                .collect()
+            CpuSmoother.smooth_first_many(tracks, transition)
         })
     }
 }

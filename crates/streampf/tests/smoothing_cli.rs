@@ -39,7 +39,9 @@ fn check_intervals(header: &[String], rows: &[Vec<String>], first: usize) {
     }
 }
 
-fn face_run(out: &Path, smoothing: &[&str]) -> String {
+/// 12 synthetic frames of 200 particles a face on `backend` (`--allow-software` with a GPU), with
+/// the `smoothing` options.
+fn face_command(out: &Path, backend: &str, smoothing: &[&str]) -> std::process::Output {
     let mut args = vec![
         "face",
         "track",
@@ -49,12 +51,19 @@ fn face_run(out: &Path, smoothing: &[&str]) -> String {
         "--particles",
         "200",
         "--backend",
-        "cpu",
+        backend,
         "--out",
         out.to_str().unwrap(),
     ];
+    if backend != "cpu" {
+        args.push("--allow-software");
+    }
     args.extend(smoothing);
-    ok(&streampf(&args))
+    streampf(&args)
+}
+
+fn face_run(out: &Path, smoothing: &[&str]) -> String {
+    ok(&face_command(out, "cpu", smoothing))
 }
 
 #[test]
@@ -103,29 +112,7 @@ fn face_smoothing_writes_a_row_per_tracked_face_frame_whole_run_or_lagged() {
 #[test]
 fn face_smoothing_on_the_gpu_writes_every_tracked_row() {
     let dir = scratch("face-smoothing-gpu");
-    let run = |out: &Path, smoothing: &str, value: &str| {
-        Command::new(env!("CARGO_BIN_EXE_streampf"))
-            .args([
-                "face",
-                "track",
-                "--synthetic",
-                "--max-frames",
-                "12",
-                "--particles",
-                "200",
-                "--backend",
-                "gpu",
-                "--allow-software",
-                smoothing,
-                value,
-                "--out",
-                out.to_str().unwrap(),
-            ])
-            .env("NODEVICE_SELECT", "1")
-            .output()
-            .unwrap()
-    };
-    let full = run(&dir.join("full"), "--smooth", "full");
+    let full = face_command(&dir.join("full"), "gpu", &["--smooth", "full"]);
     if !full.status.success() && skipped_for_no_gpu(&failure(&full)) {
         return;
     }
@@ -137,7 +124,11 @@ fn face_smoothing_on_the_gpu_writes_every_tracked_row() {
     let status = states_header.iter().position(|c| c == "status").unwrap();
     let tracked = states.iter().filter(|r| r[status] == "tracking").count();
     assert_eq!(smoothed.len(), tracked);
-    ok(&run(&dir.join("lag"), "--smooth-lag", "3"));
+    ok(&face_command(
+        &dir.join("lag"),
+        "gpu",
+        &["--smooth-lag", "3"],
+    ));
     let (_, lagged) = rows(&dir.join("lag/smoothed.csv"));
     assert_eq!(lagged.len(), tracked);
     let last = |rows: &[Vec<String>]| rows.iter().find(|r| r[0] == "11" && r[1] == "0").cloned();

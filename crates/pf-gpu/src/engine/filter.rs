@@ -9,16 +9,6 @@ use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{GpuFilter, GpuResampler, GpuStage, PendingStep};
 
-/// Every stage of a frame, in order.
-const WHOLE_STEP: [GpuStage; 6] = [
-    GpuStage::Resample,
-    GpuStage::Gather,
-    GpuStage::Diffuse,
-    GpuStage::Likelihood,
-    GpuStage::Normalise,
-    GpuStage::Estimate,
-];
-
 /// T targets × M particles of one model on one engine (the host, or one GPU). Built with its
 /// model, which is prepared against the engine's streams at construction, so it can neither be
 /// forgotten nor bound to another filter. Configure the engine's features (annealing layers and
@@ -108,7 +98,7 @@ impl<M: Model> Filter<M> {
                 let likelihood = model.upload_frame(&gpu.ctx, frame)?;
                 let pending = gpu
                     .filter
-                    .submit_stages(&gpu.ctx, &WHOLE_STEP, likelihood)?;
+                    .submit_stages(&gpu.ctx, &GpuStage::ALL, likelihood)?;
                 Ok(InFlight::Gpu(pending))
             }
         }

@@ -104,12 +104,23 @@ pub(super) struct FusedLayers {
     last_normalise: wgpu::BindGroup,
 }
 
-/// The layer kernel's source for `particles` a target (its workgroup array sized to them).
-fn layer_source(particles: usize) -> String {
-    stage_source(sources::LAYER).replace(
-        "const STAGE_CAPACITY: u32 = 4096u;",
+/// The line of `layer.wgsl` that sizes its workgroup array.
+const STAGE_CAPACITY_LINE: &str = "const STAGE_CAPACITY: u32 = 4096u;";
+
+/// The layer kernel's source for `particles` a target (its workgroup array sized to them; the
+/// limits were checked for that size, so a source without the line to resize is an error).
+fn layer_source(particles: usize) -> Result<String, GpuError> {
+    let source = stage_source(sources::LAYER);
+    if !source.contains(STAGE_CAPACITY_LINE) {
+        return Err(GpuError::Shader {
+            kernel: "fused layer".into(),
+            message: format!("layer.wgsl has no line `{STAGE_CAPACITY_LINE}` to size"),
+        });
+    }
+    Ok(source.replace(
+        STAGE_CAPACITY_LINE,
         &format!("const STAGE_CAPACITY: u32 = {}u;", particles.max(1)),
-    )
+    ))
 }
 
 impl FusedLayers {
@@ -143,7 +154,7 @@ impl FusedLayers {
         normalise: &Kernel,
         layers: &LayerParams<'_>,
     ) -> Result<Self, GpuError> {
-        let source = layer_source(shape.particles);
+        let source = layer_source(shape.particles)?;
         let prefix = if resampler == GpuResampler::Stratified {
             "stratified"
         } else {
