@@ -10,13 +10,14 @@
 //! step of the frame before, as `streampf body track` runs, and `gpu_two_steps_in_flight` the
 //! same with two steps in flight on the GPU (frame t − 1 read while the GPU works on frame t). The step is the paper's: one
 //! weighing a frame (`Annealing::none()`); `gpu_annealed_default` times the tracker's default,
-//! eight annealing layers, on the GPU.
+//! eight annealing layers (the first seven coarse: at most 5 000 of the frame's points), on the
+//! GPU, and `gpu_annealed_every_point` the same layers each weighing every point.
 
 mod common;
 
 use body_tracker::camera::Intrinsics;
 use body_tracker::human::human_skeleton;
-use body_tracker::likelihood::{Rays, culled_sum_of_squared_distances_parallel};
+use body_tracker::likelihood::{CoarseLayers, Rays, culled_sum_of_squared_distances_parallel};
 use body_tracker::synth::{SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, TrackerConfig};
 use common::context;
@@ -58,10 +59,30 @@ fn tracker(
     backend: Backend,
     annealing: Annealing,
 ) -> BodyTracker {
+    tracker_with(
+        particles,
+        points,
+        start,
+        backend,
+        annealing,
+        TrackerConfig::default().coarse,
+    )
+}
+
+/// [`tracker`] with the given coarse layers (`None`: every layer weighs every point).
+fn tracker_with(
+    particles: usize,
+    points: usize,
+    start: &[f32],
+    backend: Backend,
+    annealing: Annealing,
+    coarse: Option<CoarseLayers>,
+) -> BodyTracker {
     let config = TrackerConfig {
         particles,
         max_points: points,
         annealing,
+        coarse,
         ..TrackerConfig::default()
     };
     BodyTracker::new(human_skeleton(K).unwrap(), start, config, backend).unwrap()
@@ -162,6 +183,18 @@ fn bench(c: &mut Criterion) {
             b.iter(|| std::hint::black_box(annealed.step(&points).unwrap()))
         });
         drop(annealed);
+        let mut every_point = tracker_with(
+            j,
+            i,
+            &start,
+            Backend::Gpu(Box::new(context())),
+            TrackerConfig::default().annealing,
+            None,
+        );
+        group.bench_function(BenchmarkId::new("gpu_annealed_every_point", &label), |b| {
+            b.iter(|| std::hint::black_box(every_point.step(&points).unwrap()))
+        });
+        drop(every_point);
         let rays = Rays::through(Vector3::zeros(), &points).unwrap();
         let capsules = human_skeleton(K).unwrap().capsules(&start).unwrap();
         group.bench_function(BenchmarkId::new("host_confidence", &label), |b| {

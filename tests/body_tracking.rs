@@ -20,7 +20,7 @@
 mod common;
 
 use body_tracker::human::human_skeleton;
-use body_tracker::likelihood::{Rays, culled_sum_of_squared_distances};
+use body_tracker::likelihood::{CoarseLayers, Rays, culled_sum_of_squared_distances};
 use body_tracker::synth::{SynthConfig, pose_at, render};
 use body_tracker::{Backend, BodyTracker, Skeleton, TrackerConfig, Weighing, mean_joint_error};
 
@@ -33,13 +33,18 @@ const PLUMBING_PARTICLES: usize = 64;
 
 /// The mean joint error of a tracker over the sequence.
 fn run(skeleton: &Skeleton, backend: Backend, weighing: Weighing, frames: usize) -> f32 {
-    let synth = SynthConfig::small(frames).unwrap();
-    let start = pose_at(skeleton, &synth, 0).unwrap();
     let config = TrackerConfig {
         particles: PARTICLES,
         weighing,
         ..TrackerConfig::default()
     };
+    run_with(skeleton, backend, config, frames)
+}
+
+/// The mean joint error of a tracker of `config` over the sequence.
+fn run_with(skeleton: &Skeleton, backend: Backend, config: TrackerConfig, frames: usize) -> f32 {
+    let synth = SynthConfig::small(frames).unwrap();
+    let start = pose_at(skeleton, &synth, 0).unwrap();
     let mut tracker = BodyTracker::new(skeleton.clone(), &start, config, backend).unwrap();
     let mut total = 0.0;
     for frame in 0..frames {
@@ -72,42 +77,74 @@ fn tracks_synthetic_walk_on_cpu() {
     let tracked = run(&skeleton, Backend::Cpu, Weighing::Capsules, FRAMES);
     let flat = run(&skeleton, Backend::Cpu, Weighing::Flat, FRAMES);
     assert_tracks("CPU", tracked, flat);
+    // Coarse layers that see a quarter of the points (the default subset is larger than these
+    // small frames) still track.
+    let coarse = TrackerConfig {
+        particles: PARTICLES,
+        coarse: Some(CoarseLayers {
+            points: 250,
+            layers: 6,
+        }),
+        ..TrackerConfig::default()
+    };
+    let coarse = run_with(&skeleton, Backend::Cpu, coarse, FRAMES);
+    assert_tracks("CPU, six coarse layers of 250 points", coarse, flat);
 }
 
-/// One context, and the samples split into two islands on two contexts: each tracks, and the
-/// islands about as well as the one context.
+/// Coarse annealing layers weigh every k-th point with σ scaled to the subset, and the last
+/// layer every point. A frame's log evidence is its first layer's weighing: with coarse layers
+/// it is, bit for bit, that of a tracker without them stepping the subset (on the CPU, and on a
+/// GPU context, whose subset is a second level of the frame's prepared rays), and not that of
+/// one weighing every point; with one layer, which is the last, coarse layers change nothing.
 #[test]
-fn tracks_synthetic_walk_on_one_gpu_and_split_over_two_contexts() {
+fn coarse_layers_weigh_every_kth_point_and_the_last_layer_every_point() {
     let skeleton = human_skeleton(19).unwrap();
-    let context = || common::gpu_context("body tracking on the GPU");
-    let (Some(one), Some(flat), Some(first), Some(second)) =
-        (context(), context(), context(), context())
-    else {
+    let (start, frames) = walk_frames(&skeleton, 2);
+    let coarse = CoarseLayers {
+        points: 200,
+        layers: 7,
+    };
+    assert!(frames[0].len() > 2 * coarse.points);
+    let with = TrackerConfig {
+        particles: PLUMBING_PARTICLES,
+        coarse: Some(coarse),
+        ..TrackerConfig::default()
+    };
+    let without = TrackerConfig {
+        coarse: None,
+        ..with.clone()
+    };
+    let first = |config: &TrackerConfig, backend, subset: bool| -> (f64, Vec<f32>) {
+        let mut tracker =
+            BodyTracker::new(skeleton.clone(), &start, config.clone(), backend).unwrap();
+        let points = if subset {
+            coarse.subset(&frames[0])
+        } else {
+            frames[0].clone()
+        };
+        let result = tracker.step(&points).unwrap();
+        (result.log_evidence, result.pose)
+    };
+    let cpu = first(&with, Backend::Cpu, false);
+    assert_eq!(cpu.0, first(&without, Backend::Cpu, true).0);
+    assert_ne!(cpu.0, first(&without, Backend::Cpu, false).0);
+    let one_layer = |config: &TrackerConfig| TrackerConfig {
+        annealing: pf_core::anneal::Annealing::none(),
+        ..config.clone()
+    };
+    assert_eq!(
+        first(&one_layer(&with), Backend::Cpu, false),
+        first(&one_layer(&without), Backend::Cpu, false)
+    );
+    let context = || common::gpu_context("body coarse layers");
+    let (Some(a), Some(b), Some(c), Some(d)) = (context(), context(), context(), context()) else {
         return;
     };
-    let flat = run(
-        &skeleton,
-        Backend::Gpu(Box::new(flat)),
-        Weighing::Flat,
-        FRAMES,
-    );
-    let one = run(
-        &skeleton,
-        Backend::Gpu(Box::new(one)),
-        Weighing::Capsules,
-        FRAMES,
-    );
-    assert_tracks("one GPU context", one, flat);
-    let islands = run(
-        &skeleton,
-        Backend::SplitGpus(vec![first, second]),
-        Weighing::Capsules,
-        FRAMES,
-    );
-    assert_tracks("two islands on two contexts", islands, flat);
-    assert!(
-        islands <= 1.5 * one + 0.005,
-        "two islands {islands} m against one context's {one} m"
+    let gpu = first(&with, Backend::Gpu(Box::new(a)), false);
+    assert_eq!(gpu.0, first(&without, Backend::Gpu(Box::new(b)), true).0);
+    assert_eq!(
+        first(&one_layer(&with), Backend::Gpu(Box::new(c)), false),
+        first(&one_layer(&without), Backend::Gpu(Box::new(d)), false)
     );
 }
 

@@ -56,6 +56,7 @@ fn config(skeleton: &Skeleton, points: usize, sigma: f32) -> BodyLikelihoodConfi
         origin: [0.0; 3],
         tau: TAU,
         sigma,
+        coarse: None,
     }
 }
 

@@ -7,7 +7,8 @@
 mod common;
 
 use body_tracker::likelihood::gpu::{CapsuleKernel, CapsuleLikelihoodGpu};
-use body_tracker::likelihood::{Rays, capsules_gpu_layout, listing_1_2};
+use body_tracker::likelihood::{CoarseLayers, Rays, capsules_gpu_layout, listing_1_2};
+use body_tracker::skeleton::gpu::prepare_body_rays;
 use common::capsule_cases::{TAU, points, samples, sum_tolerance};
 use nalgebra::Vector3;
 use proptest::prelude::*;
@@ -64,6 +65,80 @@ fn paper_layout_matches_cpu_within_tolerance() {
 #[test]
 fn fast_kernel_matches_cpu_within_tolerance() {
     check(CapsuleKernel::Fast, 12);
+}
+
+/// The fast kernel over rays in levels (every point, then a coarse subset, as the body
+/// tracker's coarse annealing layers weigh them): each level's sums against Listing 1.2 over
+/// that level's points alone, the subset any size from one point to all of them, with spare
+/// room in both levels' buffers.
+#[test]
+fn fast_kernel_levels_each_match_cpu_over_their_own_points() {
+    let Some(ctx) = common::gpu_context("capsule likelihood levels") else {
+        return;
+    };
+    let mut runner = TestRunner::new(common::property::config(10));
+    let strategy = (
+        any::<u64>(),
+        1usize..24,
+        prop_oneof![Just(1usize), Just(1024), Just(1025), 2usize..2500],
+        1usize..3000,
+        prop_oneof![Just(0usize), 1usize..1100],
+        prop_oneof![Just(19usize), Just(48)],
+    );
+    runner
+        .run(&strategy, |(seed, j, i, coarse_points, spare, k)| {
+            let coarse = CoarseLayers {
+                points: coarse_points,
+                layers: 1,
+            };
+            let caps = samples(seed, j, k, false);
+            let pts = points(&caps[0], seed, i);
+            let rays = Rays::through(Vector3::zeros(), &pts).unwrap();
+            let subset = Rays {
+                origin: rays.origin,
+                directions: coarse.subset(&rays.directions),
+                depths: coarse.subset(&rays.depths),
+            };
+            let capacity = i + spare;
+            let levels = [capacity, coarse.capacity(capacity)];
+            let gpu = CapsuleLikelihoodGpu::with_levels(
+                &ctx,
+                CapsuleKernel::Fast,
+                j,
+                &levels,
+                k,
+                [0.0; 3],
+                TAU,
+            )
+            .unwrap();
+            let prepared = prepare_body_rays(&rays.gpu_layout(), capacity, Some(&coarse)).unwrap();
+            prop_assert_eq!(prepared.levels()[1].points, subset.len());
+            gpu.upload_prepared_rays(&ctx, &prepared).unwrap();
+            let mut flat = Vec::with_capacity(j * k * 2);
+            for c in &caps {
+                capsules_gpu_layout(c, &mut flat);
+            }
+            gpu.upload_capsules(&ctx, &flat).unwrap();
+            for (level, rays) in [(0, &rays), (1, &subset)] {
+                let want = listing_1_2(&caps, rays, TAU);
+                let got = gpu.evaluate_level(&ctx, level).unwrap();
+                for s in 0..j {
+                    let (tol, _) = sum_tolerance(&caps[s], rays, want[s]);
+                    prop_assert!(
+                        (f64::from(got[s]) - want[s]).abs() <= tol,
+                        "level {level} sample {s}: GPU {} vs CPU {} (tolerance {tol})",
+                        got[s],
+                        want[s]
+                    );
+                }
+            }
+            // Rays prepared for other levels are refused, not weighed.
+            let one_level = prepare_body_rays(&rays.gpu_layout(), capacity, None).unwrap();
+            prop_assert!(gpu.upload_prepared_rays(&ctx, &one_level).is_err());
+            prop_assert!(gpu.evaluate_level(&ctx, 2).is_err());
+            Ok(())
+        })
+        .unwrap_or_else(common::property::report);
 }
 
 #[test]

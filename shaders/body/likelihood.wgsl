@@ -4,8 +4,9 @@
 // body_tracker::likelihood::gpu::CapsuleLikelihoodGpu.
 //
 // Layouts (plain, see body_tracker::likelihood::gpu): capsules[(j * K + k) * 2] = (a.xyz, r) and
-// [.. + 1] = (b.xyz, 0); rays[i] = (unit direction from the camera origin, depth); partials[j *
-// tiles + tile]; sums[j]. Samples j = sample_offset + workgroup_id.y, so that any J fits the
+// [.. + 1] = (b.xyz, 0); rays[i] = (unit direction from the camera origin, depth), for the fast
+// kernel in levels of whole tiles (level 0 every point, later levels subsets; a dispatch weighs
+// the level whose tiles start at first_tile); partials[j * tiles + tile]; sums[j]. Samples j = sample_offset + workgroup_id.y, so that any J fits the
 // adapter's dispatch limit (the launcher dispatches sample tiles).
 //
 // Two kernels with the grid of the paper (point tile x sample; capsules and points staged in
@@ -24,7 +25,8 @@ struct CapsuleParams {
     capsules: u32,
     tiles: u32,
     sample_offset: u32,
-    _pad0: u32,
+    // The fast kernel's first tile of the level it weighs (its rays and cones start there).
+    first_tile: u32,
     _pad1: u32,
     _pad2: u32,
     origin: vec3<f32>,
@@ -362,7 +364,7 @@ fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wi
     workgroupBarrier();
     // Stage the capsules whose bounding sphere meets the tile's cone of rays; the others are at
     // tau from every point of the tile. (Candidate order varies; the min over them does not.)
-    let cone = tile_cones[tile];
+    let cone = tile_cones[cp.first_tile + tile];
     for (var k = lid; k < k_count; k = k + TILE) {
         let t = terms[j * cp.capsules + k];
         let to_centre = -t.wc.xyz;
@@ -387,7 +389,7 @@ fn fast(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wi
     // Points (tile * FAST_POINTS + p) * TILE + lid, p < FAST_POINTS: coalesced loads, and each
     // bounding-sphere term read from workgroup memory serves four points. Four named registers
     // rather than an array, which a compiler may place in (slow) local memory.
-    let base = tile * FAST_POINTS * TILE + lid;
+    let base = (cp.first_tile + tile) * FAST_POINTS * TILE + lid;
     let ray0 = load_ray(base);
     let ray1 = load_ray(base + TILE);
     let ray2 = load_ray(base + 2u * TILE);

@@ -10,7 +10,7 @@ use crate::likelihood::gpu::PreparedRays;
 use nalgebra::Vector3;
 
 use crate::error::BodyError;
-use crate::likelihood::Rays;
+use crate::likelihood::{CoarseLayers, Rays};
 
 /// Prepares frames for one tracker; cheap to clone and to send to another thread.
 #[derive(Debug, Clone, PartialEq)]
@@ -19,13 +19,17 @@ pub struct FramePreparer {
     pub(crate) max_points: usize,
     /// Whether the tracker's filters weigh on GPUs (which read the prepared rays).
     pub(crate) on_gpu: bool,
+    /// The coarse annealing layers' subset of the points, when the tracker has them.
+    pub(crate) coarse: Option<CoarseLayers>,
 }
 
 /// A frame ready for [`crate::BodyTracker::step_prepared`].
 #[derive(Debug, Clone)]
 pub struct PreparedFrame {
     pub(crate) rays: Rays,
-    /// The rays as the GPU likelihood uploads them; `None` for a CPU tracker.
+    /// The coarse layers' subset of `rays` (a CPU tracker with coarse layers).
+    pub(crate) coarse_rays: Option<Rays>,
+    /// The rays as the GPU likelihood uploads them (every level); `None` for a CPU tracker.
     pub(crate) gpu_rays: Option<PreparedRays>,
     /// The preparer that made it, so that a frame is never stepped by a tracker it does not fit.
     pub(crate) preparer: FramePreparer,
@@ -44,16 +48,24 @@ impl FramePreparer {
     pub fn prepare(&self, points: &[Vector3<f32>]) -> Result<PreparedFrame, BodyError> {
         let points = self.thinned(points);
         let rays = Rays::through(Vector3::zeros(), &points)?;
-        let gpu_rays = if self.on_gpu {
-            Some(crate::skeleton::gpu::prepare_body_rays(
+        let (gpu_rays, coarse_rays) = if self.on_gpu {
+            let prepared = crate::skeleton::gpu::prepare_body_rays(
                 &rays.gpu_layout(),
                 self.max_points,
-            )?)
+                self.coarse.as_ref(),
+            )?;
+            (Some(prepared), None)
         } else {
-            None
+            let subset = |c: &CoarseLayers| Rays {
+                origin: rays.origin,
+                directions: c.subset(&rays.directions),
+                depths: c.subset(&rays.depths),
+            };
+            (None, self.coarse.as_ref().map(subset))
         };
         Ok(PreparedFrame {
             rays,
+            coarse_rays,
             gpu_rays,
             preparer: self.clone(),
         })

@@ -77,7 +77,7 @@ impl GpuLikelihood for ToyGaussianLikelihood {
     }
 
     fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
-        if phase != LikelihoodPhase::Measure {
+        if !matches!(phase, LikelihoodPhase::Measure { .. }) {
             return;
         }
         if let Some(group) = &self.bind_group {

@@ -13,7 +13,7 @@ use pf_gpu::stream::{DeviceStream, Readback};
 use pf_gpu::wgpu;
 
 pub use super::SHADER;
-pub use super::gpu_rays::{PreparedRays, prepare_rays};
+pub use super::gpu_rays::{END_MARKER, PreparedRays, RayLevel, prepare_ray_levels, prepare_rays};
 use super::{FAST_TILE, TILE};
 
 /// The most capsules per sample the kernels stage in workgroup memory.
@@ -36,7 +36,8 @@ struct CapsuleParams {
     capsules: u32,
     tiles: u32,
     sample_offset: u32,
-    _pad: [u32; 3],
+    first_tile: u32,
+    _pad: [u32; 2],
     origin: [f32; 3],
     tau: f32,
 }
@@ -48,13 +49,17 @@ struct Chunk {
     _params: wgpu::Buffer,
 }
 
-/// The GPU likelihood for `samples` samples × `points` points × `capsules` capsules.
+/// The GPU likelihood for `samples` samples × `points` points × `capsules` capsules. The fast
+/// kernel's rays may come in several levels ([`PreparedRays`]: level 0 every point, later ones
+/// subsets), each evaluated on its own ([`Self::record_level_in`]).
 pub struct CapsuleLikelihoodGpu {
     kind: CapsuleKernel,
     samples: usize,
+    /// Level 0's points (the configured number).
     points: usize,
     capsules_per_sample: usize,
-    tiles: usize,
+    /// Per level, its point tiles (one level for the paper's kernel).
+    level_tiles: Vec<usize>,
     rays: DeviceStream<[f32; 4]>,
     capsules: DeviceStream<[f32; 4]>,
     sums: DeviceStream<f32>,
@@ -63,61 +68,91 @@ pub struct CapsuleLikelihoodGpu {
     _partials: DeviceStream<f32>,
     _terms: DeviceStream<[f32; 24]>,
     kernels: Vec<Kernel>,
-    chunks: Vec<Chunk>,
+    /// Per level, its dispatch chunks.
+    chunks: Vec<Vec<Chunk>>,
     sums_back: Readback<f32>,
 }
 
-/// Checks the configuration against the kernels' and the adapter's limits; returns the number
-/// of point tiles and the lengths of the capsule and partial-sum buffers.
+/// The sizes of a likelihood's buffers, checked against the kernels' and the adapter's limits.
+struct Sizes {
+    /// Point tiles per level.
+    level_tiles: Vec<usize>,
+    /// Rays in the buffer: every level's, padded to whole tiles (the fast kernel), or the
+    /// points (the paper's).
+    rays: usize,
+    capsule_values: usize,
+    partial_values: usize,
+}
+
+/// Checks the configuration against the kernels' and the adapter's limits; returns the sizes
+/// of the buffers.
 fn checked_sizes(
     ctx: &GpuContext,
     kind: CapsuleKernel,
     samples: usize,
-    points: usize,
+    level_points: &[usize],
     capsules_per_sample: usize,
     origin: [f32; 3],
     tau: f32,
-) -> Result<(usize, usize, usize), GpuError> {
-    if samples == 0 || points == 0 || capsules_per_sample == 0 {
-        return Err(GpuError::InvalidConfig(format!(
-            "the capsule likelihood needs samples, points and capsules (got {samples}, {points}, {capsules_per_sample})"
-        )));
+) -> Result<Sizes, GpuError> {
+    let bad = |m: String| Err(GpuError::InvalidConfig(m));
+    if samples == 0
+        || capsules_per_sample == 0
+        || level_points.is_empty()
+        || level_points.contains(&0)
+    {
+        return bad(format!(
+            "the capsule likelihood needs samples, points and capsules (got {samples}, {level_points:?}, {capsules_per_sample})"
+        ));
+    }
+    if kind == CapsuleKernel::PaperLayout && level_points.len() > 1 {
+        return bad("the paper's kernel weighs one level of points".into());
     }
     if capsules_per_sample > MAX_CAPSULES {
-        return Err(GpuError::InvalidConfig(format!(
+        return bad(format!(
             "{capsules_per_sample} capsules per sample; the kernels hold at most {MAX_CAPSULES}"
-        )));
+        ));
     }
     if !(tau.is_finite() && tau > 0.0 && origin.iter().all(|x| x.is_finite())) {
-        return Err(GpuError::InvalidConfig(format!(
-            "invalid tau {tau} or camera origin {origin:?}"
-        )));
+        return bad(format!("invalid tau {tau} or camera origin {origin:?}"));
     }
-    let tiles = points.div_ceil(if kind == CapsuleKernel::Fast {
+    let tile = if kind == CapsuleKernel::Fast {
         FAST_TILE
     } else {
         TILE
-    });
+    };
+    let level_tiles: Vec<usize> = level_points.iter().map(|p| p.div_ceil(tile)).collect();
+    let max_tiles = level_tiles.iter().copied().max().unwrap_or(0);
     let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
-    if tiles > max_groups {
-        return Err(GpuError::InvalidConfig(format!(
-            "{points} points need {tiles} tiles, over the adapter's {max_groups} workgroups per dimension"
-        )));
+    if max_tiles > max_groups {
+        return bad(format!(
+            "{} points need {max_tiles} tiles, over the adapter's {max_groups} workgroups per dimension",
+            level_points[0]
+        ));
     }
+    let rays = match kind {
+        CapsuleKernel::Fast => level_tiles.iter().sum::<usize>() * FAST_TILE,
+        CapsuleKernel::PaperLayout => level_points[0],
+    };
     let too_big = |what: &str| GpuError::InvalidConfig(format!("{what} overflow 32-bit indices"));
     let capsule_values = samples
         .checked_mul(capsules_per_sample * 2)
         .ok_or_else(|| too_big("capsules"))?;
     let partial_values = samples
-        .checked_mul(tiles)
+        .checked_mul(max_tiles)
         .ok_or_else(|| too_big("partial sums"))?;
     if capsule_values > u32::MAX as usize
         || partial_values > u32::MAX as usize
-        || points > u32::MAX as usize
+        || rays > u32::MAX as usize
     {
         return Err(too_big("the buffers"));
     }
-    Ok((tiles, capsule_values, partial_values))
+    Ok(Sizes {
+        level_tiles,
+        rays,
+        capsule_values,
+        partial_values,
+    })
 }
 
 /// The streams a chunk's bind groups use.
@@ -171,6 +206,30 @@ fn chunk(
     })
 }
 
+/// One level's dispatch chunks: the samples split so that each chunk's grid fits the
+/// adapter's limit.
+fn sample_chunks(
+    ctx: &GpuContext,
+    kernels: &[Kernel],
+    params: CapsuleParams,
+    streams: &ChunkStreams<'_>,
+) -> Result<Vec<Chunk>, GpuError> {
+    let samples = params.samples as usize;
+    let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
+    let mut chunks = Vec::new();
+    let mut offset = 0;
+    while offset < samples {
+        let count = (samples - offset).min(max_groups);
+        let params = CapsuleParams {
+            sample_offset: offset as u32,
+            ..params
+        };
+        chunks.push(chunk(ctx, kernels, &params, count, streams)?);
+        offset += count;
+    }
+    Ok(chunks)
+}
+
 impl CapsuleLikelihoodGpu {
     /// A likelihood for `samples` × `points` × `capsules` with the given kernel, camera centre and τ.
     pub fn new(
@@ -182,12 +241,40 @@ impl CapsuleLikelihoodGpu {
         origin: [f32; 3],
         tau: f32,
     ) -> Result<Self, GpuError> {
-        let (tiles, capsule_values, partial_values) =
-            checked_sizes(ctx, kind, samples, points, capsules_per_sample, origin, tau)?;
-        let max_groups = ctx.limits().max_compute_workgroups_per_dimension as usize;
-        let rays = DeviceStream::zeroed(ctx, "rays", points)?;
-        let capsules = DeviceStream::zeroed(ctx, "capsules", capsule_values)?;
-        let partials = DeviceStream::zeroed(ctx, "likelihood partial sums", partial_values)?;
+        Self::with_levels(
+            ctx,
+            kind,
+            samples,
+            &[points],
+            capsules_per_sample,
+            origin,
+            tau,
+        )
+    }
+
+    /// A fast-kernel likelihood over rays in levels of at most `level_points[l]` points each
+    /// (level 0 every point, later levels the subsets that coarse layers weigh).
+    pub fn with_levels(
+        ctx: &GpuContext,
+        kind: CapsuleKernel,
+        samples: usize,
+        level_points: &[usize],
+        capsules_per_sample: usize,
+        origin: [f32; 3],
+        tau: f32,
+    ) -> Result<Self, GpuError> {
+        let sizes = checked_sizes(
+            ctx,
+            kind,
+            samples,
+            level_points,
+            capsules_per_sample,
+            origin,
+            tau,
+        )?;
+        let rays = DeviceStream::zeroed(ctx, "rays", sizes.rays)?;
+        let capsules = DeviceStream::zeroed(ctx, "capsules", sizes.capsule_values)?;
+        let partials = DeviceStream::zeroed(ctx, "likelihood partial sums", sizes.partial_values)?;
         let terms = DeviceStream::zeroed(
             ctx,
             "capsule terms",
@@ -198,7 +285,8 @@ impl CapsuleLikelihoodGpu {
             },
         )?;
         let sums = DeviceStream::zeroed(ctx, "likelihood sums", samples)?;
-        let tile_cones = DeviceStream::zeroed(ctx, "tile cones", tiles)?;
+        let all_tiles = sizes.level_tiles.iter().sum::<usize>();
+        let tile_cones = DeviceStream::zeroed(ctx, "tile cones", all_tiles)?;
         let entries: &[&str] = match kind {
             CapsuleKernel::PaperLayout => &["paper_layout", "reduce_partials"],
             CapsuleKernel::Fast => &["capsule_terms", "fast", "reduce_partials"],
@@ -215,29 +303,29 @@ impl CapsuleLikelihoodGpu {
             sums: &sums,
             tile_cones: &tile_cones,
         };
-        let mut chunks = Vec::new();
-        let mut offset = 0;
-        while offset < samples {
-            let count = (samples - offset).min(max_groups);
+        let mut chunks = Vec::with_capacity(sizes.level_tiles.len());
+        let mut first_tile = 0;
+        for &tiles in &sizes.level_tiles {
             let params = CapsuleParams {
                 samples: samples as u32,
-                points: points as u32,
+                points: sizes.rays as u32,
                 capsules: capsules_per_sample as u32,
                 tiles: tiles as u32,
-                sample_offset: offset as u32,
-                _pad: [0; 3],
+                sample_offset: 0,
+                first_tile: first_tile as u32,
+                _pad: [0; 2],
                 origin,
                 tau,
             };
-            chunks.push(chunk(ctx, &kernels, &params, count, &streams)?);
-            offset += count;
+            chunks.push(sample_chunks(ctx, &kernels, params, &streams)?);
+            first_tile += tiles;
         }
         Ok(Self {
             kind,
             samples,
-            points,
+            points: level_points[0],
             capsules_per_sample,
-            tiles,
+            level_tiles: sizes.level_tiles,
             sums_back: Readback::new(ctx, "likelihood sums readback", samples)?,
             rays,
             capsules,
@@ -274,6 +362,13 @@ impl CapsuleLikelihoodGpu {
         ctx: &GpuContext,
         prepared: &PreparedRays,
     ) -> Result<(), GpuError> {
+        let tiles: Vec<usize> = prepared.levels.iter().map(|l| l.tiles).collect();
+        if self.kind != CapsuleKernel::Fast || tiles != self.level_tiles {
+            return Err(GpuError::InvalidConfig(format!(
+                "rays prepared in levels of {tiles:?} tiles; this {:?} likelihood takes {:?}",
+                self.kind, self.level_tiles
+            )));
+        }
         self.rays.upload(ctx, &prepared.ordered)?;
         self.tile_cones.upload(ctx, &prepared.tile_cones)
     }
@@ -292,9 +387,26 @@ impl CapsuleLikelihoodGpu {
         self.record_in(&mut pass);
     }
 
-    /// Records the evaluation into an open compute pass.
+    /// Records the evaluation (of level 0, every point) into an open compute pass.
     pub fn record_in(&self, pass: &mut wgpu::ComputePass<'_>) {
-        for chunk in &self.chunks {
+        self.record_level_in(0, pass);
+    }
+
+    /// The number of levels of points it weighs.
+    pub fn levels(&self) -> usize {
+        self.level_tiles.len()
+    }
+
+    /// Records the evaluation of level `level`'s points (level 0 when there is no such level)
+    /// into an open compute pass: the sums are M over that level's points only.
+    pub fn record_level_in(&self, level: usize, pass: &mut wgpu::ComputePass<'_>) {
+        let level = if level < self.level_tiles.len() {
+            level
+        } else {
+            0
+        };
+        let tiles = self.level_tiles[level] as u32;
+        for chunk in &self.chunks[level] {
             for (kernel, group) in self.kernels.iter().zip(&chunk.groups) {
                 let groups = match kernel.name() {
                     "capsule_terms" => [
@@ -303,7 +415,7 @@ impl CapsuleLikelihoodGpu {
                         1,
                     ],
                     "reduce_partials" => [1, chunk.samples, 1],
-                    _ => [self.tiles as u32, chunk.samples, 1],
+                    _ => [tiles, chunk.samples, 1],
                 };
                 kernel.record(pass, group, groups);
             }
@@ -312,9 +424,27 @@ impl CapsuleLikelihoodGpu {
 
     /// Evaluates M_j for every sample: one submission, the sums read back.
     pub fn evaluate(&self, ctx: &GpuContext) -> Result<Vec<f32>, GpuError> {
+        self.evaluate_level(ctx, 0)
+    }
+
+    /// Evaluates M_j over level `level`'s points only (a coarse subset): one submission, the
+    /// sums read back.
+    pub fn evaluate_level(&self, ctx: &GpuContext, level: usize) -> Result<Vec<f32>, GpuError> {
+        if level >= self.levels() {
+            return Err(GpuError::InvalidConfig(format!(
+                "level {level} of points; this likelihood has {}",
+                self.levels()
+            )));
+        }
         let mut encoder = ctx.device.create_command_encoder(&Default::default());
         let submission = ctx.scoped("evaluating the capsule likelihood", || {
-            self.record(&mut encoder);
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("capsule likelihood"),
+                    timestamp_writes: None,
+                });
+                self.record_level_in(level, &mut pass);
+            }
             self.sums_back.record_copy(&mut encoder, &self.sums);
             ctx.queue.submit([encoder.finish()])
         })?;
@@ -350,6 +480,7 @@ mod tests {
             ("capsules", offset_of!(CapsuleParams, capsules)),
             ("tiles", offset_of!(CapsuleParams, tiles)),
             ("sample_offset", offset_of!(CapsuleParams, sample_offset)),
+            ("first_tile", offset_of!(CapsuleParams, first_tile)),
             ("origin", offset_of!(CapsuleParams, origin)),
             ("tau", offset_of!(CapsuleParams, tau)),
         ];

@@ -16,18 +16,31 @@ fn spread_bits(v: u32) -> u32 {
     (x | (x << 1)) & 0x5555_5555
 }
 
-/// A frame's rays as the fast kernel reads them: in Morton order of direction, with the cone of
-/// each tile.
+/// A frame's rays as the fast kernel reads them: one or more *levels* (level 0 every ray,
+/// later levels subsets that coarse annealing layers weigh), each in Morton order of direction
+/// and padded with end markers to whole tiles, one after another, with the cone of each tile.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PreparedRays {
-    /// The rays in Morton order, end markers (depth < 0) last.
+    /// The levels' rays in Morton order, each level's end markers (depth < 0) last.
     pub(super) ordered: Vec<[f32; 4]>,
-    /// Per tile of `FAST_TILE` rays: (unit axis, half-angle) of a cone holding them.
+    /// Per tile of `FAST_TILE` rays, the levels' tiles one after another: (unit axis,
+    /// half-angle) of a cone holding them.
     pub(super) tile_cones: Vec<[f32; 4]>,
+    /// Per level: its tiles, and its rays that are not end markers.
+    pub(super) levels: Vec<RayLevel>,
+}
+
+/// One level of [`PreparedRays`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RayLevel {
+    /// Tiles of `FAST_TILE` rays.
+    pub tiles: usize,
+    /// Rays that are real points (not end markers).
+    pub points: usize,
 }
 
 impl PreparedRays {
-    /// The number of rays (end markers included).
+    /// The number of rays, end markers included (every level's, padded to whole tiles).
     pub fn len(&self) -> usize {
         self.ordered.len()
     }
@@ -41,18 +54,46 @@ impl PreparedRays {
     pub fn ordered(&self) -> &[[f32; 4]] {
         &self.ordered
     }
-}
 
-/// The fast kernel's host preparation of a frame's rays: the rays in Morton order of direction
-/// and the cone of each tile (on all cores).
-pub fn prepare_rays(rays: &[[f32; 4]]) -> PreparedRays {
-    let ordered = morton_ordered(rays);
-    let tile_cones = ordered.par_chunks(FAST_TILE).map(cone).collect();
-    PreparedRays {
-        ordered,
-        tile_cones,
+    /// The levels, level 0 first.
+    pub fn levels(&self) -> &[RayLevel] {
+        &self.levels
     }
 }
+
+/// The fast kernel's host preparation of a frame's rays, one level: the rays in Morton order
+/// of direction, padded with end markers to whole tiles, and the cone of each tile (on all
+/// cores).
+pub fn prepare_rays(rays: &[[f32; 4]]) -> PreparedRays {
+    prepare_ray_levels(&[rays])
+}
+
+/// [`prepare_rays`] for several levels of one frame (level 0 every ray, then the subsets that
+/// coarse layers weigh), one after another in one layout.
+pub fn prepare_ray_levels(levels: &[&[[f32; 4]]]) -> PreparedRays {
+    let mut prepared = PreparedRays {
+        ordered: Vec::new(),
+        tile_cones: Vec::new(),
+        levels: Vec::with_capacity(levels.len()),
+    };
+    for rays in levels {
+        let mut ordered = morton_ordered(rays);
+        let tiles = ordered.len().div_ceil(FAST_TILE);
+        ordered.resize(tiles * FAST_TILE, END_MARKER);
+        prepared
+            .tile_cones
+            .par_extend(ordered.par_chunks(FAST_TILE).map(cone));
+        prepared.ordered.extend_from_slice(&ordered);
+        prepared.levels.push(RayLevel {
+            tiles,
+            points: rays.iter().filter(|r| !is_marker(r)).count(),
+        });
+    }
+    prepared
+}
+
+/// Padding past a level's last point (depth −1): it adds nothing to any sum.
+pub const END_MARKER: [f32; 4] = [0.0, 0.0, 1.0, -1.0];
 
 /// An end marker: padding past a frame's last point, which adds nothing to any sum.
 fn is_marker(ray: &[f32; 4]) -> bool {

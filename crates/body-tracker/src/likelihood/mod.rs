@@ -11,8 +11,11 @@ use rayon::prelude::*;
 use crate::capsule::{Capsule, ray_capsule, truncated_distance};
 use crate::error::BodyError;
 
+mod coarse;
 pub mod gpu;
 mod gpu_rays;
+
+pub use coarse::CoarseLayers;
 
 /// Points per workgroup tile of the paper's layout (`TILE` in the shader).
 pub(crate) const TILE: usize = 256;

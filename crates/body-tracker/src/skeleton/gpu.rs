@@ -9,8 +9,9 @@
 
 use bytemuck::{Pod, Zeroable};
 
+use crate::likelihood::CoarseLayers;
 use crate::likelihood::gpu::{
-    CapsuleKernel, CapsuleLikelihoodGpu, MAX_CAPSULES, PreparedRays, prepare_rays,
+    CapsuleKernel, CapsuleLikelihoodGpu, END_MARKER, MAX_CAPSULES, PreparedRays, prepare_ray_levels,
 };
 use pf_gpu::GpuContext;
 use pf_gpu::GpuError;
@@ -67,6 +68,9 @@ pub struct BodyLikelihoodConfig {
     pub tau: f32,
     /// σ of eq. 3 (m).
     pub sigma: f32,
+    /// Coarse annealing layers weighing a subset of the points (a second level of the prepared
+    /// rays); `None`: every layer weighs every point.
+    pub coarse: Option<CoarseLayers>,
 }
 
 impl BodyLikelihoodConfig {
@@ -80,6 +84,11 @@ impl BodyLikelihoodConfig {
         }
         if !(self.sigma.is_finite() && self.sigma > 0.0) {
             return bad(format!("sigma must be finite and > 0, got {}", self.sigma));
+        }
+        if let Some(coarse) = &self.coarse
+            && coarse.points == 0
+        {
+            return bad("coarse annealing layers need at least one point".into());
         }
         if self.dims < 6 {
             return bad(format!(
@@ -106,6 +115,16 @@ impl BodyLikelihoodConfig {
         }
         Ok(())
     }
+
+    /// The most points of each level of the prepared rays: every point, then the coarse
+    /// layers' subset.
+    fn level_points(&self) -> Vec<usize> {
+        let mut levels = vec![self.points];
+        if let Some(coarse) = &self.coarse {
+            levels.push(coarse.capacity(self.points));
+        }
+        levels
+    }
 }
 
 /// A uniform buffer holding `value`.
@@ -118,10 +137,15 @@ fn kinematics_params(
 }
 
 /// A frame's rays, `[dir, depth]` per point (at most `points` of them), as a
-/// [`BodyLikelihoodGpu`] configured for `points` uploads them: padded to `points` with end markers
-/// (depth −1, which add nothing to any sum), in Morton order with their tile cones. Pure host
-/// work, so that it can run beside the GPU's work on the previous frame.
-pub fn prepare_body_rays(rays: &[[f32; 4]], points: usize) -> Result<PreparedRays, GpuError> {
+/// [`BodyLikelihoodGpu`] configured for `points` (and `coarse`) uploads them: level 0 every
+/// ray, padded to `points` with end markers (depth −1, which add nothing to any sum), then the
+/// coarse layers' subset padded to its capacity; each in Morton order with its tile cones. Pure
+/// host work, so that it can run beside the GPU's work on the previous frame.
+pub fn prepare_body_rays(
+    rays: &[[f32; 4]],
+    points: usize,
+    coarse: Option<&CoarseLayers>,
+) -> Result<PreparedRays, GpuError> {
     if rays.len() > points {
         return Err(GpuError::LengthMismatch {
             what: "frame points (at most)".into(),
@@ -135,9 +159,16 @@ pub fn prepare_body_rays(rays: &[[f32; 4]], points: usize) -> Result<PreparedRay
             rays[i][3]
         )));
     }
-    let mut padded = rays.to_vec();
-    padded.resize(points, [0.0, 0.0, 1.0, -1.0]);
-    Ok(prepare_rays(&padded))
+    let padded = |mut level: Vec<[f32; 4]>, capacity: usize| {
+        level.resize(capacity, END_MARKER);
+        level
+    };
+    let mut levels = vec![padded(rays.to_vec(), points)];
+    if let Some(coarse) = coarse {
+        levels.push(padded(coarse.subset(rays), coarse.capacity(points)));
+    }
+    let levels: Vec<&[[f32; 4]]> = levels.iter().map(Vec::as_slice).collect();
+    Ok(prepare_ray_levels(&levels))
 }
 
 /// Forward kinematics plus the fast capsule likelihood for `samples` pose samples on one GPU.
@@ -147,6 +178,9 @@ pub struct BodyLikelihoodGpu {
     capsules: CapsuleLikelihoodGpu,
     params: wgpu::Buffer,
     params_value: KinematicsParams,
+    /// Per level of points past the first, the parameters its log-likelihoods read (σ scaled
+    /// to the level's points); level 0 reads `params`.
+    level_params: Vec<(wgpu::Buffer, KinematicsParams)>,
     bones: DeviceStream<GpuBone>,
     frames: DeviceStream<[f32; 4]>,
     kinematics: Kernel,
@@ -154,8 +188,9 @@ pub struct BodyLikelihoodGpu {
     /// Poses uploaded from the host ([`Self::submit_poses`]); unused inside the GPU filter.
     host_poses: DeviceStream<f32>,
     host_group: wgpu::BindGroup,
-    /// Bound by [`GpuLikelihood::prepare`] to the filter's states and log-likelihoods.
-    filter_groups: Option<(wgpu::BindGroup, wgpu::BindGroup)>,
+    /// Bound by [`GpuLikelihood::prepare`] to the filter's states and log-likelihoods: the
+    /// kinematics, and per level of points the log-likelihoods from its sums.
+    filter_groups: Option<(wgpu::BindGroup, Vec<wgpu::BindGroup>)>,
     /// M of the filter's estimate, in the step's submission (bound by `prepare`).
     estimate_fit: Option<EstimateFit>,
     sums_back: Readback<f32>,
@@ -185,11 +220,11 @@ impl BodyLikelihoodGpu {
     ) -> Result<Self, GpuError> {
         config.validate()?;
         let bones_count = config.bones.len();
-        let capsules = CapsuleLikelihoodGpu::new(
+        let capsules = CapsuleLikelihoodGpu::with_levels(
             ctx,
             CapsuleKernel::Fast,
             samples,
-            config.points,
+            &config.level_points(),
             bones_count,
             config.origin,
             config.tau,
@@ -211,6 +246,14 @@ impl BodyLikelihoodGpu {
             _pad: [0; 3],
         };
         let params = kinematics_params(ctx, "kinematics params", &params_value)?;
+        let level_params = (1..capsules.levels())
+            .map(|_| {
+                Ok((
+                    kinematics_params(ctx, "coarse level params", &params_value)?,
+                    params_value,
+                ))
+            })
+            .collect::<Result<Vec<_>, GpuError>>()?;
         let bones = DeviceStream::from_slice(ctx, "bones", &config.bones)?;
         let frames = DeviceStream::zeroed(ctx, "bone frames", frames_len)?;
         let kinematics = Kernel::new(ctx, "forward kinematics", SHADER, "forward_kinematics")?;
@@ -238,6 +281,7 @@ impl BodyLikelihoodGpu {
             capsules,
             params,
             params_value,
+            level_params,
             bones,
             frames,
             kinematics,
@@ -258,25 +302,18 @@ impl BodyLikelihoodGpu {
     /// the buffer is filled with the fast kernel's end marker (depth −1), which adds nothing to
     /// any sum. The same as [`prepare_body_rays`] then [`Self::upload_prepared_rays`].
     pub fn upload_rays(&mut self, ctx: &GpuContext, rays: &[[f32; 4]]) -> Result<(), GpuError> {
-        let prepared = prepare_body_rays(rays, self.config.points)?;
+        let prepared = prepare_body_rays(rays, self.config.points, self.config.coarse.as_ref())?;
         self.upload_prepared_rays(ctx, &prepared)
     }
 
     /// A frame's rays already prepared by [`prepare_body_rays`] for this likelihood's number of
-    /// points (on any thread, for example while the GPU works on the previous frame): the upload
-    /// alone.
+    /// points and coarse layers (on any thread, for example while the GPU works on the previous
+    /// frame): the upload alone. Rays prepared for another configuration are refused.
     pub fn upload_prepared_rays(
         &mut self,
         ctx: &GpuContext,
         prepared: &PreparedRays,
     ) -> Result<(), GpuError> {
-        if prepared.len() != self.config.points {
-            return Err(GpuError::LengthMismatch {
-                what: "prepared rays (padded to the likelihood's points)".into(),
-                expected: self.config.points,
-                got: prepared.len(),
-            });
-        }
         self.capsules.upload_prepared_rays(ctx, prepared)?;
         if let Some(fit) = &self.estimate_fit {
             fit.capsules.upload_prepared_rays(ctx, prepared)?;
@@ -284,17 +321,35 @@ impl BodyLikelihoodGpu {
         Ok(())
     }
 
-    /// σ of eq. 3 from the next evaluation on.
+    /// σ of eq. 3 from the next evaluation on (every level's).
     pub fn set_sigma(&mut self, ctx: &GpuContext, sigma: f32) -> Result<(), GpuError> {
-        if !(sigma.is_finite() && sigma > 0.0) {
+        self.set_level_sigmas(ctx, &vec![sigma; self.capsules.levels()])
+    }
+
+    /// σ of eq. 3 per level of points from the next evaluation on: level 0's for every point,
+    /// then the coarse subset's (σ scaled to each level's points).
+    pub fn set_level_sigmas(&mut self, ctx: &GpuContext, sigmas: &[f32]) -> Result<(), GpuError> {
+        if sigmas.len() != self.capsules.levels() {
+            return Err(GpuError::LengthMismatch {
+                what: "sigma per level of points".into(),
+                expected: self.capsules.levels(),
+                got: sigmas.len(),
+            });
+        }
+        if let Some(sigma) = sigmas.iter().find(|s| !(s.is_finite() && **s > 0.0)) {
             return Err(GpuError::InvalidConfig(format!(
                 "sigma must be finite and > 0, got {sigma}"
             )));
         }
-        self.config.sigma = sigma;
-        self.params_value.log_scale = -1.0 / (2.0 * sigma * sigma);
+        let log_scale = |sigma: f32| -1.0 / (2.0 * sigma * sigma);
+        self.config.sigma = sigmas[0];
+        self.params_value.log_scale = log_scale(sigmas[0]);
         ctx.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params_value));
+        for ((buffer, value), &sigma) in self.level_params.iter_mut().zip(&sigmas[1..]) {
+            value.log_scale = log_scale(sigma);
+            ctx.queue.write_buffer(buffer, 0, bytemuck::bytes_of(value));
+        }
         Ok(())
     }
 
@@ -374,6 +429,10 @@ impl GpuLikelihood for BodyLikelihoodGpu {
         self.params_value.particles = shape.particles as u32;
         ctx.queue
             .write_buffer(&self.params, 0, bytemuck::bytes_of(&self.params_value));
+        for (buffer, value) in &mut self.level_params {
+            value.particles = shape.particles as u32;
+            ctx.queue.write_buffer(buffer, 0, bytemuck::bytes_of(value));
+        }
         let kinematics = self.kinematics.bind(
             ctx,
             &[
@@ -384,14 +443,19 @@ impl GpuLikelihood for BodyLikelihoodGpu {
                 (4, self.capsules.capsule_stream().binding()),
             ],
         )?;
-        let to_log_likelihood = self.to_log_likelihood.bind(
-            ctx,
-            &[
-                (0, self.params.as_entire_binding()),
-                (5, self.capsules.sum_stream().binding()),
-                (6, inputs.log_likelihood.binding()),
-            ],
-        )?;
+        let to_log_likelihood = std::iter::once(&self.params)
+            .chain(self.level_params.iter().map(|(buffer, _)| buffer))
+            .map(|params| {
+                self.to_log_likelihood.bind(
+                    ctx,
+                    &[
+                        (0, params.as_entire_binding()),
+                        (5, self.capsules.sum_stream().binding()),
+                        (6, inputs.log_likelihood.binding()),
+                    ],
+                )
+            })
+            .collect::<Result<Vec<_>, _>>()?;
         self.filter_groups = Some((kinematics, to_log_likelihood));
         self.estimate_fit = Some(self.estimate_fit(ctx, inputs)?);
         Ok(())
@@ -408,15 +472,19 @@ impl GpuLikelihood for BodyLikelihoodGpu {
             self.kinematics.record(pass, &fit.kinematics, [1, 1, 1]);
             fit.capsules.record_in(pass);
         }
-        if phase != LikelihoodPhase::Measure {
+        let LikelihoodPhase::Measure { layer } = phase else {
             return;
-        }
+        };
         if let Some((kinematics, to_log_likelihood)) = &self.filter_groups {
+            let level = match &self.config.coarse {
+                Some(coarse) if coarse.is_coarse(layer) => 1,
+                _ => 0,
+            };
             let groups = self.kinematics_groups();
             self.kinematics.record(pass, kinematics, groups);
-            self.capsules.record_in(pass);
+            self.capsules.record_level_in(level, pass);
             self.to_log_likelihood
-                .record(pass, to_log_likelihood, groups);
+                .record(pass, &to_log_likelihood[level], groups);
         }
     }
 
@@ -437,11 +505,13 @@ impl BodyLikelihoodGpu {
         inputs: &LikelihoodInputs<'_>,
     ) -> Result<EstimateFit, GpuError> {
         let bones = self.config.bones.len();
-        let capsules = CapsuleLikelihoodGpu::new(
+        // The same levels as the filter's likelihood, so that one upload of prepared rays
+        // fits both; the check weighs level 0, every point.
+        let capsules = CapsuleLikelihoodGpu::with_levels(
             ctx,
             CapsuleKernel::Fast,
             1,
-            self.config.points,
+            &self.config.level_points(),
             bones,
             self.config.origin,
             self.config.tau,

@@ -56,14 +56,28 @@ impl Model for BodyModel {
             BodyError::InvalidInput("a GPU filter got a frame prepared for the CPU".into())
         })?;
         gpu.upload_prepared_rays(ctx, rays)?;
-        gpu.set_sigma(ctx, frame.frame.sigma)?;
+        let mut sigmas = vec![frame.frame.sigma];
+        sigmas.extend(frame.frame.coarse.as_ref().map(|c| c.sigma));
+        gpu.set_level_sigmas(ctx, &sigmas)?;
         Ok(if frame.frame.flat { &NoLikelihood } else { gpu })
     }
 
     fn measure_on_cpu(
         &self,
         frame: &BodyFrame<'_>,
+        shape: &BatchShape,
+        poses: &[f32],
+        out: &mut [f32],
+    ) -> Result<(), BodyError> {
+        self.measure_layer_on_cpu(frame, shape, usize::MAX, poses, out)
+    }
+
+    /// Eq. 3 over every point, or over the coarse subset in a coarse layer.
+    fn measure_layer_on_cpu(
+        &self,
+        frame: &BodyFrame<'_>,
         _: &BatchShape,
+        layer: usize,
         poses: &[f32],
         out: &mut [f32],
     ) -> Result<(), BodyError> {
@@ -72,7 +86,16 @@ impl Model for BodyModel {
             out.fill(0.0);
             return Ok(());
         }
-        host_log_likelihoods(skeleton, frame.rays, frame.params, poses, out)
+        match &frame.coarse {
+            Some(CoarseFrame {
+                rays: Some(rays),
+                sigma,
+            }) if layer < frame.coarse_layers => {
+                let params = CapsuleLikelihoodParams::new(frame.params.tau, *sigma)?;
+                host_log_likelihoods(skeleton, rays, params, poses, out)
+            }
+            _ => host_log_likelihoods(skeleton, frame.rays, frame.params, poses, out),
+        }
     }
 }
 
@@ -106,7 +129,19 @@ pub(crate) struct Frame<'a> {
     pub(crate) params: CapsuleLikelihoodParams,
     /// σ scaled to the frame's number of points.
     pub(crate) sigma: f32,
+    /// The coarse layers' subset of the points, with coarse layers.
+    pub(crate) coarse: Option<CoarseFrame<'a>>,
+    /// How many of the frame's annealing layers, from the first, weigh the subset.
+    pub(crate) coarse_layers: usize,
     pub(crate) flat: bool,
+}
+
+/// The coarse layers' subset of a frame ([`crate::likelihood::CoarseLayers`]).
+pub(crate) struct CoarseFrame<'a> {
+    /// Its rays, for the CPU engine (a GPU weighs the prepared rays' second level).
+    pub(crate) rays: Option<&'a Rays>,
+    /// σ scaled to the subset's number of points.
+    pub(crate) sigma: f32,
 }
 
 impl Filter {
@@ -262,6 +297,7 @@ pub(crate) fn new_filter(
                 origin: [0.0; 3],
                 tau: config.tau,
                 sigma: config.sigma_at_1000_points,
+                coarse: super::coarse_layers(config),
             };
             let likelihood = BodyLikelihoodGpu::new(&ctx, gpu_config, config.particles)?;
             let model = BodyModel {

@@ -27,10 +27,17 @@ mod filter;
 pub mod islands;
 
 use crate::frame::{FramePreparer, PreparedFrame};
-use crate::likelihood::{CapsuleLikelihoodParams, culled_sum_of_squared_distances_parallel};
+use crate::likelihood::{
+    CapsuleLikelihoodParams, CoarseLayers, culled_sum_of_squared_distances_parallel,
+};
 use crate::skeleton::Skeleton;
 pub use filter::FilterStep;
-use filter::{Filter, Frame, new_filter};
+use filter::{CoarseFrame, Filter, Frame, new_filter};
+
+/// The default coarse layers' subset: at most this many points (every k-th of a frame).
+pub const DEFAULT_COARSE_POINTS: usize = 5_000;
+/// The default number of coarse annealing layers, from the first.
+pub const DEFAULT_COARSE_LAYERS: usize = 7;
 
 /// Where the filter and the likelihood run.
 pub enum Backend {
@@ -95,6 +102,9 @@ pub struct TrackerConfig {
     /// Partitioned sampling ([`partitioned_schedule`]): the first half of the annealing layers
     /// diffuse only the trunk, the second half only the limbs ([`Skeleton::trunk_and_limbs`]).
     pub partitioned: bool,
+    /// Coarse-to-fine annealing ([`CoarseLayers`]): the first layers of a frame weigh a subset
+    /// of its points, the last ones every point; `None`: every layer weighs every point.
+    pub coarse: Option<CoarseLayers>,
     /// With islands ([`Backend::SplitGpus`]): every this many frames the islands exchange
     /// particles ([`islands::exchange`]); 0 never.
     pub island_exchange_every: u64,
@@ -124,6 +134,10 @@ impl Default for TrackerConfig {
             // (3.4-3.7 cm at 160x120, 3.2-3.4 cm at 1024x768) at the same rate and took the
             // truth's coverage at ±2 reported sd from 52-61 % to 74-78 %.
             partitioned: true,
+            coarse: Some(CoarseLayers {
+                points: DEFAULT_COARSE_POINTS,
+                layers: DEFAULT_COARSE_LAYERS,
+            }),
             island_exchange_every: islands::DEFAULT_EXCHANGE_EVERY,
         }
     }
@@ -183,6 +197,9 @@ impl BodyTracker {
             return Err(BodyError::InvalidInput(
                 "max points per frame must be > 0".into(),
             ));
+        }
+        if let Some(coarse) = &config.coarse {
+            coarse.validate()?;
         }
         // Checks the pose's length and values.
         skeleton.capsules(initial_pose)?;
@@ -274,6 +291,7 @@ impl BodyTracker {
         FramePreparer {
             max_points: self.config.max_points,
             on_gpu: self.filters.iter().any(|f| f.on_gpu()),
+            coarse: coarse_layers(&self.config),
         }
     }
 
@@ -445,18 +463,47 @@ impl BodyTracker {
     }
 }
 
+/// The configuration's coarse layers within its annealing layers (the last weighs every point).
+pub(crate) fn coarse_layers(config: &TrackerConfig) -> Option<CoarseLayers> {
+    config
+        .coarse
+        .and_then(|c| c.within(config.annealing.layers))
+}
+
 /// A frame as the filters weigh it: its rays, and σ of eq. 3 scaled to its number of points.
 fn frame_of<'a>(
     config: &TrackerConfig,
     prepared: &'a PreparedFrame,
 ) -> Result<Frame<'a>, BodyError> {
-    let points = prepared.rays.depths.len();
-    let sigma = config.sigma_at_1000_points * (points.max(1) as f32 / 1000.0).sqrt();
+    let sigma_for =
+        |points: usize| config.sigma_at_1000_points * (points.max(1) as f32 / 1000.0).sqrt();
+    let sigma = sigma_for(prepared.rays.depths.len());
+    // The coarse layers' σ, scaled to their subset's points as a frame's is to its own.
+    let coarse = match (
+        coarse_layers(config),
+        &prepared.gpu_rays,
+        &prepared.coarse_rays,
+    ) {
+        (None, ..) => None,
+        (Some(_), Some(gpu), _) => {
+            let points = gpu.levels().get(1).map_or(0, |l| l.points);
+            Some(CoarseFrame {
+                rays: None,
+                sigma: sigma_for(points),
+            })
+        }
+        (Some(_), None, rays) => rays.as_ref().map(|rays| CoarseFrame {
+            rays: Some(rays),
+            sigma: sigma_for(rays.depths.len()),
+        }),
+    };
     Ok(Frame {
         rays: &prepared.rays,
         gpu_rays: prepared.gpu_rays.as_ref(),
         params: CapsuleLikelihoodParams::new(config.tau, sigma)?,
         sigma,
+        coarse,
+        coarse_layers: coarse_layers(config).map_or(0, |c| c.layers),
         flat: config.weighing == Weighing::Flat,
     })
 }

@@ -275,7 +275,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
 
     fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
         match phase {
-            LikelihoodPhase::Measure => {
+            LikelihoodPhase::Measure { .. } => {
                 let (x, y) = match self.dispatch {
                     FaceDispatch::PerFace => (self.particles, 1),
                     FaceDispatch::Batched => (self.particles, self.faces as u32),

@@ -70,8 +70,12 @@ impl<M: Model> Filter<M> {
                 let propagate = model
                     .propagates_on_cpu()
                     .then_some(&dynamics as &Propagate<'_>);
+                // The batch filter measures once per annealing layer, in order.
+                let mut layer = 0;
                 FilterEngine::step_on_cpu(filter, propagate, |shape, states, out| {
-                    model.measure_on_cpu(frame, shape, states, out)
+                    let measured = model.measure_layer_on_cpu(frame, shape, layer, states, out);
+                    layer += 1;
+                    measured
                 })
             }
             FilterEngine::Gpu(gpu) => {

@@ -50,6 +50,21 @@ pub trait Model: Sync {
         out: &mut [f32],
     ) -> Result<(), Self::Error>;
 
+    /// [`Model::measure_on_cpu`] for annealing layer `layer` (0 without annealing), for a model
+    /// that weighs early layers coarser, as its GPU side does for `LikelihoodPhase::Measure {
+    /// layer }`. The default ignores the layer.
+    fn measure_layer_on_cpu(
+        &self,
+        frame: &Self::Frame<'_>,
+        shape: &BatchShape,
+        layer: usize,
+        states: &[f32],
+        out: &mut [f32],
+    ) -> Result<(), Self::Error> {
+        let _ = layer;
+        self.measure_on_cpu(frame, shape, states, out)
+    }
+
     /// Checks `frame` before either engine moves a particle (its length, for example), so that
     /// a bad frame changes nothing. The default accepts every frame.
     fn check_frame(&self, frame: &Self::Frame<'_>, shape: &BatchShape) -> Result<(), Self::Error> {

@@ -279,7 +279,7 @@ impl GpuFilter {
                         .moving
                         .record(&mut pass, &fused.moving_groups[layer], per_target);
                 }
-                likelihood.record(LikelihoodPhase::Measure, &mut pass);
+                likelihood.record(LikelihoodPhase::Measure { layer }, &mut pass);
             }
             self.stages
                 .normalise

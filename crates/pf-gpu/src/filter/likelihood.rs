@@ -36,8 +36,13 @@ pub enum LikelihoodPhase {
     /// The Diffuse stage, in place of the filter's Gaussian random walk; recorded only for a
     /// likelihood that [`GpuLikelihood::propagates`].
     Propagate,
-    /// The Likelihood stage: write `log p(z | x)` of every particle.
-    Measure,
+    /// The Likelihood stage of annealing layer `layer` (0 without annealing): write
+    /// `log p(z | x)` of every particle. A likelihood may weigh early layers coarser (the body
+    /// tracker's point subsets); most ignore the layer.
+    Measure {
+        /// The annealing layer, from 0.
+        layer: usize,
+    },
     /// After the Estimate stage, on the step's estimates (a tracker's check of its estimate,
     /// say); its results come back through [`GpuLikelihood::readbacks`].
     AfterEstimate,

@@ -174,7 +174,7 @@ impl GpuFilter {
             }
         }
         if wants(GpuStage::Likelihood) {
-            likelihood.record(LikelihoodPhase::Measure, &mut pass);
+            likelihood.record(LikelihoodPhase::Measure { layer }, &mut pass);
         }
         if wants(GpuStage::Normalise) {
             self.stages

@@ -555,7 +555,7 @@ impl GpuLikelihood for RawWgslModel {
             return;
         };
         match phase {
-            LikelihoodPhase::Measure => self.measure.record(pass, &b.measure, b.groups),
+            LikelihoodPhase::Measure { .. } => self.measure.record(pass, &b.measure, b.groups),
             LikelihoodPhase::Propagate => {
                 if let (Some(kernel), Some(group)) = (&self.propagate, &b.propagate) {
                     kernel.record(pass, group, b.groups);

@@ -3,6 +3,7 @@
 use anyhow::bail;
 use body_tracker::human::{BASE_CAPSULES, MAX_CAPSULES, human_skeleton};
 use body_tracker::synth::{Motion, SynthConfig};
+use body_tracker::tracker::{DEFAULT_COARSE_LAYERS, DEFAULT_COARSE_POINTS};
 use body_tracker::{Skeleton, TrackerConfig};
 use clap::{Args, ValueEnum};
 use std::path::PathBuf;
@@ -137,6 +138,14 @@ pub struct TrackArgs {
     /// Frames are thinned to at most this many points.
     #[arg(long, default_value_t = 20_000, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
     pub max_points: u32,
+    /// Coarse-to-fine annealing: the first --coarse-layers layers of a frame weigh at most this
+    /// many of its points (every k-th), the later layers every point (docs/USAGE.md).
+    #[arg(long, default_value_t = DEFAULT_COARSE_POINTS as u32, value_parser = clap::value_parser!(u32).range(1..=10_000_000))]
+    pub coarse_points: u32,
+    /// How many of a frame's annealing layers, from the first, weigh the coarse subset of
+    /// --coarse-points points (0: every layer weighs every point; the last layer always does).
+    #[arg(long, default_value_t = DEFAULT_COARSE_LAYERS as u32, value_parser = clap::value_parser!(u32).range(0..=1000))]
+    pub coarse_layers: u32,
     /// The starting pose: a CSV like ground_truth.csv (its first row is used). Default: the
     /// ground truth's first row, else an upright body facing the camera at the points' median.
     #[arg(long)]

@@ -10,6 +10,7 @@ use crate::recording::Recording;
 use crate::run_output::{self, Interrupted, OutputLock, ResumePoint, clear_old_results};
 use crate::smoothing::SMOOTHED_FILE;
 use anyhow::{Context, bail};
+use body_tracker::likelihood::CoarseLayers;
 use body_tracker::sequence::read_pose_csv;
 use body_tracker::tracker::islands;
 use body_tracker::{BodyTracker, Skeleton, TrackerConfig};
@@ -150,6 +151,10 @@ fn tracker_config(args: &TrackArgs) -> anyhow::Result<TrackerConfig> {
         annealing: args.filter.apply(&defaults.annealing)?,
         motion: args.filter.motion(defaults.motion)?,
         partitioned: args.partitioned,
+        coarse: (args.coarse_layers > 0).then_some(CoarseLayers {
+            points: args.coarse_points as usize,
+            layers: args.coarse_layers as usize,
+        }),
         ..defaults
     })
 }
