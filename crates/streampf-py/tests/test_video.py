@@ -35,6 +35,24 @@ def test_track_video_writes_what_the_command_line_writes(video, two_face_video, 
     assert len(list(overlay.glob("*.png"))) == 8
 
 
+def test_as_frame_is_a_pandas_dataframe_of_states_csv(video, two_face_video, tmp_path):
+    import pandas  # the test extra: installed for the suite (cargo xtask test), never skipped
+
+    rects = [tuple(float(v) for v in r) for r in two_face_video["rects"]]
+    frame = streampf.track_video(
+        video, tmp_path / "df", faces=rects, backend="cpu", particles=64, progress=False, as_frame=True
+    )
+    assert isinstance(frame, pandas.DataFrame)
+    arrays = streampf.read_csv(tmp_path / "df" / "states.csv")
+    assert list(frame.columns) == list(arrays)
+    assert len(frame) == 16
+    np.testing.assert_array_equal(frame["tx"].to_numpy(), arrays["tx"])
+    assert (frame["status"] == "tracking").all()
+    # A query as py-feat's users write them: one face's mean yaw.
+    yaw = frame.groupby("track")["yaw_deg"].mean()
+    assert sorted(yaw.index) == [0, 1] and yaw.notna().all()
+
+
 def test_a_bad_command_is_a_value_error_and_writes_nothing(video, tmp_path):
     out = tmp_path / "never"
     with pytest.raises(ValueError, match="--particles"):

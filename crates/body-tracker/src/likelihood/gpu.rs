@@ -206,6 +206,18 @@ fn chunk(
     })
 }
 
+/// The kernels of `kind`, in the order a level records them.
+fn kernels_of(ctx: &GpuContext, kind: CapsuleKernel) -> Result<Vec<Kernel>, GpuError> {
+    let entries: &[&str] = match kind {
+        CapsuleKernel::PaperLayout => &["paper_layout", "reduce_partials"],
+        CapsuleKernel::Fast => &["capsule_terms", "fast", "reduce_partials"],
+    };
+    entries
+        .iter()
+        .map(|e| Kernel::new(ctx, e, SHADER, e))
+        .collect()
+}
+
 /// One level's dispatch chunks: the samples split so that each chunk's grid fits the
 /// adapter's limit.
 fn sample_chunks(
@@ -275,26 +287,15 @@ impl CapsuleLikelihoodGpu {
         let rays = DeviceStream::zeroed(ctx, "rays", sizes.rays)?;
         let capsules = DeviceStream::zeroed(ctx, "capsules", sizes.capsule_values)?;
         let partials = DeviceStream::zeroed(ctx, "likelihood partial sums", sizes.partial_values)?;
-        let terms = DeviceStream::zeroed(
-            ctx,
-            "capsule terms",
-            if kind == CapsuleKernel::Fast {
-                samples * capsules_per_sample
-            } else {
-                1
-            },
-        )?;
+        let terms_len = match kind {
+            CapsuleKernel::Fast => samples * capsules_per_sample,
+            CapsuleKernel::PaperLayout => 1,
+        };
+        let terms = DeviceStream::zeroed(ctx, "capsule terms", terms_len)?;
         let sums = DeviceStream::zeroed(ctx, "likelihood sums", samples)?;
         let all_tiles = sizes.level_tiles.iter().sum::<usize>();
         let tile_cones = DeviceStream::zeroed(ctx, "tile cones", all_tiles)?;
-        let entries: &[&str] = match kind {
-            CapsuleKernel::PaperLayout => &["paper_layout", "reduce_partials"],
-            CapsuleKernel::Fast => &["capsule_terms", "fast", "reduce_partials"],
-        };
-        let kernels = entries
-            .iter()
-            .map(|e| Kernel::new(ctx, e, SHADER, e))
-            .collect::<Result<Vec<_>, _>>()?;
+        let kernels = kernels_of(ctx, kind)?;
         let streams = ChunkStreams {
             rays: &rays,
             capsules: &capsules,

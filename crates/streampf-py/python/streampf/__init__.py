@@ -8,7 +8,8 @@ The classes take and return numpy arrays:
 - ``BodyTracker``: an articulated body in N×3 ``float32`` points or 16-bit depth images.
 - ``ParticleFilter``: the generic engine with your model as WGSL (the whole step on the GPU) or
   as a vectorised Python likelihood (CPU).
-- ``track_video``: the command line's ``face track`` on a video file, results as arrays.
+- ``track_video``: the command line's ``face track`` on a video file, results as arrays (or a
+  pandas DataFrame); ``run_command``: any ``streampf`` command line in this process.
 - ``devices()``: the GPU adapters; ``synthetic_faces`` / ``synthetic_body``: test sequences
   with their ground truth.
 
@@ -28,6 +29,7 @@ from ._streampf import (  # noqa: E402
     ParticleFilter,
     __version__,
     devices,
+    run_command,
     synthetic_body,
     synthetic_faces,
 )
@@ -45,6 +47,7 @@ __all__ = [
     "__version__",
     "devices",
     "read_csv",
+    "run_command",
     "synthetic_body",
     "synthetic_faces",
     "track_video",

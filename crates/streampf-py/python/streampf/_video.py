@@ -5,7 +5,7 @@ from __future__ import annotations
 import csv
 import os
 from pathlib import Path
-from typing import Dict, Iterable, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, Iterable, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -47,7 +47,8 @@ def track_video(
     seed: int = 1,
     progress: bool = True,
     extra_args: Iterable[str] = (),
-) -> Dict[str, np.ndarray]:
+    as_frame: bool = False,
+) -> Union[Dict[str, np.ndarray], Any]:
     """Tracks the faces of a video file (or a directory of frames) as ``streampf face track``
     does, writing ``states.csv`` (and the overlay, when asked) under ``out``; returns
     ``states.csv`` as arrays (``read_csv``): one row per frame and track.
@@ -56,9 +57,12 @@ def track_video(
     finds the faces (``detect`` runs it as well when rectangles are given). ``overlay``: a
     directory (PNG frames) or a video file with the tracks drawn. ``progress`` shows the
     command line's progress bar. ``extra_args``: any other ``face track`` options, spelled as
-    on the command line. Ctrl-C stops after the current frame, keeping what was written, and
+    on the command line (``["--format", "openface"]`` also writes OpenFace 2.0's CSV columns to
+    ``out/openface.csv``). ``as_frame``: ``states.csv`` as a pandas DataFrame instead (pandas is
+    an optional extra, ``pip install streampf[pandas]``; checked before anything runs). Ctrl-C stops after the current frame, keeping what was written, and
     raises KeyboardInterrupt.
     """
+    pandas = _pandas() if as_frame else None
     source = Path(path)
     if not source.exists():
         raise FileNotFoundError(f"no such video or frame directory: {source}")
@@ -80,4 +84,17 @@ def track_video(
         args.append("--quiet")
     args += list(extra_args)
     run_command(args)
+    if pandas is not None:
+        return pandas.read_csv(Path(out) / "states.csv")
     return read_csv(Path(out) / "states.csv")
+
+
+def _pandas() -> Any:
+    """pandas, or an ImportError that says how to install it."""
+    try:
+        import pandas
+    except ImportError as e:
+        raise ImportError(
+            "track_video(as_frame=True) needs pandas: pip install 'streampf[pandas]' (or pandas)"
+        ) from e
+    return pandas

@@ -137,6 +137,16 @@ impl From<FaceModelArg> for face_tracker::model::BuiltInModel {
     }
 }
 
+/// What `face track` writes beside states.csv.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum FormatArg {
+    /// streampf's own files (states.csv; the others as asked).
+    Streampf,
+    /// Also openface.csv: OpenFace 2.0's FeatureExtraction columns in its units and conventions
+    /// (docs/OUTPUT.md). Needs the landmark model.
+    Openface,
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum DetectorArg {
     /// On a GPU when the tracker runs on one, else on the CPU.
@@ -308,6 +318,12 @@ pub struct TrackArgs {
     /// Needs the landmark model (--landmarks, or libdlib-data's file).
     #[arg(long)]
     pub landmarks_out: bool,
+    /// `openface`: also write openface.csv, the columns of OpenFace 2.0's FeatureExtraction
+    /// (frame, face_id, timestamp, confidence, success, pose_Tx … pose_Rz, x_0 … x_67, y_0 …
+    /// y_67) in OpenFace's units and sign conventions, so that scripts written for OpenFace read
+    /// it unchanged (docs/OUTPUT.md). Needs the landmark model, as --landmarks-out does.
+    #[arg(long, value_enum, default_value_t = FormatArg::Streampf)]
+    pub format: FormatArg,
     /// Print only the summary.
     #[arg(long)]
     pub quiet: bool,

@@ -18,6 +18,7 @@
 mod args;
 mod extras;
 mod inputs;
+mod openface_csv;
 mod record;
 mod runner;
 mod session;

@@ -1,6 +1,7 @@
 //! A run's written results: `TrackRecord` (states.csv, errors.csv, landmarks.csv, the summary).
 
 use super::args::TrackArgs;
+use super::openface_csv::{OPENFACE_FILE, OpenFaceCsv};
 use super::runner::Runner;
 use super::{ERRORS_FILE, LANDMARKS_FILE, STATES_FILE};
 use crate::run_output::{CsvStream, ResumePoint, SkipLog};
@@ -21,6 +22,8 @@ pub(super) struct TrackRecord {
     pub(super) states: CsvStream,
     pub(super) errors: Option<CsvStream>,
     pub(super) landmarks: Option<CsvStream>,
+    /// openface.csv (`--format openface`).
+    pub(super) openface: Option<OpenFaceCsv>,
     pub(super) translation: f64,
     pub(super) rotation: f64,
     pub(super) measured: usize,
@@ -58,8 +61,8 @@ impl TrackRecord {
         format!("frame,timestamp,track,{}", columns.join(","))
     }
 
-    /// A frame's landmark rows: each tracked face whose template has landmarks, posed by its
-    /// estimate.
+    /// A frame's landmark rows (landmarks.csv, and openface.csv when written): each tracked
+    /// face whose template has landmarks, posed by its estimate.
     pub(super) fn add_landmarks(
         &mut self,
         frame: usize,
@@ -67,6 +70,10 @@ impl TrackRecord {
         estimates: &[FaceEstimate],
         lens: &face_tracker::likelihood::Lens,
     ) -> anyhow::Result<()> {
+        let seconds = self.seconds(frame);
+        if let Some(openface) = self.openface.as_mut() {
+            openface.add(frame, seconds, templates, estimates, lens)?;
+        }
         let timestamp = self.timestamp(frame);
         let Some(file) = self.landmarks.as_mut() else {
             return Ok(());
@@ -128,10 +135,12 @@ impl TrackRecord {
     }
 
     /// The files, new or (`resume`) an interrupted run's reopened at its resume point.
-    /// `(with_truth, with_landmarks)`: whether errors.csv and landmarks.csv are written.
+    /// `(with_truth, with_landmarks)`: whether errors.csv and landmarks.csv are written;
+    /// `openface`: openface.csv's lens and frame size, when it is written.
     pub(super) fn create(
         out: &Path,
         (with_truth, with_landmarks): (bool, bool),
+        openface: Option<(&face_tracker::likelihood::Lens, (u32, u32))>,
         resume: Option<&ResumePoint>,
         fps: f64,
     ) -> anyhow::Result<Self> {
@@ -145,10 +154,17 @@ impl TrackRecord {
         let landmarks = with_landmarks
             .then(|| open(LANDMARKS_FILE, &Self::landmarks_header()))
             .transpose()?;
+        let openface = openface
+            .map(|(lens, size)| {
+                let file = open(OPENFACE_FILE, &OpenFaceCsv::header())?;
+                anyhow::Ok(OpenFaceCsv::new(file, lens, size))
+            })
+            .transpose()?;
         Ok(Self {
             states: open(STATES_FILE, &Self::states_header())?,
             errors,
             landmarks,
+            openface,
             translation: 0.0,
             rotation: 0.0,
             measured: 0,
@@ -323,9 +339,14 @@ impl TrackRecord {
     /// Which files the run wrote, and where.
     fn print_written(&self, args: &TrackArgs) {
         outln!(
-            "wrote states.csv{}{} to {}{}",
+            "wrote states.csv{}{}{} to {}{}",
             if self.errors.is_some() {
                 ", errors.csv"
+            } else {
+                ""
+            },
+            if self.openface.is_some() {
+                ", openface.csv"
             } else {
                 ""
             },

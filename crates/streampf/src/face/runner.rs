@@ -2,7 +2,7 @@
 //! detector), from the command line's settings, and announcing what it runs on.
 
 use super::DEFAULT_MAX_FACES;
-use super::args::{TrackArgs, focal_length};
+use super::args::{FormatArg, TrackArgs, focal_length};
 use super::inputs::{load_cascade, load_personaliser, open_backend, open_detector};
 use anyhow::{Context, bail};
 use face_tracker::camera::{Calibration, Intrinsics};
@@ -87,9 +87,13 @@ pub(super) fn build_runner(
     })?;
     let backend_name = backend_description(&backend);
     let personaliser = load_personaliser(args)?;
-    if args.landmarks_out && personaliser.is_none() {
+    let wants_landmarks = match args.format {
+        FormatArg::Openface => Some("--format openface"),
+        FormatArg::Streampf => args.landmarks_out.then_some("--landmarks-out"),
+    };
+    if let (Some(option), None) = (wants_landmarks, &personaliser) {
         bail!(
-            "--landmarks-out needs dlib's 68-landmark model: give --landmarks FILE, or install \
+            "{option} needs dlib's 68-landmark model: give --landmarks FILE, or install \
              Debian's libdlib-data (not used by default with --generic-model or --synthetic)"
         );
     }

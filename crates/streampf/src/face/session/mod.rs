@@ -3,9 +3,10 @@
 //! allows: `in_flight.rs`), writes every frame's rows as it goes and the summary at the end; an
 //! interrupt, a bad frame or a device fault keeps every row already written.
 
-use super::args::TrackArgs;
+use super::args::{FormatArg, TrackArgs};
 use super::extras::{colour_frames, record_face_frame, save_particles};
 use super::inputs::{Input, open_input, parse_rect};
+use super::openface_csv::OPENFACE_FILE;
 use super::record::TrackRecord;
 use super::runner::{Runner, announce, build_runner};
 use super::{ERRORS_FILE, LANDMARKS_FILE, STATES_FILE};
@@ -26,6 +27,15 @@ mod smoothed;
 use in_flight::InFlight;
 use smoothed::FaceSmoothing;
 
+/// The files a run writes in --out, cleared when it starts over.
+const RESULT_FILES: [&str; 5] = [
+    STATES_FILE,
+    ERRORS_FILE,
+    LANDMARKS_FILE,
+    SMOOTHED_FILE,
+    OPENFACE_FILE,
+];
+
 pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let (mut source, rects, truth) = checked_input(args)?;
     let recording = args
@@ -42,10 +52,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let (first, mut runner, backend_name) = start_tracks(args, &mut source, &rects, detect)?;
     let size = (first.width, first.height);
     if resume.is_none() {
-        clear_old_results(
-            &args.out,
-            &[STATES_FILE, ERRORS_FILE, LANDMARKS_FILE, SMOOTHED_FILE],
-        )?;
+        clear_old_results(&args.out, &RESULT_FILES)?;
     }
     if let Some(dir) = &args.save_particles {
         std::fs::create_dir_all(dir)
@@ -71,11 +78,13 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
             );
         }
     }
+    let lens = runner.tracker().lens();
     let mut run = FaceRun {
         args,
         record: TrackRecord::create(
             &args.out,
             (truth.is_some(), args.landmarks_out),
+            (args.format == FormatArg::Openface).then_some((&lens, size)),
             resume.as_ref(),
             source.fps(),
         )?,
