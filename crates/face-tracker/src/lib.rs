@@ -32,6 +32,7 @@ pub mod lens;
 pub mod likelihood;
 mod mesh_head;
 pub mod model;
+pub mod mot;
 pub mod openface;
 pub mod personal;
 pub mod projection;

@@ -16,6 +16,7 @@ mod camera;
 mod errors;
 mod face;
 mod filter;
+mod mot;
 mod settings;
 mod smoothing;
 mod synthetic;
@@ -32,6 +33,7 @@ fn _streampf(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synthetic::synthetic_faces, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic::synthetic_body, m)?)?;
     m.add_function(wrap_pyfunction!(video::run_command, m)?)?;
+    m.add_function(wrap_pyfunction!(mot::mot_scores, m)?)?;
     m.add_function(wrap_pyfunction!(bench::_rust_face_step_times, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

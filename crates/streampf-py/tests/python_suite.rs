@@ -3,7 +3,7 @@
 //! test` — tests the Python API with no second compile: the module is copied next to the
 //! package's Python sources into a scratch directory put on PYTHONPATH.
 //!
-//! Needs Python 3.9+ with numpy, pytest, ray and pandas (`cargo xtask test` installs them); a missing one
+//! Needs Python 3.9+ with numpy, pytest, ray, pandas and motmetrics (`cargo xtask test` installs them); a missing one
 //! fails the test, naming it.
 
 use std::path::{Path, PathBuf};
@@ -59,13 +59,13 @@ fn the_python_suite_passes() {
     let package = assemble_package(&extension_module(&profile));
     let python = std::env::var("PYTHON").unwrap_or_else(|_| "python3".into());
     let missing = Command::new(&python)
-        .args(["-c", "import numpy, pytest, ray, pandas"])
+        .args(["-c", "import numpy, pytest, ray, pandas, motmetrics"])
         .output()
         .expect("running Python (set PYTHON to its path)");
     assert!(
         missing.status.success(),
-        "the Python suite needs numpy, pytest, ray and pandas (`cargo xtask test` installs them: pip \
-         install numpy pytest ray pandas):\n{}",
+        "the Python suite needs numpy, pytest, ray, pandas and motmetrics (`cargo xtask test` \
+         installs them: pip install numpy pytest ray pandas motmetrics):\n{}",
         String::from_utf8_lossy(&missing.stderr)
     );
     let tests = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");

@@ -37,6 +37,12 @@ pub struct FaceSynthConfig {
     pub occlusion: bool,
     /// From this frame on, the first face walks out of the frame to the right (30 px a frame).
     pub exit_after: Option<usize>,
+    /// With `exit_after`: from this frame on, the first face walks back the way it went (30 px
+    /// a frame) to its place, re-entering the frame on the way.
+    pub return_at: Option<usize>,
+    /// From this frame on, faces 1 and 2 walk across each other to each other's place (over a
+    /// fifth of the video, at least 10 frames), passing in front of one another half way.
+    pub crossing_at: Option<usize>,
     /// Face k is in the video from frame k·`enter_every` on (0: every face from the start).
     pub enter_every: usize,
     pub seed: u64,
@@ -60,6 +66,8 @@ impl FaceSynthConfig {
             max_yaw: 60f32.to_radians(),
             occlusion: true,
             exit_after: None,
+            return_at: None,
+            crossing_at: None,
             enter_every: 0,
             seed: 11,
             focal_length: None,
@@ -132,6 +140,29 @@ impl FaceSynthConfig {
     pub fn present(&self, k: usize, frame: usize) -> bool {
         frame >= self.entry_frame(k)
     }
+
+    /// Whether face `k` is in frame `frame` with its centre inside the picture: the faces a
+    /// tracker is scored on (`crate::mot`).
+    pub fn visible(&self, k: usize, frame: usize) -> bool {
+        let s = face_state(self, k, frame);
+        self.present(k, frame)
+            && (0.0..self.width as f32).contains(&s[TX])
+            && (0.0..self.height as f32).contains(&s[TY])
+    }
+
+    /// A named ground-truth scenario for identities (`face synth --scenario`): four faces over
+    /// `frames` frames; the first walks out to the right at 15 % of the video and back in from
+    /// 40 %, faces 1 and 2 cross each other's path from 65 %.
+    pub fn exits_and_crossings(mut self, frames: usize) -> Self {
+        self.frames = frames;
+        self.faces = 4;
+        self.occlusion = false;
+        self.enter_every = 0;
+        self.exit_after = Some(frames * 15 / 100);
+        self.return_at = Some(frames * 40 / 100);
+        self.crossing_at = Some(frames * 65 / 100);
+        self
+    }
 }
 
 /// The light gain g(t) of frame `frame` (α = 1/g).
@@ -159,7 +190,29 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
         && k == 0
         && frame > start
     {
-        s[TX] += 30.0 * (frame - start) as f32;
+        let out = (frame - start) as f32;
+        let walked = match config.return_at {
+            // Back the way it went, from where it had got to, to its place.
+            Some(back) if frame > back => {
+                let away = back.saturating_sub(start) as f32;
+                (away - (frame - back) as f32).max(0.0)
+            }
+            _ => out,
+        };
+        s[TX] += 30.0 * walked;
+    }
+    if let Some(at) = config.crossing_at
+        && (k == 1 || k == 2)
+        && config.faces > 2
+        && frame > at
+    {
+        // Along the line between the two places, eased in and out.
+        let span = (config.frames / 5).max(10);
+        let t = ((frame - at) as f32 / span as f32).min(1.0);
+        let eased = t * t * (3.0 - 2.0 * t);
+        let (mine, other) = (config.home(k), config.home(3 - k));
+        s[TX] += eased * (other.0 - mine.0);
+        s[TY] += eased * (other.1 - mine.1);
     }
     s
 }

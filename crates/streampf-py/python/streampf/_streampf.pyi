@@ -267,6 +267,16 @@ def run_command(args: List[str]) -> None:
     bad command line, RuntimeError for a failed run, KeyboardInterrupt after Ctrl-C (the run
     closes its files first)."""
 
+def mot_scores(
+    truth: Sequence[Tuple[int, int, float, float, float]],
+    tracks: Sequence[Tuple[int, int, float, float]],
+) -> Dict[str, float]:
+    """The MOT benchmarks' scores (idf1, idp, idr, mota, num_switches, num_matches, num_misses,
+    num_false_positives, num_objects) of `tracks` — (frame, track, x, y) each — against `truth`
+    — (frame, identity, x, y, radius) each, a track matching within `radius` of the centre — as
+    py-motmetrics computes them (num_matches, as its, leaves out the matches that switched
+    identity). ValueError for a bad row."""
+
 def _rust_face_step_times(
     frames: npt.NDArray[np.uint8],
     rects: Sequence[Rect],

@@ -34,6 +34,18 @@ pub struct VideoArgs {
     /// for a camera far from the faces (docs/ACCURACY.md, "The camera's lens").
     #[arg(long, value_parser = field_of_view)]
     pub fov: Option<f32>,
+    /// A named ground-truth scenario for identities, replacing --faces: `exits-and-crossings`,
+    /// four faces, the first walking out at 15 % of the video and back in from 40 %, two
+    /// crossing each other's path from 65 %. `face track --synthetic --scenario` finds the faces
+    /// with the detector and prints IDF1, identity switches and MOTA (docs/ACCURACY.md).
+    #[arg(long, value_enum)]
+    pub scenario: Option<ScenarioArg>,
+}
+
+/// `--scenario`: the named ground-truth videos.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum ScenarioArg {
+    ExitsAndCrossings,
 }
 
 impl VideoArgs {
@@ -42,7 +54,7 @@ impl VideoArgs {
         if !(self.max_yaw.is_finite() && self.max_yaw.abs() <= 90.0) {
             bail!("--max-yaw must be within ±90 degrees, got {}", self.max_yaw);
         }
-        let config = FaceSynthConfig {
+        let mut config = FaceSynthConfig {
             width: self.width,
             height: self.height,
             frames: self.frames as usize,
@@ -51,6 +63,8 @@ impl VideoArgs {
             max_yaw: self.max_yaw.to_radians(),
             occlusion: true,
             exit_after: None,
+            return_at: None,
+            crossing_at: None,
             enter_every: 0,
             seed: self.video_seed,
             focal_length: self
@@ -58,6 +72,9 @@ impl VideoArgs {
                 .map(|fov| focal_length(fov, self.width))
                 .transpose()?,
         };
+        if self.scenario == Some(ScenarioArg::ExitsAndCrossings) {
+            config = config.exits_and_crossings(self.frames as usize);
+        }
         config.validate()?;
         Ok(config)
     }

@@ -12,7 +12,7 @@ use face_tracker::extraction::FaceRect;
 use face_tracker::landmarks::{DEFAULT_PREDICTOR, ShapePredictor};
 use face_tracker::personal::Personaliser;
 use face_tracker::projection::DIMS;
-use face_tracker::synth::{FaceVideoRenderer, face_state, initial_rect};
+use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -177,19 +177,32 @@ pub(super) fn webcam_source(_device: &Path, _size: &str) -> anyhow::Result<Sourc
     )
 }
 
+/// Face `k`'s true state at `frame`, NaN while it is out of the picture (no error is measured
+/// against it, and it is no true face to score a tracker on).
+pub(super) fn visible_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIMS] {
+    match config.visible(k, frame) {
+        true => face_state(config, k, frame),
+        false => [f32::NAN; DIMS],
+    }
+}
+
 /// Frames, the starting rectangles (faces.csv or none) and the ground truth when known.
 pub(super) type Input = (Source, Vec<FaceRect>, Option<Vec<Vec<[f32; DIMS]>>>);
 
 pub(super) fn open_input(args: &TrackArgs) -> anyhow::Result<Input> {
     if args.synthetic {
         let config = args.video.config()?;
-        let rects = (0..config.faces)
-            .map(|k| initial_rect(&config, k))
-            .collect();
+        // A scenario's faces come and go: the detector finds them.
+        let rects = match args.video.scenario {
+            Some(_) => Vec::new(),
+            None => (0..config.faces)
+                .map(|k| initial_rect(&config, k))
+                .collect(),
+        };
         let truth: Vec<Vec<[f32; DIMS]>> = (0..config.frames)
             .map(|f| {
                 (0..config.faces)
-                    .map(|k| face_state(&config, k, f))
+                    .map(|k| visible_state(&config, k, f))
                     .collect()
             })
             .collect();

@@ -21,6 +21,7 @@ mod inputs;
 mod openface_csv;
 mod record;
 mod runner;
+mod scoring;
 mod session;
 mod synth;
 

@@ -9,6 +9,7 @@ use super::inputs::{Input, open_input, parse_rect};
 use super::openface_csv::OPENFACE_FILE;
 use super::record::TrackRecord;
 use super::runner::{Runner, announce, build_runner};
+use super::scoring::{MOT_TRUTH_FILE, MotLog};
 use super::{ERRORS_FILE, LANDMARKS_FILE, STATES_FILE};
 use crate::annotated::Annotated;
 use crate::face_io::{FrameRead, ReadAhead, Source};
@@ -28,13 +29,26 @@ use in_flight::InFlight;
 use smoothed::FaceSmoothing;
 
 /// The files a run writes in --out, cleared when it starts over.
-const RESULT_FILES: [&str; 5] = [
+const RESULT_FILES: [&str; 6] = [
     STATES_FILE,
     ERRORS_FILE,
     LANDMARKS_FILE,
     SMOOTHED_FILE,
     OPENFACE_FILE,
+    MOT_TRUTH_FILE,
 ];
+
+/// The run's scoring against a synthetic scenario's true faces (`--synthetic --scenario`).
+fn scoring(args: &TrackArgs, resume: Option<&ResumePoint>) -> anyhow::Result<Option<MotLog>> {
+    if !(args.synthetic && args.video.scenario.is_some()) {
+        return Ok(None);
+    }
+    Ok(Some(MotLog::create(
+        &args.out,
+        args.video.config()?,
+        resume,
+    )?))
+}
 
 pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let (mut source, rects, truth) = checked_input(args)?;
@@ -96,6 +110,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         overlay,
         recording,
         last_estimates: Vec::new(),
+        scoring: scoring(args, resume.as_ref())?,
         skipped: SkipLog::new(&args.out)?,
         frames: 0,
     };
@@ -206,6 +221,8 @@ pub(super) struct FaceRun<'a> {
     /// `--smooth` / `--smooth-lag`: smoothed.csv (rewritten whole by a resumed run, which tracks
     /// every frame again).
     smoothing: Option<FaceSmoothing>,
+    /// `--synthetic --scenario`: the run scored against the scenario's true faces.
+    scoring: Option<MotLog>,
     /// Frames finished and written (tracked or skipped).
     frames: usize,
 }
@@ -303,6 +320,9 @@ impl FaceRun<'_> {
         }
         let truth = self.truth.as_ref().and_then(|t| t.get(frame));
         self.record.add(frame, &estimates, "", truth)?;
+        if let Some(scoring) = self.scoring.as_mut() {
+            scoring.add(frame, &estimates)?;
+        }
         if let Some(smoothing) = self.smoothing.as_mut() {
             (smoothing.add(frame, runner.tracker(), &estimates, self.truth.as_deref()))
                 .context("--smooth")?;
@@ -380,6 +400,9 @@ impl FaceRun<'_> {
         );
         if let Some(smoothing) = &self.smoothing {
             smoothing.print();
+        }
+        if let Some(scoring) = &self.scoring {
+            scoring.summary();
         }
         if let Runner::Auto(auto) = runner
             && let Some(why) = auto.detector_fallback()
