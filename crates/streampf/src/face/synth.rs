@@ -5,7 +5,7 @@ use super::{RECTS_FILE, TRUTH_FILE, model};
 use crate::run_output::{self};
 use anyhow::Context;
 use face_tracker::projection::STATE_NAMES;
-use face_tracker::synth::{FaceVideoRenderer, initial_rect};
+use face_tracker::synth::{FaceVideoRenderer, face_state, initial_rect};
 use std::path::Path;
 
 pub(super) fn write_text(path: &Path, text: &str) -> anyhow::Result<()> {
@@ -29,8 +29,9 @@ pub(super) fn synth(args: &SynthArgs) -> anyhow::Result<()> {
         renderer
             .render(frame)?
             .save_png(&args.out.join(format!("frame_{frame:05}.png")))?;
-        for k in 0..config.faces {
-            let s = super::inputs::visible_state(&config, k, frame);
+        // A face out of the picture has no row (the reader takes it as unknown).
+        for k in (0..config.faces).filter(|&k| config.visible(k, frame)) {
+            let s = face_state(&config, k, frame);
             truth.push_str(&format!("{frame},{k}"));
             for v in s {
                 truth.push_str(&format!(",{v}"));
