@@ -179,7 +179,7 @@ pub(super) fn webcam_source(_device: &Path, _size: &str) -> anyhow::Result<Sourc
 
 /// Face `k`'s true state at `frame`, NaN while it is out of the picture (no error is measured
 /// against it, and it is no true face to score a tracker on).
-pub(super) fn visible_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIMS] {
+fn visible_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIMS] {
     match config.visible(k, frame) {
         true => face_state(config, k, frame),
         false => [f32::NAN; DIMS],

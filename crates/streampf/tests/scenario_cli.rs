@@ -1,0 +1,85 @@
+//! `--scenario exits-and-crossings`: `face synth` writes ground truth only for the faces in the
+//! picture, which `face track DIR` reads (a face away has no row, not a bad one); `face track
+//! --synthetic --scenario` finds the faces with the detector and prints the identity scores,
+//! writing the true faces it scored against (mot_truth.csv). The scores themselves are held to
+//! py-motmetrics in the Python suite (`test_mot.py`).
+
+mod common;
+
+use common::{ok, scratch, streampf};
+
+#[test]
+fn a_scenarios_ground_truth_leaves_out_faces_away_and_its_run_prints_identity_scores() {
+    let data = scratch("scenario-data");
+    let out = scratch("scenario-out");
+    let (d, o) = (data.to_str().unwrap(), out.to_str().unwrap());
+    let size = ["--frames", "60", "--width", "320", "--height", "240"];
+    let mut synth = vec![
+        "face",
+        "synth",
+        "--out",
+        d,
+        "--scenario",
+        "exits-and-crossings",
+    ];
+    synth.extend_from_slice(&size);
+    ok(&streampf(&synth));
+    let truth = std::fs::read_to_string(data.join("ground_truth.csv")).unwrap();
+    let face_0: Vec<usize> = truth
+        .lines()
+        .skip(1)
+        .filter(|l| l.split(',').nth(1) == Some("0"))
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert!(
+        face_0.len() < 60 && face_0.len() > 10,
+        "face 0 in {} frames",
+        face_0.len()
+    );
+    assert!(
+        face_0.windows(2).any(|w| w[1] > w[0] + 1),
+        "face 0 never leaves and returns"
+    );
+    assert!(!truth.contains("NaN"));
+    // The directory tracks, its errors measured where the faces are known.
+    let text = ok(&streampf(&[
+        "face",
+        "track",
+        d,
+        "--backend",
+        "cpu",
+        "--particles",
+        "100",
+        "--quiet",
+        "--out",
+        o,
+    ]));
+    assert!(text.contains("mean translation error"), "{text}");
+    // The scenario run scores identities.
+    let scored = out.join("scored");
+    let mut track = vec![
+        "face",
+        "track",
+        "--synthetic",
+        "--scenario",
+        "exits-and-crossings",
+        "--backend",
+        "cpu",
+        "--particles",
+        "100",
+        "--out",
+        scored.to_str().unwrap(),
+    ];
+    track.extend_from_slice(&size);
+    let text = ok(&streampf(&track));
+    assert!(text.contains("identities: IDF1 "), "{text}");
+    let mot = std::fs::read_to_string(scored.join("mot_truth.csv")).unwrap();
+    assert_eq!(mot.lines().next(), Some("frame,identity,x,y,radius"));
+    let rows = mot.lines().count() - 1;
+    assert_eq!(
+        rows,
+        truth.lines().count() - 1,
+        "the same true faces as face synth's"
+    );
+    std::fs::remove_dir_all(&data).unwrap();
+}
