@@ -5,6 +5,8 @@ use std::sync::Mutex;
 
 use body_tracker::camera::{DepthImage, Intrinsics};
 use body_tracker::human::{human_skeleton, standing_pose};
+use body_tracker::likelihood::CoarseLayers;
+use body_tracker::tracker::{DEFAULT_COARSE_LAYERS, DEFAULT_COARSE_POINTS};
 use body_tracker::{FrameResult, Skeleton, TrackerConfig};
 use nalgebra::Vector3;
 use numpy::PyUntypedArrayMethods;
@@ -40,15 +42,19 @@ fn config(
     particles: usize,
     seed: u64,
     layers: Option<usize>,
-    partitioned: bool,
+    (partitioned, coarse): (bool, Option<CoarseLayers>),
 ) -> PyResult<TrackerConfig> {
     let defaults = TrackerConfig::default();
     let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
+    if let Some(coarse) = &coarse {
+        coarse.validate().map_err(body)?;
+    }
     Ok(TrackerConfig {
         particles,
         seed,
         annealing,
         partitioned,
+        coarse,
         ..defaults
     })
 }
@@ -59,6 +65,7 @@ impl BodyTracker {
     #[pyo3(signature = (
         initial_pose = None, *, capsules = 19, skeleton = None, particles = 1500,
         backend = "auto", allow_software = false, seed = 1, layers = None, partitioned = true,
+        coarse_points = DEFAULT_COARSE_POINTS as i128, coarse_layers = DEFAULT_COARSE_LAYERS as i128,
         smooth = false
     ))]
     #[allow(clippy::too_many_arguments)]
@@ -73,8 +80,17 @@ impl BodyTracker {
         seed: i128,
         layers: Option<i128>,
         partitioned: bool,
+        coarse_points: i128,
+        coarse_layers: i128,
         smooth: bool,
     ) -> PyResult<Self> {
+        let coarse = match whole::<usize>("coarse_layers", coarse_layers)? {
+            0 => None,
+            layers => Some(CoarseLayers {
+                points: whole("coarse_points", coarse_points)?,
+                layers,
+            }),
+        };
         let capsules: usize = whole("capsules", capsules)?;
         let particles: usize = whole("particles", particles)?;
         let seed: u64 = whole("seed", seed)?;
@@ -85,7 +101,7 @@ impl BodyTracker {
             Some(pose) => finite_f32(pose, &[Some(skeleton.dofs())], "initial_pose")?.1,
             None => standing_pose(&skeleton, 3.0),
         };
-        let config = config(particles, seed, layers, partitioned)?;
+        let config = config(particles, seed, layers, (partitioned, coarse))?;
         let contexts = open(py, choice, allow_software)?;
         let backend = body_backend(contexts, choice);
         let device = match &backend {

@@ -60,6 +60,23 @@ def test_partitioned_sampling_is_the_default_and_can_be_turned_off(walk):
     assert not np.array_equal(plain, partitioned)
 
 
+def test_coarse_layers_are_the_default_and_weigh_fewer_points_when_asked(walk):
+    def poses(**options):
+        tracker = streampf.BodyTracker(walk["truth"][0], particles=64, backend="cpu", **options)
+        return np.array([tracker.step(p)["pose"] for p in walk["points"][:3]])
+
+    # The walk's frames have about 1 000 points: the default subset (5 000) is the whole frame.
+    default, off = poses(), poses(coarse_layers=0)
+    np.testing.assert_array_equal(default, off)
+    fewer = poses(coarse_points=200)
+    assert np.isfinite(fewer).all()
+    assert not np.array_equal(fewer, default)
+    with pytest.raises(ValueError, match="at least one point"):
+        streampf.BodyTracker(walk["truth"][0], particles=16, backend="cpu", coarse_points=0)
+    with pytest.raises(ValueError):
+        streampf.BodyTracker(walk["truth"][0], particles=16, backend="cpu", coarse_layers=-1)
+
+
 def test_joints_are_the_skeletons(walk):
     tracker = streampf.BodyTracker(walk["truth"][0], particles=16, backend="cpu")
     np.testing.assert_allclose(tracker.joints(walk["truth"][3]), walk["joints"][3], atol=1e-5)

@@ -119,8 +119,9 @@ class BodyTracker:
     of the camera. ``backend`` as FaceTracker's ("all-gpus": an island of the samples per GPU);
     ``layers``: annealing layers per frame (default 8); ``partitioned``: the first half of them
     move only the trunk (root, pelvis, spine, chest), the rest only the limbs (partitioned
-    sampling, the default; False: every layer moves every value). Thread-safe; steps release the
-    GIL."""
+    sampling, the default; False: every layer moves every value); the first ``coarse_layers``
+    layers weigh at most ``coarse_points`` of a frame's points (every k-th; the last layer every
+    point; ``coarse_layers=0``: every layer every point). Thread-safe; steps release the GIL."""
 
     def __init__(
         self,
@@ -134,6 +135,8 @@ class BodyTracker:
         seed: int = 1,
         layers: Optional[int] = None,
         partitioned: bool = True,
+        coarse_points: int = 5000,
+        coarse_layers: int = 7,
         smooth: bool = False,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
