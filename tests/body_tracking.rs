@@ -91,6 +91,67 @@ fn tracks_synthetic_walk_on_cpu() {
     assert_tracks("CPU, six coarse layers of 250 points", coarse, flat);
 }
 
+/// One context, and the samples split into two islands on two contexts: each tracks, and the
+/// islands about as well as the one context.
+#[test]
+fn tracks_synthetic_walk_on_one_gpu_and_split_over_two_contexts() {
+    let skeleton = human_skeleton(19).unwrap();
+    let context = || common::gpu_context("body tracking on the GPU");
+    let (Some(one), Some(flat), Some(first), Some(second)) =
+        (context(), context(), context(), context())
+    else {
+        return;
+    };
+    let flat = run(
+        &skeleton,
+        Backend::Gpu(Box::new(flat)),
+        Weighing::Flat,
+        FRAMES,
+    );
+    let one = run(
+        &skeleton,
+        Backend::Gpu(Box::new(one)),
+        Weighing::Capsules,
+        FRAMES,
+    );
+    assert_tracks("one GPU context", one, flat);
+    let islands = run(
+        &skeleton,
+        Backend::SplitGpus(vec![first, second]),
+        Weighing::Capsules,
+        FRAMES,
+    );
+    assert_tracks("two islands on two contexts", islands, flat);
+    assert!(
+        islands <= 1.5 * one + 0.005,
+        "two islands {islands} m against one context's {one} m"
+    );
+    // The GPU's coarse layers (a quarter of these frames' points, a second level of the
+    // prepared rays) track too.
+    let Some(coarse_context) = context() else {
+        return;
+    };
+    let coarse = TrackerConfig {
+        particles: PARTICLES,
+        coarse: Some(CoarseLayers {
+            points: 250,
+            layers: 6,
+        }),
+        ..TrackerConfig::default()
+    };
+    let coarse = run_with(
+        &skeleton,
+        Backend::Gpu(Box::new(coarse_context)),
+        coarse,
+        FRAMES,
+    );
+    assert_tracks(
+        "one GPU context, six coarse layers of 250 points",
+        coarse,
+        flat,
+    );
+}
+
 /// Coarse annealing layers weigh every k-th point with σ scaled to the subset, and the last
 /// layer every point. A frame's log evidence is its first layer's weighing: with coarse layers
 /// it is, bit for bit, that of a tracker without them stepping the subset (on the CPU, and on a

@@ -49,7 +49,8 @@ pub struct MotScores {
     pub false_positives: usize,
     pub misses: usize,
     pub id_switches: usize,
-    /// 1 − (misses + false positives + switches) / true face-frames.
+    /// 1 − (misses + false positives + switches) / true face-frames (−∞ or NaN without true
+    /// faces, as py-motmetrics has it).
     pub mota: f64,
     /// Face-frames matched with the identity's own track (the trajectories' assignment).
     pub idtp: usize,
@@ -60,33 +61,54 @@ pub struct MotScores {
 
 /// Whether `track` may match `face`, and at what distance.
 fn distance(face: &TrueFace, track: &TrackedFace) -> Option<f64> {
+    // In f64 from the start, as a scorer reading the values from a file computes it.
     let (dx, dy) = (
-        f64::from(face.centre[0] - track.centre[0]),
-        f64::from(face.centre[1] - track.centre[1]),
+        f64::from(face.centre[0]) - f64::from(track.centre[0]),
+        f64::from(face.centre[1]) - f64::from(track.centre[1]),
     );
     let d = (dx * dx + dy * dy).sqrt();
     (d <= f64::from(face.radius)).then_some(d)
 }
 
-/// The one-to-one assignment of rows to columns of greatest total `weight` (`None`: may not be
-/// paired), most pairs first; returns the pairs.
+/// How [`best_pairs`] ranks assignments.
+#[derive(Clone, Copy, PartialEq)]
+enum Rank {
+    /// The most pairs, then the greatest total weight (CLEAR MOT's matching of a frame).
+    MostPairs,
+    /// The greatest total weight alone (IDF1's assignment of trajectories).
+    Weight,
+}
+
+/// The one-to-one assignment of rows to columns ranked best by `rank` (`weight` `None`: may not
+/// be paired; weights finite); returns the pairs.
 fn best_pairs(
     rows: usize,
     columns: usize,
+    rank: Rank,
     weight: impl Fn(usize, usize) -> Option<f64>,
 ) -> Vec<(usize, usize)> {
     if rows == 0 || columns == 0 {
         return Vec::new();
     }
-    // Integer weights for the exact algorithm: a pair's weight in micro-units, on top of a
-    // bonus larger than every weight together, so that more pairs always win.
+    // Integer weights for the exact algorithm: each weight as a share of the largest, in units
+    // of 2^-30 of it, so that no sum overflows; to rank by pairs first, a bonus larger than
+    // every weight together on each pair.
     let n = rows.max(columns);
-    let scaled = |w: f64| (w * 1e6).round() as i64;
-    let total: i64 = (0..rows)
+    let largest = (0..rows)
         .flat_map(|r| (0..columns).map(move |c| (r, c)))
-        .filter_map(|(r, c)| weight(r, c).map(|w| scaled(w).abs()))
-        .sum();
-    let bonus = total + 1;
+        .filter_map(|(r, c)| weight(r, c))
+        .fold(0.0f64, |m, w| m.max(w.abs()));
+    let unit = if largest > 0.0 {
+        largest / f64::from(1u32 << 30)
+    } else {
+        1.0
+    };
+    let scaled = |w: f64| (w / unit).round() as i64;
+    let bonus = match rank {
+        // k + 1 pairs outweigh k whatever their weights (each within ±2^30).
+        Rank::MostPairs => (2 * n as i64 + 1) * (1i64 << 30) + 1,
+        Rank::Weight => 0,
+    };
     let mut matrix = Matrix::new(n, n, 0i64);
     for r in 0..rows {
         for c in 0..columns {
@@ -146,9 +168,12 @@ fn frame_pairs(frame: &MotFrame, last: &HashMap<u64, u64>) -> Vec<(usize, usize)
     let free_tracks: Vec<usize> = (0..frame.tracks.len())
         .filter(|&t| !track_taken[t])
         .collect();
-    let assigned = best_pairs(free_faces.len(), free_tracks.len(), |r, c| {
-        distance(&frame.truth[free_faces[r]], &frame.tracks[free_tracks[c]]).map(|d| -d)
-    });
+    let assigned = best_pairs(
+        free_faces.len(),
+        free_tracks.len(),
+        Rank::MostPairs,
+        |r, c| distance(&frame.truth[free_faces[r]], &frame.tracks[free_tracks[c]]).map(|d| -d),
+    );
     pairs.extend(
         assigned
             .into_iter()
@@ -174,7 +199,7 @@ fn identity_true_positives(frames: &[MotFrame]) -> usize {
     }
     let identities: Vec<u64> = identities.into_iter().collect();
     let tracks: Vec<u64> = tracks.into_iter().collect();
-    best_pairs(identities.len(), tracks.len(), |r, c| {
+    best_pairs(identities.len(), tracks.len(), Rank::Weight, |r, c| {
         together.get(&(identities[r], tracks[c])).map(|&n| n as f64)
     })
     .into_iter()
@@ -187,7 +212,8 @@ pub fn score(frames: &[MotFrame]) -> MotScores {
     let (matches, false_positives, misses, id_switches, ground_truth) = clear_mot(frames);
     let hypotheses: usize = frames.iter().map(|f| f.tracks.len()).sum();
     let idtp = identity_true_positives(frames);
-    let ratio = |a: usize, b: usize| if b == 0 { 0.0 } else { a as f64 / b as f64 };
+    // 0/0 (no true faces, or none and no tracks) is NaN, as py-motmetrics has it.
+    let ratio = |a: usize, b: usize| a as f64 / b as f64;
     MotScores {
         ground_truth,
         matches,
@@ -272,7 +298,67 @@ mod tests {
         assert_eq!(s.idtp, 1);
         assert!((s.idf1 - 2.0 / 5.0).abs() < 1e-12);
         let empty = score(&[]);
-        assert_eq!((empty.ground_truth, empty.idf1), (0, 0.0));
+        assert_eq!(empty.ground_truth, 0);
+        assert!(empty.idf1.is_nan() && empty.mota.is_nan());
+    }
+
+    /// The largest IDTP over every one-to-one assignment of identities to tracks, by trying
+    /// them all (few identities and tracks).
+    fn brute_force_idtp(frames: &[MotFrame]) -> usize {
+        let mut together: BTreeMap<(u64, u64), usize> = BTreeMap::new();
+        let (mut ids, mut tracks) = (BTreeSet::new(), BTreeSet::new());
+        for f in frames {
+            ids.extend(f.truth.iter().map(|t| t.identity));
+            tracks.extend(f.tracks.iter().map(|t| t.track));
+            for face in &f.truth {
+                for track in f.tracks.iter().filter(|t| distance(face, t).is_some()) {
+                    *together.entry((face.identity, track.track)).or_default() += 1;
+                }
+            }
+        }
+        let (ids, tracks): (Vec<u64>, Vec<u64>) =
+            (ids.into_iter().collect(), tracks.into_iter().collect());
+        fn best(
+            i: usize,
+            ids: &[u64],
+            tracks: &[u64],
+            used: &mut Vec<bool>,
+            t: &BTreeMap<(u64, u64), usize>,
+        ) -> usize {
+            if i == ids.len() {
+                return 0;
+            }
+            let mut most = best(i + 1, ids, tracks, used, t);
+            for c in 0..tracks.len() {
+                if !used[c] {
+                    used[c] = true;
+                    let here = t.get(&(ids[i], tracks[c])).copied().unwrap_or(0);
+                    most = most.max(here + best(i + 1, ids, tracks, used, t));
+                    used[c] = false;
+                }
+            }
+            most
+        }
+        best(0, &ids, &tracks, &mut vec![false; tracks.len()], &together)
+    }
+
+    #[test]
+    fn idf1_assigns_trajectories_by_frames_matched_not_by_pairs() {
+        // Identity 0 is with track 7 in ten frames and with track 8 in one; identity 1 with
+        // track 7 in one: 0–7 (IDTP 10) beats 0–8 and 1–7 (IDTP 2, two pairs).
+        let mut frames: Vec<MotFrame> = (0..10)
+            .map(|_| MotFrame {
+                truth: vec![face(0, 100.0)],
+                tracks: vec![track(7, 100.0)],
+            })
+            .collect();
+        frames.push(MotFrame {
+            truth: vec![face(0, 100.0), face(1, 300.0)],
+            tracks: vec![track(8, 100.0), track(7, 300.0)],
+        });
+        let s = score(&frames);
+        assert_eq!(s.idtp, 10);
+        assert!((s.idf1 - 20.0 / 24.0).abs() < 1e-12);
     }
 
     fn frames_strategy() -> impl Strategy<Value = Vec<MotFrame>> {
@@ -315,8 +401,10 @@ mod tests {
             prop_assert_eq!(s.matches + s.misses, s.ground_truth);
             prop_assert_eq!(s.matches + s.false_positives, hypotheses);
             prop_assert!(s.idtp <= s.ground_truth.min(hypotheses));
-            prop_assert!((0.0..=1.0).contains(&s.idf1));
-            prop_assert!(s.mota <= 1.0);
+            prop_assert!(s.idf1.is_nan() || (0.0..=1.0).contains(&s.idf1));
+            prop_assert!(s.mota.is_nan() || s.mota <= 1.0);
+            // IDTP is the most any one-to-one assignment of identities to tracks gets.
+            prop_assert_eq!(s.idtp, brute_force_idtp(&frames));
             prop_assert!(s.id_switches <= s.matches);
             let renamed: Vec<MotFrame> = frames
                 .iter()
@@ -329,7 +417,8 @@ mod tests {
                         .collect(),
                 })
                 .collect();
-            prop_assert_eq!(score(&renamed), s);
+            // (Debug, so that NaN scores compare equal.)
+            prop_assert_eq!(format!("{:?}", score(&renamed)), format!("{s:?}"));
         }
     }
 }

@@ -125,6 +125,23 @@ mod tests {
     use crate::Pose;
     use proptest::prelude::*;
 
+    /// OpenFace's own `Euler2RotationMatrix` (RotationHelpers.h), written out as it has it:
+    /// R = Rx·Ry·Rz of (pose_Rx, pose_Ry, pose_Rz).
+    fn openface_rotation([rx, ry, rz]: [f32; 3]) -> Matrix3<f32> {
+        let (s1, c1, s2, c2, s3, c3) = (rx.sin(), rx.cos(), ry.sin(), ry.cos(), rz.sin(), rz.cos());
+        Matrix3::new(
+            c2 * c3,
+            -c2 * s3,
+            s2,
+            c1 * s3 + c3 * s1 * s2,
+            c1 * c3 - s1 * s2 * s3,
+            -c2 * s1,
+            s1 * s3 - c1 * c3 * s2,
+            c3 * s1 + c1 * s2 * s3,
+            c1 * c2,
+        )
+    }
+
     proptest! {
         /// Through a pinhole, OpenFace's reading of a pose puts every model point where
         /// streampf's projection does: its rotation convention, the mirrored z and the
@@ -164,7 +181,12 @@ mod tests {
             let ours = Pose::new(&state);
             for p in &landmarks {
                 let want = ours.project_through(&Vector3::from(*p), &lens);
-                let got = camera.project(&openface_point(&pose, p, mm));
+                // OpenFace's model point (its z away from the camera), rotated by its own
+                // formula and moved by pose_T.
+                let model = Vector3::new(p[0], p[1], -p[2]) * mm;
+                let seen = openface_rotation(pose.rotation) * model + Vector3::from(pose.translation_mm);
+                prop_assert!((seen - openface_point(&pose, p, mm)).norm() < 1e-2);
+                let got = camera.project(&seen);
                 match (want, got) {
                     (Some(w), Some(g)) => prop_assert!(
                         (w.x - g[0]).abs() < 0.02 && (w.y - g[1]).abs() < 0.02,

@@ -23,9 +23,12 @@ pub fn mot_scores<'py>(
     let whole = |what: &str, v: i64| {
         u64::try_from(v).map_err(|_| value_error(format!("{what} must be >= 0, got {v}")))
     };
-    let finite = |what: &str, v: f64| match v.is_finite() {
+    // Finite as the f32 the scorer holds (1e39 is finite in f64, not in f32).
+    let finite = |what: &str, v: f64| match (v as f32).is_finite() {
         true => Ok(v as f32),
-        false => Err(value_error(format!("{what} must be finite, got {v}"))),
+        false => Err(value_error(format!(
+            "{what} must be finite (as an f32), got {v}"
+        ))),
     };
     for (frame, identity, x, y, radius) in truth {
         let face = TrueFace {

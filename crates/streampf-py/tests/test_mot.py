@@ -132,7 +132,9 @@ def reference(truth, hypotheses):
 
 
 def test_mot_scores_are_py_motmetrics_scores_on_fresh_random_runs():
-    rng = np.random.default_rng()
+    seed = int(np.random.default_rng().integers(2**63))
+    rng = np.random.default_rng(seed)
+    print(f"seed {seed}")  # a failure's output names its seed
     switches = 0
     for _ in range(12):
         truth, hypotheses = random_run(rng, int(rng.integers(1, 60)), int(rng.integers(1, 5)), int(rng.integers(1, 7)))
@@ -151,6 +153,8 @@ def test_mot_scores_are_py_motmetrics_scores_on_fresh_random_runs():
 def test_mot_scores_refuses_bad_rows():
     with pytest.raises(ValueError, match="finite"):
         streampf.mot_scores([(0, 0, float("nan"), 1.0, 5.0)], [])
+    with pytest.raises(ValueError, match="finite"):
+        streampf.mot_scores([(0, 0, 1.0, 1.0, 1e39)], [])
     with pytest.raises(ValueError, match="twice"):
         streampf.mot_scores([], [(0, 1, 1.0, 1.0), (0, 1, 2.0, 2.0)])
     with pytest.raises(ValueError, match=">= 0"):

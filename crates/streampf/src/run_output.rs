@@ -206,6 +206,16 @@ impl CsvStream {
     /// will be checked as the resumed run makes them again), later ones are dropped when the
     /// first new row is written. Reads the file and changes nothing.
     pub fn resume(path: &Path, header: &str, from: &ResumePoint) -> anyhow::Result<Self> {
+        Self::resume_numbered_from(path, header, from, 0)
+    }
+
+    /// [`Self::resume`] for a file whose frames are numbered from `first` (OpenFace's from 1).
+    pub fn resume_numbered_from(
+        path: &Path,
+        header: &str,
+        from: &ResumePoint,
+        first: usize,
+    ) -> anyhow::Result<Self> {
         let text = std::fs::read_to_string(path)
             .with_context(|| format!("--resume: reading {}", path.display()))?;
         if text.lines().next() != Some(header) {
@@ -217,8 +227,8 @@ impl CsvStream {
             .take_while(|l| {
                 l.split(',')
                     .next()
-                    .and_then(|f| f.parse::<usize>().ok())
-                    .is_some_and(|f| f < from.frame)
+                    .and_then(|f| f.trim().parse::<usize>().ok())
+                    .is_some_and(|f| f < from.frame + first)
             })
             .map(str::to_string)
             .collect();

@@ -154,7 +154,8 @@ pub struct FrameResult {
     /// The effective sample size after weighing (of the last annealing layer).
     pub ess: f64,
     /// The frame's log evidence, log p̂(frame | earlier frames) up to the likelihood's constant:
-    /// the filter's first weighing at β = 1; with islands, the log of the islands' mean evidence
+    /// the filter's first weighing at β = 1 (with coarse layers, of the first layer's subset of
+    /// the points); with islands, the log of the islands' mean evidence
     /// (`pf_core::islands::pooled_log_evidence`).
     pub log_evidence: f64,
     /// How much of the frame the estimated body explains, in [0, 1]: 1 − M / (I·τ²), M the sum

@@ -151,8 +151,9 @@ impl FaceSynthConfig {
     }
 
     /// A named ground-truth scenario for identities (`face synth --scenario`): four faces over
-    /// `frames` frames; the first walks out to the right at 15 % of the video and back in from
-    /// 40 %, faces 1 and 2 cross each other's path from 65 %.
+    /// `frames` frames; the first walks out to the right at 15 % of the video (30 px a frame:
+    /// out of the picture when the video has at least a tenth of the frame's width in frames)
+    /// and turns back at 40 %, faces 1 and 2 cross each other's path from 65 %.
     pub fn exits_and_crossings(mut self, frames: usize) -> Self {
         self.frames = frames;
         self.faces = 4;

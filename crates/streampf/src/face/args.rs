@@ -35,7 +35,7 @@ pub struct VideoArgs {
     #[arg(long, value_parser = field_of_view)]
     pub fov: Option<f32>,
     /// A named ground-truth scenario for identities, replacing --faces: `exits-and-crossings`,
-    /// four faces, the first walking out at 15 % of the video and back in from 40 %, two
+    /// four faces, the first walking out at 15 % of the video and turning back at 40 %, two
     /// crossing each other's path from 65 %. `face track --synthetic --scenario` finds the faces
     /// with the detector and prints IDF1, identity switches and MOTA (docs/ACCURACY.md).
     #[arg(long, value_enum)]

@@ -206,11 +206,14 @@ pub(super) fn open_input(args: &TrackArgs) -> anyhow::Result<Input> {
                     .collect()
             })
             .collect();
+        // A scenario's tracks are numbered as the detector finds them: track k is not face k,
+        // so no track is measured against a face (the run's identity scores match them).
+        let truth = args.video.scenario.is_none().then_some(truth);
         let source = Source::Synthetic {
             renderer: Box::new(FaceVideoRenderer::new(&config, &model()?)?),
             next: 0,
         };
-        return Ok((source, rects, Some(truth)));
+        return Ok((source, rects, truth));
     }
     if let Some(device) = &args.webcam {
         return Ok((webcam_source(device, &args.webcam_size)?, Vec::new(), None));

@@ -156,7 +156,12 @@ impl TrackRecord {
             .transpose()?;
         let openface = openface
             .map(|(lens, size)| {
-                let file = open(OPENFACE_FILE, &OpenFaceCsv::header())?;
+                // OpenFace counts frames from 1.
+                let (path, header) = (out.join(OPENFACE_FILE), OpenFaceCsv::header());
+                let file = match resume {
+                    Some(point) => CsvStream::resume_numbered_from(&path, &header, point, 1)?,
+                    None => CsvStream::create(&path, &header)?,
+                };
                 anyhow::Ok(OpenFaceCsv::new(file, lens, size))
             })
             .transpose()?;
