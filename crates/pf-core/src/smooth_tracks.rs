@@ -123,7 +123,7 @@ impl TrackSmoother {
             log_weights,
             vec![0.0; dims],
         )?;
-        let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular))
+        let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular)?)
             .iter()
             .map(|s| s.mean)
             .collect();
@@ -153,7 +153,7 @@ impl TrackSmoother {
         for (&track, first_values) in tracks.iter().zip(values) {
             let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
             let (first_frame, first) = entry.frames.pop_front().ok_or_else(lag_window)?;
-            rows.push(self.row(first_frame, track, &first, first_values));
+            rows.push(self.row(first_frame, track, &first, first_values)?);
         }
         Ok(rows)
     }
@@ -171,20 +171,26 @@ impl TrackSmoother {
         let mut rows = Vec::new();
         for ((track, w), track_values) in waiting.iter().zip(values) {
             for ((frame, cloud), v) in w.frames.iter().zip(track_values) {
-                rows.push(self.row(*frame, *track, cloud, v));
+                rows.push(self.row(*frame, *track, cloud, v)?);
             }
         }
         Ok(rows)
     }
 
     /// A row of smoothed `values`, the same particles' filtered summary beside them.
-    fn row(&self, frame: usize, track: usize, cloud: &Cloud, values: Vec<Summary>) -> SmoothedRow {
-        SmoothedRow {
+    fn row(
+        &self,
+        frame: usize,
+        track: usize,
+        cloud: &Cloud,
+        values: Vec<Summary>,
+    ) -> Result<SmoothedRow, PfError> {
+        Ok(SmoothedRow {
             frame,
             track,
             values,
-            filtered: summarise(cloud, &cloud.weights, &self.transition.angular),
-        }
+            filtered: summarise(cloud, &cloud.weights, &self.transition.angular)?,
+        })
     }
 }
 

@@ -102,7 +102,7 @@ fn the_marginal_smoother_matches_rauch_tung_striebel() {
             let (mean, var) = mean_and_variance(&clouds[t][k], &smoothed[k][t]);
             errors.push((mean - m) / sd);
             ratios.push(var / p);
-            let s = summarise(&clouds[t][k], &smoothed[k][t], &[false])[0];
+            let s = summarise(&clouds[t][k], &smoothed[k][t], &[false]).unwrap()[0];
             let end_errors = [
                 (f64::from(s.lower) - lower) / sd,
                 (f64::from(s.upper) - upper) / sd,

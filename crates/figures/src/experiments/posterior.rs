@@ -132,7 +132,7 @@ fn walk_panel() -> anyhow::Result<Panel> {
             .series_mut("observation", "observation")
             .points
             .push(Point::exact(t, y));
-        let summary = summarise(cloud, w, &[false])[0];
+        let summary = summarise(cloud, w, &[false])?[0];
         (panel
             .series_mut("particle smoother, 95 %", "smoothed")
             .points)

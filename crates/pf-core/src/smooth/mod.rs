@@ -22,6 +22,10 @@ use rayon::prelude::*;
 use crate::batch::wrap_angle_floor;
 use crate::error::PfError;
 
+mod summary;
+use summary::value_summary;
+pub use summary::{Summary, summarise, summarise_value};
+
 /// A target's number, its particles' states (`[d·M + m]`) and their normalised log-weights: what
 /// a tracker hands a smoother each frame.
 pub type TargetParticles = (usize, Vec<f32>, Vec<f32>);
@@ -72,7 +76,7 @@ impl Cloud {
         })
     }
 
-    fn particles(&self) -> usize {
+    pub(crate) fn particles(&self) -> usize {
         self.weights.len()
     }
 }
@@ -386,93 +390,6 @@ impl ValueSmoother for CpuSmoother {
     }
 }
 
-/// One value's posterior summary.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Summary {
-    /// The weighted mean (on the circle for an angle).
-    pub mean: f32,
-    /// The weighted 2.5 % quantile.
-    pub lower: f32,
-    /// The weighted 97.5 % quantile.
-    pub upper: f32,
-}
-
-/// The mean and 95 % credible interval of every dimension of `cloud` under `weights`. An angle's
-/// quantiles are taken on its differences from the circular mean (wrapped), so an interval
-/// across ±π stays narrow; its ends may lie outside [−π, π).
-pub fn summarise(cloud: &Cloud, weights: &[f64], angular: &[bool]) -> Vec<Summary> {
-    (0..cloud.drift.len())
-        .map(|d| value_summary(cloud, weights, angular, d))
-        .collect()
-}
-
-/// Value `d`'s summary alone (what [`summarise`] gives for it): a blocked smoother's value has
-/// weights of its own, so it is summarised on its own. An error names a value the cloud does not
-/// have or weights that are not one per particle.
-pub fn summarise_value(
-    cloud: &Cloud,
-    weights: &[f64],
-    angular: &[bool],
-    d: usize,
-) -> Result<Summary, PfError> {
-    let particles = cloud.particles();
-    if weights.len() != particles || cloud.states.len() < (d + 1) * particles {
-        return Err(PfError::InvalidConfig(format!(
-            "summarising value {d} of a cloud of {} states and {particles} particles with {} weights",
-            cloud.states.len(),
-            weights.len()
-        )));
-    }
-    Ok(value_summary(cloud, weights, angular, d))
-}
-
-/// [`summarise_value`] of a cloud already checked against its weights and values.
-fn value_summary(cloud: &Cloud, weights: &[f64], angular: &[bool], d: usize) -> Summary {
-    let particles = cloud.particles();
-    let xs = &cloud.states[d * particles..(d + 1) * particles];
-    let is_angle = angular.get(d).copied().unwrap_or(false);
-    let mean = if is_angle {
-        let (s, c) = xs.iter().zip(weights).fold((0.0, 0.0), |(s, c), (&x, &w)| {
-            (s + w * f64::from(x).sin(), c + w * f64::from(x).cos())
-        });
-        s.atan2(c)
-    } else {
-        xs.iter()
-            .zip(weights)
-            .map(|(&x, &w)| w * f64::from(x))
-            .sum()
-    };
-    let mut offsets: Vec<(f64, f64)> = (xs.iter().zip(weights))
-        .map(|(&x, &w)| {
-            let e = f64::from(x) - mean;
-            let e = if is_angle {
-                f64::from(wrap_angle_floor(e as f32))
-            } else {
-                e
-            };
-            (e, w)
-        })
-        .collect();
-    offsets.sort_by(|a, b| a.0.total_cmp(&b.0));
-    Summary {
-        mean: mean as f32,
-        lower: (mean + weighted_quantile(&offsets, 0.025)) as f32,
-        upper: (mean + weighted_quantile(&offsets, 0.975)) as f32,
-    }
-}
-
-/// The smallest value whose cumulative weight reaches `q` (values sorted, weights summing to 1).
-fn weighted_quantile(sorted: &[(f64, f64)], q: f64) -> f64 {
-    let mut cumulative = 0.0;
-    for &(value, weight) in sorted {
-        cumulative += weight;
-        if cumulative >= q {
-            return value;
-        }
-    }
-    sorted.last().map_or(f64::NAN, |&(value, _)| value)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -488,7 +405,7 @@ mod tests {
     #[test]
     fn a_weighted_quantile_and_an_angle_interval_across_pi() {
         let c = cloud(vec![3.1, -3.1, 3.0, -3.0], vec![0.25; 4], vec![0.0]);
-        let s = summarise(&c, &c.weights, &[true])[0];
+        let s = summarise(&c, &c.weights, &[true]).unwrap()[0];
         // The mean is π (or −π), the interval about ±0.14 around it, not the whole circle.
         assert!((s.mean.abs() - std::f32::consts::PI).abs() < 1e-4, "{s:?}");
         assert!(s.upper - s.lower < 0.3, "{s:?}");
@@ -497,7 +414,7 @@ mod tests {
             vec![0.1, 0.2, 0.3, 0.4],
             vec![0.0],
         );
-        let s = summarise(&line, &line.weights, &[false])[0];
+        let s = summarise(&line, &line.weights, &[false]).unwrap()[0];
         assert!((s.mean - 2.0).abs() < 1e-6);
         assert_eq!((s.lower, s.upper), (0.0, 3.0));
     }
@@ -563,10 +480,17 @@ mod tests {
         let w = &frames[0].weights;
         assert_eq!(
             summarise_value(&frames[0], w, &transition.angular, 1).unwrap(),
-            summarise(&frames[0], w, &transition.angular)[1]
+            summarise(&frames[0], w, &transition.angular).unwrap()[1]
         );
         assert!(summarise_value(&frames[0], w, &transition.angular, 2).is_err());
         assert!(summarise_value(&frames[0], &w[..2], &transition.angular, 0).is_err());
+        // A cloud whose states are not its drift's dimensions × its particles.
+        let short = Cloud {
+            drift: vec![0.0; 5],
+            ..frames[0].clone()
+        };
+        assert!(summarise(&short, w, &transition.angular).is_err());
+        assert!(summarise(&frames[0], &w[..2], &transition.angular).is_err());
     }
 
     #[test]
