@@ -58,6 +58,19 @@ fn run_with(skeleton: &Skeleton, backend: Backend, config: TrackerConfig, frames
     total / frames as f32
 }
 
+/// The test's tracker with six coarse layers of 250 points: about a quarter of these small
+/// frames' points (the default subset holds them whole).
+fn quarter_coarse() -> TrackerConfig {
+    TrackerConfig {
+        particles: PARTICLES,
+        coarse: Some(CoarseLayers {
+            points: 250,
+            layers: 6,
+        }),
+        ..TrackerConfig::default()
+    }
+}
+
 /// The tracker's and the flat filter's errors within the test's bounds.
 fn assert_tracks(what: &str, tracked: f32, flat: f32) {
     eprintln!("mean joint error, {what}: tracker {tracked:.4} m, flat likelihood {flat:.4} m");
@@ -79,14 +92,7 @@ fn tracks_synthetic_walk_on_cpu() {
     assert_tracks("CPU", tracked, flat);
     // Coarse layers that see a quarter of the points (the default subset is larger than these
     // small frames) still track.
-    let coarse = TrackerConfig {
-        particles: PARTICLES,
-        coarse: Some(CoarseLayers {
-            points: 250,
-            layers: 6,
-        }),
-        ..TrackerConfig::default()
-    };
+    let coarse = quarter_coarse();
     let coarse = run_with(&skeleton, Backend::Cpu, coarse, FRAMES);
     assert_tracks("CPU, six coarse layers of 250 points", coarse, flat);
 }
@@ -131,14 +137,7 @@ fn tracks_synthetic_walk_on_one_gpu_and_split_over_two_contexts() {
     let Some(coarse_context) = context() else {
         return;
     };
-    let coarse = TrackerConfig {
-        particles: PARTICLES,
-        coarse: Some(CoarseLayers {
-            points: 250,
-            layers: 6,
-        }),
-        ..TrackerConfig::default()
-    };
+    let coarse = quarter_coarse();
     let coarse = run_with(
         &skeleton,
         Backend::Gpu(Box::new(coarse_context)),
