@@ -2,9 +2,12 @@
 //! (the initialisation thread) on every n-th frame while the caller's thread tracks. A detection
 //! that overlaps no running track starts a new one (its template extracted from the frame the
 //! detector saw); a detection on a running track whose ε is above the failure level restarts
-//! that track there (same number: the detector pulls a drifting track back onto the face); a lost
+//! that track there if it frames the face at about the track's size (same number: the
+//! detector pulls a drifting track back onto the face); a lost
 //! track frees its slot, so the face can be found again. Detections whose template shows too
-//! little contrast to be a face (dark or flat regions) are ignored.
+//! little contrast to be a face (dark or flat regions) are ignored. At a scene cut
+//! ([`crate::scene_cut`]) the cut's first frame goes to the detector whatever the period, and
+//! the tracks it does not find again (at their place and about their size) end there.
 //!
 //! Live (no `detection_delay`), the detector never holds up tracking: its results are taken when
 //! they are ready, and a new frame is handed to it only when it is idle. With a delay of d frames
@@ -23,6 +26,7 @@ use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
 use crate::model::FaceModel;
+use crate::scene_cut::{PendingCut, SceneCuts};
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
@@ -51,6 +55,9 @@ pub struct AutoConfig {
     /// the first detection starts a track). Faces stay put between runs; false detections on
     /// clutter rarely repeat.
     pub confirmations: usize,
+    /// A gray-level histogram change from one frame to the next above this marks a scene cut
+    /// ([`crate::scene_cut`]); `None`: cuts are not looked for.
+    pub scene_cut: Option<f32>,
     pub tracker: FaceTrackerConfig,
 }
 
@@ -64,6 +71,7 @@ impl Default for AutoConfig {
             rect_width_share: 0.8,
             min_template_contrast: 40.0,
             confirmations: 2,
+            scene_cut: Some(crate::scene_cut::DEFAULT_SCENE_CUT),
             tracker: FaceTrackerConfig::default(),
         }
     }
@@ -75,6 +83,12 @@ impl AutoConfig {
             return Err(FaceError::InvalidInput(format!(
                 "detection needs a period of at least one frame, room for a face and at least one confirmation (got every {} frames, {} faces, {} confirmations)",
                 self.detect_every, self.max_faces, self.confirmations
+            )));
+        }
+        if self.scene_cut.is_some_and(|t| !(t > 0.0 && t < 2.0)) {
+            return Err(FaceError::InvalidInput(format!(
+                "a scene cut's histogram change must be within (0, 2) (0 the same, 2 disjoint), got {:?}",
+                self.scene_cut
             )));
         }
         if !(self.min_template_contrast.is_finite() && self.min_template_contrast >= 0.0) {
@@ -121,6 +135,18 @@ pub fn same_face(a: &FaceRect, b: &FaceRect) -> bool {
         x >= r.x && x <= r.x + r.width && y >= r.y && y <= r.y + r.height
     };
     inside(a, b.centre()) || inside(b, a.centre())
+}
+
+/// A face is at most this many times larger or smaller than its track when a detection
+/// restarts the track or finds it again after a scene cut: a face does not change its size
+/// from one detector run to the next, where a false detection on part of a face (an eye and a
+/// brow) or a new shot's face at the same place are framed otherwise.
+pub const MAX_SIZE_CHANGE: f32 = 1.5;
+
+/// [`same_face`], and the detection `b` within [`MAX_SIZE_CHANGE`] of track `a`'s width.
+pub fn same_face_and_size(a: &FaceRect, b: &FaceRect) -> bool {
+    let ratio = b.width / a.width;
+    same_face(a, b) && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
 }
 
 /// A frame handed to the detector, and what it found there.
@@ -268,6 +294,11 @@ pub struct AutoFrame {
     /// Detections used this frame that were already tracked well, had no free slot, or were
     /// not a trackable face.
     pub ignored: usize,
+    /// Whether this frame starts a new shot (a scene cut).
+    pub scene_cut: bool,
+    /// Tracks ended before this frame's step because the detection after a cut did not find
+    /// their faces again (reported lost by this frame's step).
+    pub ended: Vec<usize>,
 }
 
 /// A tracker fed by a detector thread.
@@ -282,6 +313,12 @@ pub struct AutoTracker {
     tracked: Vec<(usize, FaceRect, f64)>,
     /// Untracked faces of the last detector run, and in how many runs in a row they were seen.
     candidates: Vec<(FaceRect, usize)>,
+    cuts: Option<SceneCuts>,
+    /// The tracks of the last cut, until a detection from its first frame on decides them.
+    pending_cut: Option<PendingCut>,
+    /// The frames that started a new shot so far, and how many tracks ended at them.
+    cuts_seen: Vec<usize>,
+    ended_at_cuts: usize,
 }
 
 impl AutoTracker {
@@ -309,6 +346,7 @@ impl AutoTracker {
         let detector_used = Arc::new(detector.into());
         let detector =
             Detectors::spawn(Arc::clone(&detector_used), config.detect.clone(), threads)?;
+        let cuts = config.scene_cut.map(SceneCuts::new);
         Ok(Self {
             config,
             tracker,
@@ -317,6 +355,10 @@ impl AutoTracker {
             frame_index: 0,
             tracked: Vec::new(),
             candidates: Vec::new(),
+            cuts,
+            pending_cut: None,
+            cuts_seen: Vec::new(),
+            ended_at_cuts: 0,
         })
     }
 
@@ -328,6 +370,12 @@ impl AutoTracker {
     /// ([`FaceDetector::fallback`]).
     pub fn detector_fallback(&self) -> Option<String> {
         self.detector_used.fallback()
+    }
+
+    /// The frames that started a new shot so far ([`AutoConfig::scene_cut`]), and how many
+    /// tracks ended at them because the detector did not find their faces again.
+    pub fn scene_cuts(&self) -> (&[usize], usize) {
+        (&self.cuts_seen, self.ended_at_cuts)
     }
 
     /// See [`FaceTracker::set_personaliser`].
@@ -355,14 +403,26 @@ impl AutoTracker {
         let faces = result.faces?;
         let failing = f64::from(self.config.tracker.failure_error);
         let mut candidates = Vec::new();
+        let mut found_after_cut = Vec::new();
         for d in &faces {
             let rect = self.config.face_rect(d, &result.frame);
+            if let Some(cut) = &self.pending_cut {
+                (cut.unconfirmed.iter())
+                    .filter(|(_, at_cut)| same_face_and_size(at_cut, &rect))
+                    .for_each(|&(track, _)| found_after_cut.push(track));
+            }
             let on_track = self.tracked.iter().position(|t| same_face(&t.1, &rect));
             if on_track.is_some_and(|i| self.tracked[i].2 <= failing) {
                 out.ignored += 1;
                 continue;
             }
             if let Some(i) = on_track {
+                // A restart needs the face at the track's size: a false detection on part of
+                // the face would pull the track onto an eye or the forehead.
+                if !same_face_and_size(&self.tracked[i].1, &rect) {
+                    out.ignored += 1;
+                    continue;
+                }
                 let track = self.tracked[i].0;
                 // The new template is taken with the face seen as the track has it.
                 let restart = (self.tracker)
@@ -392,12 +452,64 @@ impl AutoTracker {
             } else if self.tracker.free_slots() == 0 {
                 out.ignored += 1;
             } else {
-                let track = self.tracker.add_template(&rect, template)?;
+                let track = self.tracker.add_template(&result.frame, &rect, template)?;
                 self.tracked.push((track, rect, 0.0));
                 out.started.push((track, rect, result.frame_index));
             }
         }
         self.candidates = candidates;
+        self.end_unfound_after_cut(result.frame_index, &found_after_cut, out)
+    }
+
+    /// Ends the tracks of a pending cut that a detection of `frame_index` (the cut's first
+    /// frame or later) did not find again.
+    fn end_unfound_after_cut(
+        &mut self,
+        frame_index: usize,
+        found: &[usize],
+        out: &mut AutoFrame,
+    ) -> Result<(), FaceError> {
+        let Some(cut) = self.pending_cut.take_if(|cut| frame_index >= cut.frame) else {
+            return Ok(());
+        };
+        for (track, _) in cut.unconfirmed {
+            if !found.contains(&track) && self.tracker.is_running(track) {
+                self.tracker.end_track(track)?;
+                out.ended.push(track);
+                self.ended_at_cuts += 1;
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether `frame` starts a new shot; if so, the running tracks wait for the detector to
+    /// find their faces again, and the untracked candidates of the last shot are dropped.
+    fn look_for_cut(&mut self, frame: &GrayImage) -> bool {
+        if !self.cuts.as_mut().is_some_and(|cuts| cuts.is_cut(frame)) {
+            return false;
+        }
+        self.pending_cut = Some(PendingCut {
+            frame: self.frame_index,
+            sent: false,
+            unconfirmed: self.tracked.iter().map(|t| (t.0, t.1)).collect(),
+        });
+        self.candidates.clear();
+        self.cuts_seen.push(self.frame_index);
+        true
+    }
+
+    /// Whether this frame goes to the detector: its period, or a cut's frame not yet sent.
+    fn detect_now(&self) -> bool {
+        self.frame_index.is_multiple_of(self.config.detect_every)
+            || self.pending_cut.as_ref().is_some_and(|cut| !cut.sent)
+    }
+
+    fn send(&mut self, frame: &GrayImage) -> Result<(), FaceError> {
+        self.detector
+            .send(self.frame_index, Arc::new(frame.clone()))?;
+        if let Some(cut) = &mut self.pending_cut {
+            cut.sent = true;
+        }
         Ok(())
     }
 
@@ -427,22 +539,23 @@ impl AutoTracker {
             started: Vec::new(),
             restarted: Vec::new(),
             ignored: 0,
+            scene_cut: false,
+            ended: Vec::new(),
         };
-        let period = self.frame_index.is_multiple_of(self.config.detect_every);
+        out.scene_cut = self.look_for_cut(frame);
         match self.config.detection_delay {
             None => {
+                // A detection of a frame before the cut does not decide the cut's tracks.
                 if let Some(result) = self.detector.take_ready()? {
                     self.use_detection(result, &mut out)?;
                 }
-                if period && self.detector.idle() {
-                    self.detector
-                        .send(self.frame_index, Arc::new(frame.clone()))?;
+                if self.detect_now() && self.detector.idle() {
+                    self.send(frame)?;
                 }
             }
             Some(delay) => {
-                if period {
-                    self.detector
-                        .send(self.frame_index, Arc::new(frame.clone()))?;
+                if self.detect_now() {
+                    self.send(frame)?;
                 }
                 if let Some(due) = self.frame_index.checked_sub(delay)
                     && let Some(result) = self.detector.take_frame(due)?
@@ -460,5 +573,41 @@ impl AutoTracker {
             .collect();
         self.frame_index += 1;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_face_is_the_same_at_its_place_and_about_its_size() {
+        let track = FaceRect {
+            x: 100.0,
+            y: 100.0,
+            width: 80.0,
+            height: 96.0,
+        };
+        let moved = FaceRect {
+            x: 110.0,
+            y: 95.0,
+            width: 100.0,
+            height: 120.0,
+        };
+        assert!(same_face_and_size(&track, &moved));
+        let larger = FaceRect {
+            x: 60.0,
+            y: 60.0,
+            width: 160.0,
+            height: 192.0,
+        };
+        assert!(same_face(&track, &larger) && !same_face_and_size(&track, &larger));
+        let elsewhere = FaceRect {
+            x: 300.0,
+            y: 100.0,
+            width: 80.0,
+            height: 96.0,
+        };
+        assert!(!same_face_and_size(&track, &elsewhere));
     }
 }

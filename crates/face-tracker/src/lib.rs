@@ -36,6 +36,7 @@ pub mod mot;
 pub mod openface;
 pub mod personal;
 pub mod projection;
+pub mod scene_cut;
 pub mod synth;
 pub mod template;
 pub mod tracker;

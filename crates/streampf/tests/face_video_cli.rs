@@ -243,6 +243,83 @@ fn finds_and_keeps_both_faces_of_the_first_shot_of_megamind() {
     std::fs::remove_dir_all(&out).unwrap();
 }
 
+/// Megamind.avi cuts from its first shot (the woman, a man behind her) to a close-up of another
+/// man at frame 98. The tracks of the first shot end at the cut (the detector does not find
+/// their faces again there); with `--scene-cut off` a track of the first shot goes on into the
+/// second, on whatever its template fits there.
+#[test]
+fn tracks_end_at_a_scene_cut_unless_found_again() {
+    if opted_out("face track on Megamind.avi across a cut") {
+        return;
+    }
+    assert!(
+        Path::new(MEGAMIND).is_file(),
+        "{MEGAMIND} is missing; {HELP}"
+    );
+    let run = |scene_cut: &str| {
+        let out = scratch(&format!("megamind-cut-{scene_cut}"));
+        let text = ok(&streampf(&[
+            "face",
+            "track",
+            MEGAMIND,
+            "--max-frames",
+            "115",
+            "--particles",
+            "300",
+            "--scene-cut",
+            scene_cut,
+            "--out",
+            out.to_str().unwrap(),
+            "--backend",
+            "cpu",
+        ]));
+        let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+        let rows: Vec<(usize, String, String)> = (states.lines().skip(1))
+            .map(|l| {
+                let r: Vec<&str> = l.split(',').collect();
+                (r[0].parse().unwrap(), r[2].to_owned(), r[4].to_owned())
+            })
+            .collect();
+        (text, rows)
+    };
+    let (text, rows) = run("0.25");
+    // The black first frame's fade-in may count as a cut too (no track runs there).
+    let cuts = (text.lines())
+        .find_map(|l| l.strip_prefix("scene cuts at frames "))
+        .and_then(|l| l.split(':').next())
+        .unwrap_or_else(|| panic!("no scene cuts reported: {text}"));
+    assert!(cuts.split(", ").any(|f| f == "98"), "{text}");
+    let before_cut: Vec<&String> = (rows.iter())
+        .filter(|(frame, _, status)| *frame == 97 && status == "tracking")
+        .map(|(_, track, _)| track)
+        .collect();
+    assert!(!before_cut.is_empty(), "{rows:?}");
+    for track in &before_cut {
+        let last = rows.iter().rev().find(|(_, t, _)| t == *track).unwrap();
+        assert!(
+            last.2.starts_with("lost@") && (98..=99).contains(&last.0),
+            "track {track} ends at {last:?}"
+        );
+    }
+    let (_, rows) = run("off");
+    let carried_over = (rows.iter())
+        .filter(|(frame, _, status)| *frame == 114 && status == "tracking")
+        .any(|(_, track, _)| {
+            rows.iter()
+                .any(|(frame, t, s)| *frame == 97 && t == track && s == "tracking")
+        });
+    assert!(carried_over, "{rows:?}");
+    let refused = failure(&streampf(&[
+        "face",
+        "track",
+        MEGAMIND,
+        "--scene-cut",
+        "2.5",
+    ]));
+    assert!(refused.contains("below 2"), "{refused}");
+}
+
 /// A face that appears late: every frame has a row (no face yet: `success` 0, status `none`, the
 /// estimate's columns empty), the timestamps follow the frame rate (25 frames/s for a directory
 /// of images), and once the detector has found the face its rows are tracked with a confidence

@@ -117,6 +117,44 @@ fn head_pose_on_a_real_talking_face_follows_the_reference() {
     assert!((0.9..=1.5).contains(&yaw_ratio), "yaw spread {yaw_ratio}");
 }
 
+/// `tools/on_face_check.py` on the default run: the track sits on the face the mesh finds
+/// (measured: 100 % of the rows on its middle half, 95 % of the frames' faces carrying a track,
+/// the first six frames being before the detector's second run), and its confidence never reads
+/// 0 (measured at least 0.6).
+#[test]
+fn the_track_sits_on_the_face_the_mesh_finds() {
+    let Some(out) = track_carphone("carphone-on-face", &[]) else {
+        return;
+    };
+    let python = workspace().join("target/media/pose-venv/bin/python3");
+    let json = out.join("on_face.json");
+    let check = Command::new(&python)
+        .arg(workspace().join("tools/on_face_check.py"))
+        .arg(carphone())
+        .arg(out.join("states.csv"))
+        .arg("--json")
+        .arg(&json)
+        .output()
+        .unwrap_or_else(|e| panic!("{}: {e}; {HELP}", python.display()));
+    assert!(
+        check.status.success(),
+        "on_face_check.py failed ({HELP}):\n{}{}",
+        String::from_utf8_lossy(&check.stdout),
+        String::from_utf8_lossy(&check.stderr)
+    );
+    let result: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let share = |key: &str| {
+        result[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key}: {result}"))
+    };
+    assert!(share("tracking_rows") >= 100.0, "{result}");
+    assert!(share("on_face") >= 0.95, "{result}");
+    assert!(share("faces_carrying_a_track") >= 0.9, "{result}");
+    assert_eq!(share("confidence_zero"), 0.0, "{result}");
+}
+
 #[test]
 fn a_video_gets_the_photographed_face_model_which_turns_as_far_as_the_head() {
     let Some(default) = track_carphone("carphone-default", &[]) else {

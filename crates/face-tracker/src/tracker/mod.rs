@@ -143,7 +143,8 @@ impl Default for FaceTrackerConfig {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TrackStatus {
     Tracking,
-    /// Ended at this frame (the estimate's ε stayed too high, or the face left the frame). The
+    /// Ended at this frame (the estimate's ε stayed too high, the face left the frame, or the
+    /// caller ended it: [`FaceTracker::end_track`], after a scene cut). The
     /// track is reported once with this status; its slot is then free for a new face.
     Lost {
         frame: usize,
@@ -170,9 +171,11 @@ pub struct FaceEstimate {
     /// Summed over a track's frames it compares models (a field of view, a template) on the
     /// same frames; −∞ when no particle fitted.
     pub log_evidence: f64,
-    /// How well the estimate fits, in [0, 1]: 1 − ε / `failure_error`, clamped. 1 is a perfect
-    /// fit; 0 means ε is at or above the failure threshold, so a track's confidence is 0 for
-    /// its last `failure_frames` frames before it is declared lost.
+    /// Whether the track is on its face, in [0, 1]: 1 − ε / ε_off, clamped, where ε_off is the
+    /// template's fit a quarter of a face to the side of its face in the frame it was taken
+    /// from (four sides, mean). 1 is a perfect fit; 0 a fit no better than the template's off
+    /// its face. Unlike ε it compares across faces: a small or blurred face's smooth template
+    /// fits background with a small ε too.
     pub confidence: f32,
     pub status: TrackStatus,
     /// The face's rectangle at this estimate: the starting rectangle scaled by S about the
@@ -186,10 +189,26 @@ struct Track {
     template: Template,
     /// The rectangle the track started from (a restart keeps it: S stays relative to it).
     start: FaceRect,
+    /// The template's ε off its face in the frame it was taken from (`off_face_error`): the
+    /// confidence's scale.
+    off_face_error: f64,
     bad_frames: usize,
+    /// Ended from outside ([`FaceTracker::end_track`]): reported lost at the next step.
+    ending: bool,
     /// The last [`RECENT_ESTIMATES`] estimates (frame, state), oldest first: a restart poses
     /// its new template in the estimate of the frame the template was taken from.
     recent: VecDeque<(usize, [f32; DIMS])>,
+}
+
+impl Track {
+    /// [`FaceEstimate::confidence`] of a fit with ε `error`.
+    fn confidence(&self, error: f64) -> f32 {
+        if self.off_face_error > 0.0 {
+            (1.0 - error / self.off_face_error).clamp(0.0, 1.0) as f32
+        } else {
+            0.0
+        }
+    }
 }
 
 /// Several faces, each its own particle filter in a slot of one batch. Faces can be added while
@@ -518,18 +537,19 @@ impl FaceTracker {
             };
             let outside = !(0.0..frame_width as f32).contains(&state[TX])
                 || !(0.0..frame_height as f32).contains(&state[TY]);
-            let status = if outside || track.bad_frames >= self.config.failure_frames {
-                TrackStatus::Lost {
-                    frame: self.frame_index,
-                }
-            } else {
-                TrackStatus::Tracking
-            };
+            let status =
+                if outside || track.ending || track.bad_frames >= self.config.failure_frames {
+                    TrackStatus::Lost {
+                        frame: self.frame_index,
+                    }
+                } else {
+                    TrackStatus::Tracking
+                };
             let (w, h) = (
                 track.start.width * state[SCALE],
                 track.start.height * state[SCALE],
             );
-            let confidence = (1.0 - error / f64::from(self.config.failure_error)).clamp(0.0, 1.0);
+            let confidence = track.confidence(error);
             out.push(FaceEstimate {
                 track: track.id,
                 slot,
@@ -538,7 +558,7 @@ impl FaceTracker {
                 spread: std::array::from_fn(|d| spreads[slot * DIMS + d]),
                 ess: ess[slot],
                 log_evidence: log_evidence[slot],
-                confidence: confidence as f32,
+                confidence,
                 status,
                 rect: FaceRect {
                     x: state[TX] - w / 2.0,

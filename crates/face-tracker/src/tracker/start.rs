@@ -1,6 +1,7 @@
 //! Starting tracks: a new face in a free slot, or a running track afresh on a new template
 //! (a restart keeps the track's pose), and the templates they start from (extracted on the
-//! face model, personalised to the face's landmarks when a personaliser is set).
+//! face model, personalised to the face's landmarks when a personaliser is set); and ending a
+//! track from outside.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
@@ -13,8 +14,9 @@ use crate::error::FaceError;
 use crate::extraction::{FaceRect, extract_template_seen, eye_outlines};
 use crate::image::GrayImage;
 use crate::landmarks::Landmarks;
+use crate::likelihood::residual_error_through;
 use crate::personal::Personaliser;
-use crate::projection::{DIMS, RX, RY, RZ, SCALE, rotation};
+use crate::projection::{DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
 use crate::template::Template;
 use crate::view::View;
 
@@ -37,12 +39,21 @@ impl Track {
 pub struct Restart {
     template: Template,
     mean: [f32; DIMS],
+    off_face_error: f64,
 }
 
 impl Restart {
     pub fn template(&self) -> &Template {
         &self.template
     }
+}
+
+/// Where a track (re)starts: the rectangle its S is relative to, the state its particles start
+/// around, and its template's fit off the face there ([`FaceTracker::off_face_error`]).
+struct Start {
+    rect: FaceRect,
+    mean: [f32; DIMS],
+    off_face_error: f64,
 }
 
 fn not_running(track: usize) -> FaceError {
@@ -61,12 +72,14 @@ impl FaceTracker {
     /// The next `step` is the track's first.
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
         let template = self.extract(frame, rect)?;
-        self.add_template(rect, template)
+        self.add_template(frame, rect, template)
     }
 
-    /// `add_face` with the template already extracted from `rect` (by [`Self::extract`]).
+    /// `add_face` with the template already extracted from `rect` of `frame` (by
+    /// [`Self::extract`]).
     pub fn add_template(
         &mut self,
+        frame: &GrayImage,
         rect: &FaceRect,
         template: Template,
     ) -> Result<usize, FaceError> {
@@ -77,7 +90,14 @@ impl FaceTracker {
             ))
         })?;
         let id = self.next_track;
-        self.start_in_slot(slot, id, *rect, fresh_state(rect), template)?;
+        let mean = fresh_state(rect);
+        let off_face_error = self.off_face_error(frame, &template, &mean, rect);
+        let start = Start {
+            rect: *rect,
+            mean,
+            off_face_error,
+        };
+        self.start_in_slot(slot, id, start, template)?;
         self.next_track += 1;
         Ok(id)
     }
@@ -114,15 +134,65 @@ impl FaceTracker {
             None => (fresh_state(rect), View::frontal()),
         };
         let template = self.extract_seen(frame, rect, &view)?.0;
-        Ok(Restart { template, mean })
+        let off_face_error = self.off_face_error(frame, &template, &mean, rect);
+        Ok(Restart {
+            template,
+            mean,
+            off_face_error,
+        })
+    }
+
+    /// How well `template` fits its own frame off its face: the mean ε with the template a
+    /// quarter of `rect`'s width or height to each side of `state` (its pose in `frame`). A
+    /// track's confidence measures its fit against this: ε alone does not tell a face from
+    /// background, since a small or blurred face's smooth template fits flat background about
+    /// as well as it fits the face (docs/ACCURACY.md, "Tracks on faces").
+    fn off_face_error(
+        &self,
+        frame: &GrayImage,
+        template: &Template,
+        state: &[f32; DIMS],
+        rect: &FaceRect,
+    ) -> f64 {
+        let (dx, dy) = (rect.width / 4.0, rect.height / 4.0);
+        let shifts = [(dx, 0.0), (-dx, 0.0), (0.0, dy), (0.0, -dy)];
+        let sum: f64 = (shifts.iter())
+            .map(|&(x, y)| {
+                let mut shifted = *state;
+                shifted[TX] += x;
+                shifted[TY] += y;
+                residual_error_through(&shifted, template, frame, &self.lens)
+            })
+            .sum();
+        sum / shifts.len() as f64
     }
 
     /// Starts running track `track` afresh from `restart` ([`Self::template_for_restart`]):
     /// new particles, the same number, S still relative to the rectangle it started from.
     pub fn restart_template(&mut self, track: usize, restart: Restart) -> Result<(), FaceError> {
         let slot = self.slot_of(track)?;
-        let start = self.running(track)?.start;
-        self.start_in_slot(slot, track, start, restart.mean, restart.template)
+        let start = Start {
+            rect: self.running(track)?.start,
+            mean: restart.mean,
+            off_face_error: restart.off_face_error,
+        };
+        self.start_in_slot(slot, track, start, restart.template)
+    }
+
+    /// Ends running track `track`: its next step reports it lost (`TrackStatus::Lost`) and
+    /// frees its slot. For a caller that knows the face is gone (a scene cut after which the
+    /// detector does not find it again).
+    pub fn end_track(&mut self, track: usize) -> Result<(), FaceError> {
+        let slot = self.slot_of(track)?;
+        if let Some(running) = &mut self.slots[slot] {
+            running.ending = true;
+        }
+        Ok(())
+    }
+
+    /// Whether track `track` is running (started and not yet reported lost).
+    pub fn is_running(&self, track: usize) -> bool {
+        self.running(track).is_ok()
     }
 
     fn slot_of(&self, track: usize) -> Result<usize, FaceError> {
@@ -229,14 +299,13 @@ impl FaceTracker {
         )
     }
 
-    /// Puts a fresh particle cloud around `rect` and `template` in `slot`, as track `track`.
-    /// Starts `track` in `slot`: its particles around `mean`, S relative to `start`.
+    /// Starts `track` in `slot` on `template`: its particles around `start.mean`, S relative
+    /// to `start.rect`.
     fn start_in_slot(
         &mut self,
         slot: usize,
         track: usize,
-        start: FaceRect,
-        mean: [f32; DIMS],
+        start: Start,
         template: Template,
     ) -> Result<(), FaceError> {
         self.check_nothing_in_flight("a face is started or restarted")?;
@@ -246,7 +315,7 @@ impl FaceTracker {
         let cloud = gaussian_clouds(
             &shape,
             self.config.seed ^ key,
-            &mean,
+            &start.mean,
             &self.config.diffusion,
         );
         let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
@@ -255,8 +324,10 @@ impl FaceTracker {
         self.slots[slot] = Some(Track {
             id: track,
             template,
-            start,
+            start: start.rect,
+            off_face_error: start.off_face_error,
             bad_frames: 0,
+            ending: false,
             recent: VecDeque::with_capacity(RECENT_ESTIMATES),
         });
         Ok(())

@@ -92,6 +92,36 @@ pub(super) fn failure_error(text: &str) -> Result<f32, String> {
     }
 }
 
+/// `--scene-cut`: a histogram change within (0, 2), or `off`.
+pub(super) fn scene_cut(text: &str) -> Result<SceneCutArg, String> {
+    if text == "off" {
+        return Ok(SceneCutArg(None));
+    }
+    let value: f32 = text
+        .parse()
+        .map_err(|e| format!("{text}: give a number or `off` ({e})"))?;
+    if value > 0.0 && value < 2.0 {
+        Ok(SceneCutArg(Some(value)))
+    } else {
+        Err(format!(
+            "{value}: give a histogram change above 0 and below 2 (0 the same levels, 2 none in common), or `off`"
+        ))
+    }
+}
+
+/// `--scene-cut`'s value: a threshold, or `None` for `off`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SceneCutArg(pub Option<f32>);
+
+impl std::fmt::Display for SceneCutArg {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self.0 {
+            Some(threshold) => write!(f, "{threshold}"),
+            None => f.write_str("off"),
+        }
+    }
+}
+
 /// `--fov`: degrees, within `Lens::FIELD_OF_VIEW`.
 pub(super) fn field_of_view(text: &str) -> Result<f32, String> {
     let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
@@ -233,6 +263,13 @@ pub struct TrackArgs {
     /// The smallest face the detector looks for, in pixels.
     #[arg(long, default_value_t = 40, value_parser = clap::value_parser!(u32).range(8..=8192))]
     pub min_face: u32,
+    /// A scene cut is a frame whose gray-level histogram changed by more than this (L1 distance
+    /// of the levels' shares: 0 the same, 2 none in common) since the frame before. The cut's
+    /// first frame goes to the detector, and the tracks it does not find again (at their place,
+    /// at about their size) end there: a track does not carry over to another shot's background.
+    /// `off`: cuts are not looked for.
+    #[arg(long, default_value_t = SceneCutArg(Some(face_tracker::scene_cut::DEFAULT_SCENE_CUT)), value_parser = scene_cut, value_name = "CHANGE|off")]
+    pub scene_cut: SceneCutArg,
     /// Faces tracked at once (default 8 with the detector; rectangles given with --face or
     /// faces.csv may not exceed it when it is given).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]

@@ -15,6 +15,27 @@ use face_tracker::{
 };
 use std::sync::Arc;
 
+/// The detecting tracker's settings from the command line.
+fn auto_config(args: &TrackArgs, tracker: FaceTrackerConfig, rects: usize) -> AutoConfig {
+    AutoConfig {
+        detect_every: args.detect_every as usize,
+        detect: DetectConfig {
+            min_size: args.min_face,
+            ..DetectConfig::default()
+        },
+        max_faces: (args.max_faces.unwrap_or(DEFAULT_MAX_FACES) as usize).max(rects),
+        // A file waits for each detection at its fixed delay (runs repeat); a camera never
+        // waits for it.
+        detection_delay: args
+            .webcam
+            .is_none()
+            .then_some(args.detection_delay as usize),
+        scene_cut: args.scene_cut.0,
+        tracker,
+        ..AutoConfig::default()
+    }
+}
+
 /// A frame's estimates and the detections that started or restarted tracks before it.
 pub(super) type StepOutcome = (Vec<FaceEstimate>, Vec<(usize, FaceRect, bool)>);
 
@@ -107,22 +128,7 @@ pub(super) fn build_runner(
     };
     let mut runner = match detector {
         Some(detector) => {
-            let auto = AutoConfig {
-                detect_every: args.detect_every as usize,
-                detect: DetectConfig {
-                    min_size: args.min_face,
-                    ..DetectConfig::default()
-                },
-                max_faces: (args.max_faces.unwrap_or(DEFAULT_MAX_FACES) as usize).max(rects.len()),
-                // A file waits for each detection at its fixed delay (runs repeat); a camera
-                // never waits for it.
-                detection_delay: args
-                    .webcam
-                    .is_none()
-                    .then_some(args.detection_delay as usize),
-                tracker: config,
-                ..AutoConfig::default()
-            };
+            let auto = auto_config(args, config, rects.len());
             Runner::Auto(Box::new(AutoTracker::new(
                 size,
                 detector,

@@ -133,6 +133,21 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
 
 /// The input, its faces' rectangles (`--face` before the input's own) and its ground truth,
 /// with every check that needs no output directory done first.
+/// What the detecting tracker says at the end of a run: the scene cuts it saw, and whether the
+/// detector's GPU failed.
+fn detector_summary(auto: &face_tracker::AutoTracker) {
+    if let (cuts @ [_, ..], ended) = auto.scene_cuts() {
+        let frames: Vec<String> = cuts.iter().map(usize::to_string).collect();
+        outln!(
+            "scene cuts at frames {}: {ended} tracks ended there (the detector did not find their faces again)",
+            frames.join(", ")
+        );
+    }
+    if let Some(why) = auto.detector_fallback() {
+        errln!("warning: the detector's GPU failed ({why}); it ran on the CPU from then on");
+    }
+}
+
 fn checked_input(args: &TrackArgs) -> anyhow::Result<Input> {
     let (source, mut rects, truth) = open_input(args)?;
     if !args.faces_at.is_empty() {
@@ -404,10 +419,8 @@ impl FaceRun<'_> {
         if let Some(scoring) = &self.scoring {
             scoring.summary();
         }
-        if let Runner::Auto(auto) = runner
-            && let Some(why) = auto.detector_fallback()
-        {
-            errln!("warning: the detector's GPU failed ({why}); it ran on the CPU from then on");
+        if let Runner::Auto(auto) = runner {
+            detector_summary(auto);
         }
         match end {
             LoopEnd::Failed(e) => {
