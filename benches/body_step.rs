@@ -11,7 +11,9 @@
 //! same with two steps in flight on the GPU (frame t − 1 read while the GPU works on frame t). The step is the paper's: one
 //! weighing a frame (`Annealing::none()`); `gpu_annealed_default` times the tracker's default,
 //! eight annealing layers (the first seven coarse: at most 5 000 of the frame's points), on the
-//! GPU, and `gpu_annealed_every_point` the same layers each weighing every point.
+//! GPU (one frame at a time, and as a stream with two steps in flight:
+//! `gpu_annealed_two_steps_in_flight`), and `gpu_annealed_every_point` the same layers each
+//! weighing every point.
 
 mod common;
 
@@ -182,6 +184,11 @@ fn bench(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("gpu_annealed_default", &label), |b| {
             b.iter(|| std::hint::black_box(annealed.step(&points).unwrap()))
         });
+        report_gpu_share(&mut annealed, &points, &format!("{label}_annealed"));
+        group.bench_function(
+            BenchmarkId::new("gpu_annealed_two_steps_in_flight", &label),
+            |b| b.iter_custom(|frames| frames_in_flight(&mut annealed, &points, frames, true)),
+        );
         drop(annealed);
         let mut every_point = tracker_with(
             j,
