@@ -263,6 +263,18 @@ fn extraction_puts_dipoles_across_edges_and_keeps_points_apart() {
     let rect = face_tracker::synth::initial_rect(&cfg, 0);
     let template = extract_template(&frame, &rect, &model, &ExtractionConfig::default()).unwrap();
     assert_eq!(template.len(), 230);
+    // Asked for one point per pixel of the face's width, a 120 px face takes 120; a bad ratio
+    // is refused.
+    let per_pixel = |points_per_width| ExtractionConfig {
+        points_per_width,
+        ..ExtractionConfig::default()
+    };
+    assert_eq!(rect.width, 120.0);
+    let fewer = extract_template(&frame, &rect, &model, &per_pixel(Some(1.0))).unwrap();
+    assert_eq!(fewer.len(), 120);
+    for bad in [0.0, -1.0, f32::NAN] {
+        assert!(extract_template(&frame, &rect, &model, &per_pixel(Some(bad))).is_err());
+    }
     let dipole_partner = |i: usize, j: usize| i / 2 == j / 2;
     for (i, a) in template.points.iter().enumerate() {
         for (j, b) in template.points.iter().enumerate().skip(i + 1) {

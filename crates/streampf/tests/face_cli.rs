@@ -123,6 +123,37 @@ fn track_synthetic_prints_errors_and_frame_rate() {
     );
     assert!(number_after(&text, "mean rotation error:") < 8.0, "{text}");
     assert!(text.contains("frames/s"));
+    // --face-width draws the heads that wide: the tracker's rectangles (the heads' own at
+    // scale 1) are that wide in the first frame's rows of states.csv, S = 1 there.
+    let text = ok(&streampf(
+        &[args.as_slice(), &["--face-width", "50"]].concat(),
+    ));
+    assert!(number_after(&text, "mean rotation error:") < 30.0, "{text}");
+    let synth = scratch("synthetic-small");
+    ok(&streampf(&[
+        "face",
+        "synth",
+        "--out",
+        synth.to_str().unwrap(),
+        "--face-width",
+        "50",
+        "--frames",
+        "1",
+        "--faces",
+        "2",
+        "--width",
+        "480",
+        "--height",
+        "360",
+    ]));
+    let faces = std::fs::read_to_string(synth.join("faces.csv")).unwrap();
+    let rows: Vec<&str> = faces.lines().skip(1).collect();
+    assert_eq!(rows.len(), 2, "{faces}");
+    for row in rows {
+        let width: f32 = row.split(',').nth(2).unwrap().parse().unwrap();
+        assert!((width - 50.0).abs() < 0.5, "{row}");
+    }
+    std::fs::remove_dir_all(&synth).unwrap();
     std::fs::remove_dir_all(&out).unwrap();
 }
 
@@ -278,6 +309,8 @@ fn bad_face_inputs_are_clear_errors() {
         vec!["face", "track", "--synthetic", "--faces", "0"],
         vec!["face", "track", "--synthetic", "--width", "10"],
         vec!["face", "track", "--synthetic", "--max-yaw", "120"],
+        vec!["face", "track", "--synthetic", "--face-width", "8"],
+        vec!["face", "track", "--synthetic", "--face-width", "800"],
         vec!["face", "track", "--synthetic", "--particles", "0"],
         vec!["face", "track"],
     ] {

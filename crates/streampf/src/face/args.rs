@@ -21,6 +21,10 @@ pub struct VideoArgs {
     /// Frame height in pixels (at least 120).
     #[arg(long, default_value_t = 768, value_parser = clap::value_parser!(u32).range(120..=8192))]
     pub height: u32,
+    /// The heads' width in pixels, at scale 1 (16 to the frame's height; default: 120 at
+    /// 1024x768, scaled with the frame). Small faces, as in a crowd or a wide shot: 40-60.
+    #[arg(long, value_parser = clap::value_parser!(u32).range(16..=8192))]
+    pub face_width: Option<u32>,
     /// Largest yaw of the heads, in degrees (at most 90).
     #[arg(long, default_value_t = 60.0)]
     pub max_yaw: f32,
@@ -59,7 +63,10 @@ impl VideoArgs {
             height: self.height,
             frames: self.frames as usize,
             faces: self.faces as usize,
-            half_width: 60.0 * (self.width as f32 / 1024.0).min(self.height as f32 / 768.0),
+            half_width: self.face_width.map_or_else(
+                || 60.0 * (self.width as f32 / 1024.0).min(self.height as f32 / 768.0),
+                |width| width as f32 / 2.0,
+            ),
             max_yaw: self.max_yaw.to_radians(),
             occlusion: true,
             exit_after: None,
@@ -74,6 +81,14 @@ impl VideoArgs {
         };
         if self.scenario == Some(ScenarioArg::ExitsAndCrossings) {
             config = config.exits_and_crossings(self.frames as usize);
+        }
+        if let Some(width) = self.face_width
+            && width > self.height
+        {
+            bail!(
+                "--face-width {width} does not fit a frame {} pixels high",
+                self.height
+            );
         }
         config.validate()?;
         Ok(config)
