@@ -246,7 +246,7 @@ impl FaceTracker {
         width, height, *, max_faces = 8, particles = 1000, detect = false, cascade = None,
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
         layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto",
-        smooth = false, camera = None
+        smooth = false, camera = None, scene_cut = Some(face_tracker::scene_cut::DEFAULT_SCENE_CUT)
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -269,6 +269,7 @@ impl FaceTracker {
         face_model: &str,
         smooth: bool,
         camera: Option<&Bound<'_, PyAny>>,
+        scene_cut: Option<f32>,
     ) -> PyResult<Self> {
         let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
@@ -297,10 +298,13 @@ impl FaceTracker {
             Some(cascade) => {
                 let on_gpu = detector_on.runs_on_gpu(&backend);
                 let detector = open_detector(py, cascade, on_gpu, allow_software)?;
-                Some((
-                    detector,
-                    auto_config(detect_every, min_face, max_faces, &config),
-                ))
+                let auto = AutoConfig {
+                    scene_cut,
+                    ..auto_config(detect_every, min_face, max_faces, &config)
+                };
+                auto.validate()
+                    .map_err(|e| value_error(format!("scene_cut: {e}")))?;
+                Some((detector, auto))
             }
             None => None,
         };

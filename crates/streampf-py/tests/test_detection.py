@@ -66,3 +66,31 @@ def test_the_detector_on_the_gpu_starts_the_same_tracks(gpu_backend):
     np.testing.assert_array_equal(runs["gpu"][1], runs["cpu"][1])
     with pytest.raises(ValueError, match="detector must be"):
         streampf.FaceTracker(width, height, detect=True, detector="tpu")
+
+
+def test_a_scene_cut_ends_the_tracks_the_detector_does_not_find_again():
+    """Megamind.avi cuts from its first shot to another at frame 98: the first shot's tracks end
+    there (``lost``) with the default ``scene_cut``; with ``scene_cut=None`` one goes on."""
+    frames = megamind_frames(110)[85:]  # the first shot's last frames and the cut
+    height, width = frames[0].shape[:2]
+
+    def running_after_the_cut(scene_cut):
+        tracker = streampf.FaceTracker(
+            width, height, detect=True, particles=200, backend="cpu", channel_order="bgr",
+            scene_cut=scene_cut,
+        )
+        tracks_before = set()
+        for index, frame in enumerate(frames):
+            result = tracker.step(frame)
+            running = {int(t) for t, lost in zip(result["track"], result["lost"]) if not lost}
+            if index + 85 == 97:
+                tracks_before = running
+        return tracks_before, running
+
+    before, after = running_after_the_cut(0.25)
+    assert before, "no face tracked before the cut"
+    assert not before & after, (before, after)
+    before, after = running_after_the_cut(None)
+    assert before & after, (before, after)
+    with pytest.raises(ValueError, match="scene_cut"):
+        streampf.FaceTracker(width, height, detect=True, backend="cpu", scene_cut=2.5)

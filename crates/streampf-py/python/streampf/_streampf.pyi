@@ -40,7 +40,10 @@ class FaceTracker:
     frames are the calibrated images resized), as ``face track --camera`` / ``--calibration``.
     ``face_model``: the built-in head the points' depths come from, "auto" (the photographed
     head, as ``face track`` picks for real frames), "photographed" or "generic" (the synthetic
-    video's heads: track ``synthetic_faces`` frames with it).
+    video's heads: track ``synthetic_faces`` frames with it). ``scene_cut`` (with ``detect``): a
+    frame whose gray-level histogram moved by more than this (L1, 0 to 2) since the frame before
+    starts a new shot; the detector looks at it, and the tracks it does not find again end there
+    (``lost``), as ``face track --scene-cut``; ``None`` turns it off.
 
     Thread-safe; ``step`` releases the GIL, so trackers in different threads run at once.
     """
@@ -66,6 +69,7 @@ class FaceTracker:
         face_model: str = "auto",
         smooth: bool = False,
         camera: Union[Tuple[float, float, float, float], str, PathLike, None] = None,
+        scene_cut: Optional[float] = 0.25,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it
