@@ -194,9 +194,11 @@ fn check_value_type(key: &str, arg: &clap::Arg, value: &toml::Value) -> anyhow::
     .any(|t| parses_into == t);
     let float = parses_into == TypeId::of::<f32>() || parses_into == TypeId::of::<f64>();
     let switch = parses_into == TypeId::of::<bool>();
+    // An option that takes a number or a word (`--scene-cut 0.25` or `off`) takes either.
+    let number_or_word = parses_into == TypeId::of::<crate::face::SceneCutArg>();
     let fits = match value {
-        toml::Value::Integer(_) => integer || float,
-        toml::Value::Float(_) => float,
+        toml::Value::Integer(_) => integer || float || number_or_word,
+        toml::Value::Float(_) => float || number_or_word,
         toml::Value::Boolean(_) => switch,
         toml::Value::String(_) => !(integer || float || switch),
         _ => false,

@@ -222,6 +222,14 @@ fn bad_files_are_refused_with_the_key_named_and_nothing_written() {
     );
     let err = run(&write(&dir.join("range.toml"), "[face]\nparticles = 0\n"));
     assert!(err.contains("--particles"), "{err}");
+    // `scene-cut` takes a number or `off`; not a switch's value, nor a number out of range.
+    let err = run(&write(&dir.join("cut.toml"), "[face]\nscene-cut = true\n"));
+    assert!(err.contains("`scene-cut`"), "{err}");
+    let err = run(&write(
+        &dir.join("cut-range.toml"),
+        "[face]\nscene-cut = 3.5\n",
+    ));
+    assert!(err.contains("below 2"), "{err}");
     let err = run(&write(&dir.join("switch.toml"), "[face]\ndetect = 1\n"));
     assert!(err.contains("`detect` is a switch"), "{err}");
     let err = run(&write(&dir.join("syntax.toml"), "[face\nparticles = 100\n"));

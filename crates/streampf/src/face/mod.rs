@@ -16,6 +16,7 @@
 //! the particles).
 
 mod args;
+pub(crate) use args::SceneCutArg;
 mod extras;
 mod inputs;
 mod openface_csv;
