@@ -202,9 +202,17 @@ fn auto_config(
     detect_every: usize,
     min_face: u32,
     max_faces: usize,
+    scene_cut: Option<f32>,
     tracker: &FaceTrackerConfig,
-) -> AutoConfig {
-    AutoConfig {
+) -> PyResult<AutoConfig> {
+    if let Some(change) = scene_cut
+        && !(change > 0.0 && change < 2.0)
+    {
+        return Err(value_error(format!(
+            "scene_cut must be within (0, 2) (a histogram change: 0 the same levels, 2 none in common), or None; got {change}"
+        )));
+    }
+    Ok(AutoConfig {
         detect_every,
         detect: DetectConfig {
             min_size: min_face,
@@ -212,9 +220,10 @@ fn auto_config(
         },
         max_faces,
         detection_delay: Some(1),
+        scene_cut,
         tracker: tracker.clone(),
         ..AutoConfig::default()
-    }
+    })
 }
 
 /// The tracker behind a `FaceTracker`: faces given by the caller, or found by `detecting`'s
@@ -298,12 +307,7 @@ impl FaceTracker {
             Some(cascade) => {
                 let on_gpu = detector_on.runs_on_gpu(&backend);
                 let detector = open_detector(py, cascade, on_gpu, allow_software)?;
-                let auto = AutoConfig {
-                    scene_cut,
-                    ..auto_config(detect_every, min_face, max_faces, &config)
-                };
-                auto.validate()
-                    .map_err(|e| value_error(format!("scene_cut: {e}")))?;
+                let auto = auto_config(detect_every, min_face, max_faces, scene_cut, &config)?;
                 Some((detector, auto))
             }
             None => None,

@@ -1,5 +1,6 @@
 //! Synthetic face videos with ground truth: textured heads (the generic face model with a
-//! face-like albedo, Lambert-shaded) moving and turning along known 7-D paths over a textured
+//! face-like albedo, Lambert-shaded; [`look`] draws them, each a person of their own in a
+//! scenario about identities) moving and turning along known 7-D paths over a textured
 //! background, under a changing light, with an occluder passing over one face.
 //!
 //! Ground truth is in the tracker's terms: a head drawn with half-width `half_width·s` has scale
@@ -19,7 +20,10 @@ use crate::lens::Lens;
 use crate::model::FaceModel;
 use crate::projection::{ALPHA, DIMS, RX, RY, RZ, SCALE, TX, TY};
 
+mod look;
 mod splat;
+pub use look::{Look, albedo, albedo_of};
+use look::{background, value_noise};
 use splat::{BAND_ROWS, HeadSurface, Splatter, SurfaceSample, splat_head};
 
 /// How a synthetic video is made.
@@ -45,6 +49,10 @@ pub struct FaceSynthConfig {
     pub crossing_at: Option<usize>,
     /// Face k is in the video from frame k·`enter_every` on (0: every face from the start).
     pub enter_every: usize,
+    /// Draw each face as a person of their own ([`Look::of_person`]: hair, brows, eyes, mouth,
+    /// a beard), as a scenario about who is who needs; `false`: every head has the paper's look
+    /// ([`Look::SHARED`]), its skin's noise apart.
+    pub distinct_people: bool,
     pub seed: u64,
     /// The camera's focal length in pixels (the principal point the frame's middle): the heads
     /// are seen through that pinhole. `None`: weak perspective, as the paper's videos.
@@ -69,6 +77,7 @@ impl FaceSynthConfig {
             return_at: None,
             crossing_at: None,
             enter_every: 0,
+            distinct_people: false,
             seed: 11,
             focal_length: None,
         }
@@ -162,6 +171,7 @@ impl FaceSynthConfig {
         self.exit_after = Some(frames * 15 / 100);
         self.return_at = Some(frames * 40 / 100);
         self.crossing_at = Some(frames * 65 / 100);
+        self.distinct_people = true;
         self
     }
 }
@@ -237,69 +247,9 @@ pub fn initial_rect(config: &FaceSynthConfig, k: usize) -> FaceRect {
 /// A face is this much taller than wide.
 pub const HEIGHT_RATIO: f32 = 1.25;
 
-/// A deterministic hash of a lattice point to [0, 1).
-fn hash(x: i32, y: i32, seed: u64) -> f32 {
-    let mut h = (x as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        ^ (y as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F)
-        ^ seed;
-    h = pf_core::random::splitmix64(h);
-    (h >> 40) as f32 / (1u64 << 24) as f32
-}
-
-/// Smooth value noise at (x, y) with the lattice spacing `cell`.
-fn value_noise(x: f32, y: f32, cell: f32, seed: u64) -> f32 {
-    let (gx, gy) = (x / cell, y / cell);
-    let (x0, y0) = (gx.floor(), gy.floor());
-    let (fx, fy) = (gx - x0, gy - y0);
-    let (sx, sy) = (fx * fx * (3.0 - 2.0 * fx), fy * fy * (3.0 - 2.0 * fy));
-    let (i, j) = (x0 as i32, y0 as i32);
-    let top = hash(i, j, seed) * (1.0 - sx) + hash(i + 1, j, seed) * sx;
-    let bottom = hash(i, j + 1, seed) * (1.0 - sx) + hash(i + 1, j + 1, seed) * sx;
-    top * (1.0 - sy) + bottom * sy
-}
-
-fn ellipse(u: f32, v: f32, cu: f32, cv: f32, ru: f32, rv: f32) -> bool {
-    ((u - cu) / ru).powi(2) + ((v - cv) / rv).powi(2) <= 1.0
-}
-
-/// The face's albedo at model (u, v): skin with fine texture, hair, brows, eyes, nostrils and a
-/// mouth — the dark features and edges the template is built from.
-pub fn albedo(u: f32, v: f32, seed: u64) -> f32 {
-    let texture = 14.0 * (value_noise(u * 60.0, v * 60.0, 1.0, seed) - 0.5);
-    let mut a = 175.0 + texture + 10.0 * (value_noise(u * 8.0, v * 8.0, 1.0, seed ^ 1) - 0.5);
-    if v < -0.62 + 0.1 * (u * 5.0).sin() {
-        a = 55.0 + 1.5 * texture;
-    }
-    for side in [-1.0f32, 1.0] {
-        if ellipse(u, v, side * 0.34, -0.33, 0.2, 0.045) {
-            a = 70.0;
-        }
-        if ellipse(u, v, side * 0.34, -0.15, 0.13, 0.06) {
-            a = 235.0;
-            if ellipse(u, v, side * 0.34, -0.15, 0.055, 0.055) {
-                a = 35.0;
-            }
-        }
-        if ellipse(u, v, side * 0.09, 0.33, 0.04, 0.025) {
-            a = 60.0;
-        }
-    }
-    if ellipse(u, v, 0.0, 0.58, 0.28, 0.055) {
-        a = 95.0;
-    }
-    a
-}
-
-/// The background at pixel (x, y): smooth blotches and fine grain.
-fn background(x: f32, y: f32, seed: u64) -> f32 {
-    70.0 + 90.0 * value_noise(x, y, 90.0, seed ^ 7)
-        + 25.0 * value_noise(x, y, 13.0, seed ^ 8)
-        + 8.0 * (hash(x as i32, y as i32, seed ^ 9) - 0.5)
-}
-
 /// The surface samples of head `k` on the grid of `steps` per unit, inside the unit disk, in
 /// row order.
-fn head_surface(model: &FaceModel, steps: i32, seed: u64) -> HeadSurface {
+fn head_surface(model: &FaceModel, steps: i32, seed: u64, look: &Look) -> HeadSurface {
     let samples: Vec<SurfaceSample> = (-steps..=steps)
         .into_par_iter()
         .flat_map_iter(|j| {
@@ -314,7 +264,7 @@ fn head_surface(model: &FaceModel, steps: i32, seed: u64) -> HeadSurface {
                     v,
                     height,
                     normal,
-                    albedo: albedo(u, v, seed),
+                    albedo: albedo_of(u, v, seed, look),
                 })
             })
         })
@@ -415,7 +365,11 @@ impl FaceVideoRenderer {
             return Arc::clone(surface);
         }
         let seed = self.config.seed.wrapping_add(k as u64 * 1000);
-        let surface = Arc::new(head_surface(&self.model, steps, seed));
+        let look = match self.config.distinct_people {
+            true => Look::of_person(self.config.seed, k),
+            false => Look::SHARED,
+        };
+        let surface = Arc::new(head_surface(&self.model, steps, seed, &look));
         let mut cache = self.cached_surfaces();
         let kept = &mut cache[k];
         if !kept.iter().any(|s| s.steps == steps) {

@@ -73,6 +73,7 @@ impl VideoArgs {
             return_at: None,
             crossing_at: None,
             enter_every: 0,
+            distinct_people: false,
             seed: self.video_seed,
             focal_length: self
                 .fov
