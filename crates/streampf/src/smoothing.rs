@@ -44,6 +44,8 @@ impl SmoothArgs {
 /// The smoother of a run: a [`TrackSmoother`] whose rows go to smoothed.csv.
 pub struct Smoother {
     tracks: TrackSmoother,
+    /// The GPU smoother, when the backward passes run on a GPU (for its fallback report).
+    on_gpu: Option<std::sync::Arc<pf_gpu::smooth::OnGpu>>,
     file: CsvStream,
     with_track: bool,
 }
@@ -68,16 +70,32 @@ impl Smoother {
         let lead = if with_track { "frame,track" } else { "frame" };
         let header = format!("{lead},{}", columns.join(","));
         let mut tracks = TrackSmoother::new(lag, transition, gain);
-        if let Some(ctx) = gpu {
-            let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)
-                .map_err(|e| anyhow::anyhow!("building the GPU smoother: {e}"))?;
-            tracks = tracks.on(std::sync::Arc::new(on_gpu));
+        let on_gpu = match gpu {
+            Some(ctx) => Some(std::sync::Arc::new(
+                pf_gpu::smooth::OnGpu::new(ctx)
+                    .map_err(|e| anyhow::anyhow!("building the GPU smoother: {e}"))?,
+            )),
+            None => None,
+        };
+        if let Some(on_gpu) = &on_gpu {
+            tracks = tracks.on(on_gpu.clone());
         }
         Ok(Self {
             tracks,
+            on_gpu,
             file: CsvStream::create(&out.join(SMOOTHED_FILE), &header)?,
             with_track,
         })
+    }
+
+    /// Says so on stderr if the GPU smoother failed and handed tracks to the CPU (their rows
+    /// are written all the same).
+    pub fn report_fallback(&self) {
+        if self.on_gpu.as_ref().is_some_and(|g| g.fell_back()) {
+            errln!(
+                "warning: the GPU smoother failed (a device fault); the tracks it could not smooth were smoothed on the CPU"
+            );
+        }
     }
 
     /// [`TrackSmoother::add_frame`], its rows written.

@@ -198,6 +198,8 @@ fn body_smoothing_writes_every_frame_and_a_device_fault_keeps_the_written_ones()
             err.contains("device was lost") && err.contains("frame 4"),
             "{err}"
         );
+        // The run says the smoother went over to the CPU.
+        assert!(err.contains("smoothed on the CPU"), "{err}");
         let (_, smoothed) = rows(&out.join("smoothed.csv"));
         let frames: Vec<&str> = smoothed.iter().map(|r| r[0].as_str()).collect();
         assert_eq!(frames, ["0", "1", "2", "3"]);

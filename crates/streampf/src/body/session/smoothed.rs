@@ -95,6 +95,7 @@ impl BodySmoothing {
 
     /// The summary's lines for smoothed.csv (and, with ground truth, its errors and coverage).
     pub(in crate::body) fn print(&self) {
+        self.smoother.report_fallback();
         let how = crate::smoothing::how(self.lag);
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");

@@ -89,6 +89,7 @@ impl FaceSmoothing {
 
     /// The summary's line for smoothed.csv (and, with ground truth, its errors and coverage).
     pub(super) fn print(&self) {
+        self.smoother.report_fallback();
         let how = crate::smoothing::how(self.lag);
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");
