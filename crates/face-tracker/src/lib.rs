@@ -26,6 +26,7 @@ pub mod camera;
 pub mod detect;
 pub mod error;
 pub mod extraction;
+pub mod identity;
 pub mod image;
 pub mod landmarks;
 pub mod lens;

@@ -2,8 +2,12 @@
 //! first face leaves the picture and comes back to its place, faces 1 and 2 end in each other's
 //! place, and face 3 stays.
 
+use face_tracker::extraction::FaceRect;
+use face_tracker::identity::{Identities, IdentityConfig, NewFace};
+use face_tracker::model::FaceModel;
 use face_tracker::projection::{TX, TY};
-use face_tracker::synth::{FaceSynthConfig, face_state};
+use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, HEIGHT_RATIO, face_state};
+use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig};
 
 #[test]
 fn the_first_face_leaves_and_returns_and_two_faces_cross() {
@@ -46,4 +50,89 @@ fn the_first_face_leaves_and_returns_and_two_faces_cross() {
         }
         assert!((0..frames).all(|f| config.visible(3, f)));
     }
+}
+
+/// The face rectangle of scenario face `k` at `frame`, as a detector would frame it.
+fn true_rect(config: &FaceSynthConfig, k: usize, frame: usize) -> FaceRect {
+    let s = face_state(config, k, frame);
+    let width = 2.0 * config.half_width * s[face_tracker::projection::SCALE];
+    let height = width * HEIGHT_RATIO;
+    FaceRect {
+        x: s[TX] - width / 2.0,
+        y: s[TY] - height / 2.0,
+        width,
+        height,
+    }
+}
+
+/// A person whose track ended is known again ([`Identities`]): the scenario's four people,
+/// their tracks started at frame 0 and ended, are found at frame 266 (near frontal, face 0
+/// back from its walk, faces 1 and 2 at each other's places) in another order, each given their
+/// own identity; a person of another video, seen after every track ended, is a new identity.
+#[test]
+fn a_face_found_again_keeps_its_identity() {
+    let config = FaceSynthConfig::paper(300).exits_and_crossings(300);
+    let model = FaceModel::generic(129).unwrap();
+    let renderer = FaceVideoRenderer::new(&config, &model).unwrap();
+    let mut tracker = FaceTracker::with_capacity(
+        (config.width, config.height),
+        16,
+        &model,
+        FaceTrackerConfig::default(),
+        FaceBackend::Cpu,
+    )
+    .unwrap();
+    let mut identities = Identities::new(IdentityConfig::default());
+    let start = |tracker: &mut FaceTracker, identities: &mut Identities, frame, rect| {
+        let track = tracker.add_face(frame, &rect).unwrap();
+        let face = NewFace {
+            frame,
+            rect: &rect,
+            template: tracker.template(track).unwrap(),
+            off_face_error: tracker.off_face_error(track).unwrap(),
+        };
+        (track, identities.start(track, &face, &tracker.lens()))
+    };
+    let first = renderer.render(0).unwrap();
+    let mut first_tracks = Vec::new();
+    for k in 0..4 {
+        let (track, identity) = start(
+            &mut tracker,
+            &mut identities,
+            &first,
+            true_rect(&config, k, 0),
+        );
+        assert_eq!(identity, k, "a new face is a new identity");
+        first_tracks.push(track);
+    }
+    first_tracks.iter().for_each(|&t| identities.end(t));
+    let later = renderer.render(266).unwrap();
+    for k in [2, 0, 3, 1] {
+        assert!(config.visible(k, 266));
+        let (_, identity) = start(
+            &mut tracker,
+            &mut identities,
+            &later,
+            true_rect(&config, k, 266),
+        );
+        assert_eq!(identity, k, "face {k} found again");
+    }
+    // Every track ends; someone never seen before comes.
+    (4..8).for_each(|t| identities.end(t));
+    let stranger = FaceSynthConfig {
+        seed: config.seed + 1,
+        ..config.clone()
+    };
+    let other = FaceVideoRenderer::new(&stranger, &model)
+        .unwrap()
+        .render(0)
+        .unwrap();
+    let (_, identity) = start(
+        &mut tracker,
+        &mut identities,
+        &other,
+        true_rect(&stranger, 0, 0),
+    );
+    assert_eq!(identity, 4, "a stranger matched a known person");
+    assert_eq!(identities.len(), 5);
 }

@@ -485,14 +485,12 @@ fn step_dict(py: Python<'_>, out: StepOut) -> PyResult<Bound<'_, PyDict>> {
     let flat =
         |f: &dyn Fn(&FaceEstimate) -> Vec<f32>| -> Vec<f32> { e.iter().flat_map(f).collect() };
     let d = PyDict::new(py);
-    d.set_item(
-        "track",
-        to_numpy(py, e.iter().map(|e| e.track as i64).collect(), &[n])?,
-    )?;
-    d.set_item(
-        "slot",
-        to_numpy(py, e.iter().map(|e| e.slot as i64).collect(), &[n])?,
-    )?;
+    let whole = |f: &dyn Fn(&FaceEstimate) -> usize| -> Vec<i64> {
+        e.iter().map(|e| f(e) as i64).collect()
+    };
+    d.set_item("track", to_numpy(py, whole(&|e| e.track), &[n])?)?;
+    d.set_item("identity", to_numpy(py, whole(&|e| e.identity), &[n])?)?;
+    d.set_item("slot", to_numpy(py, whole(&|e| e.slot), &[n])?)?;
     d.set_item(
         "state",
         to_numpy(py, flat(&|e| e.state.to_vec()), &[n, DIMS])?,

@@ -40,6 +40,8 @@ def test_the_detector_starts_tracks_on_a_real_video_in_bgr():
         tracked += int((~result["lost"]).sum())
     # The face in the first shot is found (two detector runs confirm it) and followed.
     assert started, "no track was started"
+    # Each row says who the track is (no one was lost and found again: the track's number).
+    assert np.array_equal(result["identity"], result["track"]), result
     assert tracked >= 20, tracked
     with pytest.raises(ValueError, match="shape"):
         tracker.step(np.ascontiguousarray(frames[0][:, :, :2]))

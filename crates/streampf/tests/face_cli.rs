@@ -123,6 +123,17 @@ fn track_synthetic_prints_errors_and_frame_rate() {
     );
     assert!(number_after(&text, "mean rotation error:") < 8.0, "{text}");
     assert!(text.contains("frames/s"));
+    // Faces from rectangles only: each track is an identity of its own, states.csv's last
+    // column.
+    let states = std::fs::read_to_string(out.join("states.csv")).unwrap();
+    assert!(
+        states.lines().next().unwrap().ends_with(",qz,identity"),
+        "{states}"
+    );
+    for row in states.lines().skip(1) {
+        let cells: Vec<&str> = row.split(',').collect();
+        assert_eq!(cells[2], cells[cells.len() - 1], "{row}");
+    }
     // --face-width draws the heads that wide: the tracker's rectangles (the heads' own at
     // scale 1) are that wide in the first frame's rows of states.csv, S = 1 there.
     let text = ok(&streampf(

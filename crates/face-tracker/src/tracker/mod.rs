@@ -156,6 +156,10 @@ pub enum TrackStatus {
 pub struct FaceEstimate {
     /// The track's number: 0, 1, … in the order faces were added, never reused.
     pub track: usize,
+    /// The person the track follows: the track's number here; an [`crate::AutoTracker`] with
+    /// identities gives a face found again after its track ended its earlier identity
+    /// ([`crate::identity`]).
+    pub identity: usize,
     /// The filter slot the track runs in (slots are reused after a track is lost).
     pub slot: usize,
     pub state: [f32; DIMS],
@@ -552,6 +556,7 @@ impl FaceTracker {
             let confidence = track.confidence(error);
             out.push(FaceEstimate {
                 track: track.id,
+                identity: track.id,
                 slot,
                 state,
                 error,

@@ -91,7 +91,7 @@ impl FaceTracker {
         })?;
         let id = self.next_track;
         let mean = fresh_state(rect);
-        let off_face_error = self.off_face_error(frame, &template, &mean, rect);
+        let off_face_error = self.measure_off_face_error(frame, &template, &mean, rect);
         let start = Start {
             rect: *rect,
             mean,
@@ -134,7 +134,7 @@ impl FaceTracker {
             None => (fresh_state(rect), View::frontal()),
         };
         let template = self.extract_seen(frame, rect, &view)?.0;
-        let off_face_error = self.off_face_error(frame, &template, &mean, rect);
+        let off_face_error = self.measure_off_face_error(frame, &template, &mean, rect);
         Ok(Restart {
             template,
             mean,
@@ -147,7 +147,7 @@ impl FaceTracker {
     /// track's confidence measures its fit against this: ε alone does not tell a face from
     /// background, since a small or blurred face's smooth template fits flat background about
     /// as well as it fits the face (docs/ACCURACY.md, "Tracks on faces").
-    fn off_face_error(
+    fn measure_off_face_error(
         &self,
         frame: &GrayImage,
         template: &Template,
@@ -188,6 +188,12 @@ impl FaceTracker {
             running.ending = true;
         }
         Ok(())
+    }
+
+    /// Running track `track`'s template's ε a quarter of a face off its face in the frame it
+    /// was taken from: the scale of its confidence.
+    pub fn off_face_error(&self, track: usize) -> Option<f64> {
+        self.running(track).ok().map(|t| t.off_face_error)
     }
 
     /// Whether track `track` is running (started and not yet reported lost).

@@ -94,14 +94,16 @@ class FaceTracker:
         """Tracks one frame. One row per track reported (running tracks, and a track lost at
         this frame, once):
 
-        - ``track`` (n,) int64, ``slot`` (n,) int64 (the filter slot: ``particles()``' row);
+        - ``track`` (n,) int64, ``slot`` (n,) int64 (the filter slot: ``particles()``' row),
+          ``identity`` (n,) int64 (the person: a face found again after its track ended keeps
+          its earlier identity; the track's number otherwise);
         - ``state`` (n, 7) float32 and ``spread`` (n, 7) float32: the estimate and the
           posterior's weighted standard deviation (circular for the roll);
         - ``pitch_yaw_roll_deg`` (n, 3) float32 and ``quaternion`` (n, 4) float32 (w, x, y, z;
           w ≥ 0): the rotation in other forms;
         - ``rect`` (n, 4) float32: the face's rectangle at the estimate;
         - ``ess`` (n,) float64, ``error`` (n,) float64 (ε, the template's robust residual),
-          ``confidence`` (n,) float32 in [0, 1] (1 − ε / failure threshold);
+          ``confidence`` (n,) float32 in [0, 1] (1 − ε / the template's ε off its face);
         - ``log_evidence`` (n,) float64: log p̂(frame | earlier frames) per track, up to the
           likelihood's constant (summed over frames: the track's log-likelihood);
         - ``lost`` (n,) bool: the track ended at this frame;

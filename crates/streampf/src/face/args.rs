@@ -46,6 +46,13 @@ pub struct VideoArgs {
     pub scenario: Option<ScenarioArg>,
 }
 
+/// `--identities`: whether a face found again keeps its identity.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum IdentitiesArg {
+    On,
+    Off,
+}
+
 /// `--scenario`: the named ground-truth videos.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum ScenarioArg {
@@ -286,6 +293,12 @@ pub struct TrackArgs {
     /// `off`: cuts are not looked for.
     #[arg(long, default_value_t = SceneCutArg(Some(face_tracker::scene_cut::DEFAULT_SCENE_CUT)), value_parser = scene_cut, value_name = "CHANGE|off")]
     pub scene_cut: SceneCutArg,
+    /// Who each track is: `on`, a face found again after its track ended (it left, turned
+    /// away, was covered, or a scene cut came) takes its earlier identity when its first
+    /// template fits the new face well enough (states.csv's `identity`); `off`, every track is
+    /// an identity of its own (its number).
+    #[arg(long, value_enum, default_value_t = IdentitiesArg::On)]
+    pub identities: IdentitiesArg,
     /// Faces tracked at once (default 8 with the detector; rectangles given with --face or
     /// faces.csv may not exceed it when it is given).
     #[arg(long, value_parser = clap::value_parser!(u32).range(1..=256))]

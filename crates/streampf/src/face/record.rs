@@ -14,7 +14,7 @@ use std::path::Path;
 
 /// The columns of a states.csv row after `status`: the state, the residual, the spreads, the ESS,
 /// the log evidence, the confidence, three angles and a quaternion.
-pub(super) const STATE_COLUMNS_AFTER_STATUS: usize = DIMS + 1 + DIMS + 3 + 3 + 4;
+pub(super) const STATE_COLUMNS_AFTER_STATUS: usize = DIMS + 1 + DIMS + 3 + 3 + 4 + 1;
 
 /// What a run has tracked: states.csv and (with ground truth) errors.csv, written as each frame
 /// is finished, the error sums and the time spent in the tracker.
@@ -45,11 +45,12 @@ pub(super) struct TrackRecord {
 impl TrackRecord {
     /// The frame, its timestamp, the track, whether it is tracked, its status, the state, ε (the
     /// residual), then how sure the estimate is (the posterior's spread per dimension, the ESS,
-    /// the frame's log evidence, the confidence) and the rotation as degrees and as a quaternion (docs/OUTPUT.md).
+    /// the frame's log evidence, the confidence), the rotation as degrees and as a quaternion,
+    /// and the person the track follows (docs/OUTPUT.md).
     pub(super) fn states_header() -> String {
         let spreads: Vec<String> = STATE_NAMES.iter().map(|n| format!("sd_{n}")).collect();
         format!(
-            "frame,timestamp,track,success,status,{},residual,{},ess,log_evidence,confidence,pitch_deg,yaw_deg,roll_deg,qw,qx,qy,qz",
+            "frame,timestamp,track,success,status,{},residual,{},ess,log_evidence,confidence,pitch_deg,yaw_deg,roll_deg,qw,qx,qy,qz,identity",
             STATE_NAMES.join(","),
             spreads.join(",")
         )
@@ -124,13 +125,14 @@ impl TrackRecord {
                 .join(",")
         };
         format!(
-            "{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{}",
             join(&e.spread),
             e.ess,
             e.log_evidence,
             e.confidence,
             join(&pitch_yaw_roll_degrees(&e.state)),
-            join(&rotation_quaternion(&e.state))
+            join(&rotation_quaternion(&e.state)),
+            e.identity
         )
     }
 

@@ -31,6 +31,8 @@ fn auto_config(args: &TrackArgs, tracker: FaceTrackerConfig, rects: usize) -> Au
             .is_none()
             .then_some(args.detection_delay as usize),
         scene_cut: args.scene_cut.0,
+        identities: (args.identities == super::args::IdentitiesArg::On)
+            .then(face_tracker::identity::IdentityConfig::default),
         tracker,
         ..AutoConfig::default()
     }

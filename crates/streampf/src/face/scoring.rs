@@ -64,7 +64,9 @@ impl MotLog {
             .iter()
             .filter(|e| e.status == TrackStatus::Tracking)
             .map(|e| TrackedFace {
-                track: e.track as u64,
+                // Scored by the person each track is: a face found again after its track
+                // ended keeps its identity (the track's number without identities).
+                track: e.identity as u64,
                 centre: [e.state[TX], e.state[TY]],
             })
             .collect();

@@ -16,20 +16,21 @@
 //! detected at the same time on threads of their own, so a delay of a few detection periods lets
 //! the detector keep up with the tracker instead of holding it up.
 
-use std::collections::VecDeque;
-use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
-use std::sync::{Arc, Mutex, PoisonError};
-use std::thread::JoinHandle;
+use std::sync::Arc;
 
 use crate::detect::{DetectConfig, Detection, FaceDetector};
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
+use crate::identity::{Identities, IdentityConfig, NewFace};
 use crate::image::GrayImage;
 use crate::model::FaceModel;
 use crate::scene_cut::{PendingCut, SceneCuts};
+
+mod detectors;
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
+use detectors::{DetectionResult, Detectors};
 
 /// How detection feeds the tracker.
 #[derive(Debug, Clone, PartialEq)]
@@ -58,6 +59,9 @@ pub struct AutoConfig {
     /// A gray-level histogram change from one frame to the next above this marks a scene cut
     /// ([`crate::scene_cut`]); `None`: cuts are not looked for.
     pub scene_cut: Option<f32>,
+    /// Who each track is ([`crate::identity`]): a face found again after its track ended takes
+    /// its earlier identity; `None`: every track is an identity of its own.
+    pub identities: Option<IdentityConfig>,
     pub tracker: FaceTrackerConfig,
 }
 
@@ -72,6 +76,7 @@ impl Default for AutoConfig {
             min_template_contrast: 40.0,
             confirmations: 2,
             scene_cut: Some(crate::scene_cut::DEFAULT_SCENE_CUT),
+            identities: Some(IdentityConfig::default()),
             tracker: FaceTrackerConfig::default(),
         }
     }
@@ -149,137 +154,6 @@ pub fn same_face_and_size(a: &FaceRect, b: &FaceRect) -> bool {
     same_face(a, b) && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
 }
 
-/// A frame handed to the detector, and what it found there.
-struct DetectionResult {
-    frame_index: usize,
-    frame: Arc<GrayImage>,
-    faces: Result<Vec<Detection>, FaceError>,
-}
-
-/// The initialisation threads: take frames, send back detections.
-struct Detectors {
-    jobs: Option<Sender<(usize, Arc<GrayImage>)>>,
-    results: Receiver<DetectionResult>,
-    /// The frames handed over whose detections have not been used, oldest first.
-    in_flight: VecDeque<usize>,
-    /// Detections that came back before they were due.
-    early: Vec<DetectionResult>,
-    handles: Vec<JoinHandle<()>>,
-}
-
-impl Detectors {
-    fn spawn(
-        detector: Arc<FaceDetector>,
-        config: DetectConfig,
-        threads: usize,
-    ) -> Result<Self, FaceError> {
-        let (jobs, job_queue) = channel::<(usize, Arc<GrayImage>)>();
-        let job_queue = Arc::new(Mutex::new(job_queue));
-        let (result_sender, results) = channel();
-        let mut handles = Vec::with_capacity(threads);
-        for k in 0..threads.max(1) {
-            let (job_queue, detector, config, result_sender) = (
-                Arc::clone(&job_queue),
-                Arc::clone(&detector),
-                config.clone(),
-                result_sender.clone(),
-            );
-            let handle = std::thread::Builder::new()
-                .name(format!("face-detector-{k}"))
-                .spawn(move || {
-                    loop {
-                        // One thread at a time waits on the queue; the lock is let go before
-                        // the detection runs.
-                        let job = job_queue
-                            .lock()
-                            .unwrap_or_else(PoisonError::into_inner)
-                            .recv();
-                        let Ok((frame_index, frame)) = job else {
-                            break;
-                        };
-                        let faces = detector.detect(&frame, &config);
-                        let result = DetectionResult {
-                            frame_index,
-                            frame,
-                            faces,
-                        };
-                        if result_sender.send(result).is_err() {
-                            break;
-                        }
-                    }
-                })
-                .map_err(|e| FaceError::InvalidInput(format!("cannot start the detector: {e}")))?;
-            handles.push(handle);
-        }
-        Ok(Self {
-            jobs: Some(jobs),
-            results,
-            in_flight: VecDeque::new(),
-            early: Vec::new(),
-            handles,
-        })
-    }
-
-    fn idle(&self) -> bool {
-        self.in_flight.is_empty()
-    }
-
-    fn send(&mut self, frame_index: usize, frame: Arc<GrayImage>) -> Result<(), FaceError> {
-        self.jobs
-            .as_ref()
-            .and_then(|jobs| jobs.send((frame_index, frame)).ok())
-            .ok_or_else(|| FaceError::InvalidInput("the detector thread has stopped".into()))?;
-        self.in_flight.push_back(frame_index);
-        Ok(())
-    }
-
-    fn stopped() -> FaceError {
-        FaceError::InvalidInput("the detector thread stopped".into())
-    }
-
-    /// A finished detection if one is ready (live: one frame in flight at most).
-    fn take_ready(&mut self) -> Result<Option<DetectionResult>, FaceError> {
-        if self.idle() {
-            return Ok(None);
-        }
-        let result = match self.results.try_recv() {
-            Ok(r) => r,
-            Err(TryRecvError::Empty) => return Ok(None),
-            Err(TryRecvError::Disconnected) => return Err(Self::stopped()),
-        };
-        self.in_flight.retain(|&f| f != result.frame_index);
-        Ok(Some(result))
-    }
-
-    /// The detection of `frame_index` if that frame was handed over, waiting for it.
-    fn take_frame(&mut self, frame_index: usize) -> Result<Option<DetectionResult>, FaceError> {
-        if !self.in_flight.contains(&frame_index) {
-            return Ok(None);
-        }
-        self.in_flight.retain(|&f| f != frame_index);
-        if let Some(i) = self.early.iter().position(|r| r.frame_index == frame_index) {
-            return Ok(Some(self.early.swap_remove(i)));
-        }
-        loop {
-            let result = self.results.recv().map_err(|_| Self::stopped())?;
-            if result.frame_index == frame_index {
-                return Ok(Some(result));
-            }
-            self.early.push(result);
-        }
-    }
-}
-
-impl Drop for Detectors {
-    fn drop(&mut self) {
-        // Closing the job channel ends the threads' loops.
-        self.jobs = None;
-        for handle in self.handles.drain(..) {
-            let _ = handle.join();
-        }
-    }
-}
-
 /// What happened at a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AutoFrame {
@@ -316,6 +190,7 @@ pub struct AutoTracker {
     cuts: Option<SceneCuts>,
     /// The tracks of the last cut, until a detection from its first frame on decides them.
     pending_cut: Option<PendingCut>,
+    identities: Option<Identities>,
     /// The frames that started a new shot so far, and how many tracks ended at them.
     cuts_seen: Vec<usize>,
     ended_at_cuts: usize,
@@ -347,6 +222,7 @@ impl AutoTracker {
         let detector =
             Detectors::spawn(Arc::clone(&detector_used), config.detect.clone(), threads)?;
         let cuts = config.scene_cut.map(SceneCuts::new);
+        let identities = config.identities.map(Identities::new);
         Ok(Self {
             config,
             tracker,
@@ -357,6 +233,7 @@ impl AutoTracker {
             candidates: Vec::new(),
             cuts,
             pending_cut: None,
+            identities,
             cuts_seen: Vec::new(),
             ended_at_cuts: 0,
         })
@@ -390,8 +267,27 @@ impl AutoTracker {
     /// frame the next `step` follows; returns the track's number.
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
         let track = self.tracker.add_face(frame, rect)?;
+        self.identify(track, frame, rect);
         self.tracked.push((track, *rect, 0.0));
         Ok(track)
+    }
+
+    /// Gives new track `track`, started on `rect` of `frame`, its identity.
+    fn identify(&mut self, track: usize, frame: &GrayImage, rect: &FaceRect) {
+        let (Some(identities), Some(template), Some(off_face_error)) = (
+            self.identities.as_mut(),
+            self.tracker.template(track),
+            self.tracker.off_face_error(track),
+        ) else {
+            return;
+        };
+        let face = NewFace {
+            frame,
+            rect,
+            template,
+            off_face_error,
+        };
+        identities.start(track, &face, &self.tracker.lens());
     }
 
     /// Starts tracks for a finished detection's new faces, and restarts failing tracks it finds.
@@ -453,6 +349,7 @@ impl AutoTracker {
                 out.ignored += 1;
             } else {
                 let track = self.tracker.add_template(&result.frame, &rect, template)?;
+                self.identify(track, &result.frame, &rect);
                 self.tracked.push((track, rect, 0.0));
                 out.started.push((track, rect, result.frame_index));
             }
@@ -565,6 +462,14 @@ impl AutoTracker {
             }
         }
         out.estimates = self.tracker.step(frame)?;
+        if let Some(identities) = self.identities.as_mut() {
+            for e in &mut out.estimates {
+                e.identity = identities.of(e.track).unwrap_or(e.track);
+                if e.status != TrackStatus::Tracking {
+                    identities.end(e.track);
+                }
+            }
+        }
         self.tracked = out
             .estimates
             .iter()
