@@ -49,9 +49,9 @@ fn interrupt_after_rows(mut child: Child, file: &Path, rows: usize) -> std::proc
 }
 
 /// The columns of the face's states.csv: frame, timestamp, track, success, status, the 7-D state,
-/// ε, its 7 spreads, the ESS, the log evidence, the confidence, pitch/yaw/roll and the
-/// quaternion's 4.
-const STATES_COLUMNS: usize = 5 + 7 + 1 + 7 + 3 + 3 + 4;
+/// ε, its 7 spreads, the ESS, the log evidence, the confidence, pitch/yaw/roll, the
+/// quaternion's 4 and the identity.
+const STATES_COLUMNS: usize = 5 + 7 + 1 + 7 + 3 + 3 + 4 + 1;
 
 /// The frame column of a CSV's rows, checking that every row is whole (`columns` fields, each a
 /// number or a status word) and that the file ends with a newline.
