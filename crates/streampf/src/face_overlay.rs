@@ -122,9 +122,19 @@ fn draw_track(picture: &mut RgbImage, e: &FaceEstimate, template: &Template, len
             );
         }
     }
-    let label = format!("#{} {:.2}", e.track, e.confidence);
+    let label = face_label(e);
     let above = e.rect.y - (8 * TEXT_SCALE) as f32 - 4.0;
     text(picture, e.rect.x, above.max(0.0), &label, colour);
+}
+
+/// A track's label on the overlay and in the recording: `#TRACK CONFIDENCE`, with the person
+/// (`id IDENTITY`) when the track took an earlier track's identity.
+pub fn face_label(e: &FaceEstimate) -> String {
+    if e.identity == e.track {
+        format!("#{} {:.2}", e.track, e.confidence)
+    } else {
+        format!("#{} id {} {:.2}", e.track, e.identity, e.confidence)
+    }
 }
 
 /// The head's axes' colours: x red, y green, z blue.
@@ -415,6 +425,26 @@ mod tests {
         assert_eq!(count(&later, LOST), 0);
         // Away from every mark the picture is untouched.
         assert_eq!(drawn.get_pixel(100, 150).0, [90, 90, 90]);
+    }
+
+    #[test]
+    fn a_label_names_the_person_when_a_track_took_an_earlier_identity() {
+        let mut e = FaceEstimate {
+            track: 5,
+            identity: 5,
+            slot: 0,
+            state: [100.0, 80.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            error: 0.01,
+            spread: [0.0; 7],
+            ess: 10.0,
+            log_evidence: 0.0,
+            confidence: 0.5234,
+            status: TrackStatus::Tracking,
+            rect: rect(80.0, 60.0),
+        };
+        assert_eq!(face_label(&e), "#5 0.52");
+        e.identity = 2;
+        assert_eq!(face_label(&e), "#5 id 2 0.52");
     }
 
     #[test]

@@ -213,7 +213,7 @@ mod enabled {
                     [(e.rect.width, e.rect.height)],
                 )
                 .with_colors([colour])
-                .with_labels([format!("#{} {:.2}", e.track, e.confidence)]),
+                .with_labels([crate::face_overlay::face_label(e)]),
             )?;
             if let Some(clouds) = clouds {
                 self.log_samples(&base, e.slot, clouds, colour)?;
