@@ -204,15 +204,8 @@ fn auto_config(
     max_faces: usize,
     scene_cut: Option<f32>,
     tracker: &FaceTrackerConfig,
-) -> PyResult<AutoConfig> {
-    if let Some(change) = scene_cut
-        && !(change > 0.0 && change < 2.0)
-    {
-        return Err(value_error(format!(
-            "scene_cut must be within (0, 2) (a histogram change: 0 the same levels, 2 none in common), or None; got {change}"
-        )));
-    }
-    Ok(AutoConfig {
+) -> AutoConfig {
+    AutoConfig {
         detect_every,
         detect: DetectConfig {
             min_size: min_face,
@@ -223,7 +216,17 @@ fn auto_config(
         scene_cut,
         tracker: tracker.clone(),
         ..AutoConfig::default()
-    })
+    }
+}
+
+/// `scene_cut`, checked with or without the detector (as the other arguments are).
+fn checked_scene_cut(scene_cut: Option<f32>) -> PyResult<Option<f32>> {
+    match scene_cut {
+        Some(change) if !(change > 0.0 && change < 2.0) => Err(value_error(format!(
+            "scene_cut must be within (0, 2) (a histogram change: 0 the same levels, 2 none in common), or None; got {change}"
+        ))),
+        checked => Ok(checked),
+    }
 }
 
 /// The tracker behind a `FaceTracker`: faces given by the caller, or found by `detecting`'s
@@ -285,6 +288,7 @@ impl FaceTracker {
         let particles: usize = whole("particles", particles)?;
         let detect_every: usize = whole("detect_every", detect_every)?;
         let min_face: u32 = whole("min_face", min_face)?;
+        let scene_cut = checked_scene_cut(scene_cut)?;
         let seed: u64 = whole("seed", seed)?;
         let layers: Option<usize> = whole_opt("layers", layers)?;
         let order = ChannelOrder::parse(channel_order)?;
@@ -307,7 +311,7 @@ impl FaceTracker {
             Some(cascade) => {
                 let on_gpu = detector_on.runs_on_gpu(&backend);
                 let detector = open_detector(py, cascade, on_gpu, allow_software)?;
-                let auto = auto_config(detect_every, min_face, max_faces, scene_cut, &config)?;
+                let auto = auto_config(detect_every, min_face, max_faces, scene_cut, &config);
                 Some((detector, auto))
             }
             None => None,

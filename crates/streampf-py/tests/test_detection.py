@@ -94,5 +94,6 @@ def test_a_scene_cut_ends_the_tracks_the_detector_does_not_find_again():
     assert not before & after, (before, after)
     before, after = running_after_the_cut(None)
     assert before & after, (before, after)
-    with pytest.raises(ValueError, match="scene_cut"):
-        streampf.FaceTracker(width, height, detect=True, backend="cpu", scene_cut=2.5)
+    for detect in [True, False]:
+        with pytest.raises(ValueError, match="scene_cut"):
+            streampf.FaceTracker(width, height, detect=detect, backend="cpu", scene_cut=2.5)

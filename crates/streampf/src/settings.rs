@@ -210,6 +210,8 @@ fn check_value_type(key: &str, arg: &clap::Arg, value: &toml::Value) -> anyhow::
         "a whole number"
     } else if float {
         "a number"
+    } else if number_or_word {
+        "a number or text in quotes"
     } else if switch {
         "true or false"
     } else {

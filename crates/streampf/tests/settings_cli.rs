@@ -224,7 +224,10 @@ fn bad_files_are_refused_with_the_key_named_and_nothing_written() {
     assert!(err.contains("--particles"), "{err}");
     // `scene-cut` takes a number or `off`; not a switch's value, nor a number out of range.
     let err = run(&write(&dir.join("cut.toml"), "[face]\nscene-cut = true\n"));
-    assert!(err.contains("`scene-cut`"), "{err}");
+    assert!(
+        err.contains("`scene-cut` takes a number or text in quotes"),
+        "{err}"
+    );
     let err = run(&write(
         &dir.join("cut-range.toml"),
         "[face]\nscene-cut = 3.5\n",
