@@ -282,9 +282,28 @@ proptest! {
     }
 }
 
+/// How far the GPU's last β may lie from the CPU's: 1 % where β does not depend on the
+/// resampled cloud (fixed β, or survival β in a single layer: the same particles, f32 against f64
+/// sums). A survival β after a resampled layer is solved on that layer's offspring, which a flip at
+/// a CDF boundary changes (see `check_against_cpu`): the spread of the log-likelihoods it is
+/// solved against moves by about its standard error, √(2/ESS) relative, so three of those are
+/// allowed on top (measured: 0.5185 against 0.5297, 2.1 %, with 3 layers of 257 particles).
+fn beta_bound(case: &Case, cpu_beta: f32, cpu_ess: f64) -> f32 {
+    let exact = 1e-2 * cpu_beta.abs().max(1e-3);
+    let annealing = &case.config.annealing;
+    let solved_after_resampling = annealing.layers > 1
+        && matches!(annealing.tempering, pf_core::anneal::Tempering::Survival { .. });
+    if solved_after_resampling {
+        exact + 3.0 * (2.0 / cpu_ess.max(1.0)).sqrt() as f32 * cpu_beta.abs()
+    } else {
+        exact
+    }
+}
+
 /// The fused step against the CPU twin, on the same drawn configurations, one frame (every layer
 /// of it) from the same particles: the estimates within 2e-3 (the whole-step tests' bound) plus
-/// three standard errors of the weighted mean (spread/√ESS), and each target's last β within 1 %.
+/// three standard errors of the weighted mean (spread/√ESS), and each target's last β as `beta_bound`
+/// allows.
 /// The standard errors allow for resampling flips at a CDF boundary: a flipped offspring weighs
 /// differently in the next layer, which shifts that layer's CDF and can flip more (measured on
 /// lavapipe over 24 seeds of 4 targets × 1 000 particles × 3 fixed-β layers: most targets agree
@@ -313,9 +332,10 @@ fn check_against_cpu<const DYNAMICS: bool>(case: &Case) -> Result<(), TestCaseEr
         };
         let g = gpu.step(&z).unwrap();
         for (t, (cb, gb)) in cpu.beta.iter().zip(&g.beta).enumerate() {
+            let bound = beta_bound(case, *cb, cpu.ess[t]);
             prop_assert!(
-                (cb - gb).abs() <= 1e-2 * cb.abs().max(1e-3),
-                "frame {frame} target {t}: beta CPU {cb} vs GPU {gb}"
+                (cb - gb).abs() <= bound,
+                "frame {frame} target {t}: beta CPU {cb} vs GPU {gb} (bound {bound})"
             );
         }
         let dims = case.config.shape.dims;
@@ -340,6 +360,24 @@ proptest! {
         } else {
             check_against_cpu::<false>(&case)?;
         }
+    }
+}
+
+/// The configuration on which the 1 % bound on a later survival β failed (found by the property
+/// test on lavapipe): three survival layers of 257 particles, 9 bounded dimensions.
+#[test]
+fn a_survival_beta_after_resampling_flips_stays_within_its_bound() {
+    let shape = BatchShape::new(3, 257, 9).unwrap();
+    let mut config = BatchConfig::new(shape, 16687176928982119186, vec![0.1; 9]);
+    config.bounds = Some((vec![-0.8; 9], vec![0.9; 9]));
+    config.annealing = Annealing::survival(3, 0.561_329_07, 0.588_483_6);
+    let case = Case {
+        config,
+        stratified: true,
+        propagates: true,
+    };
+    if let Err(failure) = check_against_cpu::<true>(&case) {
+        panic!("{failure}");
     }
 }
 
