@@ -292,7 +292,10 @@ fn beta_bound(case: &Case, cpu_beta: f32, cpu_ess: f64) -> f32 {
     let exact = 1e-2 * cpu_beta.abs().max(1e-3);
     let annealing = &case.config.annealing;
     let solved_after_resampling = annealing.layers > 1
-        && matches!(annealing.tempering, pf_core::anneal::Tempering::Survival { .. });
+        && matches!(
+            annealing.tempering,
+            pf_core::anneal::Tempering::Survival { .. }
+        );
     if solved_after_resampling {
         exact + 3.0 * (2.0 / cpu_ess.max(1.0)).sqrt() as f32 * cpu_beta.abs()
     } else {
