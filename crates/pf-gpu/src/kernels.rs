@@ -43,6 +43,8 @@ pub mod sources {
         "\n",
         include_str!("../../../shaders/engine/layer.wgsl")
     );
+    /// The particles' lineage through a frame's resamplings.
+    pub const LINEAGE: &str = include_str!("../../../shaders/engine/lineage.wgsl");
     /// The gather stage.
     pub const GATHER: &str = include_str!("../../../shaders/engine/gather.wgsl");
     /// The estimates.
@@ -53,7 +55,7 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 7] = [
+    pub const STAGES: [(&str, &str); 8] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
@@ -61,6 +63,7 @@ pub mod sources {
         ("gather.wgsl", GATHER),
         ("estimate.wgsl", ESTIMATE),
         ("layer.wgsl", LAYER),
+        ("lineage.wgsl", LINEAGE),
     ];
 }
 

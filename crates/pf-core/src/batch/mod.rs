@@ -91,6 +91,12 @@ pub struct BatchFilter<R> {
     /// Each target's log evidence of the frame being stepped (set in layer 0).
     log_evidence: Vec<f64>,
     ancestors: Vec<u32>,
+    /// Each particle's ancestor among the previous frame's particles, `[t·M + m]` (every
+    /// layer's resampling composed; `smooth::ancestry::NO_ANCESTOR` after a restart).
+    lineage: Vec<u32>,
+    lineage_scratch: Vec<u32>,
+    /// The targets restarted since the last frame (their particles have no ancestors there).
+    restarted: Vec<bool>,
     scratch: Vec<f32>,
     log_likelihood: Vec<f32>,
     step: u64,
@@ -134,6 +140,9 @@ impl<R: Resampler> BatchFilter<R> {
             ess: vec![shape.particles as f64; shape.targets],
             log_evidence: vec![0.0; shape.targets],
             ancestors: vec![0; n],
+            lineage: vec![crate::smooth::ancestry::NO_ANCESTOR; n],
+            lineage_scratch: vec![0; n],
+            restarted: vec![false; shape.targets],
             log_likelihood: vec![0.0; n],
             step: 0,
         })
@@ -189,7 +198,16 @@ impl<R: Resampler> BatchFilter<R> {
         self.log_weights[range.clone()].fill(-(m as f32).ln());
         self.weights[range].fill(1.0 / m as f64);
         self.ess[t] = m as f64;
+        self.restarted[t] = true;
         Ok(())
+    }
+
+    /// Each particle's ancestor among the previous frame's particles after the last step,
+    /// `[t·M + m]`: every annealing layer's resampling composed
+    /// (`smooth::ancestry::NO_ANCESTOR` for a target restarted before that step, and before the
+    /// first step). What smoothing from the ancestry traces back (`smooth::ancestry`).
+    pub fn lineage(&self) -> &[u32] {
+        &self.lineage
     }
 
     /// One step: resample the targets whose ESS is below the threshold, gather, diffuse, measure
@@ -404,7 +422,36 @@ impl<R: Resampler> BatchFilter<R> {
                 }
             });
         std::mem::swap(&mut self.states, &mut self.scratch);
+        self.compose_lineage(layer);
         Ok(resampled)
+    }
+
+    /// The lineage through this layer's resampling: layer 0 starts it from the ancestors (none
+    /// for a restarted target), later layers compose theirs into it. Twin of `lineage.wgsl`.
+    fn compose_lineage(&mut self, layer: usize) {
+        use crate::smooth::ancestry::{NO_ANCESTOR, compose};
+        let m = self.shape.particles;
+        if layer == 0 {
+            for (t, (lineage, ancestors)) in (self.lineage.chunks_mut(m))
+                .zip(self.ancestors.chunks(m))
+                .enumerate()
+            {
+                if self.restarted[t] {
+                    lineage.fill(NO_ANCESTOR);
+                } else {
+                    lineage.copy_from_slice(ancestors);
+                }
+            }
+            self.restarted.fill(false);
+            return;
+        }
+        for ((out, lineage), ancestors) in (self.lineage_scratch.chunks_mut(m))
+            .zip(self.lineage.chunks(m))
+            .zip(self.ancestors.chunks(m))
+        {
+            compose(lineage, ancestors, out);
+        }
+        std::mem::swap(&mut self.lineage, &mut self.lineage_scratch);
     }
 
     /// Moves the particles: the model's dynamics in layer 0 when it has them, else (layer 0's

@@ -16,12 +16,15 @@
 //! dimension with σ = 0 does not move, so it does not enter the density. With annealing the
 //! density is the first layer's (the model's dynamics); the later layers are a search.
 //! [`fixed_lag`] smooths frame t − L once frame t is filtered: online, with a delay of L frames.
+//! [`ancestry`] does it from the particles' lineage instead, O(M·L) where this is O(M²·L): what
+//! the trackers' `--smooth-lag` runs.
 
 use rayon::prelude::*;
 
 use crate::batch::wrap_angle_floor;
 use crate::error::PfError;
 
+pub mod ancestry;
 mod summary;
 use summary::value_summary;
 pub use summary::{Summary, summarise, summarise_value};

@@ -206,6 +206,25 @@ impl FilterEngine {
         }
     }
 
+    /// Keeps each frame's lineage from the next step on (the GPU composes it in a dispatch per
+    /// layer; the CPU engine always keeps it).
+    pub fn keep_lineage(&mut self) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(_) => Ok(()),
+            Self::Gpu(gpu) => gpu.filter.keep_lineage(&gpu.ctx),
+        }
+    }
+
+    /// The last step's lineage, `[t·M + m]`: each particle's ancestor among the previous frame's
+    /// particles (`pf_core::smooth::ancestry`); `None` on a GPU that does not keep it
+    /// ([`Self::keep_lineage`]). The GPU engine reads it back (a wait).
+    pub fn lineage(&self) -> Result<Option<Vec<u32>>, GpuError> {
+        match self {
+            Self::Cpu(filter) => Ok(Some(filter.lineage().to_vec())),
+            Self::Gpu(gpu) => gpu.filter.download_lineage(&gpu.ctx),
+        }
+    }
+
     /// The particles after the last step: the shape, the states (`[(t·D + d)·M + m]`) and the
     /// normalised log-weights (`[t·M + m]`). The GPU engine reads them back (a wait).
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), GpuError> {

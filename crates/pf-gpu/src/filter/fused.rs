@@ -279,6 +279,7 @@ impl GpuFilter {
                         .moving
                         .record(&mut pass, &fused.moving_groups[layer], per_target);
                 }
+                self.record_lineage(&mut pass, layer);
                 likelihood.record(LikelihoodPhase::Measure { layer }, &mut pass);
             }
             self.stages

@@ -11,6 +11,7 @@ use pf_core::batch::{BatchConfig, BatchShape};
 
 mod fused;
 mod likelihood;
+mod lineage;
 mod params;
 mod record;
 mod setup;
@@ -24,6 +25,7 @@ pub use likelihood::{
 };
 pub use params::{FrameParams, TargetStats};
 
+pub use setup::FilterStreams;
 use setup::{
     BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, layer_params_buffer,
     resample_dispatches, uniform_buffer,
@@ -31,7 +33,7 @@ use setup::{
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::stream::{DeviceStream, ReadbackSet};
+use crate::stream::ReadbackSet;
 use crate::timing::{GpuTime, StepTimer};
 
 /// The resamplers that run on the GPU.
@@ -157,6 +159,8 @@ pub struct GpuFilter {
     fused: Option<fused::FusedLayers>,
     /// Why the fused step does not fit (`None` when it does).
     fused_refusal: Option<String>,
+    /// The particles' lineage through each frame, once asked for ([`Self::keep_lineage`]).
+    lineage: Option<lineage::Lineage>,
     /// Every device stream, created once (some only for the bind groups).
     streams: Streams,
     stages: Stages,
@@ -256,6 +260,7 @@ impl GpuFilter {
             layout: fused::default_layout(&shape, fused.is_some()),
             fused,
             fused_refusal,
+            lineage: None,
             step_backs,
             next_back: 0,
             in_flight: 0,
@@ -503,6 +508,9 @@ impl GpuFilter {
             });
         }
         let m = shape.particles;
+        if let Some(lineage) = &self.lineage {
+            lineage.mark_restart(ctx, t)?;
+        }
         self.streams.states.upload_at(ctx, t * block, states)?;
         self.streams
             .log_weights
@@ -571,22 +579,4 @@ impl GpuFilter {
             stats: &self.streams.stats,
         }
     }
-}
-
-/// Borrowed views of a filter's device streams.
-pub struct FilterStreams<'a> {
-    /// States, `[(t·D + d)·M + m]`.
-    pub states: &'a DeviceStream<f32>,
-    /// Normalised log-weights, `[t·M + m]`.
-    pub log_weights: &'a DeviceStream<f32>,
-    /// The likelihood's output, `[t·M + m]`.
-    pub log_likelihood: &'a DeviceStream<f32>,
-    /// Normalised weights, `[t·M + m]`.
-    pub weights: &'a DeviceStream<f32>,
-    /// The resampler's cumulative sums.
-    pub cdf: &'a DeviceStream<f32>,
-    /// Ancestor indices, `[t·M + m]`.
-    pub ancestors: &'a DeviceStream<u32>,
-    /// Per-target statistics.
-    pub stats: &'a DeviceStream<TargetStats>,
 }

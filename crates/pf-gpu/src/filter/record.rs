@@ -149,6 +149,9 @@ impl GpuFilter {
                     .gather
                     .record(&mut pass, &self.groups.gather, per_particle);
             }
+            if wants(GpuStage::Resample) {
+                self.record_lineage(&mut pass, layer);
+            }
         }
         if wants(GpuStage::Gather) {
             let bytes = (self.shape.state_len() * 4) as u64;

@@ -443,3 +443,21 @@ pub(super) fn resample_dispatches(
         GpuResampler::Stratified => vec![make("stratified", &[0, 1, 2, 3, 4, 5], [1, t, 1])?],
     })
 }
+
+/// Borrowed views of a filter's device streams.
+pub struct FilterStreams<'a> {
+    /// States, `[(t·D + d)·M + m]`.
+    pub states: &'a DeviceStream<f32>,
+    /// Normalised log-weights, `[t·M + m]`.
+    pub log_weights: &'a DeviceStream<f32>,
+    /// The likelihood's output, `[t·M + m]`.
+    pub log_likelihood: &'a DeviceStream<f32>,
+    /// Normalised weights, `[t·M + m]`.
+    pub weights: &'a DeviceStream<f32>,
+    /// The resampler's cumulative sums.
+    pub cdf: &'a DeviceStream<f32>,
+    /// Ancestor indices, `[t·M + m]`.
+    pub ancestors: &'a DeviceStream<u32>,
+    /// Per-target statistics.
+    pub stats: &'a DeviceStream<TargetStats>,
+}

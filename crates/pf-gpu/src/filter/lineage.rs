@@ -1,0 +1,153 @@
+//! The particles' lineage through a frame, kept when asked ([`super::GpuFilter::keep_lineage`]):
+//! after each layer's resampling `shaders/engine/lineage.wgsl` composes the layer's ancestors
+//! into each particle's index among the previous frame's particles, in two buffers used in turn
+//! (a layer reads the one the layer before wrote). A target restarted since the last frame
+//! (`reset_target`) has no ancestors there ([`pf_core::smooth::ancestry::NO_ANCESTOR`]): its
+//! flag is read by the first layer and cleared by a dispatch of its own after it.
+//!
+//! CPU twin: `pf_core::smooth::ancestry::compose`, as `pf_core::batch::BatchFilter` keeps it.
+
+use pf_core::batch::BatchShape;
+
+use super::setup::{Streams, groups_for};
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::kernels::{Kernel, sources, stage_source};
+use crate::stream::DeviceStream;
+
+/// The lineage's kernels, buffers and bind groups.
+pub(super) struct Lineage {
+    first: Kernel,
+    later: Kernel,
+    clear: Kernel,
+    /// The two lineage buffers: layer l writes `buffers[l % 2]`.
+    buffers: [DeviceStream<u32>; 2],
+    /// Each target's restart flag (1 after `reset_target`, until the next frame's first layer).
+    restarts: DeviceStream<u32>,
+    first_group: wgpu::BindGroup,
+    /// `later_groups[l % 2]`: layer l reads `buffers[1 - l % 2]` and writes `buffers[l % 2]`.
+    later_groups: [wgpu::BindGroup; 2],
+    clear_group: wgpu::BindGroup,
+}
+
+impl Lineage {
+    /// The lineage of `shape`'s particles, composed from `streams`' ancestors; `params` is the
+    /// buffer whose `targets` and `particles` the kernels read.
+    pub(super) fn new(
+        ctx: &GpuContext,
+        shape: &BatchShape,
+        streams: &Streams,
+        params: &wgpu::Buffer,
+    ) -> Result<Self, GpuError> {
+        let source = stage_source(sources::LINEAGE);
+        let first = Kernel::new(ctx, "lineage (first layer)", &source, "first_layer")?;
+        let later = Kernel::new(ctx, "lineage (later layer)", &source, "later_layer")?;
+        let clear = Kernel::new(ctx, "lineage (clear restarts)", &source, "clear_restarts")?;
+        let n = shape.particle_len();
+        let buffers = [
+            DeviceStream::zeroed(ctx, "lineage (even layers)", n)?,
+            DeviceStream::zeroed(ctx, "lineage (odd layers)", n)?,
+        ];
+        let restarts = DeviceStream::zeroed(ctx, "restarted targets", shape.targets)?;
+        let params = || params.as_entire_binding();
+        let first_group = first.bind(
+            ctx,
+            &[
+                (0, params()),
+                (1, streams.ancestors.binding()),
+                (2, restarts.binding()),
+                (3, buffers[0].binding()),
+            ],
+        )?;
+        let later_group = |write: usize| {
+            later.bind(
+                ctx,
+                &[
+                    (0, params()),
+                    (1, streams.ancestors.binding()),
+                    (2, buffers[1 - write].binding()),
+                    (3, buffers[write].binding()),
+                ],
+            )
+        };
+        let later_groups = [later_group(0)?, later_group(1)?];
+        let clear_group = clear.bind(ctx, &[(0, params()), (4, restarts.binding())])?;
+        Ok(Self {
+            first,
+            later,
+            clear,
+            buffers,
+            restarts,
+            first_group,
+            later_groups,
+            clear_group,
+        })
+    }
+
+    /// Records layer `layer`'s composition into `pass` (after the layer's resampling).
+    pub(super) fn record(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        shape: &BatchShape,
+        layer: usize,
+    ) {
+        let per_particle = [groups_for(shape.particles, 64), shape.targets as u32, 1];
+        if layer == 0 {
+            self.first.record(pass, &self.first_group, per_particle);
+            let per_target = [groups_for(shape.targets, 64), 1, 1];
+            self.clear.record(pass, &self.clear_group, per_target);
+        } else {
+            self.later
+                .record(pass, &self.later_groups[layer % 2], per_particle);
+        }
+    }
+
+    /// The buffer holding the frame's lineage after `layers` layers.
+    pub(super) fn result(&self, layers: usize) -> &DeviceStream<u32> {
+        &self.buffers[(layers.max(1) - 1) % 2]
+    }
+
+    /// Marks target `t` restarted: the next frame's lineage gives its particles no ancestors.
+    pub(super) fn mark_restart(&self, ctx: &GpuContext, t: usize) -> Result<(), GpuError> {
+        self.restarts.upload_at(ctx, t, &[1])
+    }
+}
+
+impl super::GpuFilter {
+    /// Keeps each frame's lineage from the next step on: each particle's ancestor among the
+    /// previous frame's particles, every layer's resampling composed (a dispatch more per layer;
+    /// what smoothing from the ancestry needs, `pf_core::smooth::ancestry`).
+    pub fn keep_lineage(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        if self.lineage.is_none() {
+            self.lineage = Some(Lineage::new(
+                ctx,
+                &self.shape,
+                &self.streams,
+                &self.params_buffer,
+            )?);
+        }
+        Ok(())
+    }
+
+    /// Whether the filter keeps the lineage ([`Self::keep_lineage`]).
+    pub fn keeps_lineage(&self) -> bool {
+        self.lineage.is_some()
+    }
+
+    /// The last step's lineage, `[t·M + m]` (the twin of `pf_core::batch::BatchFilter::lineage`;
+    /// `NO_ANCESTOR` for a target restarted before it and before the first step kept); `None`
+    /// when the filter does not keep it.
+    pub fn download_lineage(&self, ctx: &GpuContext) -> Result<Option<Vec<u32>>, GpuError> {
+        match &self.lineage {
+            Some(lineage) => Ok(Some(lineage.result(self.annealing.layers).download(ctx)?)),
+            None => Ok(None),
+        }
+    }
+
+    /// Records layer `layer`'s lineage into `pass` when the filter keeps it.
+    pub(super) fn record_lineage(&self, pass: &mut wgpu::ComputePass<'_>, layer: usize) {
+        if let Some(lineage) = &self.lineage {
+            lineage.record(pass, &self.shape, layer);
+        }
+    }
+}
