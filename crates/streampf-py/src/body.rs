@@ -275,7 +275,7 @@ impl BodyTracker {
             let mut smoothing = self.smoothing.lock().map_err(|_| poisoned())?;
             if let Some(smoothing) = smoothing.as_mut() {
                 let (_, states, log_weights) = tracker.particles().map_err(body)?;
-                smoothing.add(vec![(0, states, log_weights)])?;
+                smoothing.add(vec![(0, states, log_weights).into()])?;
             }
             Ok::<_, PyErr>(result)
         })?;

@@ -3,8 +3,8 @@
 //! smooths what was tracked so far, the tracks still running included, and returns it as numpy
 //! arrays.
 
-use pf_core::smooth::{GaussianTransition, TargetParticles};
-use pf_core::smooth_tracks::{SmoothedRow, TrackSmoother};
+use pf_core::smooth::GaussianTransition;
+use pf_core::smooth_tracks::{SmoothedRow, TrackCloud, TrackSmoother};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -39,9 +39,8 @@ impl Smoothing {
         })
     }
 
-    /// The next frame's clouds, `(track, states [d·M + m], log-weights [m])` of each target
-    /// tracked in it.
-    pub fn add(&mut self, clouds: Vec<TargetParticles>) -> PyResult<()> {
+    /// The next frame's clouds, one for each target tracked in it.
+    pub fn add(&mut self, clouds: Vec<TrackCloud>) -> PyResult<()> {
         let rows = (self.smoother.add_frame(self.frames, clouds))
             .map_err(|e| runtime_error(format!("smoothing: {e:#}")))?;
         self.ended.extend(rows);

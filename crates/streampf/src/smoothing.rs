@@ -1,16 +1,18 @@
-//! `--smooth full` and `--smooth-lag L`: every tracked frame smoothed by the frames after it
-//! (`pf_core::smooth`, the marginal smoother), written to smoothed.csv with each value's
-//! smoothed mean and 95 % credible interval. `full` smooths each track over the whole run when
-//! it ends (or the run does); `--smooth-lag L` writes frame t − L once frame t is tracked. A run
-//! that is interrupted or fails smooths and writes what it had tracked. Each value is smoothed
-//! as its own block (a blocked smoother, Finke & Singh 2017): the particles' filtered weights
-//! carry what the values share, and the backward weights of many values at once collapse.
+//! `--smooth full` and `--smooth-lag L`: every tracked frame smoothed by the frames after it,
+//! written to smoothed.csv with each value's smoothed mean and 95 % credible interval. `full`
+//! smooths each track over the whole run when it ends (or the run does) by the marginal smoother
+//! (`pf_core::smooth`), each value as its own block (a blocked smoother, Finke & Singh 2017: the
+//! particles' filtered weights carry what the values share, and the backward weights of many
+//! values at once collapse). `--smooth-lag L` writes frame t − L once frame t is tracked, smoothed
+//! from the particles' ancestry (`pf_core::smooth::ancestry`: the weights of each particle's
+//! descendants L frames on, traced through the engine's lineage). A run that is interrupted or
+//! fails smooths and writes what it had tracked.
 
 use std::path::Path;
 
 use clap::Args;
-use pf_core::smooth::{GaussianTransition, TargetParticles};
-pub use pf_core::smooth_tracks::{Coverage, SmoothedRow, TrackSmoother};
+use pf_core::smooth::GaussianTransition;
+pub use pf_core::smooth_tracks::{Coverage, SmoothedRow, TrackCloud, TrackSmoother};
 
 use crate::run_output::CsvStream;
 
@@ -24,8 +26,9 @@ pub struct SmoothArgs {
     /// memory (particles × values × 4 bytes a track a frame) and reads them back from a GPU.
     #[arg(long, value_parser = ["full"], conflicts_with = "smooth_lag")]
     pub smooth: Option<String>,
-    /// Also write smoothed.csv online: frame t − L smoothed by the frames up to t, written once
-    /// frame t is tracked. Costs L backward passes of particles² a track a frame.
+    /// Also write smoothed.csv online: frame t − L smoothed by the frames up to t (by its
+    /// particles' descendants at frame t), written once frame t is tracked. Keeps L frames'
+    /// particles a track and reads each frame's particles and lineage back from a GPU.
     #[arg(long, value_name = "L", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub smooth_lag: Option<u32>,
 }
@@ -102,7 +105,7 @@ impl Smoother {
     pub fn add_frame(
         &mut self,
         frame: usize,
-        clouds: Vec<TargetParticles>,
+        clouds: Vec<TrackCloud>,
     ) -> anyhow::Result<Vec<SmoothedRow>> {
         let rows = (self.tracks.add_frame(frame, clouds))
             .map_err(|e| anyhow::anyhow!("smoothing frame {frame}: {e}"))?;

@@ -275,6 +275,29 @@ impl BodyTracker {
         Ok(islands::joined_particles(&islands, &self.island_weights)?)
     }
 
+    /// Keeps each frame's lineage from the next step on (what smoothing with a lag traces back;
+    /// the GPU composes it, the CPU engine always does).
+    pub fn keep_lineage(&mut self) -> Result<(), BodyError> {
+        for filter in &mut self.filters {
+            filter.engine_mut().keep_lineage()?;
+        }
+        Ok(())
+    }
+
+    /// The last step's lineage, `[j]` (each sample's ancestor among the frame before's); `None`
+    /// where it is not kept, or with several islands (particles move between them).
+    pub fn lineage(&self) -> Result<Option<Vec<u32>>, BodyError> {
+        if !self.in_flight.is_empty() {
+            return Err(BodyError::InvalidInput(
+                "the lineage of a finished frame: frames are still in flight".into(),
+            ));
+        }
+        match self.filters.as_slice() {
+            [filter] => Ok(filter.engine().lineage()?),
+            _ => Ok(None),
+        }
+    }
+
     /// The last frame's own time on the GPU (the slowest island's with several; GPU timestamps
     /// where the adapter has them, the step's wall clock otherwise); `None` on the CPU engine.
     pub fn last_gpu_time(&self) -> Option<pf_gpu::GpuTime> {

@@ -255,6 +255,11 @@ impl AutoTracker {
         (&self.cuts_seen, self.ended_at_cuts)
     }
 
+    /// See [`FaceTracker::keep_lineage`].
+    pub fn keep_lineage(&mut self) -> Result<(), FaceError> {
+        self.tracker.keep_lineage()
+    }
+
     /// See [`FaceTracker::set_personaliser`].
     pub fn set_personaliser(
         &mut self,

@@ -29,6 +29,7 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::sync::atomic::AtomicUsize;
 
+mod clouds;
 pub mod in_flight;
 mod model;
 pub mod shards;
@@ -392,34 +393,6 @@ impl FaceTracker {
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), FaceError> {
         self.check_nothing_in_flight("the particles are read")?;
         joined_particles(&self.shards)
-    }
-
-    /// The dynamics' density for smoothing (`pf_core::smooth`): the random walk of a whole
-    /// frame's annealing layers per state value, the roll the one angle the filter wraps.
-    pub fn transition(&self) -> pf_core::smooth::GaussianTransition {
-        pf_core::smooth::GaussianTransition {
-            sigma: self.config.annealing.frame_sigma(&self.config.diffusion),
-            angular: ANGULAR.to_vec(),
-        }
-    }
-
-    /// Each face being tracked among `estimates` (the last step's) with its slot's particles:
-    /// `(track, states [d·M + m], normalised log-weights [m])`, what a smoother takes. On the GPU
-    /// this reads the particles back.
-    pub fn track_clouds(
-        &self,
-        estimates: &[FaceEstimate],
-    ) -> Result<Vec<pf_core::smooth::TargetParticles>, FaceError> {
-        let (shape, states, log_weights) = self.particles()?;
-        let (m, block) = (shape.particles, shape.dims * shape.particles);
-        Ok((estimates.iter())
-            .filter(|e| e.status == TrackStatus::Tracking)
-            .filter_map(|e| {
-                let states = states.get(e.slot * block..(e.slot + 1) * block)?;
-                let log_weights = log_weights.get(e.slot * m..(e.slot + 1) * m)?;
-                Some((e.track, states.to_vec(), log_weights.to_vec()))
-            })
-            .collect())
     }
 
     /// The constant-velocity gain of the dynamics (0 for the random walk).

@@ -71,6 +71,13 @@ pub fn compose(lineage: &[u32], ancestors: &[u32], out: &mut [u32]) {
 mod tests {
     use super::*;
 
+    fn assert_close(a: &[f64], b: &[f64]) {
+        assert!(
+            a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12),
+            "{a:?} vs {b:?}"
+        );
+    }
+
     #[test]
     fn weights_flow_to_ancestors_and_keep_their_sum() {
         let newest = [0.1, 0.2, 0.3, 0.4];
@@ -79,9 +86,9 @@ mod tests {
         assert_eq!(rows.len(), 3);
         assert_eq!(rows[2], newest.to_vec());
         // Frame 1: particles 2 and 0, 3 descend.
-        assert_eq!(rows[1], vec![0.3, 0.0, 0.3, 0.4]);
+        assert_close(&rows[1], &[0.3, 0.0, 0.3, 0.4]);
         // Frame 0: frame 1's 0 -> 1, 2 -> 3, 3 -> 0.
-        assert_eq!(rows[0], vec![0.4, 0.3, 0.0, 0.3]);
+        assert_close(&rows[0], &[0.4, 0.3, 0.0, 0.3]);
         for row in &rows {
             assert!((row.iter().sum::<f64>() - 1.0).abs() < 1e-12);
         }

@@ -70,6 +70,15 @@ impl Runner {
         }
     }
 
+    /// Keeps the filter's lineage (smoothing with a lag traces it).
+    pub(super) fn keep_lineage(&mut self) -> anyhow::Result<()> {
+        match self {
+            Runner::Fixed(tracker) => tracker.keep_lineage()?,
+            Runner::Auto(auto) => auto.keep_lineage()?,
+        }
+        Ok(())
+    }
+
     pub(super) fn set_personaliser(&mut self, personaliser: Option<Arc<Personaliser>>) {
         match self {
             Runner::Fixed(tracker) => tracker.set_personaliser(personaliser),

@@ -69,6 +69,14 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
         .transpose()?;
     let bar = crate::console::progress_bar(frames, args.quiet);
+    if let Some(Some(_lag)) = args.smoothing.mode() {
+        tracker.keep_lineage()?;
+        if tracker.lineage()?.is_none() {
+            anyhow::bail!(
+                "--smooth-lag traces the particles' ancestry, which islands over several GPUs do not keep (they trade particles): use --smooth full, or one GPU"
+            );
+        }
+    }
     let smoothing = (args.smoothing.mode())
         .map(|lag| BodySmoothing::create(&args.out, lag, &tracker))
         .transpose()?;

@@ -56,9 +56,13 @@ impl BodySmoothing {
         truth: Option<&[Vec<f32>]>,
     ) -> anyhow::Result<()> {
         let (_, states, log_weights) = tracker.particles()?;
-        let rows = self
-            .smoother
-            .add_frame(frame, vec![(0, states, log_weights)])?;
+        let cloud = crate::smoothing::TrackCloud {
+            track: 0,
+            states,
+            log_weights,
+            lineage: tracker.lineage()?,
+        };
+        let rows = self.smoother.add_frame(frame, vec![cloud])?;
         self.score(tracker.skeleton(), &rows, truth)
     }
 

@@ -93,6 +93,9 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         }
     }
     let lens = runner.tracker().lens();
+    if let Some(Some(_lag)) = args.smoothing.mode() {
+        runner.keep_lineage()?;
+    }
     let mut run = FaceRun {
         args,
         record: TrackRecord::create(
