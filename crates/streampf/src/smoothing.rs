@@ -12,7 +12,7 @@ use std::path::Path;
 
 use clap::Args;
 use pf_core::smooth::GaussianTransition;
-pub use pf_core::smooth_tracks::{Coverage, SmoothedRow, TrackCloud, TrackSmoother};
+pub use pf_core::smooth_tracks::{Coverage, LagSmoother, SmoothedRow, TrackCloud, TrackSmoother};
 
 use crate::run_output::CsvStream;
 
@@ -31,6 +31,30 @@ pub struct SmoothArgs {
     /// particles a track and reads each frame's particles and lineage back from a GPU.
     #[arg(long, value_name = "L", value_parser = clap::value_parser!(u32).range(1..=1000))]
     pub smooth_lag: Option<u32>,
+    /// How `--smooth-lag` smooths: `ancestry` (the default: by each particle's descendants L
+    /// frames on, cheap; an annealed tracker's many resamplings leave few descendants beyond a
+    /// lag of 1-2, and the summary says how many), or `marginal` (the marginal smoother over
+    /// the window: L backward passes of particles² a value, track and frame, on the tracker's
+    /// GPU where it has one).
+    #[arg(long, value_enum, default_value = "ancestry", requires = "smooth_lag")]
+    pub lag_smoother: LagSmootherArg,
+}
+
+/// `--lag-smoother`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum LagSmootherArg {
+    #[default]
+    Ancestry,
+    Marginal,
+}
+
+impl From<LagSmootherArg> for LagSmoother {
+    fn from(arg: LagSmootherArg) -> Self {
+        match arg {
+            LagSmootherArg::Ancestry => LagSmoother::Ancestry,
+            LagSmootherArg::Marginal => LagSmoother::Marginal,
+        }
+    }
 }
 
 impl SmoothArgs {
@@ -47,6 +71,8 @@ impl SmoothArgs {
 /// The smoother of a run: a [`TrackSmoother`] whose rows go to smoothed.csv.
 pub struct Smoother {
     tracks: TrackSmoother,
+    lag: Option<usize>,
+    how: LagSmoother,
     /// The GPU smoother, when the backward passes run on a GPU (for its fallback report).
     on_gpu: Option<std::sync::Arc<pf_gpu::smooth::OnGpu>>,
     file: CsvStream,
@@ -85,10 +111,56 @@ impl Smoother {
         }
         Ok(Self {
             tracks,
+            lag,
+            how: LagSmoother::default(),
             on_gpu,
             file: CsvStream::create(&out.join(SMOOTHED_FILE), &header)?,
             with_track,
         })
+    }
+
+    /// The same smoother with its lag windows smoothed by `how`.
+    pub fn lagging_by(mut self, how: LagSmoother) -> Self {
+        self.tracks = self.tracks.lagging_by(how);
+        self.how = how;
+        self
+    }
+
+    /// How this run smooths, for its summary: "over the whole run" or "with a lag of L frames
+    /// (from the ancestry)".
+    pub fn how(&self) -> String {
+        match (self.lag, self.how) {
+            (None, _) => "over the whole run".to_string(),
+            (Some(lag), LagSmoother::Ancestry) => {
+                format!("with a lag of {lag} frames (from the ancestry)")
+            }
+            (Some(lag), LagSmoother::Marginal) => {
+                format!("with a lag of {lag} frames (the marginal smoother)")
+            }
+        }
+    }
+
+    /// What smoothing from the ancestry kept of the lagged frames' particles, on stdout, and a
+    /// warning on stderr where the lag left most rows with under a tenth of them (path
+    /// degeneracy: the intervals are then too narrow).
+    pub fn report_ancestry(&self) {
+        let Some(health) = self.tracks.ancestry_health() else {
+            return;
+        };
+        if health.rows == 0 {
+            return;
+        }
+        outln!(
+            "smoothing from the ancestry kept an effective {:.1} % of each lagged frame's particles on average ({} of {} rows under 10 %)",
+            100.0 * health.mean_share,
+            health.below_a_tenth,
+            health.rows
+        );
+        if 2 * health.below_a_tenth > health.rows {
+            errln!(
+                "warning: most lagged frames kept under a tenth of their particles (path degeneracy: their intervals are too narrow); use a shorter --smooth-lag or --lag-smoother marginal"
+            );
+        }
     }
 
     /// Says so on stderr if the GPU smoother failed and handed tracks to the CPU (their rows
@@ -134,13 +206,5 @@ impl Smoother {
             self.file.row(&format!("{lead},{}", numbers.join(",")))?;
         }
         self.file.end_frame()
-    }
-}
-
-/// How a run smooths, for its summary: "over the whole run" or "with a lag of L frames".
-pub fn how(lag: Option<usize>) -> String {
-    match lag {
-        None => "over the whole run".to_string(),
-        Some(lag) => format!("with a lag of {lag} frames"),
     }
 }

@@ -69,16 +69,22 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
         .transpose()?;
     let bar = crate::console::progress_bar(frames, args.quiet);
+    // Lagging keeps the lineage either way: a restart (no ancestors) ends a lag window.
     if let Some(Some(_lag)) = args.smoothing.mode() {
         tracker.keep_lineage()?;
-        if tracker.lineage()?.is_none() {
+        let from_ancestry =
+            args.smoothing.lag_smoother == crate::smoothing::LagSmootherArg::Ancestry;
+        if from_ancestry && tracker.lineage()?.is_none() {
             anyhow::bail!(
-                "--smooth-lag traces the particles' ancestry, which islands over several GPUs do not keep (they trade particles): use --smooth full, or one GPU"
+                "--smooth-lag traces the particles' ancestry, which islands over several GPUs do not keep (they trade particles): use --lag-smoother marginal, --smooth full, or one GPU"
             );
         }
     }
     let smoothing = (args.smoothing.mode())
-        .map(|lag| BodySmoothing::create(&args.out, lag, &tracker))
+        .map(|lag| {
+            let how = args.smoothing.lag_smoother.into();
+            BodySmoothing::create(&args.out, (lag, how), &tracker)
+        })
         .transpose()?;
     let mut run = BodyRun::new(&args.out, smoothing)?;
     let started = Instant::now();

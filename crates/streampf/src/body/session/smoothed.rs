@@ -10,7 +10,6 @@ use crate::smoothing::{Coverage, SmoothedRow, Smoother};
 /// A body run's smoother and what its rows scored against the truth.
 pub(in crate::body) struct BodySmoothing {
     smoother: Smoother,
-    lag: Option<usize>,
     angular: Vec<bool>,
     /// Summed joint errors of the smoothed means and of the filtered weighted means of the
     /// same samples.
@@ -23,7 +22,7 @@ impl BodySmoothing {
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
     pub(in crate::body) fn create(
         out: &Path,
-        lag: Option<usize>,
+        (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &BodyTracker,
     ) -> anyhow::Result<Self> {
         let names = tracker.skeleton().pose_names();
@@ -37,10 +36,10 @@ impl BodySmoothing {
             &names,
             false,
             tracker.gpu_context(),
-        )?;
+        )?
+        .lagging_by(how);
         Ok(Self {
             smoother,
-            lag,
             angular,
             errors: [0.0; 2],
             compared: 0,
@@ -100,7 +99,8 @@ impl BodySmoothing {
     /// The summary's lines for smoothed.csv (and, with ground truth, its errors and coverage).
     pub(in crate::body) fn print(&self) {
         self.smoother.report_fallback();
-        let how = crate::smoothing::how(self.lag);
+        self.smoother.report_ancestry();
+        let how = self.smoother.how();
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");
             return;

@@ -93,6 +93,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         }
     }
     let lens = runner.tracker().lens();
+    // Lagging keeps the lineage either way: a restart (no ancestors) ends a lag window.
     if let Some(Some(_lag)) = args.smoothing.mode() {
         runner.keep_lineage()?;
     }
@@ -107,7 +108,10 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         )?,
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
         smoothing: (args.smoothing.mode())
-            .map(|lag| FaceSmoothing::create(&args.out, lag, runner.tracker()))
+            .map(|lag| {
+                let how = args.smoothing.lag_smoother.into();
+                FaceSmoothing::create(&args.out, (lag, how), runner.tracker())
+            })
             .transpose()?,
         truth,
         overlay,

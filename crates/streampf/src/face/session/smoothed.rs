@@ -12,7 +12,6 @@ use crate::smoothing::{Coverage, SmoothedRow, Smoother};
 /// A face run's smoother and what its rows scored against the truth.
 pub(super) struct FaceSmoothing {
     smoother: Smoother,
-    lag: Option<usize>,
     /// Summed errors of the smoothed means, and of the filtered weighted means of the same
     /// particles (the estimate smoothing improves on).
     errors: [(f64, f64); 2],
@@ -24,7 +23,7 @@ impl FaceSmoothing {
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
     pub(super) fn create(
         out: &Path,
-        lag: Option<usize>,
+        (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &FaceTracker,
     ) -> anyhow::Result<Self> {
         let names: Vec<String> = STATE_NAMES.iter().map(|n| n.to_string()).collect();
@@ -36,10 +35,10 @@ impl FaceSmoothing {
             &names,
             true,
             tracker.gpu_context(),
-        )?;
+        )?
+        .lagging_by(how);
         Ok(Self {
             smoother,
-            lag,
             errors: [(0.0, 0.0); 2],
             compared: 0,
             coverage: Default::default(),
@@ -90,7 +89,8 @@ impl FaceSmoothing {
     /// The summary's line for smoothed.csv (and, with ground truth, its errors and coverage).
     pub(super) fn print(&self) {
         self.smoother.report_fallback();
-        let how = crate::smoothing::how(self.lag);
+        self.smoother.report_ancestry();
+        let how = self.smoother.how();
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");
             return;

@@ -5,6 +5,9 @@
 //! frame); and how often intervals hold the truth ([`Coverage`]). The command line's `--smooth` writes
 //! these rows to smoothed.csv; Python's trackers return them.
 
+mod coverage;
+pub use coverage::Coverage;
+
 use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 
@@ -36,6 +39,49 @@ impl From<TargetParticles> for TrackCloud {
             states,
             log_weights,
             lineage: None,
+        }
+    }
+}
+
+/// How a lag window's first frame is smoothed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LagSmoother {
+    /// By its particles' descendants L frames on ([`crate::smooth::ancestry`]): O(M·L) a frame,
+    /// on the host, no backward passes. The price is path degeneracy: every resampling on the
+    /// way (an annealed step resamples once per layer) leaves fewer of the frame's particles
+    /// with descendants; [`TrackSmoother::ancestry_health`] measures it.
+    #[default]
+    Ancestry,
+    /// By the marginal smoother over the window ([`crate::smooth::smooth_first_values`] on the
+    /// backend): L backward passes of M² a value, track and frame; no degeneracy.
+    Marginal,
+}
+
+/// How much of a lagged frame's cloud smoothing from the ancestry kept: over the rows smoothed
+/// a full lag back, the effective sample size of their traced weights (1 / Σ w²) as a share of
+/// the particles.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct AncestryHealth {
+    /// Rows smoothed a full lag back.
+    pub rows: usize,
+    /// Their mean effective share of the particles (0–1).
+    pub mean_share: f64,
+    /// How many kept less than a tenth of the particles.
+    pub below_a_tenth: usize,
+}
+
+impl AncestryHealth {
+    fn add(&mut self, weights: &[f64]) {
+        let squares: f64 = weights.iter().map(|w| w * w).sum();
+        let share = if squares > 0.0 {
+            1.0 / squares / weights.len().max(1) as f64
+        } else {
+            0.0
+        };
+        self.mean_share += (share - self.mean_share) / (self.rows + 1) as f64;
+        self.rows += 1;
+        if share < 0.1 {
+            self.below_a_tenth += 1;
         }
     }
 }
@@ -74,6 +120,10 @@ struct TrackFrames {
 #[derive(Clone)]
 pub struct TrackSmoother {
     lag: Option<usize>,
+    /// How a lag window is smoothed (with a lag).
+    lag_smoother: LagSmoother,
+    /// What smoothing from the ancestry kept of the lagged frames.
+    health: AncestryHealth,
     /// The dynamics' density. Each value is smoothed as its own block
     /// (`pf_core::smooth::smooth_values`): on the synthetic walk (400 samples, CPU) the 38 body
     /// values smoothed at once collapsed the backward weights onto a few samples (joint error
@@ -93,6 +143,8 @@ impl TrackSmoother {
     pub fn new(lag: Option<usize>, transition: GaussianTransition, gain: f32) -> Self {
         Self {
             lag,
+            lag_smoother: LagSmoother::default(),
+            health: AncestryHealth::default(),
             transition,
             gain,
             tracks: BTreeMap::new(),
@@ -103,6 +155,26 @@ impl TrackSmoother {
     /// The same smoother running its backward passes on `backend` (a GPU's, say).
     pub fn on(self, backend: Arc<dyn ValueSmoother>) -> Self {
         Self { backend, ..self }
+    }
+
+    /// The same smoother with its lag windows smoothed by `how` ([`LagSmoother::Ancestry`] by
+    /// default).
+    pub fn lagging_by(self, how: LagSmoother) -> Self {
+        Self {
+            lag_smoother: how,
+            ..self
+        }
+    }
+
+    /// What smoothing from the ancestry kept of the frames it smoothed a full lag back (`None`
+    /// unless it smooths that way).
+    pub fn ancestry_health(&self) -> Option<AncestryHealth> {
+        self.traces_ancestry().then_some(self.health)
+    }
+
+    /// Whether lag windows are smoothed from the ancestry.
+    fn traces_ancestry(&self) -> bool {
+        self.lag.is_some() && self.lag_smoother == LagSmoother::Ancestry
     }
 
     /// The dynamics' density the smoother reweighs by.
@@ -126,8 +198,19 @@ impl TrackSmoother {
             .copied()
             .collect();
         let mut rows = self.flush_tracks(&ended)?;
+        let mut due = Vec::new();
         for cloud in clouds {
-            rows.extend(self.add_cloud(frame, cloud)?);
+            let track = cloud.track;
+            if self.add_cloud(frame, cloud, &mut rows)? {
+                due.push(track);
+            }
+        }
+        if self.traces_ancestry() {
+            for track in due {
+                rows.push(self.smooth_first_by_ancestry(track)?);
+            }
+        } else {
+            rows.extend(self.smooth_windows(&due)?);
         }
         Ok(rows)
     }
@@ -138,8 +221,9 @@ impl TrackSmoother {
         self.flush_tracks(&tracks)
     }
 
-    /// One track's cloud at `frame`, with its drift; the rows it makes due (with a lag: the
-    /// window's first frame once the window is full, or the whole window cut at a restart).
+    /// One track's cloud at `frame`, with its drift; whether its lag window is now full (its
+    /// first frame due). A restart (a lineage without ancestors) first smooths the window it
+    /// ends into `rows`.
     fn add_cloud(
         &mut self,
         frame: usize,
@@ -149,22 +233,21 @@ impl TrackSmoother {
             log_weights,
             lineage,
         }: TrackCloud,
-    ) -> Result<Vec<SmoothedRow>, PfError> {
+        rows: &mut Vec<SmoothedRow>,
+    ) -> Result<bool, PfError> {
         let dims = self.transition.sigma.len();
-        let mut rows = Vec::new();
-        if self.lag.is_some()
-            && self
-                .tracks
-                .get(&track)
-                .is_some_and(|w| !w.frames.is_empty())
-        {
-            let lineage = lineage.as_deref().ok_or_else(|| {
-                PfError::InvalidConfig(format!(
-                    "smoothing with a lag traces each frame's lineage; track {track}'s frame {frame} came without it (keep the engine's lineage)"
-                ))
-            })?;
-            if !traceable(lineage) {
-                rows = self.flush_tracks(&[track])?;
+        let continues = self
+            .tracks
+            .get(&track)
+            .is_some_and(|w| !w.frames.is_empty());
+        if continues && self.lag.is_some() {
+            if self.traces_ancestry() && lineage.is_none() {
+                return Err(PfError::InvalidConfig(format!(
+                    "smoothing from the ancestry traces each frame's lineage; track {track}'s frame {frame} came without it (keep the engine's lineage)"
+                )));
+            }
+            if lineage.as_deref().is_some_and(|l| !traceable(l)) {
+                rows.extend(self.flush_tracks(&[track])?);
             }
         }
         let mut cloud = Cloud::of_target(
@@ -192,10 +275,7 @@ impl TrackSmoother {
             cloud,
             lineage,
         });
-        if self.lag.is_some_and(|lag| entry.frames.len() > lag) {
-            rows.push(self.smooth_first_by_ancestry(track)?);
-        }
-        Ok(rows)
+        Ok(self.lag.is_some_and(|lag| entry.frames.len() > lag))
     }
 
     /// The first frame of `track`'s full lag window, smoothed by its descendants' weights in the
@@ -205,19 +285,39 @@ impl TrackSmoother {
         let window = self.tracks.get(&track).ok_or_else(lag_window)?;
         let weights = ancestry_weights(&window.frames)?;
         let first_weights = weights.into_iter().next().ok_or_else(lag_window)?;
+        self.health.add(&first_weights);
         let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
         let first = entry.frames.pop_front().ok_or_else(lag_window)?;
         self.row(first.frame, track, &first.cloud, &first_weights)
     }
 
+    /// The first frame of each of `tracks`' full lag windows, smoothed by the marginal smoother
+    /// over the window (all windows in one backend call), and dropped from the window.
+    fn smooth_windows(&mut self, tracks: &[usize]) -> Result<Vec<SmoothedRow>, PfError> {
+        let windows: Vec<Vec<Cloud>> = (tracks.iter())
+            .filter_map(|t| self.tracks.get(t))
+            .map(|w| w.frames.iter().map(|f| f.cloud.clone()).collect())
+            .collect();
+        let views: Vec<&[Cloud]> = windows.iter().map(Vec::as_slice).collect();
+        let values = self.backend.smooth_first_many(&views, &self.transition)?;
+        let lag_window = || PfError::InvalidConfig("an empty lag window".into());
+        let mut rows = Vec::with_capacity(tracks.len());
+        for (&track, first_values) in tracks.iter().zip(values) {
+            let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
+            let first = entry.frames.pop_front().ok_or_else(lag_window)?;
+            rows.push(self.summarised_row(first.frame, track, &first.cloud, first_values)?);
+        }
+        Ok(rows)
+    }
+
     /// Every frame `tracks` still hold, smoothed, the tracks ended: by the marginal smoother
-    /// (all tracks in one backend call), or with a lag by each track's ancestry.
+    /// (all tracks in one backend call), or by each track's ancestry where lag windows are.
     fn flush_tracks(&mut self, tracks: &[usize]) -> Result<Vec<SmoothedRow>, PfError> {
         let waiting: Vec<(usize, TrackFrames)> = (tracks.iter())
             .filter_map(|t| self.tracks.remove(t).map(|w| (*t, w)))
             .collect();
         let mut rows = Vec::new();
-        if self.lag.is_some() {
+        if self.traces_ancestry() {
             for (track, w) in &waiting {
                 let weights = ancestry_weights(&w.frames)?;
                 for (f, weights) in w.frames.iter().zip(&weights) {
@@ -302,114 +402,5 @@ fn drift(gain: f32, previous: Option<&[f32]>, mean: &[f32], angular: &[bool]) ->
     }
 }
 
-/// How often the truth lay within the smoothed 95 % interval, per value (angles wrapped), and
-/// the count of rows compared.
-#[derive(Default)]
-pub struct Coverage {
-    /// Per value, the rows whose interval held the truth.
-    pub within: Vec<usize>,
-    /// The rows compared.
-    pub rows: usize,
-}
-
-impl Coverage {
-    /// Adds one row against its true values.
-    pub fn add(&mut self, values: &[Summary], truth: &[f32], angular: &[bool]) {
-        if self.within.len() != values.len() {
-            self.within = vec![0; values.len()];
-        }
-        for (d, (s, &t)) in values.iter().zip(truth).enumerate() {
-            let offset = |x: f32| {
-                let e = t - x;
-                if angular.get(d).copied().unwrap_or(false) {
-                    crate::batch::wrap_angle_floor(e)
-                } else {
-                    e
-                }
-            };
-            // The truth from the mean, within the interval's reach on each side.
-            let from_mean = offset(s.mean);
-            if from_mean >= s.lower - s.mean && from_mean <= s.upper - s.mean {
-                self.within[d] += 1;
-            }
-        }
-        self.rows += 1;
-    }
-
-    /// Each value's share within its interval, in percent.
-    pub fn percent(&self) -> Vec<f64> {
-        (self.within.iter())
-            .map(|&w| 100.0 * w as f64 / self.rows.max(1) as f64)
-            .collect()
-    }
-}
-
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::smooth::ancestry::NO_ANCESTOR;
-
-    const M: usize = 4;
-
-    fn transition() -> GaussianTransition {
-        GaussianTransition {
-            sigma: vec![0.1],
-            angular: vec![false],
-        }
-    }
-
-    fn cloud(track: usize, lineage: Option<Vec<u32>>) -> TrackCloud {
-        TrackCloud {
-            track,
-            states: vec![0.0, 1.0, 2.0, 3.0],
-            log_weights: vec![0.1f32.ln(), 0.2f32.ln(), 0.3f32.ln(), 0.4f32.ln()],
-            lineage,
-        }
-    }
-
-    #[test]
-    fn a_lag_writes_each_frame_lag_frames_late_and_the_rest_at_the_end() {
-        let mut smoother = TrackSmoother::new(Some(2), transition(), 0.0);
-        let mut due = Vec::new();
-        for frame in 0..5 {
-            let rows = smoother.add_frame(frame, vec![cloud(7, Some(vec![3, 3, 0, 1]))]);
-            due.push(rows.unwrap().iter().map(|r| r.frame).collect::<Vec<_>>());
-        }
-        assert_eq!(due, [vec![], vec![], vec![0], vec![1], vec![2]]);
-        let rest: Vec<usize> = smoother.finish().unwrap().iter().map(|r| r.frame).collect();
-        assert_eq!(rest, [3, 4]);
-    }
-
-    #[test]
-    fn lagged_weights_are_the_descendants_weights() {
-        let mut smoother = TrackSmoother::new(Some(1), transition(), 0.0);
-        smoother.add_frame(0, vec![cloud(0, None)]).unwrap();
-        // Frame 1's particles 0 and 1 descend from frame 0's 3, 2 and 3 from its 0: frame 0 is
-        // smoothed to weights (0.7, 0, 0, 0.3), its mean 0.9.
-        let rows = smoother
-            .add_frame(1, vec![cloud(0, Some(vec![3, 3, 0, 0]))])
-            .unwrap();
-        assert!((rows[0].values[0].mean - 0.9).abs() < 1e-5, "{rows:?}");
-        assert!((rows[0].filtered[0].mean - 2.0).abs() < 1e-5);
-    }
-
-    #[test]
-    fn a_restart_ends_the_window_and_a_missing_lineage_is_an_error() {
-        let mut smoother = TrackSmoother::new(Some(3), transition(), 0.0);
-        smoother.add_frame(0, vec![cloud(0, None)]).unwrap();
-        smoother
-            .add_frame(1, vec![cloud(0, Some(vec![0, 1, 2, 3]))])
-            .unwrap();
-        let rows = smoother
-            .add_frame(2, vec![cloud(0, Some(vec![NO_ANCESTOR; M]))])
-            .unwrap();
-        assert_eq!(rows.iter().map(|r| r.frame).collect::<Vec<_>>(), [0, 1]);
-        let error = smoother.add_frame(3, vec![cloud(0, None)]).unwrap_err();
-        assert!(error.to_string().contains("lineage"), "{error}");
-        // The whole-track smoother does not need it.
-        let mut whole = TrackSmoother::new(None, transition(), 0.0);
-        whole.add_frame(0, vec![cloud(0, None)]).unwrap();
-        whole.add_frame(1, vec![cloud(0, None)]).unwrap();
-        assert_eq!(whole.finish().unwrap().len(), 2);
-    }
-}
+mod tests;
