@@ -6,7 +6,8 @@
 //! whole step, all faces weighed in one dispatch of the packed kernel; set
 //! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout). `face_step_over_gpus`:
 //! 64, 256 and 1 024 faces on one GPU and split over every GPU (where there are two or more),
-//! one frame at a time and with two frames in flight.
+//! one frame at a time and with two frames in flight. `face_step_lag_smoothing`: what smoothing
+//! with a lag of 8 (from the ancestry, or the marginal smoother) adds to the step.
 //! GPU times include the submission, the wait and the readback. Fig. 6 also times the plain C
 //! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick,
 //! and the one-thread reference built without AVX2.
@@ -30,6 +31,7 @@ use face_tracker::synth::{
 use face_tracker::tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
+use pf_core::smooth_tracks::{LagSmoother, TrackSmoother};
 use pf_gpu::stream::DeviceStream;
 use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 
@@ -388,11 +390,76 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
     group.finish();
 }
 
+/// What smoothing with a lag of 8 adds to the face step on the GPU (1 000 particles a face,
+/// 1024×768): the step alone; with the lineage kept (a dispatch more per layer); with every
+/// tracked face's particles and lineage read back each frame (what any smoother of the run
+/// needs); and with the ancestry smoother, or the marginal smoother on the same GPU, writing
+/// the frame eight back.
+fn lag_smoothing(c: &mut Criterion) {
+    let mut group = c.benchmark_group("face_step_lag_smoothing");
+    group.sample_size(10);
+    let counts: &[usize] = if full_size() { &[4, 64] } else { &[2] };
+    let particles = if full_size() { 1000 } else { 50 };
+    const LAG: usize = 8;
+    for &faces in counts {
+        let (frame, rects, model, _) = scene(faces);
+        let config = FaceTrackerConfig {
+            particles,
+            best: particles / 10,
+            ..FaceTrackerConfig::default()
+        };
+        let tracker = |keep: bool| {
+            let backend = FaceBackend::Gpu(Box::new(context()));
+            let mut t = FaceTracker::new(&frame, &rects, &model, config.clone(), backend).unwrap();
+            if keep {
+                t.keep_lineage().unwrap();
+            }
+            t
+        };
+        let mut plain = tracker(false);
+        group.bench_function(BenchmarkId::new("step", faces), |b| {
+            b.iter(|| std::hint::black_box(plain.step(&frame).unwrap()))
+        });
+        drop(plain);
+        let mut kept = tracker(true);
+        group.bench_function(BenchmarkId::new("step_keeping_lineage", faces), |b| {
+            b.iter(|| std::hint::black_box(kept.step(&frame).unwrap()))
+        });
+        group.bench_function(BenchmarkId::new("step_reading_particles", faces), |b| {
+            b.iter(|| {
+                let estimates = kept.step(&frame).unwrap();
+                std::hint::black_box(kept.track_clouds(&estimates).unwrap())
+            })
+        });
+        for how in [LagSmoother::Ancestry, LagSmoother::Marginal] {
+            let mut smoother = TrackSmoother::new(Some(LAG), kept.transition(), kept.motion_gain())
+                .lagging_by(how);
+            if how == LagSmoother::Marginal {
+                let ctx = kept.gpu_context().unwrap();
+                let on_gpu = pf_gpu::smooth::OnGpu::new(ctx).unwrap();
+                smoother = smoother.on(std::sync::Arc::new(on_gpu));
+            }
+            let mut frame_index = 0;
+            let name = format!("step_smoothing_lag_8_{how:?}").to_lowercase();
+            group.bench_function(BenchmarkId::new(name, faces), |b| {
+                b.iter(|| {
+                    let estimates = kept.step(&frame).unwrap();
+                    let clouds = kept.track_clouds(&estimates).unwrap();
+                    frame_index += 1;
+                    std::hint::black_box(smoother.add_frame(frame_index, clouds).unwrap())
+                })
+            });
+        }
+    }
+    group.finish();
+}
+
 fn bench(c: &mut Criterion) {
     let ctx = context();
     fig6(c, &ctx);
     frame_upload(c, &ctx);
     fig7(c);
+    lag_smoothing(c);
     over_gpus(c);
     render(c);
 }

@@ -275,6 +275,11 @@ impl BodyTracker {
         Ok(islands::joined_particles(&islands, &self.island_weights)?)
     }
 
+    /// The annealing layers of a frame (each resamples).
+    pub fn annealing_layers(&self) -> Result<usize, BodyError> {
+        Ok(filter::annealing(&self.skeleton, &self.config)?.layers)
+    }
+
     /// Keeps each frame's lineage from the next step on (what smoothing with a lag traces back;
     /// the GPU composes it, the CPU engine always does).
     pub fn keep_lineage(&mut self) -> Result<(), BodyError> {

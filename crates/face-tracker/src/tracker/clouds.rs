@@ -17,6 +17,11 @@ impl FaceTracker {
         }
     }
 
+    /// The annealing layers of a frame (each resamples).
+    pub fn annealing_layers(&self) -> usize {
+        self.config.annealing.layers
+    }
+
     /// Keeps each frame's lineage from the next step on (the GPU composes it; the CPU engine
     /// always does): what smoothing with a lag traces back ([`Self::track_clouds`]).
     pub fn keep_lineage(&mut self) -> Result<(), FaceError> {

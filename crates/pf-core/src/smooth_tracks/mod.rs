@@ -58,29 +58,33 @@ pub enum LagSmoother {
 }
 
 /// How much of a lagged frame's cloud smoothing from the ancestry kept: over the rows smoothed
-/// a full lag back, the effective sample size of their traced weights (1 / Σ w²) as a share of
-/// the particles.
+/// a full lag back, the effective sample size (1 / Σ w²) of their traced weights against that of
+/// the same particles' filtered weights.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct AncestryHealth {
     /// Rows smoothed a full lag back.
     pub rows: usize,
-    /// Their mean effective share of the particles (0–1).
-    pub mean_share: f64,
-    /// How many kept less than a tenth of the particles.
+    /// Their mean ratio of traced to filtered effective sample size (0–1, rarely above).
+    pub mean_kept: f64,
+    /// How many kept under a tenth of their filtered effective sample size.
     pub below_a_tenth: usize,
 }
 
 impl AncestryHealth {
-    fn add(&mut self, weights: &[f64]) {
-        let squares: f64 = weights.iter().map(|w| w * w).sum();
-        let share = if squares > 0.0 {
-            1.0 / squares / weights.len().max(1) as f64
+    fn add(&mut self, traced: &[f64], filtered: &[f64]) {
+        let ess = |w: &[f64]| {
+            let squares: f64 = w.iter().map(|x| x * x).sum();
+            if squares > 0.0 { 1.0 / squares } else { 0.0 }
+        };
+        let filtered = ess(filtered);
+        let kept = if filtered > 0.0 {
+            ess(traced) / filtered
         } else {
             0.0
         };
-        self.mean_share += (share - self.mean_share) / (self.rows + 1) as f64;
+        self.mean_kept += (kept - self.mean_kept) / (self.rows + 1) as f64;
         self.rows += 1;
-        if share < 0.1 {
+        if kept < 0.1 {
             self.below_a_tenth += 1;
         }
     }
@@ -285,9 +289,9 @@ impl TrackSmoother {
         let window = self.tracks.get(&track).ok_or_else(lag_window)?;
         let weights = ancestry_weights(&window.frames)?;
         let first_weights = weights.into_iter().next().ok_or_else(lag_window)?;
-        self.health.add(&first_weights);
         let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
         let first = entry.frames.pop_front().ok_or_else(lag_window)?;
+        self.health.add(&first_weights, &first.cloud.weights);
         self.row(first.frame, track, &first.cloud, &first_weights)
     }
 

@@ -91,20 +91,21 @@ fn a_marginal_lag_smooths_each_window_as_the_marginal_smoother_does() {
 }
 
 #[test]
-fn the_ancestry_health_counts_the_particles_a_lag_keeps() {
+fn the_ancestry_health_compares_the_traced_and_filtered_sample_sizes() {
     let mut smoother = TrackSmoother::new(Some(1), transition(), 0.0);
     smoother.add_frame(0, vec![cloud(0, None)]).unwrap();
-    // Every particle of frame 1 descends from frame 0's particle 2: one particle kept.
+    // Every particle of frame 1 descends from frame 0's particle 2: an effective one particle
+    // of the filtered 1 / 0.3.
     smoother
         .add_frame(1, vec![cloud(0, Some(vec![2; M]))])
         .unwrap();
-    // A permutation keeps the weights (0.1 .. 0.4): an effective 1 / 0.3 of 4.
+    // A permutation keeps the weights' sizes: all of them.
     smoother
         .add_frame(2, vec![cloud(0, Some(vec![3, 2, 1, 0]))])
         .unwrap();
     let health = smoother.ancestry_health().unwrap();
     assert_eq!(health.rows, 2);
     assert_eq!(health.below_a_tenth, 0, "{health:?}");
-    let expected = (0.25 + 1.0 / 0.3 / 4.0) / 2.0;
-    assert!((health.mean_share - expected).abs() < 1e-6, "{health:?}");
+    let expected = (0.3 + 1.0) / 2.0;
+    assert!((health.mean_kept - expected).abs() < 1e-6, "{health:?}");
 }

@@ -70,6 +70,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .transpose()?;
     let bar = crate::console::progress_bar(frames, args.quiet);
     // Lagging keeps the lineage either way: a restart (no ancestors) ends a lag window.
+    let layers = tracker.annealing_layers()?;
     if let Some(Some(_lag)) = args.smoothing.mode() {
         tracker.keep_lineage()?;
         let from_ancestry =
@@ -82,7 +83,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     }
     let smoothing = (args.smoothing.mode())
         .map(|lag| {
-            let how = args.smoothing.lag_smoother.into();
+            let how = args.smoothing.lag_smoother.resolve(layers);
             BodySmoothing::create(&args.out, (lag, how), &tracker)
         })
         .transpose()?;

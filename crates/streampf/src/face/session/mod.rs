@@ -109,7 +109,8 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
         smoothing: (args.smoothing.mode())
             .map(|lag| {
-                let how = args.smoothing.lag_smoother.into();
+                let layers = runner.tracker().annealing_layers();
+                let how = args.smoothing.lag_smoother.resolve(layers);
                 FaceSmoothing::create(&args.out, (lag, how), runner.tracker())
             })
             .transpose()?,
