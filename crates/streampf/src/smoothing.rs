@@ -125,6 +125,13 @@ impl Smoother {
         })
     }
 
+    /// The same smoother giving each row the filtered summary too (to score both against a
+    /// truth).
+    pub fn comparing_filtered(mut self) -> Self {
+        self.tracks = self.tracks.comparing_filtered();
+        self
+    }
+
     /// The same smoother with its lag windows smoothed by `how`.
     pub fn lagging_by(mut self, how: LagSmoother) -> Self {
         self.tracks = self.tracks.lagging_by(how);

@@ -110,10 +110,7 @@ fn face_smoothing_writes_a_row_per_tracked_face_frame_whole_run_or_lagged() {
         text.contains("smoothed with a lag of 3 frames (from the ancestry)"),
         "{text}"
     );
-    assert!(
-        text.contains("smoothing from the ancestry kept"),
-        "{text}"
-    );
+    assert!(text.contains("smoothing from the ancestry kept"), "{text}");
     let (_, lagged) = rows(&dir.join("lag/smoothed.csv"));
     let keys = |rows: &[Vec<String>]| -> BTreeSet<(String, String)> {
         rows.iter().map(|r| (r[0].clone(), r[1].clone())).collect()

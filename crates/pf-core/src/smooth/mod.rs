@@ -27,7 +27,7 @@ use crate::error::PfError;
 pub mod ancestry;
 mod summary;
 use summary::value_summary;
-pub use summary::{Summary, summarise, summarise_value};
+pub use summary::{Summary, summarise, summarise_value, weighted_means};
 
 /// A target's number, its particles' states (`[d·M + m]`) and their normalised log-weights: what
 /// a tracker hands a smoother each frame.

@@ -57,12 +57,21 @@ pub fn summarise_value(
     Ok(value_summary(cloud, weights, angular, d))
 }
 
-/// [`summarise_value`] of a cloud already checked against its weights and values.
-pub(super) fn value_summary(cloud: &Cloud, weights: &[f64], angular: &[bool], d: usize) -> Summary {
-    let particles = cloud.particles();
-    let xs = &cloud.states[d * particles..(d + 1) * particles];
-    let is_angle = angular.get(d).copied().unwrap_or(false);
-    let mean = if is_angle {
+/// Every value's weighted mean (on the circle for an angle), without the intervals: what a
+/// drift needs, at a fraction of [`summarise`]'s cost (no sorting).
+pub fn weighted_means(cloud: &Cloud, weights: &[f64], angular: &[bool]) -> Vec<f32> {
+    let (dims, particles) = (cloud.drift.len(), cloud.particles());
+    (0..dims)
+        .map(|d| {
+            let xs = &cloud.states[d * particles..(d + 1) * particles];
+            value_mean(xs, weights, angular.get(d).copied().unwrap_or(false)) as f32
+        })
+        .collect()
+}
+
+/// One value's weighted mean, on the circle for an angle.
+fn value_mean(xs: &[f32], weights: &[f64], is_angle: bool) -> f64 {
+    if is_angle {
         let (s, c) = xs.iter().zip(weights).fold((0.0, 0.0), |(s, c), (&x, &w)| {
             (s + w * f64::from(x).sin(), c + w * f64::from(x).cos())
         });
@@ -72,8 +81,19 @@ pub(super) fn value_summary(cloud: &Cloud, weights: &[f64], angular: &[bool], d:
             .zip(weights)
             .map(|(&x, &w)| w * f64::from(x))
             .sum()
-    };
+    }
+}
+
+/// [`summarise_value`] of a cloud already checked against its weights and values. Particles of
+/// zero weight are left out of the sort: they move no cumulative sum (a cloud smoothed from the
+/// ancestry has most of its weights zero, and the sort is the summary's cost).
+pub(super) fn value_summary(cloud: &Cloud, weights: &[f64], angular: &[bool], d: usize) -> Summary {
+    let particles = cloud.particles();
+    let xs = &cloud.states[d * particles..(d + 1) * particles];
+    let is_angle = angular.get(d).copied().unwrap_or(false);
+    let mean = value_mean(xs, weights, is_angle);
     let mut offsets: Vec<(f64, f64)> = (xs.iter().zip(weights))
+        .filter(|(_, w)| **w != 0.0)
         .map(|(&x, &w)| {
             let e = f64::from(x) - mean;
             let e = if is_angle {

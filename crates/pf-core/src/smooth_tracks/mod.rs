@@ -9,12 +9,15 @@ mod coverage;
 pub use coverage::Coverage;
 
 use std::collections::{BTreeMap, VecDeque};
+
+use rayon::prelude::*;
 use std::sync::Arc;
 
 use crate::error::PfError;
 use crate::smooth::ancestry::{trace_back, traceable};
 use crate::smooth::{
     Cloud, CpuSmoother, GaussianTransition, Summary, TargetParticles, ValueSmoother, summarise,
+    weighted_means,
 };
 
 /// One tracked target's particles at a frame, as a tracker hands them to [`TrackSmoother`].
@@ -107,7 +110,9 @@ pub struct SmoothedRow {
     pub track: usize,
     /// Each value's smoothed mean and 95 % interval.
     pub values: Vec<Summary>,
-    /// The same particles under their filtered weights: the filter's weighted mean and interval.
+    /// The same particles under their filtered weights: the filter's weighted mean and interval
+    /// (empty unless the smoother was asked for it, [`TrackSmoother::comparing_filtered`]: it
+    /// costs a sort of every value's particles).
     pub filtered: Vec<Summary>,
 }
 
@@ -128,6 +133,8 @@ pub struct TrackSmoother {
     lag_smoother: LagSmoother,
     /// What smoothing from the ancestry kept of the lagged frames.
     health: AncestryHealth,
+    /// Whether rows carry the filtered summary too.
+    compare_filtered: bool,
     /// The dynamics' density. Each value is smoothed as its own block
     /// (`pf_core::smooth::smooth_values`): on the synthetic walk (400 samples, CPU) the 38 body
     /// values smoothed at once collapsed the backward weights onto a few samples (joint error
@@ -149,6 +156,7 @@ impl TrackSmoother {
             lag,
             lag_smoother: LagSmoother::default(),
             health: AncestryHealth::default(),
+            compare_filtered: false,
             transition,
             gain,
             tracks: BTreeMap::new(),
@@ -167,6 +175,22 @@ impl TrackSmoother {
         Self {
             lag_smoother: how,
             ..self
+        }
+    }
+
+    /// The same smoother giving each row the filtered summary of its particles too
+    /// ([`SmoothedRow::filtered`]), to compare smoothed and filtered against a truth.
+    pub fn comparing_filtered(self) -> Self {
+        Self {
+            compare_filtered: true,
+            ..self
+        }
+    }
+
+    fn row_summary(&self) -> RowSummary<'_> {
+        RowSummary {
+            angular: &self.transition.angular,
+            filtered: self.compare_filtered,
         }
     }
 
@@ -210,9 +234,7 @@ impl TrackSmoother {
             }
         }
         if self.traces_ancestry() {
-            for track in due {
-                rows.push(self.smooth_first_by_ancestry(track)?);
-            }
+            rows.extend(self.smooth_first_by_ancestry(&due)?);
         } else {
             rows.extend(self.smooth_windows(&due)?);
         }
@@ -262,10 +284,7 @@ impl TrackSmoother {
             &log_weights,
             vec![0.0; dims],
         )?;
-        let mean: Vec<f32> = (summarise(&cloud, &cloud.weights, &self.transition.angular)?)
-            .iter()
-            .map(|s| s.mean)
-            .collect();
+        let mean = weighted_means(&cloud, &cloud.weights, &self.transition.angular);
         let entry = self.tracks.entry(track).or_default();
         cloud.drift = drift(
             self.gain,
@@ -282,17 +301,44 @@ impl TrackSmoother {
         Ok(self.lag.is_some_and(|lag| entry.frames.len() > lag))
     }
 
-    /// The first frame of `track`'s full lag window, smoothed by its descendants' weights in the
-    /// window's last frame (traced back through the lineages), and dropped from the window.
-    fn smooth_first_by_ancestry(&mut self, track: usize) -> Result<SmoothedRow, PfError> {
-        let lag_window = || PfError::InvalidConfig(format!("track {track}: an empty lag window"));
-        let window = self.tracks.get(&track).ok_or_else(lag_window)?;
-        let weights = ancestry_weights(&window.frames)?;
-        let first_weights = weights.into_iter().next().ok_or_else(lag_window)?;
-        let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
-        let first = entry.frames.pop_front().ok_or_else(lag_window)?;
-        self.health.add(&first_weights, &first.cloud.weights);
-        self.row(first.frame, track, &first.cloud, &first_weights)
+    /// The first frame of each of `tracks`' full lag windows, smoothed by its descendants'
+    /// weights in the window's last frame (traced back through the lineages; the tracks on all
+    /// cores), and dropped from the window.
+    fn smooth_first_by_ancestry(&mut self, tracks: &[usize]) -> Result<Vec<SmoothedRow>, PfError> {
+        let lag_window =
+            |track| PfError::InvalidConfig(format!("track {track}: an empty lag window"));
+        let how = self.row_summary();
+        let windows: Vec<(usize, &TrackFrames)> = (tracks.iter())
+            .map(|&t| {
+                self.tracks
+                    .get(&t)
+                    .map(|w| (t, w))
+                    .ok_or_else(|| lag_window(t))
+            })
+            .collect::<Result<_, _>>()?;
+        let smoothed: Vec<(SmoothedRow, Vec<f64>)> = (windows.par_iter())
+            .map(|&(track, window)| {
+                let weights = ancestry_weights(&window.frames)?;
+                let first_weights = weights
+                    .into_iter()
+                    .next()
+                    .ok_or_else(|| lag_window(track))?;
+                let first = window.frames.front().ok_or_else(|| lag_window(track))?;
+                let row = smoothed_row(how, (first.frame, track), &first.cloud, &first_weights)?;
+                Ok((row, first_weights))
+            })
+            .collect::<Result<_, PfError>>()?;
+        let mut rows = Vec::with_capacity(tracks.len());
+        for (&track, (row, weights)) in tracks.iter().zip(smoothed) {
+            let entry = self
+                .tracks
+                .get_mut(&track)
+                .ok_or_else(|| lag_window(track))?;
+            let first = entry.frames.pop_front().ok_or_else(|| lag_window(track))?;
+            self.health.add(&weights, &first.cloud.weights);
+            rows.push(row);
+        }
+        Ok(rows)
     }
 
     /// The first frame of each of `tracks`' full lag windows, smoothed by the marginal smoother
@@ -305,13 +351,15 @@ impl TrackSmoother {
         let views: Vec<&[Cloud]> = windows.iter().map(Vec::as_slice).collect();
         let values = self.backend.smooth_first_many(&views, &self.transition)?;
         let lag_window = || PfError::InvalidConfig("an empty lag window".into());
-        let mut rows = Vec::with_capacity(tracks.len());
-        for (&track, first_values) in tracks.iter().zip(values) {
+        let mut firsts = Vec::with_capacity(tracks.len());
+        for &track in tracks {
             let entry = self.tracks.get_mut(&track).ok_or_else(lag_window)?;
-            let first = entry.frames.pop_front().ok_or_else(lag_window)?;
-            rows.push(self.summarised_row(first.frame, track, &first.cloud, first_values)?);
+            firsts.push((track, entry.frames.pop_front().ok_or_else(lag_window)?));
         }
-        Ok(rows)
+        let how = self.row_summary();
+        (firsts.into_par_iter().zip(values))
+            .map(|((track, first), v)| summarised_row(how, (first.frame, track), &first.cloud, v))
+            .collect()
     }
 
     /// Every frame `tracks` still hold, smoothed, the tracks ended: by the marginal smoother
@@ -322,54 +370,73 @@ impl TrackSmoother {
             .collect();
         let mut rows = Vec::new();
         if self.traces_ancestry() {
-            for (track, w) in &waiting {
-                let weights = ancestry_weights(&w.frames)?;
-                for (f, weights) in w.frames.iter().zip(&weights) {
-                    rows.push(self.row(f.frame, *track, &f.cloud, weights)?);
-                }
-            }
-            return Ok(rows);
+            let how = self.row_summary();
+            let per_track: Vec<Vec<SmoothedRow>> = (waiting.par_iter())
+                .map(|(track, w)| {
+                    let weights = ancestry_weights(&w.frames)?;
+                    (w.frames.iter().zip(&weights))
+                        .map(|(f, weights)| smoothed_row(how, (f.frame, *track), &f.cloud, weights))
+                        .collect::<Result<Vec<_>, PfError>>()
+                })
+                .collect::<Result<_, PfError>>()?;
+            return Ok(per_track.into_iter().flatten().collect());
         }
         let clouds: Vec<Vec<Cloud>> = (waiting.iter())
             .map(|(_, w)| w.frames.iter().map(|f| f.cloud.clone()).collect())
             .collect();
         let views: Vec<&[Cloud]> = clouds.iter().map(Vec::as_slice).collect();
         let values = self.backend.smooth_many(&views, &self.transition)?;
-        for ((track, w), track_values) in waiting.iter().zip(values) {
-            for (f, v) in w.frames.iter().zip(track_values) {
-                rows.push(self.summarised_row(f.frame, *track, &f.cloud, v)?);
-            }
-        }
+        let how = self.row_summary();
+        let frames: Vec<(usize, &WaitingFrame, Vec<Summary>)> = (waiting.iter().zip(values))
+            .flat_map(|((track, w), track_values)| {
+                (w.frames.iter().zip(track_values)).map(move |(f, v)| (*track, f, v))
+            })
+            .collect();
+        rows.extend(
+            (frames.into_par_iter())
+                .map(|(track, f, v)| summarised_row(how, (f.frame, track), &f.cloud, v))
+                .collect::<Result<Vec<_>, PfError>>()?,
+        );
         Ok(rows)
     }
+}
 
-    /// A row of `cloud` smoothed by `weights`, its filtered summary beside them.
-    fn row(
-        &self,
-        frame: usize,
-        track: usize,
-        cloud: &Cloud,
-        weights: &[f64],
-    ) -> Result<SmoothedRow, PfError> {
-        let values = summarise(cloud, weights, &self.transition.angular)?;
-        self.summarised_row(frame, track, cloud, values)
-    }
+/// A row of `cloud` smoothed by `weights`, its filtered summary beside them; `at` is the
+/// (frame, track).
+fn smoothed_row(
+    how: RowSummary<'_>,
+    at: (usize, usize),
+    cloud: &Cloud,
+    weights: &[f64],
+) -> Result<SmoothedRow, PfError> {
+    summarised_row(how, at, cloud, summarise(cloud, weights, how.angular)?)
+}
 
-    /// A row of smoothed `values`, the same particles' filtered summary beside them.
-    fn summarised_row(
-        &self,
-        frame: usize,
-        track: usize,
-        cloud: &Cloud,
-        values: Vec<Summary>,
-    ) -> Result<SmoothedRow, PfError> {
-        Ok(SmoothedRow {
-            frame,
-            track,
-            values,
-            filtered: summarise(cloud, &cloud.weights, &self.transition.angular)?,
-        })
-    }
+/// A row of smoothed `values`, the same particles' filtered summary beside them where asked.
+fn summarised_row(
+    how: RowSummary<'_>,
+    (frame, track): (usize, usize),
+    cloud: &Cloud,
+    values: Vec<Summary>,
+) -> Result<SmoothedRow, PfError> {
+    Ok(SmoothedRow {
+        frame,
+        track,
+        values,
+        filtered: if how.filtered {
+            summarise(cloud, &cloud.weights, how.angular)?
+        } else {
+            Vec::new()
+        },
+    })
+}
+
+/// How a row is summarised: which values are angles, and whether the filtered summary is
+/// wanted beside the smoothed one.
+#[derive(Clone, Copy)]
+struct RowSummary<'a> {
+    angular: &'a [bool],
+    filtered: bool,
 }
 
 /// Each waiting frame's weights smoothed by the last frame's, traced back through the frames'

@@ -84,7 +84,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     let smoothing = (args.smoothing.mode())
         .map(|lag| {
             let how = args.smoothing.lag_smoother.resolve(layers);
-            BodySmoothing::create(&args.out, (lag, how), &tracker)
+            BodySmoothing::create(&args.out, (lag, how), &tracker, truth.is_some())
         })
         .transpose()?;
     let mut run = BodyRun::new(&args.out, smoothing)?;

@@ -24,6 +24,7 @@ impl BodySmoothing {
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &BodyTracker,
+        with_truth: bool,
     ) -> anyhow::Result<Self> {
         let names = tracker.skeleton().pose_names();
         let transition = tracker.transition()?;
@@ -38,6 +39,12 @@ impl BodySmoothing {
             tracker.gpu_context(),
         )?
         .lagging_by(how);
+        // The filtered summaries are scored beside the smoothed ones only against a truth.
+        let smoother = if with_truth {
+            smoother.comparing_filtered()
+        } else {
+            smoother
+        };
         Ok(Self {
             smoother,
             angular,

@@ -111,7 +111,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
             .map(|lag| {
                 let layers = runner.tracker().annealing_layers();
                 let how = args.smoothing.lag_smoother.resolve(layers);
-                FaceSmoothing::create(&args.out, (lag, how), runner.tracker())
+                FaceSmoothing::create(&args.out, (lag, how), runner.tracker(), truth.is_some())
             })
             .transpose()?,
         truth,

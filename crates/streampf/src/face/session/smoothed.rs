@@ -25,6 +25,7 @@ impl FaceSmoothing {
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &FaceTracker,
+        with_truth: bool,
     ) -> anyhow::Result<Self> {
         let names: Vec<String> = STATE_NAMES.iter().map(|n| n.to_string()).collect();
         let smoother = Smoother::create(
@@ -37,6 +38,12 @@ impl FaceSmoothing {
             tracker.gpu_context(),
         )?
         .lagging_by(how);
+        // The filtered summaries are scored beside the smoothed ones only against a truth.
+        let smoother = if with_truth {
+            smoother.comparing_filtered()
+        } else {
+            smoother
+        };
         Ok(Self {
             smoother,
             errors: [(0.0, 0.0); 2],
