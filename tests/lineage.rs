@@ -280,6 +280,12 @@ fn check_gpu(
         let lineage = filter.engine().lineage().unwrap().unwrap();
         let what = format!("GPU {layout:?} {resampler:?} frame {frame}");
         check(&shape, &lineage, &labels, reset, &what)?;
+        // Read back in one go: the same streams.
+        let (_, gpu, _) = filter.gpu_parts().unwrap();
+        let together = gpu.download_particles(ctx).unwrap();
+        prop_assert_eq!(together.states, gpu.download_states(ctx).unwrap());
+        prop_assert_eq!(together.log_weights, gpu.download_log_weights(ctx).unwrap());
+        prop_assert_eq!(together.lineage, Some(lineage));
     }
     Ok(())
 }

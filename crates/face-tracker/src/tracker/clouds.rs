@@ -6,6 +6,7 @@ use pf_core::smooth_tracks::TrackCloud;
 
 use super::{ANGULAR, FaceEstimate, FaceTracker, TrackStatus};
 use crate::error::FaceError;
+use crate::projection::DIMS;
 
 impl FaceTracker {
     /// The dynamics' density for smoothing (`pf_core::smooth`): the random walk of a whole
@@ -49,9 +50,24 @@ impl FaceTracker {
     /// the track, its states `[d·M + m]`, normalised log-weights `[m]` and lineage (where kept),
     /// what a smoother takes. On the GPU this reads the particles back.
     pub fn track_clouds(&self, estimates: &[FaceEstimate]) -> Result<Vec<TrackCloud>, FaceError> {
-        let (shape, states, log_weights) = self.particles()?;
-        let lineage = self.lineage()?;
-        let (m, block) = (shape.particles, shape.dims * shape.particles);
+        self.check_nothing_in_flight("the particles are read")?;
+        // Every shard's particles and lineage in one readback each; slots follow one another.
+        let (mut states, mut log_weights, mut lineage) = (Vec::new(), Vec::new(), Some(Vec::new()));
+        let mut particles = 0;
+        for shard in &self.shards {
+            let (shape, back) = shard.filter.engine().particles_and_lineage()?;
+            particles = shape.particles;
+            states.extend(back.states);
+            log_weights.extend(back.log_weights);
+            lineage = match (lineage, back.lineage) {
+                (Some(mut all), Some(more)) => {
+                    all.extend(more);
+                    Some(all)
+                }
+                _ => None,
+            };
+        }
+        let (m, block) = (particles, DIMS * particles);
         Ok((estimates.iter())
             .filter(|e| e.status == TrackStatus::Tracking)
             .filter_map(|e| {

@@ -24,7 +24,7 @@ use pf_core::resample::{Resampler, ResamplerKind};
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{
-    GpuFilter, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodReadbacks,
+    GpuFilter, GpuResampler, GpuStepReport, LikelihoodInputs, LikelihoodReadbacks, ParticlesBack,
 };
 use crate::timing::GpuTime;
 
@@ -234,10 +234,28 @@ impl FilterEngine {
                 filter.states.clone(),
                 filter.log_weights.clone(),
             ),
+            Self::Gpu(gpu) => {
+                let back = gpu.filter.download_particles(&gpu.ctx)?;
+                (*gpu.filter.shape(), back.states, back.log_weights)
+            }
+        })
+    }
+
+    /// [`Self::particles`] and [`Self::lineage`] together (on the GPU in one readback and one
+    /// wait): the shape, states, log-weights and lineage (`None` where not kept).
+    pub fn particles_and_lineage(&self) -> Result<(BatchShape, ParticlesBack), GpuError> {
+        Ok(match self {
+            Self::Cpu(filter) => (
+                *filter.shape(),
+                ParticlesBack {
+                    states: filter.states.clone(),
+                    log_weights: filter.log_weights.clone(),
+                    lineage: Some(filter.lineage().to_vec()),
+                },
+            ),
             Self::Gpu(gpu) => (
                 *gpu.filter.shape(),
-                gpu.filter.download_states(&gpu.ctx)?,
-                gpu.filter.download_log_weights(&gpu.ctx)?,
+                gpu.filter.download_particles(&gpu.ctx)?,
             ),
         })
     }

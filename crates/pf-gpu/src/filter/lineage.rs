@@ -151,3 +151,51 @@ impl super::GpuFilter {
         }
     }
 }
+
+/// The particles after a step, read back together ([`super::GpuFilter::download_particles`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParticlesBack {
+    /// The states, `[(t·D + d)·M + m]`.
+    pub states: Vec<f32>,
+    /// The normalised log-weights, `[t·M + m]`.
+    pub log_weights: Vec<f32>,
+    /// The lineage, `[t·M + m]`, where the filter keeps it.
+    pub lineage: Option<Vec<u32>>,
+}
+
+impl super::GpuFilter {
+    /// The states, log-weights and (where kept) lineage after the last step, in one copy and
+    /// one wait (what a smoother reads each frame; three downloads would wait three times).
+    pub fn download_particles(&self, ctx: &GpuContext) -> Result<ParticlesBack, GpuError> {
+        let n = self.shape.particle_len() as u64;
+        let lineage = self
+            .lineage
+            .as_ref()
+            .map(|l| l.result(self.annealing.layers));
+        let mut sections = vec![4 * self.shape.state_len() as u64, 4 * n];
+        if lineage.is_some() {
+            sections.push(4 * n);
+        }
+        let back = crate::stream::ReadbackSet::new(ctx, "particles readback", &sections)?;
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("particles readback"),
+            });
+        back.record_copy(&mut encoder, 0, self.streams.states.buffer());
+        back.record_copy(&mut encoder, 1, self.streams.log_weights.buffer());
+        if let Some(lineage) = lineage {
+            back.record_copy(&mut encoder, 2, lineage.buffer());
+        }
+        let submission = ctx.queue.submit([encoder.finish()]);
+        let map = back.request_map();
+        ctx.wait(Some(submission), "reading the particles back")?;
+        let mut sections = back.collect(map)?.into_iter();
+        let mut next = || sections.next().unwrap_or_default();
+        Ok(ParticlesBack {
+            states: bytemuck::pod_collect_to_vec(&next()),
+            log_weights: bytemuck::pod_collect_to_vec(&next()),
+            lineage: lineage.map(|_| bytemuck::pod_collect_to_vec(&next())),
+        })
+    }
+}

@@ -25,6 +25,7 @@ pub use likelihood::{
 };
 pub use params::{FrameParams, TargetStats};
 
+pub use lineage::ParticlesBack;
 pub use setup::FilterStreams;
 use setup::{
     BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, layer_params_buffer,
