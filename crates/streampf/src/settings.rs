@@ -151,6 +151,7 @@ fn options_from_table(
             continue;
         }
         let flag = matches!(arg.get_action(), ArgAction::SetTrue);
+        let is_list = matches!(value, toml::Value::Array(_));
         let values: Vec<&toml::Value> = match value {
             toml::Value::Array(items) => items.iter().collect(),
             single => vec![single],
@@ -166,6 +167,12 @@ fn options_from_table(
                         toml::Value::String(text) => text.clone(),
                         other => other.to_string(),
                     };
+                    // A default changes nothing, and given explicitly it would trip an option
+                    // that requires another (`--lag-smoother` needs `--smooth-lag`).
+                    let defaults = arg.get_default_values();
+                    if !is_list && defaults.len() == 1 && defaults[0].to_string_lossy() == text {
+                        continue;
+                    }
                     options.push(format!("--{key}={text}").into());
                 }
             }
