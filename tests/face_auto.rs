@@ -15,9 +15,10 @@ use std::collections::BTreeMap;
 
 use common::media;
 use face_tracker::detect::{Cascade, FaceDetector, GpuCascade};
+use face_tracker::extraction::FaceRect;
 use face_tracker::model::FaceModel;
 use face_tracker::projection::{TX, TY};
-use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state};
+use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect};
 use face_tracker::{
     AutoConfig, AutoFrame, AutoTracker, FaceBackend, FaceTrackerConfig, TrackStatus,
 };
@@ -189,4 +190,59 @@ fn four_entering_faces_are_each_found_once_on_gpu() {
     };
     let detector = GpuCascade::new(detector_ctx, cascade()).unwrap();
     run(FaceBackend::Gpu(Box::new(tracker_ctx)), detector.into(), 2);
+}
+
+/// A track left behind by its face (the face jumps 150 px between two frames, farther than the
+/// track can follow; its template then sits on background) has drifted: a detection of the face
+/// near it would restart it (`AutoTracker::drifted_track`). A detection on the track is its
+/// own face, and a face more than two widths away is not the track's.
+#[test]
+fn a_track_left_behind_by_its_face_is_found_drifted() {
+    let video = FaceSynthConfig {
+        width: 640,
+        height: 480,
+        faces: 1,
+        half_width: 50.0,
+        occlusion: false,
+        exit_after: Some(0),
+        ..FaceSynthConfig::paper(10)
+    };
+    let model = FaceModel::generic(129).unwrap();
+    let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let mut tracker = AutoTracker::new(
+        (video.width, video.height),
+        FaceDetector::from(cascade()),
+        &model,
+        auto_config(0),
+        FaceBackend::Cpu,
+    )
+    .unwrap();
+    let (first, jumped) = (renderer.render(0).unwrap(), renderer.render(5).unwrap());
+    let home = initial_rect(&video, 0);
+    let track = tracker.add_face(&first, &home).unwrap();
+    tracker.step(&first).unwrap();
+    assert_eq!(tracker.drifted_track(&first, &home), None, "on its face");
+    let at = |frame: usize| {
+        let (now, start) = (face_state(&video, 0, frame), face_state(&video, 0, 0));
+        FaceRect {
+            x: home.x + now[TX] - start[TX],
+            y: home.y + now[TY] - start[TY],
+            ..home
+        }
+    };
+    assert!(
+        at(5).x - home.x > 100.0,
+        "the face moved {}",
+        at(5).x - home.x
+    );
+    tracker.step(&jumped).unwrap();
+    assert_eq!(tracker.drifted_track(&jumped, &at(5)), Some(track));
+    // Beyond two widths the detection is another face's, not this track's.
+    let far = FaceRect {
+        x: home.x + 250.0,
+        ..home
+    };
+    let far_frame = renderer.render(9).unwrap();
+    assert!(at(9).x - home.x > 250.0);
+    assert_eq!(tracker.drifted_track(&far_frame, &far), None);
 }

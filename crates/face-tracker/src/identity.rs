@@ -143,10 +143,26 @@ impl Identities {
 /// size relative to the person's first rectangle, α = 1), the best of them refined by
 /// [`refine`].
 fn best_fit(person: &Person, face: &NewFace<'_>, lens: &Lens) -> f64 {
-    let (cx, cy) = face.rect.centre();
-    let scale = face.rect.width / person.width;
-    let fit =
-        |state: &[f32; DIMS]| residual_error_through(state, &person.template, face.frame, lens);
+    fit_template_at(
+        (&person.template, person.width),
+        face.frame,
+        face.rect,
+        lens,
+    )
+}
+
+/// The least ε of a template (taken on a face `width` pixels wide) on the face at `rect` of
+/// `frame`: [`best_fit`]'s search, for any template (a running track's, to tell whether it
+/// has drifted off its face: `crate::auto`).
+pub(crate) fn fit_template_at(
+    (template, width): (&Template, f32),
+    frame: &GrayImage,
+    rect: &FaceRect,
+    lens: &Lens,
+) -> f64 {
+    let (cx, cy) = rect.centre();
+    let scale = rect.width / width;
+    let fit = |state: &[f32; DIMS]| residual_error_through(state, template, frame, lens);
     let turns = [-0.2f32, 0.0, 0.2];
     let mut start = ([cx, cy, scale, 0.0, 0.0, 0.0, 1.0], f64::INFINITY);
     for rx in turns {
@@ -161,8 +177,8 @@ fn best_fit(person: &Person, face: &NewFace<'_>, lens: &Lens) -> f64 {
         }
     }
     let steps = [
-        face.rect.width / 10.0,
-        face.rect.width / 10.0,
+        rect.width / 10.0,
+        rect.width / 10.0,
         0.08 * scale,
         0.1,
         0.1,

@@ -27,6 +27,7 @@ use crate::model::FaceModel;
 use crate::scene_cut::{PendingCut, SceneCuts};
 
 mod detectors;
+mod drift;
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
@@ -184,7 +185,9 @@ pub struct AutoTracker {
     detector: Detectors,
     frame_index: usize,
     /// The running tracks after the last step: number, rectangle, ε.
-    tracked: Vec<(usize, FaceRect, f64)>,
+    /// Each running track: its number, rectangle, ε and the width its template was taken at
+    /// (its scale 1).
+    tracked: Vec<(usize, FaceRect, f64, f32)>,
     /// Untracked faces of the last detector run, and in how many runs in a row they were seen.
     candidates: Vec<(FaceRect, usize)>,
     cuts: Option<SceneCuts>,
@@ -273,7 +276,7 @@ impl AutoTracker {
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
         let track = self.tracker.add_face(frame, rect)?;
         self.identify(track, frame, rect);
-        self.tracked.push((track, *rect, 0.0));
+        self.tracked.push((track, *rect, 0.0, rect.width));
         Ok(track)
     }
 
@@ -317,13 +320,18 @@ impl AutoTracker {
                 out.ignored += 1;
                 continue;
             }
-            if let Some(i) = on_track {
-                // A restart needs the face at the track's size: a false detection on part of
-                // the face would pull the track onto an eye or the forehead.
-                if !same_face_and_size(&self.tracked[i].1, &rect) {
-                    out.ignored += 1;
-                    continue;
-                }
+            // A restart needs the face at the track's size: a false detection on part of the
+            // face would pull the track onto an eye or the forehead. A track that slid off this
+            // face (`drift`) restarts on it rather than leave it to a new track.
+            let restarts = match on_track {
+                Some(i) => same_face_and_size(&self.tracked[i].1, &rect).then_some(i),
+                None => self.drifted_onto(&result.frame, &rect),
+            };
+            if on_track.is_some() && restarts.is_none() {
+                out.ignored += 1;
+                continue;
+            }
+            if let Some(i) = restarts {
                 let track = self.tracked[i].0;
                 // The new template is taken with the face seen as the track has it.
                 let restart = (self.tracker)
@@ -335,7 +343,7 @@ impl AutoTracker {
                     continue;
                 };
                 self.tracker.restart_template(track, restart)?;
-                self.tracked[i] = (track, rect, 0.0);
+                self.tracked[i] = (track, rect, 0.0, self.tracked[i].3);
                 out.restarted.push((track, rect, result.frame_index));
                 continue;
             }
@@ -355,7 +363,7 @@ impl AutoTracker {
             } else {
                 let track = self.tracker.add_template(&result.frame, &rect, template)?;
                 self.identify(track, &result.frame, &rect);
-                self.tracked.push((track, rect, 0.0));
+                self.tracked.push((track, rect, 0.0, rect.width));
                 out.started.push((track, rect, result.frame_index));
             }
         }
@@ -479,7 +487,14 @@ impl AutoTracker {
             .estimates
             .iter()
             .filter(|e| e.status == TrackStatus::Tracking)
-            .map(|e| (e.track, e.rect, e.error))
+            .map(|e| {
+                (
+                    e.track,
+                    e.rect,
+                    e.error,
+                    e.rect.width / e.state[crate::projection::SCALE],
+                )
+            })
             .collect();
         self.frame_index += 1;
         Ok(out)

@@ -172,8 +172,8 @@ fn face_panel(run: &mut Run) -> anyhow::Result<(Panel, String)> {
         None => FaceBackend::Cpu,
     };
     let mut tracker = FaceTracker::new(&first, &rects, &model, config, backend)?;
-    let mut smoother = TrackSmoother::new(None, tracker.transition(), tracker.motion_gain())
-        .comparing_filtered();
+    let mut smoother =
+        TrackSmoother::new(None, tracker.transition(), tracker.motion_gain()).comparing_filtered();
     let mut rows: Vec<SmoothedRow> = Vec::new();
     for frame in 0..video.frames {
         run.step(&format!("posterior: face video frame {frame}"));
