@@ -178,8 +178,8 @@ fn mismatched_clouds_are_refused() {
 }
 
 /// The trackers' smoother (`TrackSmoother`) on the GPU writes the rows it writes on the CPU: the
-/// same frames and tracks, every smoothed mean within 0.05 of the CPU's (values over ±3), over
-/// whole tracks (a lag smooths from the ancestry, on the host: `pf_core::smooth::ancestry`).
+/// same frames and tracks, every smoothed mean within 0.05 of the CPU's (values over ±3), online
+/// with a lag (the marginal smoother over each window) and over whole tracks.
 #[test]
 fn the_track_smoother_on_the_gpu_writes_the_cpus_rows() {
     let Some(ctx) = common::gpu_context("track smoother on the GPU") else {
@@ -190,9 +190,15 @@ fn the_track_smoother_on_the_gpu_writes_the_cpus_rows() {
         angular: vec![false, false, true],
     };
     let on_gpu = std::sync::Arc::new(pf_gpu::smooth::OnGpu::new(&ctx).unwrap());
-    for lag in [None] {
-        let mut cpu = TrackSmoother::new(lag, transition.clone(), 0.5);
-        let mut gpu = TrackSmoother::new(lag, transition.clone(), 0.5).on(on_gpu.clone());
+    for lag in [None, Some(2)] {
+        // A lag window smoothed by the marginal smoother runs on the backend too (the
+        // ancestry's, on the host, does not).
+        let smoother = || {
+            TrackSmoother::new(lag, transition.clone(), 0.5)
+                .lagging_by(pf_core::smooth_tracks::LagSmoother::Marginal)
+        };
+        let mut cpu = smoother();
+        let mut gpu = smoother().on(on_gpu.clone());
         let (mut rows_cpu, mut rows_gpu) = (Vec::new(), Vec::new());
         for frame in 0..6 {
             // Track 0 all along, track 1 from frame 1 to 3.
