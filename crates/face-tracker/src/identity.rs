@@ -149,17 +149,18 @@ fn best_fit(person: &Person, face: &NewFace<'_>, lens: &Lens) -> f64 {
         face.rect,
         lens,
     )
+    .0
 }
 
 /// The least ε of a template (taken on a face `width` pixels wide) on the face at `rect` of
-/// `frame`: [`best_fit`]'s search, for any template (a running track's, to tell whether it
-/// has drifted off its face: `crate::auto`).
+/// `frame`, and the state it is reached at: [`best_fit`]'s search, for any template (a running
+/// track's, to tell whether it has drifted off its face, and where to: `crate::auto`).
 pub(crate) fn fit_template_at(
     (template, width): (&Template, f32),
     frame: &GrayImage,
     rect: &FaceRect,
     lens: &Lens,
-) -> f64 {
+) -> (f64, [f32; DIMS]) {
     let (cx, cy) = rect.centre();
     let scale = rect.width / width;
     let fit = |state: &[f32; DIMS]| residual_error_through(state, template, frame, lens);
@@ -189,12 +190,12 @@ pub(crate) fn fit_template_at(
 }
 
 /// A local search from `state`: each value in turn moved a step either way while that fits
-/// better, then the steps halved, four times.
+/// better, then the steps halved, four times. The least ε and its state.
 fn refine(
     mut state: [f32; DIMS],
     mut steps: [f32; DIMS],
     fit: &impl Fn(&[f32; DIMS]) -> f64,
-) -> f64 {
+) -> (f64, [f32; DIMS]) {
     let mut best = fit(&state);
     for _ in 0..4 {
         for _pass in 0..8 {
@@ -215,5 +216,5 @@ fn refine(
         }
         steps.iter_mut().for_each(|s| *s /= 2.0);
     }
-    best
+    (best, state)
 }

@@ -14,6 +14,7 @@ use super::{AutoTracker, MAX_SIZE_CHANGE, same_face};
 use crate::extraction::FaceRect;
 use crate::identity::fit_template_at;
 use crate::image::GrayImage;
+use crate::projection::DIMS;
 
 /// A track has drifted when its template fits the detection at most this share of its ε where
 /// it is.
@@ -26,13 +27,39 @@ pub const DRIFT_MATCH_SHARE: f64 = 0.25;
 /// A detection is near a track when its centre lies within this many of the track's widths.
 pub const DRIFT_REACH: f32 = 2.0;
 
+/// A track on the detected face is stuck in a wrong pose when its own template fits the
+/// detection at most this share of its ε (a healthy track's ε is within a few times what the
+/// search finds; a stuck one's many times).
+pub const STUCK_FIT_SHARE: f64 = 0.25;
+
 impl AutoTracker {
+    /// Where track `i` (among `tracked`), on the face detected at `rect`, should be if it is
+    /// stuck in a wrong pose there: its ε below the failure level, yet its template fits the
+    /// detected face far better (measured on the identity scenario: a track's yaw pinned at the
+    /// state's 70° limit while its head had turned back to 8°, at ε 0.06, before it slid off
+    /// the face; on the five talking-head clips a track's ε was 0.98 times or more what the
+    /// search found, never a quarter).
+    pub(super) fn stuck_on(
+        &self,
+        i: usize,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Option<[f32; DIMS]> {
+        let &(track, _, error, width) = self.tracked.get(i)?;
+        let (fit, state) = self.own_fit(track, width, frame, rect)?;
+        let off_face = self.tracker.off_face_error(track)?;
+        (fit <= STUCK_FIT_SHARE * error && fit <= DRIFT_MATCH_SHARE * off_face).then_some(state)
+    }
+
     /// The running track (its index among `tracked`) that has drifted off the face detected at
-    /// `rect` of `frame`, if one has: the best fitting of those near it, about its size, and
-    /// not on it (a detection on a track is that track's face: `use_detection`).
-    pub(super) fn drifted_onto(&self, frame: &GrayImage, rect: &FaceRect) -> Option<usize> {
-        let templates = self.tracker.templates();
-        let lens = self.tracker.lens();
+    /// `rect` of `frame`, if one has, and where its template fits the face: the best fitting
+    /// of those near it, about its size, and not on it (a detection on a track is that track's
+    /// face: `use_detection`).
+    pub(super) fn drifted_onto(
+        &self,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Option<(usize, [f32; DIMS])> {
         let (x, y) = rect.centre();
         (self.tracked.iter().enumerate())
             .filter(|(_, (_, at, _, _))| {
@@ -43,21 +70,34 @@ impl AutoTracker {
                     && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
             })
             .filter_map(|(i, &(track, _, error, width))| {
-                let template = templates.iter().find(|(id, _)| *id == track)?.1;
+                let (fit, state) = self.own_fit(track, width, frame, rect)?;
                 let off_face = self.tracker.off_face_error(track)?;
-                let fit = fit_template_at((template, width), frame, rect, &lens);
                 let drifted = fit <= DRIFT_FIT_SHARE * error && fit <= DRIFT_MATCH_SHARE * off_face;
-                drifted.then_some((i, fit))
+                drifted.then_some((i, fit, state))
             })
             .min_by(|a, b| a.1.total_cmp(&b.1))
-            .map(|(i, _)| i)
+            .map(|(i, _, state)| (i, state))
     }
-}
 
-impl AutoTracker {
+    /// Running track `track`'s own template (taken on a face `width` wide) fitted at `rect`:
+    /// its ε (`None` unless finite) and the state found.
+    fn own_fit(
+        &self,
+        track: usize,
+        width: f32,
+        frame: &GrayImage,
+        rect: &FaceRect,
+    ) -> Option<(f64, [f32; DIMS])> {
+        let templates = self.tracker.templates();
+        let template = templates.iter().find(|(id, _)| *id == track)?.1;
+        let (fit, state) = fit_template_at((template, width), frame, rect, &self.tracker.lens());
+        fit.is_finite().then_some((fit, state))
+    }
+
     /// The running track that has drifted off the face at `rect` of `frame` (a detection there
-    /// would restart it), if any: what the detector's results are checked with each run.
+    /// would move it there), if any: what the detector's results are checked with each run.
     pub fn drifted_track(&self, frame: &GrayImage, rect: &FaceRect) -> Option<usize> {
-        self.drifted_onto(frame, rect).map(|i| self.tracked[i].0)
+        self.drifted_onto(frame, rect)
+            .map(|(i, _)| self.tracked[i].0)
     }
 }

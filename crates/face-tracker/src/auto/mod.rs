@@ -316,17 +316,29 @@ impl AutoTracker {
                     .for_each(|&(track, _)| found_after_cut.push(track));
             }
             let on_track = self.tracked.iter().position(|t| same_face(&t.1, &rect));
+            // A track stuck in a wrong pose on this face, or one that slid off it (`drift`),
+            // moves to where its own template fits the face, its template kept.
+            let moved = match on_track {
+                Some(i) if self.tracked[i].2 <= failing => self
+                    .stuck_on(i, &result.frame, &rect)
+                    .map(|state| (i, state)),
+                Some(_) => None,
+                None => self.drifted_onto(&result.frame, &rect),
+            };
+            if let Some((i, state)) = moved {
+                let track = self.tracked[i].0;
+                self.tracker.move_track(track, state)?;
+                self.tracked[i] = (track, rect, 0.0, self.tracked[i].3);
+                out.restarted.push((track, rect, result.frame_index));
+                continue;
+            }
             if on_track.is_some_and(|i| self.tracked[i].2 <= failing) {
                 out.ignored += 1;
                 continue;
             }
             // A restart needs the face at the track's size: a false detection on part of the
-            // face would pull the track onto an eye or the forehead. A track that slid off this
-            // face (`drift`) restarts on it rather than leave it to a new track.
-            let restarts = match on_track {
-                Some(i) => same_face_and_size(&self.tracked[i].1, &rect).then_some(i),
-                None => self.drifted_onto(&result.frame, &rect),
-            };
+            // face would pull the track onto an eye or the forehead.
+            let restarts = on_track.filter(|&i| same_face_and_size(&self.tracked[i].1, &rect));
             if on_track.is_some() && restarts.is_none() {
                 out.ignored += 1;
                 continue;

@@ -179,6 +179,19 @@ impl FaceTracker {
         self.start_in_slot(slot, track, start, restart.template)
     }
 
+    /// Moves running track `track` to `state` (its particles start afresh around it), keeping
+    /// its template: for a track found off its face, or stuck in a wrong pose on it, where its
+    /// own template fits a detected face at `state` (`crate::auto`).
+    pub fn move_track(&mut self, track: usize, state: [f32; DIMS]) -> Result<(), FaceError> {
+        let running = self.running(track)?;
+        let restart = Restart {
+            template: running.template.clone(),
+            mean: state,
+            off_face_error: running.off_face_error,
+        };
+        self.restart_template(track, restart)
+    }
+
     /// Ends running track `track`: its next step reports it lost (`TrackStatus::Lost`) and
     /// frees its slot. For a caller that knows the face is gone (a scene cut after which the
     /// detector does not find it again).
