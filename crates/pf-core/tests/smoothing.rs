@@ -47,11 +47,12 @@ fn rts(ys: &[f64]) -> Vec<(f64, f64)> {
     .smooth(ys)
 }
 
-/// Every frame's cloud of every filter, `[frame][filter]`.
-fn filtered_clouds(ys: &[f64]) -> Vec<Vec<Cloud>> {
+/// Every frame's filtered particles of the batch of K filters, seeded `seed`: its states,
+/// normalised log-weights and lineage after each frame.
+fn run_filters(ys: &[f64], seed: u64) -> Vec<(Vec<f32>, Vec<f32>, Vec<u32>)> {
     let shape = BatchShape::new(FILTERS, PARTICLES, 1).unwrap();
-    let config = BatchConfig::new(shape, 17, vec![SIGMA_P as f32]);
-    let start = gaussian_clouds(&shape, 17, &[0.0; FILTERS], &[1.0]);
+    let config = BatchConfig::new(shape, seed, vec![SIGMA_P as f32]);
+    let start = gaussian_clouds(&shape, seed, &[0.0; FILTERS], &[1.0]);
     let mut filter = BatchFilter::new(&config, Systematic, start).unwrap();
     ys.iter()
         .map(|&y| {
@@ -59,11 +60,18 @@ fn filtered_clouds(ys: &[f64]) -> Vec<Vec<Cloud>> {
                 .step(|_, _, x| -0.5 * ((x[0] - y as f32) / SIGMA_R as f32).powi(2))
                 .unwrap();
             assert!(report.status.iter().all(Result::is_ok));
+            let lineage = filter.lineage().to_vec();
+            (filter.states.clone(), filter.log_weights.clone(), lineage)
+        })
+        .collect()
+}
+
+/// Every frame's cloud of every filter, `[frame][filter]`.
+fn filtered_clouds(ys: &[f64]) -> Vec<Vec<Cloud>> {
+    (run_filters(ys, 17).iter())
+        .map(|(states, log_weights, _)| {
             (0..FILTERS)
-                .map(|k| {
-                    let (states, lw) = (&filter.states, &filter.log_weights);
-                    Cloud::of_target(1, PARTICLES, k, states, lw, vec![0.0]).unwrap()
-                })
+                .map(|k| Cloud::of_target(1, PARTICLES, k, states, log_weights, vec![0.0]).unwrap())
                 .collect()
         })
         .collect()
@@ -167,23 +175,15 @@ fn the_fixed_lag_smoother_gives_the_whole_runs_means() {
 
 /// Every frame's clouds of every filter with their lineages, `[frame][filter]`.
 fn filtered_with_lineage(ys: &[f64]) -> Vec<Vec<TrackCloud>> {
-    let shape = BatchShape::new(FILTERS, PARTICLES, 1).unwrap();
-    let config = BatchConfig::new(shape, 23, vec![SIGMA_P as f32]);
-    let start = gaussian_clouds(&shape, 23, &[0.0; FILTERS], &[1.0]);
-    let mut filter = BatchFilter::new(&config, Systematic, start).unwrap();
-    ys.iter()
-        .map(|&y| {
-            let report = filter
-                .step(|_, _, x| -0.5 * ((x[0] - y as f32) / SIGMA_R as f32).powi(2))
-                .unwrap();
-            assert!(report.status.iter().all(Result::is_ok));
-            let m = PARTICLES;
+    let m = PARTICLES;
+    (run_filters(ys, 23).into_iter())
+        .map(|(states, log_weights, lineage)| {
             (0..FILTERS)
                 .map(|k| TrackCloud {
                     track: k,
-                    states: filter.states[k * m..(k + 1) * m].to_vec(),
-                    log_weights: filter.log_weights[k * m..(k + 1) * m].to_vec(),
-                    lineage: Some(filter.lineage()[k * m..(k + 1) * m].to_vec()),
+                    states: states[k * m..(k + 1) * m].to_vec(),
+                    log_weights: log_weights[k * m..(k + 1) * m].to_vec(),
+                    lineage: Some(lineage[k * m..(k + 1) * m].to_vec()),
                 })
                 .collect()
         })

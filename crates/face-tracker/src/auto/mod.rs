@@ -305,7 +305,6 @@ impl AutoTracker {
         out: &mut AutoFrame,
     ) -> Result<(), FaceError> {
         let faces = result.faces?;
-        let failing = f64::from(self.config.tracker.failure_error);
         let mut candidates = Vec::new();
         let mut found_after_cut = Vec::new();
         for d in &faces {
@@ -315,48 +314,7 @@ impl AutoTracker {
                     .filter(|(_, at_cut)| same_face_and_size(at_cut, &rect))
                     .for_each(|&(track, _)| found_after_cut.push(track));
             }
-            let on_track = self.tracked.iter().position(|t| same_face(&t.1, &rect));
-            // A track stuck in a wrong pose on this face, or one that slid off it (`drift`),
-            // moves to where its own template fits the face, its template kept.
-            let moved = match on_track {
-                Some(i) if self.tracked[i].2 <= failing => self
-                    .stuck_on(i, &result.frame, &rect)
-                    .map(|state| (i, state)),
-                Some(_) => None,
-                None => self.drifted_onto(&result.frame, &rect),
-            };
-            if let Some((i, state)) = moved {
-                let track = self.tracked[i].0;
-                self.tracker.move_track(track, state)?;
-                self.tracked[i] = (track, rect, 0.0, self.tracked[i].3);
-                out.restarted.push((track, rect, result.frame_index));
-                continue;
-            }
-            if on_track.is_some_and(|i| self.tracked[i].2 <= failing) {
-                out.ignored += 1;
-                continue;
-            }
-            // A restart needs the face at the track's size: a false detection on part of the
-            // face would pull the track onto an eye or the forehead.
-            let restarts = on_track.filter(|&i| same_face_and_size(&self.tracked[i].1, &rect));
-            if on_track.is_some() && restarts.is_none() {
-                out.ignored += 1;
-                continue;
-            }
-            if let Some(i) = restarts {
-                let track = self.tracked[i].0;
-                // The new template is taken with the face seen as the track has it.
-                let restart = (self.tracker)
-                    .template_for_restart(track, &result.frame, &rect, result.frame_index)
-                    .ok()
-                    .filter(|r| self.has_contrast(r.template()));
-                let Some(restart) = restart else {
-                    out.ignored += 1;
-                    continue;
-                };
-                self.tracker.restart_template(track, restart)?;
-                self.tracked[i] = (track, rect, 0.0, self.tracked[i].3);
-                out.restarted.push((track, rect, result.frame_index));
+            if self.use_on_tracks(&rect, (&result.frame, result.frame_index), out)? {
                 continue;
             }
             let Some(template) = self.trackable_template(&result.frame, &rect) else {
@@ -381,6 +339,63 @@ impl AutoTracker {
         }
         self.candidates = candidates;
         self.end_unfound_after_cut(result.frame_index, &found_after_cut, out)
+    }
+
+    /// What a detection at `rect` of `frame` (number `frame_index`) does to the running tracks:
+    /// moves a stuck or drifted one (`drift`), restarts a failing one it finds, or is ignored on
+    /// a healthy one. Whether it was used so (else it may be a new face).
+    fn use_on_tracks(
+        &mut self,
+        rect: &FaceRect,
+        (frame, frame_index): (&GrayImage, usize),
+        out: &mut AutoFrame,
+    ) -> Result<bool, FaceError> {
+        let failing = f64::from(self.config.tracker.failure_error);
+        let on_track = self.tracked.iter().position(|t| same_face(&t.1, rect));
+        // A track stuck in a wrong pose on this face, or one that slid off it (`drift`),
+        // moves to where its own template fits the face, its template kept.
+        let moved = match on_track {
+            Some(i) if self.tracked[i].2 <= failing => {
+                self.stuck_on(i, frame, rect).map(|state| (i, state))
+            }
+            Some(_) => None,
+            None => self.drifted_onto(frame, rect),
+        };
+        if let Some((i, state)) = moved {
+            let track = self.tracked[i].0;
+            self.tracker.move_track(track, state)?;
+            self.tracked[i] = (track, *rect, 0.0, self.tracked[i].3);
+            out.restarted.push((track, *rect, frame_index));
+            return Ok(true);
+        }
+        if on_track.is_some_and(|i| self.tracked[i].2 <= failing) {
+            out.ignored += 1;
+            return Ok(true);
+        }
+        // A restart needs the face at the track's size: a false detection on part of the
+        // face would pull the track onto an eye or the forehead.
+        let restarts = on_track.filter(|&i| same_face_and_size(&self.tracked[i].1, rect));
+        if on_track.is_some() && restarts.is_none() {
+            out.ignored += 1;
+            return Ok(true);
+        }
+        if let Some(i) = restarts {
+            let track = self.tracked[i].0;
+            // The new template is taken with the face seen as the track has it.
+            let restart = (self.tracker)
+                .template_for_restart(track, frame, rect, frame_index)
+                .ok()
+                .filter(|r| self.has_contrast(r.template()));
+            let Some(restart) = restart else {
+                out.ignored += 1;
+                return Ok(true);
+            };
+            self.tracker.restart_template(track, restart)?;
+            self.tracked[i] = (track, *rect, 0.0, self.tracked[i].3);
+            out.restarted.push((track, *rect, frame_index));
+            return Ok(true);
+        }
+        Ok(false)
     }
 
     /// Ends the tracks of a pending cut that a detection of `frame_index` (the cut's first

@@ -27,7 +27,7 @@ use crate::error::PfError;
 pub mod ancestry;
 mod summary;
 use summary::value_summary;
-pub use summary::{Summary, summarise, summarise_value, weighted_means};
+pub use summary::{Summary, summarise, summarise_value};
 
 /// A target's number, its particles' states (`[d·M + m]`) and their normalised log-weights: what
 /// a tracker hands a smoother each frame.
@@ -95,7 +95,8 @@ pub struct GaussianTransition {
 }
 
 impl GaussianTransition {
-    fn validate(&self, cloud: &Cloud) -> Result<(), PfError> {
+    /// An error unless `cloud` has one σ, angle flag and drift value per dimension.
+    pub(crate) fn validate(&self, cloud: &Cloud) -> Result<(), PfError> {
         let dims = self.sigma.len();
         if self.angular.len() != dims
             || cloud.drift.len() != dims

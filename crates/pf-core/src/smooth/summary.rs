@@ -57,18 +57,6 @@ pub fn summarise_value(
     Ok(value_summary(cloud, weights, angular, d))
 }
 
-/// Every value's weighted mean (on the circle for an angle), without the intervals: what a
-/// drift needs, at a fraction of [`summarise`]'s cost (no sorting).
-pub fn weighted_means(cloud: &Cloud, weights: &[f64], angular: &[bool]) -> Vec<f32> {
-    let (dims, particles) = (cloud.drift.len(), cloud.particles());
-    (0..dims)
-        .map(|d| {
-            let xs = &cloud.states[d * particles..(d + 1) * particles];
-            value_mean(xs, weights, angular.get(d).copied().unwrap_or(false)) as f32
-        })
-        .collect()
-}
-
 /// One value's weighted mean, on the circle for an angle.
 fn value_mean(xs: &[f32], weights: &[f64], is_angle: bool) -> f64 {
     if is_angle {

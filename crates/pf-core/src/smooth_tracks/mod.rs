@@ -13,11 +13,11 @@ use std::collections::{BTreeMap, VecDeque};
 use rayon::prelude::*;
 use std::sync::Arc;
 
+use crate::batch::{BatchShape, weighted_means};
 use crate::error::PfError;
 use crate::smooth::ancestry::{trace_back, traceable};
 use crate::smooth::{
     Cloud, CpuSmoother, GaussianTransition, Summary, TargetParticles, ValueSmoother, summarise,
-    weighted_means,
 };
 
 /// One tracked target's particles at a frame, as a tracker hands them to [`TrackSmoother`].
@@ -75,10 +75,7 @@ pub struct AncestryHealth {
 
 impl AncestryHealth {
     fn add(&mut self, traced: &[f64], filtered: &[f64]) {
-        let ess = |w: &[f64]| {
-            let squares: f64 = w.iter().map(|x| x * x).sum();
-            if squares > 0.0 { 1.0 / squares } else { 0.0 }
-        };
+        let ess = crate::weights::effective_sample_size;
         let filtered = ess(filtered);
         let kept = if filtered > 0.0 {
             ess(traced) / filtered
@@ -284,7 +281,15 @@ impl TrackSmoother {
             &log_weights,
             vec![0.0; dims],
         )?;
-        let mean = weighted_means(&cloud, &cloud.weights, &self.transition.angular);
+        self.transition.validate(&cloud)?;
+        // The drift needs the means alone: the engine's twin of its weighted-mean kernel.
+        let one_target = BatchShape::new(1, cloud.weights.len(), dims)?;
+        let mean = weighted_means(
+            &one_target,
+            &cloud.states,
+            &cloud.weights,
+            &self.transition.angular,
+        );
         let entry = self.tracks.entry(track).or_default();
         cloud.drift = drift(
             self.gain,

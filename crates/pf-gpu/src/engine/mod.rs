@@ -228,17 +228,8 @@ impl FilterEngine {
     /// The particles after the last step: the shape, the states (`[(t·D + d)·M + m]`) and the
     /// normalised log-weights (`[t·M + m]`). The GPU engine reads them back (a wait).
     pub fn particles(&self) -> Result<(BatchShape, Vec<f32>, Vec<f32>), GpuError> {
-        Ok(match self {
-            Self::Cpu(filter) => (
-                *filter.shape(),
-                filter.states.clone(),
-                filter.log_weights.clone(),
-            ),
-            Self::Gpu(gpu) => {
-                let back = gpu.filter.download_particles(&gpu.ctx)?;
-                (*gpu.filter.shape(), back.states, back.log_weights)
-            }
-        })
+        let (shape, back) = self.particles_and_lineage()?;
+        Ok((shape, back.states, back.log_weights))
     }
 
     /// [`Self::particles`] and [`Self::lineage`] together (on the GPU in one readback and one

@@ -69,24 +69,8 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         .map(|path| BodyOverlay::create(path, overlay_camera(&source)?))
         .transpose()?;
     let bar = crate::console::progress_bar(frames, args.quiet);
-    // Lagging keeps the lineage either way: a restart (no ancestors) ends a lag window.
-    let layers = tracker.annealing_layers()?;
-    if let Some(Some(_lag)) = args.smoothing.mode() {
-        tracker.keep_lineage()?;
-        let from_ancestry =
-            args.smoothing.lag_smoother == crate::smoothing::LagSmootherArg::Ancestry;
-        if from_ancestry && tracker.lineage()?.is_none() {
-            anyhow::bail!(
-                "--smooth-lag traces the particles' ancestry, which islands over several GPUs do not keep (they trade particles): use --lag-smoother marginal, --smooth full, or one GPU"
-            );
-        }
-    }
-    let smoothing = (args.smoothing.mode())
-        .map(|lag| {
-            let how = args.smoothing.lag_smoother.resolve(layers);
-            BodySmoothing::create(&args.out, (lag, how), &tracker, truth.is_some())
-        })
-        .transpose()?;
+    let smoothing =
+        BodySmoothing::for_run(&args.out, &args.smoothing, &mut tracker, truth.is_some())?;
     let mut run = BodyRun::new(&args.out, smoothing)?;
     let started = Instant::now();
     // Two frames in flight on one GPU (the GPU steps frame t + 1 while frame t is read back and

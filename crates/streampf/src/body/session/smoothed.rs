@@ -5,7 +5,7 @@
 use body_tracker::{BodyTracker, Skeleton, mean_joint_error};
 use std::path::Path;
 
-use crate::smoothing::{Coverage, SmoothedRow, Smoother};
+use crate::smoothing::{Coverage, LagSmoother, SmoothArgs, SmoothedRow, Smoother};
 
 /// A body run's smoother and what its rows scored against the truth.
 pub(in crate::body) struct BodySmoothing {
@@ -19,8 +19,33 @@ pub(in crate::body) struct BodySmoothing {
 }
 
 impl BodySmoothing {
+    /// The run's smoother, when `--smooth` or `--smooth-lag` asks for one: a lag keeps the
+    /// filter's lineage whichever way it smooths (a restart, with no ancestors, ends a lag
+    /// window), and `--lag-smoother` is resolved for the tracker's annealing. Islands over
+    /// several GPUs trade particles and keep no ancestry: refused there.
+    pub(in crate::body) fn for_run(
+        out: &Path,
+        asked: &SmoothArgs,
+        tracker: &mut BodyTracker,
+        with_truth: bool,
+    ) -> anyhow::Result<Option<Self>> {
+        let Some(lag) = asked.mode() else {
+            return Ok(None);
+        };
+        let how = asked.lag_smoother.resolve(tracker.annealing_layers()?);
+        if lag.is_some() {
+            tracker.keep_lineage()?;
+            if how == LagSmoother::Ancestry && tracker.lineage()?.is_none() {
+                anyhow::bail!(
+                    "--smooth-lag traces the particles' ancestry, which islands over several GPUs do not keep (they trade particles): use --lag-smoother marginal, --smooth full, or one GPU"
+                );
+            }
+        }
+        Self::create(out, (lag, how), tracker, with_truth).map(Some)
+    }
+
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
-    pub(in crate::body) fn create(
+    fn create(
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &BodyTracker,

@@ -93,10 +93,8 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
         }
     }
     let lens = runner.tracker().lens();
-    // Lagging keeps the lineage either way: a restart (no ancestors) ends a lag window.
-    if let Some(Some(_lag)) = args.smoothing.mode() {
-        runner.keep_lineage()?;
-    }
+    let smoothing =
+        FaceSmoothing::for_run(&args.out, &args.smoothing, &mut runner, truth.is_some())?;
     let mut run = FaceRun {
         args,
         record: TrackRecord::create(
@@ -107,13 +105,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
             source.fps(),
         )?,
         resume_from: resume.as_ref().map_or(0, |p| p.frame),
-        smoothing: (args.smoothing.mode())
-            .map(|lag| {
-                let layers = runner.tracker().annealing_layers();
-                let how = args.smoothing.lag_smoother.resolve(layers);
-                FaceSmoothing::create(&args.out, (lag, how), runner.tracker(), truth.is_some())
-            })
-            .transpose()?,
+        smoothing,
         truth,
         overlay,
         recording,

@@ -7,7 +7,8 @@ use face_tracker::tracker::{ANGULAR, pose_errors};
 use face_tracker::{FaceEstimate, FaceTracker};
 use std::path::Path;
 
-use crate::smoothing::{Coverage, SmoothedRow, Smoother};
+use crate::face::runner::Runner;
+use crate::smoothing::{Coverage, SmoothArgs, SmoothedRow, Smoother};
 
 /// A face run's smoother and what its rows scored against the truth.
 pub(super) struct FaceSmoothing {
@@ -20,8 +21,29 @@ pub(super) struct FaceSmoothing {
 }
 
 impl FaceSmoothing {
+    /// The run's smoother, when `--smooth` or `--smooth-lag` asks for one: a lag keeps the
+    /// filter's lineage whichever way it smooths (a restart, with no ancestors, ends a lag
+    /// window), and `--lag-smoother` is resolved for the tracker's annealing.
+    pub(super) fn for_run(
+        out: &Path,
+        asked: &SmoothArgs,
+        runner: &mut Runner,
+        with_truth: bool,
+    ) -> anyhow::Result<Option<Self>> {
+        let Some(lag) = asked.mode() else {
+            return Ok(None);
+        };
+        if lag.is_some() {
+            runner.keep_lineage()?;
+        }
+        let how = asked
+            .lag_smoother
+            .resolve(runner.tracker().annealing_layers());
+        Self::create(out, (lag, how), runner.tracker(), with_truth).map(Some)
+    }
+
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
-    pub(super) fn create(
+    fn create(
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &FaceTracker,
