@@ -59,6 +59,11 @@ impl PreparedRays {
     pub fn levels(&self) -> &[RayLevel] {
         &self.levels
     }
+
+    /// Per tile, the cone holding its rays: (unit axis, half-angle).
+    pub fn tile_cones(&self) -> &[[f32; 4]] {
+        &self.tile_cones
+    }
 }
 
 /// The fast kernel's host preparation of a frame's rays, one level: the rays in Morton order
