@@ -407,6 +407,91 @@ fn constant_velocity_matches_cpu_and_resets_with_its_target() {
     assert!(bad.validate().is_err());
 }
 
+/// A target restarted on something already seen moving (`set_target_motion`: as if its last
+/// two estimates had been `estimate − motion` and `estimate`) drifts with it in its very next
+/// step, on both engines alike, where a plain restart stays put a step; bad motions are
+/// refused with an error.
+#[test]
+fn a_restarted_target_set_moving_drifts_in_its_next_step_on_both_engines() {
+    let config = constant_velocity(Annealing::none());
+    let motion: Vec<f32> = (0..DIMS)
+        .map(|d| truth(0, 4).z[d] - truth(0, 3).z[d])
+        .collect();
+    let estimate = truth(0, 3).z;
+    // Target 0 restarted at frame 3's truth, then stepped on frame 4: its error.
+    let restart = |cpu: &mut BatchFilter<Systematic>, moving: bool| {
+        for frame in 1..=3 {
+            cpu.step_model(&Gaussian12, &observed(frame), &CONSTANTS)
+                .unwrap();
+        }
+        let block = gaussian_clouds(
+            &BatchShape::new(1, PARTICLES, DIMS).unwrap(),
+            5,
+            &estimate,
+            &[START_SIGMA; DIMS],
+        );
+        cpu.reset_target(0, &block).unwrap();
+        if moving {
+            cpu.set_target_motion(0, &estimate, &motion).unwrap();
+        }
+        block
+    };
+    let mut still = cpu_filter(&config);
+    restart(&mut still, false);
+    let at_rest = still
+        .step_model(&Gaussian12, &observed(4), &CONSTANTS)
+        .unwrap();
+    let mut cpu = cpu_filter(&config);
+    let block = restart(&mut cpu, true);
+    let moving = cpu
+        .step_model(&Gaussian12, &observed(4), &CONSTANTS)
+        .unwrap();
+    let target_error = |estimates: &[f32]| {
+        let z = truth(0, 4).z;
+        (0..DIMS)
+            .map(|d| (estimates[d] - z[d]).powi(2))
+            .sum::<f32>()
+            .sqrt()
+    };
+    let (rest_error, moving_error) = (
+        target_error(&at_rest.estimates),
+        target_error(&moving.estimates),
+    );
+    assert!(
+        moving_error < 0.75 * rest_error,
+        "set moving: {moving_error}, at rest: {rest_error}"
+    );
+
+    let shape = &config.shape;
+    for (t, e, m) in [
+        (TARGETS, estimate.to_vec(), motion.clone()),
+        (0, estimate[..3].to_vec(), motion.clone()),
+        (0, estimate.to_vec(), vec![f32::NAN; DIMS]),
+    ] {
+        assert!(pf_core::batch::check_target_motion(shape, t, &e, &m).is_err());
+        assert!(cpu.set_target_motion(t, &e, &m).is_err());
+    }
+
+    let Some(ctx) = common::gpu_context("a target set moving on the GPU") else {
+        return;
+    };
+    let mut gpu = gpu_filter(&ctx, &config);
+    for frame in 1..=3 {
+        gpu.step(&observed(frame)).unwrap();
+    }
+    gpu.reset_target(0, &block).unwrap();
+    gpu.set_target_motion(0, &estimate, &motion).unwrap();
+    let on_gpu = gpu.step(&observed(4)).unwrap();
+    for (i, (x, y)) in moving.estimates.iter().zip(&on_gpu.estimates).enumerate() {
+        assert!((x - y).abs() <= 2e-3, "value {i}: CPU {x} vs GPU {y}");
+    }
+    assert!(gpu.set_target_motion(TARGETS, &estimate, &motion).is_err());
+    assert!(
+        gpu.set_target_motion(0, &estimate, &[f32::INFINITY; DIMS])
+            .is_err()
+    );
+}
+
 /// Whether every particle's values in `still` dimensions are, exactly, some particle's values
 /// before the step (resampling copies whole particles; a layer that does not diffuse a dimension
 /// leaves it as it was), for every target. States are `[(t·D + d)·M + m]`.

@@ -202,6 +202,31 @@ impl<R: Resampler> BatchFilter<R> {
         Ok(())
     }
 
+    /// Sets target `t` moving, as if its last two estimates had been `estimate − motion` and
+    /// `estimate` (`D` values each): with the constant-velocity drift its particles drift by
+    /// `gain · motion` in the next step, and by the share of the motion estimated after that.
+    /// For a target started (`reset_target`) on something already seen to move, such as a face
+    /// found by two detections apart. The random walk (no drift) ignores it.
+    pub fn set_target_motion(
+        &mut self,
+        t: usize,
+        estimate: &[f32],
+        motion: &[f32],
+    ) -> Result<(), PfError> {
+        let d = self.shape.dims;
+        check_target_motion(&self.shape, t, estimate, motion)?;
+        let gain = self.motion.gain();
+        if gain <= 0.0 {
+            return Ok(());
+        }
+        let own = t * d..(t + 1) * d;
+        for (v, &m) in self.velocity[own.clone()].iter_mut().zip(motion) {
+            *v = gain * m;
+        }
+        self.previous_estimates[own].copy_from_slice(estimate);
+        Ok(())
+    }
+
     /// Each particle's ancestor among the previous frame's particles after the last step,
     /// `[t·M + m]`: every annealing layer's resampling composed
     /// (`smooth::ancestry::NO_ANCESTOR` for a target restarted before that step, and before the
@@ -512,6 +537,40 @@ impl<R: Resampler> BatchFilter<R> {
 }
 
 /// Initial clouds `mean_t + σ ⊙ n` for every target (n from each target's init stream), in the
+/// Refuses a motion for a target outside the batch, of the wrong length, or not finite (the
+/// CPU and GPU engines' `set_target_motion`).
+pub fn check_target_motion(
+    shape: &BatchShape,
+    t: usize,
+    estimate: &[f32],
+    motion: &[f32],
+) -> Result<(), PfError> {
+    if t >= shape.targets {
+        return Err(PfError::InvalidConfig(format!(
+            "target {t} of a batch of {}",
+            shape.targets
+        )));
+    }
+    for (what, values) in [
+        ("a target's estimate", estimate),
+        ("a target's motion", motion),
+    ] {
+        if values.len() != shape.dims {
+            return Err(PfError::LengthMismatch {
+                what,
+                expected: shape.dims,
+                got: values.len(),
+            });
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(PfError::InvalidConfig(format!(
+                "{what} must be finite, got {values:?}"
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The twin's log-likelihood of every particle of `states` (`[(t·D + d)·M + m]`) against each
 /// target's observation, into `out[t·M + m]`, targets on all cores: the CPU measure of a plug-in
 /// (`BatchFilter::step_model`, and `pf_gpu::model::Plugin` on the CPU engine). `observations`

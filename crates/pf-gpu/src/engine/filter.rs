@@ -179,6 +179,17 @@ impl<M: Model> Filter<M> {
         Ok(self.engine.reset_target(t, states)?)
     }
 
+    /// Sets target `t` moving, as if its last two estimates had been `estimate − motion` and
+    /// `estimate` (`pf_core::batch::BatchFilter::set_target_motion`).
+    pub fn set_target_motion(
+        &mut self,
+        t: usize,
+        estimate: &[f32],
+        motion: &[f32],
+    ) -> Result<(), M::Error> {
+        Ok(self.engine.set_target_motion(t, estimate, motion)?)
+    }
+
     /// The particles after the last step: the states (`[(t·D + d)·M + m]`) and the normalised
     /// log-weights (`[t·M + m]`). The GPU engine reads them back (a wait).
     pub fn particles(&self) -> Result<(Vec<f32>, Vec<f32>), M::Error> {

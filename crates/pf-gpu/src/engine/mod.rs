@@ -206,6 +206,20 @@ impl FilterEngine {
         }
     }
 
+    /// Sets target `t` moving, as if its last two estimates had been `estimate − motion` and
+    /// `estimate` (`pf_core::batch::BatchFilter::set_target_motion`).
+    pub fn set_target_motion(
+        &mut self,
+        t: usize,
+        estimate: &[f32],
+        motion: &[f32],
+    ) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(filter) => Ok(filter.set_target_motion(t, estimate, motion)?),
+            Self::Gpu(gpu) => gpu.filter.set_target_motion(&gpu.ctx, t, estimate, motion),
+        }
+    }
+
     /// Keeps each frame's lineage from the next step on (the GPU composes it in a dispatch per
     /// layer; the CPU engine always keeps it).
     pub fn keep_lineage(&mut self) -> Result<(), GpuError> {

@@ -197,6 +197,23 @@ where
         shard.filter.reset_target(local, states)
     }
 
+    /// Sets target `t` of the whole batch moving (`Filter::set_target_motion`).
+    pub fn set_target_motion(
+        &mut self,
+        t: usize,
+        estimate: &[f32],
+        motion: &[f32],
+    ) -> Result<(), M::Error> {
+        let targets = self.shape.targets;
+        let shard = (self.shards.iter_mut())
+            .find(|s| s.targets.contains(&t))
+            .ok_or_else(|| {
+                GpuError::InvalidConfig(format!("target {t} of a batch of {targets}"))
+            })?;
+        let local = t - shard.targets.start;
+        shard.filter.set_target_motion(local, estimate, motion)
+    }
+
     /// The whole batch's particle states (`[(t·D + d)·M + m]`; tests and debugging).
     pub fn download_states(&self) -> Result<Vec<f32>, M::Error> {
         let mut states = Vec::with_capacity(self.shape.state_len());

@@ -529,6 +529,29 @@ impl GpuFilter {
             .upload_at(ctx, t, &[TargetStats::initial(m)])
     }
 
+    /// Sets target `t` moving, as if its last two estimates had been `estimate − motion` and
+    /// `estimate`: the twin of `pf_core::batch::BatchFilter::set_target_motion` (queued before
+    /// the next step's submission, like `reset_target`).
+    pub fn set_target_motion(
+        &self,
+        ctx: &GpuContext,
+        t: usize,
+        estimate: &[f32],
+        motion: &[f32],
+    ) -> Result<(), GpuError> {
+        pf_core::batch::check_target_motion(&self.shape, t, estimate, motion)?;
+        let gain = self.params.velocity_gain;
+        if gain <= 0.0 {
+            return Ok(());
+        }
+        let d = self.shape.dims;
+        let drift: Vec<f32> = motion.iter().map(|m| gain * m).collect();
+        self.streams.velocity.upload_at(ctx, t * d, &drift)?;
+        self.streams
+            .previous_estimates
+            .upload_at(ctx, t * d, estimate)
+    }
+
     /// Sets the index of the next step (it keys the step's random numbers).
     pub fn set_step(&mut self, step: u64) {
         self.step = step;
