@@ -18,8 +18,8 @@ use std::collections::BTreeMap;
 use crate::extraction::FaceRect;
 use crate::image::GrayImage;
 use crate::lens::Lens;
-use crate::likelihood::residual_error_through;
-use crate::projection::DIMS;
+use crate::likelihood::{least_squares_gain, residual_error_through};
+use crate::projection::{ALPHA, DIMS};
 use crate::template::Template;
 
 /// How identities are matched.
@@ -138,10 +138,7 @@ impl Identities {
     }
 }
 
-/// The least ε of `person`'s template on the new face: from each of 27 starting rotations
-/// (pitch, yaw and roll each −0.2, 0 or 0.2 rad) about the face's rectangle (its centre, its
-/// size relative to the person's first rectangle, α = 1), the best of them refined by
-/// [`refine`].
+/// The least ε of `person`'s template on the new face ([`fit_template_at`]).
 fn best_fit(person: &Person, face: &NewFace<'_>, lens: &Lens) -> f64 {
     fit_template_at(
         (&person.template, person.width),
@@ -152,9 +149,22 @@ fn best_fit(person: &Person, face: &NewFace<'_>, lens: &Lens) -> f64 {
     .0
 }
 
+/// Starting scales of the pose search, as shares of the one the rectangle's width gives: a
+/// detector's square frames a face larger or smaller than its tracked rectangle, and the search
+/// found the scale 0.81–1.0 times the rectangle's on the identity scenario's heads.
+const START_SCALES: [f32; 4] = [0.8, 0.9, 1.0, 1.1];
+
+/// The best starts refined by the local search.
+const STARTS_REFINED: usize = 3;
+
 /// The least ε of a template (taken on a face `width` pixels wide) on the face at `rect` of
-/// `frame`, and the state it is reached at: [`best_fit`]'s search, for any template (a running
-/// track's, to tell whether it has drifted off its face, and where to: `crate::auto`).
+/// `frame`, and the state it is reached at. Starts: each of 27 rotations (pitch, yaw and roll
+/// each −0.2, 0 or 0.2 rad) at each of [`START_SCALES`] about the rectangle's centre, each with
+/// the contrast α that fits it in least squares (the light changes between the template's frame
+/// and this one: the scenario's heads needed α 1.1–1.4, where a start at α = 1 stayed in a
+/// local minimum at ε 0.03 against 0.003); the [`STARTS_REFINED`] best refined by [`refine`].
+/// Used for identities, and for a running track's template to tell whether it has drifted off
+/// its face, and where to (`crate::auto`).
 pub(crate) fn fit_template_at(
     (template, width): (&Template, f32),
     frame: &GrayImage,
@@ -165,18 +175,21 @@ pub(crate) fn fit_template_at(
     let scale = rect.width / width;
     let fit = |state: &[f32; DIMS]| residual_error_through(state, template, frame, lens);
     let turns = [-0.2f32, 0.0, 0.2];
-    let mut start = ([cx, cy, scale, 0.0, 0.0, 0.0, 1.0], f64::INFINITY);
-    for rx in turns {
-        for ry in turns {
-            for rz in turns {
-                let state = [cx, cy, scale, rx, ry, rz, 1.0];
-                let error = fit(&state);
-                if error < start.1 {
-                    start = (state, error);
+    let mut starts = Vec::with_capacity(27 * START_SCALES.len());
+    for share in START_SCALES {
+        for rx in turns {
+            for ry in turns {
+                for rz in turns {
+                    let mut state = [cx, cy, scale * share, rx, ry, rz, 1.0];
+                    state[ALPHA] = least_squares_gain(&state, template, frame, lens)
+                        .filter(|gain| gain.is_finite())
+                        .map_or(1.0, |gain| gain.clamp(MIN_START_GAIN, MAX_START_GAIN));
+                    starts.push((fit(&state), state));
                 }
             }
         }
     }
+    starts.sort_by(|a, b| a.0.total_cmp(&b.0));
     let steps = [
         rect.width / 10.0,
         rect.width / 10.0,
@@ -186,8 +199,15 @@ pub(crate) fn fit_template_at(
         0.1,
         0.15,
     ];
-    refine(start.0, steps, &fit)
+    (starts.iter().take(STARTS_REFINED))
+        .map(|&(_, state)| refine(state, steps, &fit))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+        .unwrap_or((f64::INFINITY, [cx, cy, scale, 0.0, 0.0, 0.0, 1.0]))
 }
+
+/// The starting α stays within what the tracker's state allows.
+const MIN_START_GAIN: f32 = 0.25;
+const MAX_START_GAIN: f32 = 4.0;
 
 /// A local search from `state`: each value in turn moved a step either way while that fits
 /// better, then the steps halved, four times. The least ε and its state.

@@ -4,8 +4,8 @@
 //! which keeps what frames share, against rendering each frame from nothing.
 
 use face_tracker::likelihood::{
-    LANES, Lens, residual_error, residual_error_through, residual_errors, residual_errors_of,
-    residual_errors_of_baseline, residual_errors_of_through, weigh_parallel,
+    LANES, Lens, least_squares_gain, residual_error, residual_error_through, residual_errors,
+    residual_errors_of, residual_errors_of_baseline, residual_errors_of_through, weigh_parallel,
     weigh_parallel_through, weigh_single_thread,
 };
 use face_tracker::model::FaceModel;
@@ -117,6 +117,55 @@ proptest! {
             bits(&weigh_parallel_through(&states, &template, &frame, &lens)),
             bits(&one_at_a_time)
         );
+    }
+}
+
+proptest! {
+    /// The pose search's starting contrast: on a flat frame of level L, a template of gray G
+    /// anywhere in view fits best at α = G / L (None where no point is in view); on any frame,
+    /// grays c times as bright give c times the α.
+    #[test]
+    fn the_least_squares_gain_is_the_contrast_that_fits(
+        (width, height) in (2u32..90, 2u32..70),
+        seed in any::<u64>(),
+        level in 1u8..=255,
+        gray in 1.0f32..255.0,
+        brighter in 0.25f32..4.0,
+        points in prop::collection::vec(
+            (prop::array::uniform3(-40.0f32..40.0), prop::array::uniform3(-1.0f32..1.0)),
+            1..80,
+        ),
+        state in particle(),
+    ) {
+        let template_of = |gray_of: &dyn Fn(usize) -> f32| {
+            Template::new(
+                (points.iter().enumerate())
+                    .map(|(i, (p, n))| FeaturePoint::new(*p, unit([n[0], n[1], n[2] + 1e-2]), gray_of(i)))
+                    .collect(),
+            )
+            .unwrap()
+        };
+        let flat = GrayImage::new(width, height, vec![level; (width * height) as usize]).unwrap();
+        let even = template_of(&|_| gray);
+        if let Some(gain) = least_squares_gain(&state, &even, &flat, &Lens::WEAK) {
+            let expected = gray / f32::from(level);
+            prop_assert!((gain - expected).abs() <= 1e-4 * expected, "{} vs {}", gain, expected);
+        }
+        let black = GrayImage::new(width, height, vec![0; (width * height) as usize]).unwrap();
+        prop_assert_eq!(least_squares_gain(&state, &even, &black, &Lens::WEAK), None);
+
+        let textured = frame(width, height, seed);
+        let varied = |i: usize| 4.0 + (i * 37 % 251) as f32;
+        let dim = template_of(&varied);
+        let bright = template_of(&|i| brighter * varied(i));
+        let pair = (
+            least_squares_gain(&state, &dim, &textured, &Lens::WEAK),
+            least_squares_gain(&state, &bright, &textured, &Lens::WEAK),
+        );
+        match pair {
+            (Some(a), Some(b)) => prop_assert!((b - brighter * a).abs() <= 1e-4 * b, "{} vs {} x {}", b, brighter, a),
+            (a, b) => prop_assert_eq!(a.is_none(), b.is_none()),
+        }
     }
 }
 

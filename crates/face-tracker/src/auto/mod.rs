@@ -155,6 +155,36 @@ pub fn same_face_and_size(a: &FaceRect, b: &FaceRect) -> bool {
     same_face(a, b) && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
 }
 
+/// Whether detection `b` may be the face detected at `a` one detector run earlier, moved:
+/// its centre within [`drift::DRIFT_REACH`] of `a`'s widths, about `a`'s size.
+pub fn within_reach(a: &FaceRect, b: &FaceRect) -> bool {
+    let ((ax, ay), (bx, by)) = (a.centre(), b.centre());
+    let ratio = b.width / a.width;
+    (ax - bx).hypot(ay - by) <= drift::DRIFT_REACH * a.width
+        && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
+}
+
+/// An untracked face of the last detector run: a new face once seen in
+/// [`AutoConfig::confirmations`] runs in a row.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Candidate {
+    rect: FaceRect,
+    /// Detector runs in a row that saw it.
+    seen: usize,
+    /// The frame the last of them looked at.
+    frame: usize,
+}
+
+impl Candidate {
+    /// The motion (pixels a frame) from this candidate to the same face detected at `rect` in
+    /// frame `frame`, if that is later.
+    fn motion_to(&self, rect: &FaceRect, frame: usize) -> Option<[f32; 2]> {
+        let frames = frame.checked_sub(self.frame).filter(|&f| f > 0)? as f32;
+        let ((x0, y0), (x1, y1)) = (self.rect.centre(), rect.centre());
+        Some([(x1 - x0) / frames, (y1 - y0) / frames])
+    }
+}
+
 /// What happened at a frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AutoFrame {
@@ -188,8 +218,8 @@ pub struct AutoTracker {
     /// Each running track: its number, rectangle, ε and the width its template was taken at
     /// (its scale 1).
     tracked: Vec<(usize, FaceRect, f64, f32)>,
-    /// Untracked faces of the last detector run, and in how many runs in a row they were seen.
-    candidates: Vec<(FaceRect, usize)>,
+    /// Untracked faces of the last detector run.
+    candidates: Vec<Candidate>,
     cuts: Option<SceneCuts>,
     /// The tracks of the last cut, until a detection from its first frame on decides them.
     pending_cut: Option<PendingCut>,
@@ -321,17 +351,27 @@ impl AutoTracker {
                 out.ignored += 1;
                 continue;
             };
-            let seen = 1 + self
-                .candidates
-                .iter()
-                .find(|c| same_face(&c.0, &rect))
-                .map_or(0, |c| c.1);
+            let earlier = (self.candidates.iter())
+                .find(|c| same_face(&c.rect, &rect) || within_reach(&c.rect, &rect));
+            let seen = 1 + earlier.map_or(0, |c| c.seen);
             if seen < self.config.confirmations {
-                candidates.push((rect, seen));
+                candidates.push(Candidate {
+                    rect,
+                    seen,
+                    frame: result.frame_index,
+                });
             } else if self.tracker.free_slots() == 0 {
                 out.ignored += 1;
             } else {
                 let track = self.tracker.add_template(&result.frame, &rect, template)?;
+                // A face that moved out of its earlier rectangle walks: its track starts
+                // moving with it.
+                if let Some(per_frame) = earlier
+                    .filter(|c| !same_face(&c.rect, &rect))
+                    .and_then(|c| c.motion_to(&rect, result.frame_index))
+                {
+                    self.tracker.set_track_motion(track, per_frame)?;
+                }
                 self.identify(track, &result.frame, &rect);
                 self.tracked.push((track, rect, 0.0, rect.width));
                 out.started.push((track, rect, result.frame_index));
@@ -561,5 +601,30 @@ mod tests {
             height: 96.0,
         };
         assert!(!same_face_and_size(&track, &elsewhere));
+    }
+
+    /// A face that walked 150 px between two detector runs five frames apart is the same
+    /// candidate (within two widths, about its size), moving 30 px a frame; one three widths
+    /// away, or twice the size, is not.
+    #[test]
+    fn a_candidate_seen_again_a_walk_away_is_confirmed_with_its_motion() {
+        let rect = |x: f32, width: f32| FaceRect {
+            x,
+            y: 100.0,
+            width,
+            height: 1.25 * width,
+        };
+        let earlier = Candidate {
+            rect: rect(600.0, 120.0),
+            seen: 1,
+            frame: 180,
+        };
+        let walked = rect(450.0, 120.0);
+        assert!(!same_face(&earlier.rect, &walked) && within_reach(&earlier.rect, &walked));
+        let [dx, dy] = earlier.motion_to(&walked, 185).unwrap();
+        assert!((dx + 30.0).abs() < 1e-3 && dy.abs() < 1e-3, "{dx}, {dy}");
+        assert_eq!(earlier.motion_to(&walked, 180), None);
+        assert!(!within_reach(&earlier.rect, &rect(240.0, 120.0)));
+        assert!(!within_reach(&earlier.rect, &rect(560.0, 240.0)));
     }
 }

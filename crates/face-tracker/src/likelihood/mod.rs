@@ -192,9 +192,48 @@ pub fn residual_error_through(
     frame: &GrayImage,
     lens: &Lens,
 ) -> f64 {
+    let alpha = state[crate::projection::ALPHA];
+    let mut sum = 0.0f64;
+    let visible = visit_samples(state, template, frame, lens, |sample| {
+        sum += sample.map_or(1.0, |(intensity, gray)| {
+            f64::from(rho_of_residual(alpha * intensity - gray, gray))
+        });
+    });
+    mean_residual(sum, visible, template.points.len())
+}
+
+/// The contrast α that best fits `template` to `frame` at `state`'s geometry in least squares
+/// (Σ I·g / Σ I² over the visible points inside the frame; `state`'s own α is not read), or
+/// `None` where no such point sees light: a starting α for a pose search, which ε's robust ρ
+/// then refines.
+pub fn least_squares_gain(
+    state: &[f32; DIMS],
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
+) -> Option<f32> {
+    let (mut cross, mut square) = (0.0f64, 0.0f64);
+    visit_samples(state, template, frame, lens, |sample| {
+        if let Some((intensity, gray)) = sample {
+            cross += f64::from(intensity) * f64::from(gray);
+            square += f64::from(intensity) * f64::from(intensity);
+        }
+    });
+    (square > 0.0).then(|| (cross / square) as f32)
+}
+
+/// Calls `visit` for each template point facing the camera at `state` with Some((the frame's
+/// bilinear intensity there, the point's gray level)), or None where it falls outside the
+/// frame; returns how many points faced the camera.
+fn visit_samples(
+    state: &[f32; DIMS],
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
+    mut visit: impl FnMut(Option<(f32, f32)>),
+) -> usize {
     let x = Projector::new(state);
     let pixels = Pixels::new(frame);
-    let mut sum = 0.0f64;
     let mut visible = 0usize;
     for q in &template.points {
         let ([nx, ny, nz], [px, py, pz]) = (q.normal, q.position);
@@ -208,14 +247,9 @@ pub fn residual_error_through(
         ];
         let depth = x.scale * (x.row_z[0] * px + x.row_z[1] * py + x.row_z[2] * pz);
         let [u, v] = lens.apply(weak, depth).unwrap_or([f32::NAN; 2]);
-        sum += if pixels.inside(u, v) {
-            let intensity = pixels.bilinear(u, v);
-            f64::from(rho_of_residual(x.alpha * intensity - q.gray, q.gray))
-        } else {
-            1.0
-        };
+        visit(pixels.inside(u, v).then(|| (pixels.bilinear(u, v), q.gray)));
     }
-    mean_residual(sum, visible, template.points.len())
+    visible
 }
 
 /// Where the lanes sample the frame: each one's position within its cell and the cell's four

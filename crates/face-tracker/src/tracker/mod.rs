@@ -194,6 +194,8 @@ struct Track {
     template: Template,
     /// The rectangle the track started from (a restart keeps it: S stays relative to it).
     start: FaceRect,
+    /// The state its particles were last started around (a start, restart or move).
+    started_around: [f32; DIMS],
     /// The template's ε off its face in the frame it was taken from (`off_face_error`): the
     /// confidence's scale.
     off_face_error: f64,

@@ -195,6 +195,17 @@ impl Shard {
         Ok(())
     }
 
+    /// Sets the shard's slot for the tracker's `slot` moving (`Filter::set_target_motion`).
+    pub fn set_motion(
+        &mut self,
+        slot: usize,
+        estimate: &[f32],
+        motion: &[f32],
+    ) -> Result<(), FaceError> {
+        let local = slot - self.first_slot;
+        Ok(self.filter.set_target_motion(local, estimate, motion)?)
+    }
+
     /// One frame for the shard's slots; `templates[t]` is the template in the shard's slot t
     /// (`None`: free).
     pub fn step(

@@ -192,6 +192,24 @@ impl FaceTracker {
         self.restart_template(track, restart)
     }
 
+    /// Sets running track `track`, just started, restarted or moved, moving by `per_frame`
+    /// (pixels a frame in Tx and Ty), as if it had been estimated there one frame before: the
+    /// constant-velocity drift carries its particles along from its next step (the engine's
+    /// `set_target_motion`). For a face found moving by two detections: a face that walks 30 px
+    /// a frame outruns particles that start at rest within three frames. The random walk
+    /// ignores it.
+    pub fn set_track_motion(&mut self, track: usize, per_frame: [f32; 2]) -> Result<(), FaceError> {
+        self.check_nothing_in_flight("a track's motion is set")?;
+        let slot = self.slot_of(track)?;
+        let estimate = self.running(track)?.started_around;
+        let mut motion = [0.0; DIMS];
+        motion[TX] = per_frame[0];
+        motion[TY] = per_frame[1];
+        let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
+            .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
+        shard.set_motion(slot, &estimate, &motion)
+    }
+
     /// Ends running track `track`: its next step reports it lost (`TrackStatus::Lost`) and
     /// frees its slot. For a caller that knows the face is gone (a scene cut after which the
     /// detector does not find it again).
@@ -344,6 +362,7 @@ impl FaceTracker {
             id: track,
             template,
             start: start.rect,
+            started_around: start.mean,
             off_face_error: start.off_face_error,
             bad_frames: 0,
             ending: false,
