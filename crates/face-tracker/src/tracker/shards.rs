@@ -203,7 +203,7 @@ impl Shard {
         motion: &[f32],
     ) -> Result<(), FaceError> {
         let local = slot - self.first_slot;
-        Ok(self.filter.set_target_motion(local, estimate, motion)?)
+        self.filter.set_target_motion(local, estimate, motion)
     }
 
     /// One frame for the shard's slots; `templates[t]` is the template in the shard's slot t

@@ -202,3 +202,37 @@ impl BatchConfig {
         Ok(())
     }
 }
+
+/// Refuses a motion for a target outside the batch, of the wrong length, or not finite (the
+/// CPU and GPU engines' `set_target_motion`).
+pub fn check_target_motion(
+    shape: &BatchShape,
+    t: usize,
+    estimate: &[f32],
+    motion: &[f32],
+) -> Result<(), PfError> {
+    if t >= shape.targets {
+        return Err(PfError::InvalidConfig(format!(
+            "target {t} of a batch of {}",
+            shape.targets
+        )));
+    }
+    for (what, values) in [
+        ("a target's estimate", estimate),
+        ("a target's motion", motion),
+    ] {
+        if values.len() != shape.dims {
+            return Err(PfError::LengthMismatch {
+                what,
+                expected: shape.dims,
+                got: values.len(),
+            });
+        }
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(PfError::InvalidConfig(format!(
+                "{what} must be finite, got {values:?}"
+            )));
+        }
+    }
+    Ok(())
+}

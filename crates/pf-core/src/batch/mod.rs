@@ -18,7 +18,9 @@ use crate::resample::Resampler;
 mod config;
 mod stages;
 
-pub use config::{BatchConfig, BatchShape, Motion, stage_keys, stage_keys_from};
+pub use config::{
+    BatchConfig, BatchShape, Motion, check_target_motion, stage_keys, stage_keys_from,
+};
 
 pub use stages::{
     LayerBeta, Normalised, add_drift, best_weighted_means, circular_spread, diffuse,
@@ -537,40 +539,6 @@ impl<R: Resampler> BatchFilter<R> {
 }
 
 /// Initial clouds `mean_t + σ ⊙ n` for every target (n from each target's init stream), in the
-/// Refuses a motion for a target outside the batch, of the wrong length, or not finite (the
-/// CPU and GPU engines' `set_target_motion`).
-pub fn check_target_motion(
-    shape: &BatchShape,
-    t: usize,
-    estimate: &[f32],
-    motion: &[f32],
-) -> Result<(), PfError> {
-    if t >= shape.targets {
-        return Err(PfError::InvalidConfig(format!(
-            "target {t} of a batch of {}",
-            shape.targets
-        )));
-    }
-    for (what, values) in [
-        ("a target's estimate", estimate),
-        ("a target's motion", motion),
-    ] {
-        if values.len() != shape.dims {
-            return Err(PfError::LengthMismatch {
-                what,
-                expected: shape.dims,
-                got: values.len(),
-            });
-        }
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(PfError::InvalidConfig(format!(
-                "{what} must be finite, got {values:?}"
-            )));
-        }
-    }
-    Ok(())
-}
-
 /// The twin's log-likelihood of every particle of `states` (`[(t·D + d)·M + m]`) against each
 /// target's observation, into `out[t·M + m]`, targets on all cores: the CPU measure of a plug-in
 /// (`BatchFilter::step_model`, and `pf_gpu::model::Plugin` on the CPU engine). `observations`
