@@ -408,44 +408,43 @@ fn constant_velocity_matches_cpu_and_resets_with_its_target() {
 }
 
 /// A target restarted on something already seen moving (`set_target_motion`: as if its last
-/// two estimates had been `estimate − motion` and `estimate`) drifts with it in its very next
-/// step, on both engines alike, where a plain restart stays put a step; bad motions are
-/// refused with an error.
+/// two estimates had been `estimate − motion` and `estimate`) drifts by gain · motion in its very
+/// next step, on both engines alike (gain 0.5, one angular value), where a plain restart stays
+/// put a step; an angle's motion counts wrapped, the random walk ignores the call, a NaN
+/// estimate (no earlier one) is taken, and bad motions are refused with an error.
 #[test]
 fn a_restarted_target_set_moving_drifts_in_its_next_step_on_both_engines() {
-    let config = constant_velocity(Annealing::none());
+    const GAIN: f32 = 0.5;
+    let mut config = config(Annealing::none());
+    config.motion = Motion::ConstantVelocity { gain: GAIN };
+    config.angular[0] = true;
+    // Twice the truth's step: the drift (half of it) is the step.
     let motion: Vec<f32> = (0..DIMS)
-        .map(|d| truth(0, 4).z[d] - truth(0, 3).z[d])
+        .map(|d| (truth(0, 4).z[d] - truth(0, 3).z[d]) / GAIN)
         .collect();
     let estimate = truth(0, 3).z;
-    // Target 0 restarted at frame 3's truth, then stepped on frame 4: its error.
-    let restart = |cpu: &mut BatchFilter<Systematic>, moving: bool| {
+    let block = gaussian_clouds(
+        &BatchShape::new(1, PARTICLES, DIMS).unwrap(),
+        5,
+        &estimate,
+        &[START_SIGMA; DIMS],
+    );
+    // Target 0 restarted at frame 3's truth (set moving by `motion`, if any), then frame 4.
+    let step_after_restart = |config: &BatchConfig, motion: Option<&[f32]>| {
+        let mut cpu = cpu_filter(config);
         for frame in 1..=3 {
             cpu.step_model(&Gaussian12, &observed(frame), &CONSTANTS)
                 .unwrap();
         }
-        let block = gaussian_clouds(
-            &BatchShape::new(1, PARTICLES, DIMS).unwrap(),
-            5,
-            &estimate,
-            &[START_SIGMA; DIMS],
-        );
         cpu.reset_target(0, &block).unwrap();
-        if moving {
-            cpu.set_target_motion(0, &estimate, &motion).unwrap();
+        if let Some(motion) = motion {
+            cpu.set_target_motion(0, &estimate, motion).unwrap();
         }
-        block
+        let report = cpu
+            .step_model(&Gaussian12, &observed(4), &CONSTANTS)
+            .unwrap();
+        (cpu, report.estimates)
     };
-    let mut still = cpu_filter(&config);
-    restart(&mut still, false);
-    let at_rest = still
-        .step_model(&Gaussian12, &observed(4), &CONSTANTS)
-        .unwrap();
-    let mut cpu = cpu_filter(&config);
-    let block = restart(&mut cpu, true);
-    let moving = cpu
-        .step_model(&Gaussian12, &observed(4), &CONSTANTS)
-        .unwrap();
     let target_error = |estimates: &[f32]| {
         let z = truth(0, 4).z;
         (0..DIMS)
@@ -453,20 +452,36 @@ fn a_restarted_target_set_moving_drifts_in_its_next_step_on_both_engines() {
             .sum::<f32>()
             .sqrt()
     };
-    let (rest_error, moving_error) = (
-        target_error(&at_rest.estimates),
-        target_error(&moving.estimates),
-    );
+    let (_, at_rest) = step_after_restart(&config, None);
+    let (mut cpu, moving) = step_after_restart(&config, Some(&motion));
+    let (rest_error, moving_error) = (target_error(&at_rest), target_error(&moving));
     assert!(
         moving_error < 0.75 * rest_error,
         "set moving: {moving_error}, at rest: {rest_error}"
     );
-
+    // The angle's motion a turn larger drifts the same.
+    let mut turned = motion.clone();
+    turned[0] += std::f32::consts::TAU;
+    let (_, turned_estimates) = step_after_restart(&config, Some(&turned));
+    for (x, y) in moving.iter().zip(&turned_estimates) {
+        assert!((x - y).abs() <= 1e-4, "{x} vs {y} a turn apart");
+    }
+    // The random walk ignores it.
+    let mut walk = config.clone();
+    walk.motion = Motion::RandomWalk;
+    assert_eq!(
+        step_after_restart(&walk, Some(&motion)).1,
+        step_after_restart(&walk, None).1
+    );
     let shape = &config.shape;
+    let mut unknown = estimate;
+    unknown[1] = f32::NAN;
+    assert!(cpu.set_target_motion(0, &unknown, &motion).is_ok());
     for (t, e, m) in [
         (TARGETS, estimate.to_vec(), motion.clone()),
         (0, estimate[..3].to_vec(), motion.clone()),
         (0, estimate.to_vec(), vec![f32::NAN; DIMS]),
+        (0, vec![f32::INFINITY; DIMS], motion.clone()),
     ] {
         assert!(pf_core::batch::check_target_motion(shape, t, &e, &m).is_err());
         assert!(cpu.set_target_motion(t, &e, &m).is_err());
@@ -480,9 +495,9 @@ fn a_restarted_target_set_moving_drifts_in_its_next_step_on_both_engines() {
         gpu.step(&observed(frame)).unwrap();
     }
     gpu.reset_target(0, &block).unwrap();
-    gpu.set_target_motion(0, &estimate, &motion).unwrap();
+    gpu.set_target_motion(0, &estimate, &turned).unwrap();
     let on_gpu = gpu.step(&observed(4)).unwrap();
-    for (i, (x, y)) in moving.estimates.iter().zip(&on_gpu.estimates).enumerate() {
+    for (i, (x, y)) in moving.iter().zip(&on_gpu.estimates).enumerate() {
         assert!((x - y).abs() <= 2e-3, "value {i}: CPU {x} vs GPU {y}");
     }
     assert!(gpu.set_target_motion(TARGETS, &estimate, &motion).is_err());

@@ -20,7 +20,7 @@ use face_tracker::model::FaceModel;
 use face_tracker::projection::{TX, TY};
 use face_tracker::synth::{FaceSynthConfig, FaceVideoRenderer, face_state, initial_rect};
 use face_tracker::{
-    AutoConfig, AutoFrame, AutoTracker, FaceBackend, FaceTrackerConfig, TrackStatus,
+    AutoConfig, AutoFrame, AutoTracker, FaceBackend, FaceTracker, FaceTrackerConfig, TrackStatus,
 };
 
 const ENTER_EVERY: usize = 8;
@@ -245,4 +245,65 @@ fn a_track_left_behind_by_its_face_is_found_drifted() {
     let far_frame = renderer.render(9).unwrap();
     assert!(at(9).x - home.x > 250.0);
     assert_eq!(tracker.drifted_track(&far_frame, &far), None);
+}
+
+/// A face walking 30 px a frame outruns a track started on it at rest; one set moving at that
+/// speed (`FaceTracker::set_track_motion`, as a face found walking by two detections is) stays
+/// on it. Setting a track that does not run moving is an error.
+#[test]
+fn a_track_set_moving_keeps_up_with_a_walking_face() {
+    let video = FaceSynthConfig {
+        width: 640,
+        height: 480,
+        faces: 1,
+        half_width: 50.0,
+        occlusion: false,
+        exit_after: Some(0),
+        ..FaceSynthConfig::paper(12)
+    };
+    let model = FaceModel::generic(129).unwrap();
+    let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let (start, last) = (2, 7);
+    let home = initial_rect(&video, 0);
+    let at_start = face_state(&video, 0, start);
+    let rect = FaceRect {
+        x: home.x + at_start[TX] - face_state(&video, 0, 0)[TX],
+        y: home.y + at_start[TY] - face_state(&video, 0, 0)[TY],
+        ..home
+    };
+    let walked = face_state(&video, 0, start + 1)[TX] - at_start[TX];
+    assert!(
+        (walked - 30.0).abs() < 3.0,
+        "the face walks {walked} px a frame"
+    );
+    let error_at_last = |moving: bool| {
+        let first = renderer.render(start).unwrap();
+        let mut tracker = FaceTracker::new(
+            &first,
+            &[rect],
+            &model,
+            FaceTrackerConfig::default(),
+            FaceBackend::Cpu,
+        )
+        .unwrap();
+        if moving {
+            tracker.set_track_motion(0, [walked, 0.0]).unwrap();
+            assert!(tracker.set_track_motion(7, [walked, 0.0]).is_err());
+        }
+        let mut estimate = None;
+        for frame in start + 1..=last {
+            let out = tracker.step(&renderer.render(frame).unwrap()).unwrap();
+            estimate = out.into_iter().find(|e| e.track == 0);
+        }
+        let e = estimate.expect("the track's estimate");
+        (e.state[TX] - face_state(&video, 0, last)[TX]).abs()
+    };
+    let (at_rest, moving) = (error_at_last(false), error_at_last(true));
+    eprintln!(
+        "x error at frame {last}: started at rest {at_rest:.1} px, set moving {moving:.1} px"
+    );
+    assert!(
+        moving < 20.0 && moving < 0.3 * at_rest,
+        "{moving} vs {at_rest}"
+    );
 }

@@ -26,11 +26,14 @@ use crate::image::GrayImage;
 use crate::model::FaceModel;
 use crate::scene_cut::{PendingCut, SceneCuts};
 
+mod candidates;
 mod detectors;
 mod drift;
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
+pub use candidates::within_reach;
+use candidates::{Candidate, earlier_candidate};
 use detectors::{DetectionResult, Detectors};
 
 /// How detection feeds the tracker.
@@ -53,9 +56,10 @@ pub struct AutoConfig {
     /// (a face has dark eyes and brows on lighter skin; false detections in dark, flat parts of a
     /// frame give templates that match anything dark forever).
     pub min_template_contrast: f32,
-    /// A new face needs detections at the same place in this many detector runs in a row (1:
-    /// the first detection starts a track). Faces stay put between runs; false detections on
-    /// clutter rarely repeat.
+    /// A new face needs detections in this many detector runs in a row (1: the first
+    /// detection starts a track), each on the one before or within two of its widths at about
+    /// its size (a face walking 30 px a frame moves 150 px between runs five frames apart);
+    /// false detections on clutter rarely repeat.
     pub confirmations: usize,
     /// A gray-level histogram change from one frame to the next above this marks a scene cut
     /// ([`crate::scene_cut`]); `None`: cuts are not looked for.
@@ -153,36 +157,6 @@ pub const MAX_SIZE_CHANGE: f32 = 1.5;
 pub fn same_face_and_size(a: &FaceRect, b: &FaceRect) -> bool {
     let ratio = b.width / a.width;
     same_face(a, b) && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
-}
-
-/// Whether detection `b` may be the face detected at `a` one detector run earlier, moved:
-/// its centre within [`drift::DRIFT_REACH`] of `a`'s widths, about `a`'s size.
-pub fn within_reach(a: &FaceRect, b: &FaceRect) -> bool {
-    let ((ax, ay), (bx, by)) = (a.centre(), b.centre());
-    let ratio = b.width / a.width;
-    (ax - bx).hypot(ay - by) <= drift::DRIFT_REACH * a.width
-        && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
-}
-
-/// An untracked face of the last detector run: a new face once seen in
-/// [`AutoConfig::confirmations`] runs in a row.
-#[derive(Debug, Clone, Copy, PartialEq)]
-struct Candidate {
-    rect: FaceRect,
-    /// Detector runs in a row that saw it.
-    seen: usize,
-    /// The frame the last of them looked at.
-    frame: usize,
-}
-
-impl Candidate {
-    /// The motion (pixels a frame) from this candidate to the same face detected at `rect` in
-    /// frame `frame`, if that is later.
-    fn motion_to(&self, rect: &FaceRect, frame: usize) -> Option<[f32; 2]> {
-        let frames = frame.checked_sub(self.frame).filter(|&f| f > 0)? as f32;
-        let ((x0, y0), (x1, y1)) = (self.rect.centre(), rect.centre());
-        Some([(x1 - x0) / frames, (y1 - y0) / frames])
-    }
 }
 
 /// What happened at a frame.
@@ -336,6 +310,7 @@ impl AutoTracker {
     ) -> Result<(), FaceError> {
         let faces = result.faces?;
         let mut candidates = Vec::new();
+        let mut used = vec![false; self.candidates.len()];
         let mut found_after_cut = Vec::new();
         for d in &faces {
             let rect = self.config.face_rect(d, &result.frame);
@@ -351,8 +326,7 @@ impl AutoTracker {
                 out.ignored += 1;
                 continue;
             };
-            let earlier = (self.candidates.iter())
-                .find(|c| same_face(&c.rect, &rect) || within_reach(&c.rect, &rect));
+            let earlier = earlier_candidate(&self.candidates, &rect, &mut used);
             let seen = 1 + earlier.map_or(0, |c| c.seen);
             if seen < self.config.confirmations {
                 candidates.push(Candidate {
@@ -370,7 +344,7 @@ impl AutoTracker {
                     .filter(|c| !same_face(&c.rect, &rect))
                     .and_then(|c| c.motion_to(&rect, result.frame_index))
                 {
-                    self.tracker.set_track_motion(track, per_frame)?;
+                    self.start_moving(track, per_frame, result.frame_index)?;
                 }
                 self.identify(track, &result.frame, &rect);
                 self.tracked.push((track, rect, 0.0, rect.width));
@@ -601,30 +575,5 @@ mod tests {
             height: 96.0,
         };
         assert!(!same_face_and_size(&track, &elsewhere));
-    }
-
-    /// A face that walked 150 px between two detector runs five frames apart is the same
-    /// candidate (within two widths, about its size), moving 30 px a frame; one three widths
-    /// away, or twice the size, is not.
-    #[test]
-    fn a_candidate_seen_again_a_walk_away_is_confirmed_with_its_motion() {
-        let rect = |x: f32, width: f32| FaceRect {
-            x,
-            y: 100.0,
-            width,
-            height: 1.25 * width,
-        };
-        let earlier = Candidate {
-            rect: rect(600.0, 120.0),
-            seen: 1,
-            frame: 180,
-        };
-        let walked = rect(450.0, 120.0);
-        assert!(!same_face(&earlier.rect, &walked) && within_reach(&earlier.rect, &walked));
-        let [dx, dy] = earlier.motion_to(&walked, 185).unwrap();
-        assert!((dx + 30.0).abs() < 1e-3 && dy.abs() < 1e-3, "{dx}, {dy}");
-        assert_eq!(earlier.motion_to(&walked, 180), None);
-        assert!(!within_reach(&earlier.rect, &rect(240.0, 120.0)));
-        assert!(!within_reach(&earlier.rect, &rect(560.0, 240.0)));
     }
 }

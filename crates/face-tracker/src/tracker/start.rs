@@ -193,21 +193,29 @@ impl FaceTracker {
     }
 
     /// Sets running track `track`, just started, restarted or moved, moving by `per_frame`
-    /// (pixels a frame in Tx and Ty), as if it had been estimated there one frame before: the
-    /// constant-velocity drift carries its particles along from its next step (the engine's
-    /// `set_target_motion`). For a face found moving by two detections: a face that walks 30 px
-    /// a frame outruns particles that start at rest within three frames. The random walk
-    /// ignores it.
+    /// (pixels a frame in Tx and Ty), as if it had been estimated one frame before where that
+    /// motion puts it: the constant-velocity drift carries its particles along from its next
+    /// step (the engine's `set_target_motion`); its other values start at rest, as after any
+    /// start. For a face found moving by two detections: a face that walks 30 px a frame
+    /// outruns particles that start at rest within three frames. The random walk ignores it.
     pub fn set_track_motion(&mut self, track: usize, per_frame: [f32; 2]) -> Result<(), FaceError> {
         self.check_nothing_in_flight("a track's motion is set")?;
         let slot = self.slot_of(track)?;
-        let estimate = self.running(track)?.started_around;
+        let around = self.running(track)?.started_around;
+        let mut estimate = [f32::NAN; DIMS];
         let mut motion = [0.0; DIMS];
-        motion[TX] = per_frame[0];
-        motion[TY] = per_frame[1];
+        for (d, v) in [(TX, per_frame[0]), (TY, per_frame[1])] {
+            (estimate[d], motion[d]) = (around[d], v);
+        }
         let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
             .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
         shard.set_motion(slot, &estimate, &motion)
+    }
+
+    /// The state running track `track`'s particles were last started around (a start,
+    /// restart or move), if it is running.
+    pub fn started_around(&self, track: usize) -> Option<[f32; DIMS]> {
+        self.running(track).ok().map(|t| t.started_around)
     }
 
     /// Ends running track `track`: its next step reports it lost (`TrackStatus::Lost`) and

@@ -203,8 +203,9 @@ impl BatchConfig {
     }
 }
 
-/// Refuses a motion for a target outside the batch, of the wrong length, or not finite (the
-/// CPU and GPU engines' `set_target_motion`).
+/// Refuses a motion for a target outside the batch, of the wrong length, or not finite (an
+/// estimate may hold NaN: no earlier estimate of that value), for the CPU and GPU engines'
+/// `set_target_motion`.
 pub fn check_target_motion(
     shape: &BatchShape,
     t: usize,
@@ -228,11 +229,20 @@ pub fn check_target_motion(
                 got: values.len(),
             });
         }
-        if values.iter().any(|v| !v.is_finite()) {
-            return Err(PfError::InvalidConfig(format!(
-                "{what} must be finite, got {values:?}"
-            )));
-        }
+    }
+    if estimate.iter().any(|v| v.is_infinite()) || motion.iter().any(|v| !v.is_finite()) {
+        return Err(PfError::InvalidConfig(format!(
+            "a target's estimate must be finite or NaN (none yet) and its motion finite, got {estimate:?} and {motion:?}"
+        )));
     }
     Ok(())
+}
+
+/// The drift a motion gives with the constant-velocity `gain`: `gain · motion`, angles wrapped
+/// into [−π, π) first, as `update_velocity` makes it from two estimates (both engines'
+/// `set_target_motion`).
+pub fn motion_drift(gain: f32, angular: &[bool], motion: &[f32]) -> Vec<f32> {
+    (motion.iter().zip(angular))
+        .map(|(&m, &angle)| gain * if angle { super::wrap_angle_floor(m) } else { m })
+        .collect()
 }

@@ -19,7 +19,7 @@ mod config;
 mod stages;
 
 pub use config::{
-    BatchConfig, BatchShape, Motion, check_target_motion, stage_keys, stage_keys_from,
+    BatchConfig, BatchShape, Motion, check_target_motion, motion_drift, stage_keys, stage_keys_from,
 };
 
 pub use stages::{
@@ -205,26 +205,26 @@ impl<R: Resampler> BatchFilter<R> {
     }
 
     /// Sets target `t` moving, as if its last two estimates had been `estimate − motion` and
-    /// `estimate` (`D` values each): with the constant-velocity drift its particles drift by
-    /// `gain · motion` in the next step, and by the share of the motion estimated after that.
-    /// For a target started (`reset_target`) on something already seen to move, such as a face
-    /// found by two detections apart. The random walk (no drift) ignores it.
+    /// `estimate` (`D` values each; angles wrapped, as the drift wraps them): with the
+    /// constant-velocity drift its particles drift by `gain · motion` in the next step, and by
+    /// the share of the motion estimated after that. A NaN in `estimate` is a value with no
+    /// earlier estimate: it drifts by its motion in the next step, then only once it has two
+    /// estimates again, as after `reset_target`. For a target started (`reset_target`) on
+    /// something already seen to move, such as a face found by two detections apart. The
+    /// random walk (no drift) ignores it.
     pub fn set_target_motion(
         &mut self,
         t: usize,
         estimate: &[f32],
         motion: &[f32],
     ) -> Result<(), PfError> {
-        let d = self.shape.dims;
         check_target_motion(&self.shape, t, estimate, motion)?;
         let gain = self.motion.gain();
         if gain <= 0.0 {
             return Ok(());
         }
-        let own = t * d..(t + 1) * d;
-        for (v, &m) in self.velocity[own.clone()].iter_mut().zip(motion) {
-            *v = gain * m;
-        }
+        let own = t * self.shape.dims..(t + 1) * self.shape.dims;
+        self.velocity[own.clone()].copy_from_slice(&motion_drift(gain, &self.angular, motion));
         self.previous_estimates[own].copy_from_slice(estimate);
         Ok(())
     }

@@ -50,8 +50,9 @@ impl GpuFilter {
     }
 
     /// Sets target `t` moving, as if its last two estimates had been `estimate − motion` and
-    /// `estimate`: the twin of `pf_core::batch::BatchFilter::set_target_motion` (queued before
-    /// the next step's submission, like `reset_target`).
+    /// `estimate` (NaN in `estimate`: no earlier estimate of that value): the twin of
+    /// `pf_core::batch::BatchFilter::set_target_motion` (queued before the next step's
+    /// submission, like `reset_target`).
     pub fn set_target_motion(
         &self,
         ctx: &GpuContext,
@@ -65,7 +66,10 @@ impl GpuFilter {
             return Ok(());
         }
         let d = self.shape.dims;
-        let drift: Vec<f32> = motion.iter().map(|m| gain * m).collect();
+        let angular: Vec<bool> = (0..d)
+            .map(|k| self.params.angular_mask & (1 << k) != 0)
+            .collect();
+        let drift = pf_core::batch::motion_drift(gain, &angular, motion);
         self.streams.velocity.upload_at(ctx, t * d, &drift)?;
         self.streams
             .previous_estimates

@@ -1,0 +1,143 @@
+//! New faces: a detection on no running track is a candidate until a later detector run sees it
+//! again, at its place or, for a face that walks, within reach of it; a track started on a face
+//! that walked starts moving at the two detections' speed.
+
+use super::{AutoTracker, MAX_SIZE_CHANGE, drift, same_face};
+use crate::error::FaceError;
+use crate::extraction::FaceRect;
+use crate::projection::{TX, TY};
+
+/// Whether detection `b` may be the face detected at `a` one detector run earlier, moved:
+/// its centre within [`drift::DRIFT_REACH`] of `a`'s widths, about `a`'s size.
+pub fn within_reach(a: &FaceRect, b: &FaceRect) -> bool {
+    let ((ax, ay), (bx, by)) = (a.centre(), b.centre());
+    let ratio = b.width / a.width;
+    (ax - bx).hypot(ay - by) <= drift::DRIFT_REACH * a.width
+        && (1.0 / MAX_SIZE_CHANGE..=MAX_SIZE_CHANGE).contains(&ratio)
+}
+
+/// An untracked face of the last detector run: a new face once seen in
+/// [`AutoConfig::confirmations`] runs in a row.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Candidate {
+    pub(super) rect: FaceRect,
+    /// Detector runs in a row that saw it.
+    pub(super) seen: usize,
+    /// The frame the last of them looked at.
+    pub(super) frame: usize,
+}
+
+impl Candidate {
+    /// The motion (pixels a frame) from this candidate to the same face detected at `rect` in
+    /// frame `frame`, if that is later.
+    pub(super) fn motion_to(&self, rect: &FaceRect, frame: usize) -> Option<[f32; 2]> {
+        let frames = frame.checked_sub(self.frame).filter(|&f| f > 0)? as f32;
+        let ((x0, y0), (x1, y1)) = (self.rect.centre(), rect.centre());
+        Some([(x1 - x0) / frames, (y1 - y0) / frames])
+    }
+}
+
+/// The candidate among `candidates` (the last detector run's) that a detection at `rect` sees
+/// again, marked in `used` (each confirms one detection): one on the same face, else the
+/// nearest within reach (a walking face).
+pub(super) fn earlier_candidate(
+    candidates: &[Candidate],
+    rect: &FaceRect,
+    used: &mut [bool],
+) -> Option<Candidate> {
+    let (x, y) = rect.centre();
+    let distance = |c: &Candidate| {
+        let (cx, cy) = c.rect.centre();
+        (cx - x).hypot(cy - y)
+    };
+    let free = || (candidates.iter().enumerate()).filter(|(i, _)| !used[*i]);
+    let (i, candidate) = free()
+        .find(|(_, c)| same_face(&c.rect, rect))
+        .or_else(|| {
+            free()
+                .filter(|(_, c)| within_reach(&c.rect, rect))
+                .min_by(|a, b| distance(a.1).total_cmp(&distance(b.1)))
+        })
+        .map(|(i, c)| (i, *c))?;
+    used[i] = true;
+    Some(candidate)
+}
+
+impl AutoTracker {
+    /// Sets new track `track`, started on a detection of frame `detected_at` and moving
+    /// `per_frame`, going: its particles start where the motion has taken the face by the frame
+    /// before the next step (with a detection delay the face has walked on meanwhile).
+    pub(super) fn start_moving(
+        &mut self,
+        track: usize,
+        per_frame: [f32; 2],
+        detected_at: usize,
+    ) -> Result<(), FaceError> {
+        let frames_on = self.frame_index as f32 - detected_at as f32 - 1.0;
+        if frames_on != 0.0
+            && let Some(mut state) = self.tracker.started_around(track)
+        {
+            state[TX] += frames_on * per_frame[0];
+            state[TY] += frames_on * per_frame[1];
+            self.tracker.move_track(track, state)?;
+        }
+        self.tracker.set_track_motion(track, per_frame)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A face that walked 150 px between two detector runs five frames apart is the same
+    /// candidate (within two widths, about its size), moving 30 px a frame; one three widths
+    /// away, or twice the size, is not.
+    #[test]
+    fn a_candidate_seen_again_a_walk_away_is_confirmed_with_its_motion() {
+        let rect = |x: f32, width: f32| FaceRect {
+            x,
+            y: 100.0,
+            width,
+            height: 1.25 * width,
+        };
+        let earlier = Candidate {
+            rect: rect(600.0, 120.0),
+            seen: 1,
+            frame: 180,
+        };
+        let walked = rect(450.0, 120.0);
+        assert!(!same_face(&earlier.rect, &walked) && within_reach(&earlier.rect, &walked));
+        let [dx, dy] = earlier.motion_to(&walked, 185).unwrap();
+        assert!((dx + 30.0).abs() < 1e-3 && dy.abs() < 1e-3, "{dx}, {dy}");
+        assert_eq!(earlier.motion_to(&walked, 180), None);
+        assert!(!within_reach(&earlier.rect, &rect(240.0, 120.0)));
+        assert!(!within_reach(&earlier.rect, &rect(560.0, 240.0)));
+    }
+
+    /// A detection sees again the candidate on its own face, not one listed first a walk away;
+    /// each candidate confirms one detection; among those within reach the nearest.
+    #[test]
+    fn a_detection_takes_the_candidate_on_its_face_and_each_candidate_once() {
+        let candidate = |x: f32| Candidate {
+            rect: FaceRect {
+                x,
+                y: 100.0,
+                width: 100.0,
+                height: 125.0,
+            },
+            seen: 1,
+            frame: 10,
+        };
+        let candidates = [candidate(150.0), candidate(330.0), candidate(300.0)];
+        let detection = candidate(305.0).rect;
+        let mut used = [false; 3];
+        let first = earlier_candidate(&candidates, &detection, &mut used).unwrap();
+        assert_eq!(first.rect.x, 330.0, "the first on the same face");
+        assert_eq!(used, [false, true, false]);
+        let second = earlier_candidate(&candidates, &detection, &mut used).unwrap();
+        assert_eq!(second.rect.x, 300.0);
+        let third = earlier_candidate(&candidates, &detection, &mut used).unwrap();
+        assert_eq!(third.rect.x, 150.0, "the one left, within reach");
+        assert_eq!(earlier_candidate(&candidates, &detection, &mut used), None);
+    }
+}
