@@ -173,6 +173,56 @@ proptest! {
     }
 }
 
+/// A target restarted and set moving (`set_target_motion`, angles among its values) in a filter
+/// sharded over two contexts: the bits of one GPU doing the same; a target beyond the batch is
+/// refused.
+#[test]
+fn a_target_set_moving_in_a_sharded_filter_moves_as_on_one_gpu() {
+    let context = || common::gpu_context("a target set moving, sharded");
+    let (Some(one), Some(first), Some(second)) = (context(), context(), context()) else {
+        return;
+    };
+    let config = config(3, 120, 9);
+    let block = gaussian_clouds(
+        &BatchShape::new(1, 120, 7).unwrap(),
+        6,
+        &[0.4; 7],
+        &[0.1; 7],
+    );
+    let (estimate, motion) = ([0.4f32; 7], [0.05f32, 0.1, 0.15, 0.2, 6.5, -0.25, 0.0]);
+    let mut single = ModelFilter::new(
+        &one,
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        TOY_MODEL,
+        &constants(),
+    )
+    .unwrap();
+    let mut sharded = ShardedModelFilter::new(
+        vec![first, second],
+        &config,
+        GpuResampler::Systematic,
+        &start(&config),
+        TOY_MODEL,
+        &constants(),
+    )
+    .unwrap();
+    let (mut want, mut got) = (Vec::new(), Vec::new());
+    for f in 0..4 {
+        if f == 2 {
+            single.reset_target(2, &block).unwrap();
+            single.set_target_motion(2, &estimate, &motion).unwrap();
+            sharded.reset_target(2, &block).unwrap();
+            sharded.set_target_motion(2, &estimate, &motion).unwrap();
+        }
+        want.push(report_bits(&single.step(&observations(3, f)).unwrap()));
+        got.push(report_bits(&sharded.step(&observations(3, f)).unwrap()));
+    }
+    assert_eq!(got, want);
+    assert!(sharded.set_target_motion(3, &estimate, &motion).is_err());
+}
+
 #[test]
 fn a_sharded_filter_checks_what_it_is_given() {
     let (Some(a), Some(b)) = (
