@@ -248,7 +248,8 @@ fn a_track_left_behind_by_its_face_is_found_drifted() {
 }
 
 /// A face walking 30 px a frame outruns a track started on it at rest; one set moving at that
-/// speed (`FaceTracker::set_track_motion`, as a face found walking by two detections is) stays
+/// speed (`FaceTracker::set_track_drift`, as a face found walking by two detections is: half its
+/// speed, the constant-velocity drift's share) stays
 /// on it. Setting a track that does not run moving is an error.
 #[test]
 fn a_track_set_moving_keeps_up_with_a_walking_face() {
@@ -287,8 +288,10 @@ fn a_track_set_moving_keeps_up_with_a_walking_face() {
         )
         .unwrap();
         if moving {
-            tracker.set_track_motion(0, [walked, 0.0]).unwrap();
-            assert!(tracker.set_track_motion(7, [walked, 0.0]).is_err());
+            let from = [rect.centre().0, rect.centre().1];
+            let drift = [0.5 * walked, 0.0];
+            tracker.set_track_drift(0, from, drift).unwrap();
+            assert!(tracker.set_track_drift(7, from, drift).is_err());
         }
         let mut estimate = None;
         for frame in start + 1..=last {

@@ -200,6 +200,9 @@ pub struct AutoTracker {
     identities: Option<Identities>,
     /// The frames that started a new shot so far, and how many tracks ended at them.
     cuts_seen: Vec<usize>,
+    /// Tracks started on a walking face, and their last position (Tx, Ty), while they walk
+    /// (`candidates.rs`).
+    walking: std::collections::BTreeMap<usize, [f32; 2]>,
     ended_at_cuts: usize,
 }
 
@@ -243,6 +246,7 @@ impl AutoTracker {
             identities,
             cuts_seen: Vec::new(),
             ended_at_cuts: 0,
+            walking: std::collections::BTreeMap::new(),
         })
     }
 
@@ -524,6 +528,7 @@ impl AutoTracker {
                 }
             }
         }
+        self.keep_walking(&out.estimates)?;
         self.tracked = out
             .estimates
             .iter()

@@ -192,20 +192,30 @@ impl FaceTracker {
         self.restart_template(track, restart)
     }
 
-    /// Sets running track `track`, just started, restarted or moved, moving by `per_frame`
-    /// (pixels a frame in Tx and Ty), as if it had been estimated one frame before where that
-    /// motion puts it: the constant-velocity drift carries its particles along from its next
-    /// step (the engine's `set_target_motion`); its other values start at rest, as after any
-    /// start. For a face found moving by two detections: a face that walks 30 px a frame
-    /// outruns particles that start at rest within three frames. The random walk ignores it.
-    pub fn set_track_motion(&mut self, track: usize, per_frame: [f32; 2]) -> Result<(), FaceError> {
+    /// Sets running track `track` moving: its next step drifts its particles by `drift`
+    /// (pixels in Tx and Ty) before the noise, and the motion it estimates then is measured
+    /// from `from` (its position now: where it was started, or its newest estimate); its other
+    /// values keep their own drift. The engine's `set_target_motion`, with the motion that the
+    /// constant-velocity gain turns into `drift`. For a face found walking by two detections (a
+    /// face that walks 30 px a frame outruns particles that start at rest within three
+    /// frames), and to carry a walking track's whole last motion (`crate::auto`). The random
+    /// walk ignores it.
+    pub fn set_track_drift(
+        &mut self,
+        track: usize,
+        from: [f32; 2],
+        drift: [f32; 2],
+    ) -> Result<(), FaceError> {
         self.check_nothing_in_flight("a track's motion is set")?;
+        let gain = self.config.motion.gain();
+        if gain <= 0.0 {
+            return Ok(());
+        }
         let slot = self.slot_of(track)?;
-        let around = self.running(track)?.started_around;
         let mut estimate = [f32::NAN; DIMS];
         let mut motion = [0.0; DIMS];
-        for (d, v) in [(TX, per_frame[0]), (TY, per_frame[1])] {
-            (estimate[d], motion[d]) = (around[d], v);
+        for (d, at, by) in [(TX, from[0], drift[0]), (TY, from[1], drift[1])] {
+            (estimate[d], motion[d]) = (at, by / gain);
         }
         let shard = (self.shards.iter_mut().find(|s| s.holds(slot)))
             .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
