@@ -192,12 +192,9 @@ fn four_entering_faces_are_each_found_once_on_gpu() {
     run(FaceBackend::Gpu(Box::new(tracker_ctx)), detector.into(), 2);
 }
 
-/// A track left behind by its face (the face jumps 150 px between two frames, farther than the
-/// track can follow; its template then sits on background) has drifted: a detection of the face
-/// near it would restart it (`AutoTracker::drifted_track`). A detection on the track is its
-/// own face, and a face more than two widths away is not the track's.
-#[test]
-fn a_track_left_behind_by_its_face_is_found_drifted() {
+/// One face of 640×480, 100 px wide, walking 30 px a frame from frame 1 (`exit_after`), over
+/// `frames` frames, with its model and renderer.
+fn walking_face(frames: usize) -> (FaceSynthConfig, FaceModel, FaceVideoRenderer) {
     let video = FaceSynthConfig {
         width: 640,
         height: 480,
@@ -205,10 +202,31 @@ fn a_track_left_behind_by_its_face_is_found_drifted() {
         half_width: 50.0,
         occlusion: false,
         exit_after: Some(0),
-        ..FaceSynthConfig::paper(10)
+        ..FaceSynthConfig::paper(frames)
     };
     let model = FaceModel::generic(129).unwrap();
     let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    (video, model, renderer)
+}
+
+/// The walking face's rectangle at `frame`: its first one moved as the face has.
+fn walking_rect(video: &FaceSynthConfig, frame: usize) -> FaceRect {
+    let home = initial_rect(video, 0);
+    let (now, start) = (face_state(video, 0, frame), face_state(video, 0, 0));
+    FaceRect {
+        x: home.x + now[TX] - start[TX],
+        y: home.y + now[TY] - start[TY],
+        ..home
+    }
+}
+
+/// A track left behind by its face (the face jumps 150 px between two frames, farther than the
+/// track can follow; its template then sits on background) has drifted: a detection of the face
+/// near it would restart it (`AutoTracker::drifted_track`). A detection on the track is its
+/// own face, and a face more than two widths away is not the track's.
+#[test]
+fn a_track_left_behind_by_its_face_is_found_drifted() {
+    let (video, model, renderer) = walking_face(10);
     let mut tracker = AutoTracker::new(
         (video.width, video.height),
         FaceDetector::from(cascade()),
@@ -222,14 +240,7 @@ fn a_track_left_behind_by_its_face_is_found_drifted() {
     let track = tracker.add_face(&first, &home).unwrap();
     tracker.step(&first).unwrap();
     assert_eq!(tracker.drifted_track(&first, &home), None, "on its face");
-    let at = |frame: usize| {
-        let (now, start) = (face_state(&video, 0, frame), face_state(&video, 0, 0));
-        FaceRect {
-            x: home.x + now[TX] - start[TX],
-            y: home.y + now[TY] - start[TY],
-            ..home
-        }
-    };
+    let at = |frame: usize| walking_rect(&video, frame);
     assert!(
         at(5).x - home.x > 100.0,
         "the face moved {}",
@@ -249,29 +260,14 @@ fn a_track_left_behind_by_its_face_is_found_drifted() {
 
 /// A face walking 30 px a frame outruns a track started on it at rest; one set moving at that
 /// speed (`FaceTracker::set_track_drift`, as a face found walking by two detections is: half its
-/// speed, the constant-velocity drift's share) stays
-/// on it. Setting a track that does not run moving is an error.
+/// speed, the constant-velocity drift's share) stays on it. Setting a track that does not run
+/// moving is an error.
 #[test]
 fn a_track_set_moving_keeps_up_with_a_walking_face() {
-    let video = FaceSynthConfig {
-        width: 640,
-        height: 480,
-        faces: 1,
-        half_width: 50.0,
-        occlusion: false,
-        exit_after: Some(0),
-        ..FaceSynthConfig::paper(12)
-    };
-    let model = FaceModel::generic(129).unwrap();
-    let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let (video, model, renderer) = walking_face(12);
     let (start, last) = (2, 7);
-    let home = initial_rect(&video, 0);
     let at_start = face_state(&video, 0, start);
-    let rect = FaceRect {
-        x: home.x + at_start[TX] - face_state(&video, 0, 0)[TX],
-        y: home.y + at_start[TY] - face_state(&video, 0, 0)[TY],
-        ..home
-    };
+    let rect = walking_rect(&video, start);
     let walked = face_state(&video, 0, start + 1)[TX] - at_start[TX];
     assert!(
         (walked - 30.0).abs() < 3.0,

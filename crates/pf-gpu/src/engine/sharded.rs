@@ -187,14 +187,8 @@ where
 
     /// Restarts target `t` of the whole batch from `states` (`[d·M + m]`) with equal weights.
     pub fn reset_target(&mut self, t: usize, states: &[f32]) -> Result<(), M::Error> {
-        let targets = self.shape.targets;
-        let shard = (self.shards.iter_mut())
-            .find(|s| s.targets.contains(&t))
-            .ok_or_else(|| {
-                GpuError::InvalidConfig(format!("target {t} of a batch of {targets}"))
-            })?;
-        let local = t - shard.targets.start;
-        shard.filter.reset_target(local, states)
+        let (filter, local) = self.filter_of(t)?;
+        filter.reset_target(local, states)
     }
 
     /// Sets target `t` of the whole batch moving (`Filter::set_target_motion`).
@@ -204,14 +198,19 @@ where
         estimate: &[f32],
         motion: &[f32],
     ) -> Result<(), M::Error> {
+        let (filter, local) = self.filter_of(t)?;
+        filter.set_target_motion(local, estimate, motion)
+    }
+
+    /// The filter that holds target `t` of the whole batch, and `t`'s index there.
+    fn filter_of(&mut self, t: usize) -> Result<(&mut Filter<M>, usize), M::Error> {
         let targets = self.shape.targets;
         let shard = (self.shards.iter_mut())
             .find(|s| s.targets.contains(&t))
             .ok_or_else(|| {
                 GpuError::InvalidConfig(format!("target {t} of a batch of {targets}"))
             })?;
-        let local = t - shard.targets.start;
-        shard.filter.set_target_motion(local, estimate, motion)
+        Ok((&mut shard.filter, t - shard.targets.start))
     }
 
     /// The whole batch's particle states (`[(t·D + d)·M + m]`; tests and debugging).
