@@ -29,12 +29,14 @@ use crate::scene_cut::{PendingCut, SceneCuts};
 mod candidates;
 mod detectors;
 mod drift;
+mod tracked;
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 pub use candidates::within_reach;
 use candidates::{Candidate, earlier_candidate};
 use detectors::{DetectionResult, Detectors};
+use tracked::Tracked;
 
 /// How detection feeds the tracker.
 #[derive(Debug, Clone, PartialEq)]
@@ -188,10 +190,8 @@ pub struct AutoTracker {
     detector_used: Arc<FaceDetector>,
     detector: Detectors,
     frame_index: usize,
-    /// The running tracks after the last step: number, rectangle, ε.
-    /// Each running track: its number, rectangle, ε and the width its template was taken at
-    /// (its scale 1).
-    tracked: Vec<(usize, FaceRect, f64, f32)>,
+    /// The running tracks after the last step.
+    tracked: Vec<Tracked>,
     /// Untracked faces of the last detector run.
     candidates: Vec<Candidate>,
     cuts: Option<SceneCuts>,
@@ -284,7 +284,7 @@ impl AutoTracker {
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
         let track = self.tracker.add_face(frame, rect)?;
         self.identify(track, frame, rect);
-        self.tracked.push((track, *rect, 0.0, rect.width));
+        self.tracked.push(Tracked::started(track, rect));
         Ok(track)
     }
 
@@ -351,7 +351,7 @@ impl AutoTracker {
                     self.start_moving(track, per_frame, result.frame_index)?;
                 }
                 self.identify(track, &result.frame, &rect);
-                self.tracked.push((track, rect, 0.0, rect.width));
+                self.tracked.push(Tracked::started(track, &rect));
                 out.started.push((track, rect, result.frame_index));
             }
         }
@@ -369,36 +369,36 @@ impl AutoTracker {
         out: &mut AutoFrame,
     ) -> Result<bool, FaceError> {
         let failing = f64::from(self.config.tracker.failure_error);
-        let on_track = self.tracked.iter().position(|t| same_face(&t.1, rect));
+        let on_track = self.tracked.iter().position(|t| same_face(&t.rect, rect));
         // A track stuck in a wrong pose on this face, or one that slid off it (`drift`),
         // moves to where its own template fits the face, its template kept.
         let moved = match on_track {
-            Some(i) if self.tracked[i].2 <= failing => {
+            Some(i) if self.tracked[i].error <= failing => {
                 self.stuck_on(i, frame, rect).map(|state| (i, state))
             }
             Some(_) => None,
             None => self.drifted_onto(frame, rect),
         };
         if let Some((i, state)) = moved {
-            let track = self.tracked[i].0;
+            let track = self.tracked[i].track;
             self.tracker.move_track(track, state)?;
-            self.tracked[i] = (track, *rect, 0.0, self.tracked[i].3);
+            self.tracked[i].restarted_at(rect);
             out.restarted.push((track, *rect, frame_index));
             return Ok(true);
         }
-        if on_track.is_some_and(|i| self.tracked[i].2 <= failing) {
+        if on_track.is_some_and(|i| self.tracked[i].error <= failing) {
             out.ignored += 1;
             return Ok(true);
         }
         // A restart needs the face at the track's size: a false detection on part of the
         // face would pull the track onto an eye or the forehead.
-        let restarts = on_track.filter(|&i| same_face_and_size(&self.tracked[i].1, rect));
+        let restarts = on_track.filter(|&i| same_face_and_size(&self.tracked[i].rect, rect));
         if on_track.is_some() && restarts.is_none() {
             out.ignored += 1;
             return Ok(true);
         }
         if let Some(i) = restarts {
-            let track = self.tracked[i].0;
+            let track = self.tracked[i].track;
             // The new template is taken with the face seen as the track has it.
             let restart = (self.tracker)
                 .template_for_restart(track, frame, rect, frame_index)
@@ -409,7 +409,7 @@ impl AutoTracker {
                 return Ok(true);
             };
             self.tracker.restart_template(track, restart)?;
-            self.tracked[i] = (track, *rect, 0.0, self.tracked[i].3);
+            self.tracked[i].restarted_at(rect);
             out.restarted.push((track, *rect, frame_index));
             return Ok(true);
         }
@@ -446,7 +446,7 @@ impl AutoTracker {
         self.pending_cut = Some(PendingCut {
             frame: self.frame_index,
             sent: false,
-            unconfirmed: self.tracked.iter().map(|t| (t.0, t.1)).collect(),
+            unconfirmed: self.tracked.iter().map(|t| (t.track, t.rect)).collect(),
         });
         self.candidates.clear();
         self.cuts_seen.push(self.frame_index);
@@ -533,14 +533,7 @@ impl AutoTracker {
             .estimates
             .iter()
             .filter(|e| e.status == TrackStatus::Tracking)
-            .map(|e| {
-                (
-                    e.track,
-                    e.rect,
-                    e.error,
-                    e.rect.width / e.state[crate::projection::SCALE],
-                )
-            })
+            .map(Tracked::from_estimate)
             .collect();
         self.frame_index += 1;
         Ok(out)
