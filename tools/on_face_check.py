@@ -8,7 +8,11 @@ tracker's states.csv (rows with status `tracking`):
 - on face: the share of tracking rows whose centre (tx, ty) lies in the middle half of a face
   found in that frame (within a quarter of the box's width and of its height of the box's centre).
   A row in a frame where the mesh finds no face counts as off the face, as does a row on a face
-  the mesh misses (a profile, a face turned away): the mesh is the judge.
+  the mesh misses (a profile, a face turned away): the mesh is the judge. With --judge
+  mesh-or-detector a face MediaPipe's face detector finds (the full-range model, for faces
+  farther from the camera; score 0.5 or more) counts too where its box's centre lies in no mesh
+  box: the mesh misses small, blurred faces that the detector finds (Megamind.avi's background
+  man, about 70 px wide).
 - faces carrying a track: the share of the mesh's faces at least --min-face pixels wide whose
   middle half holds a tracking row's centre.
 - confidence ROC AUC: how well the rows' `confidence` tells on-face rows from off-face ones (the
@@ -17,9 +21,9 @@ tracker's states.csv (rows with status `tracking`):
 - confidence 0 while tracking: the share of tracking rows whose confidence reads 0.
 
     python3 tools/on_face_check.py VIDEO STATES_CSV [--json OUT.json] [--min-face 40]
-        [--max-frames N] [--faces FACES.json]
+        [--max-frames N] [--faces FACES.json] [--judge mesh|mesh-or-detector]
 
---faces caches the mesh's boxes: read when the file exists, else written after the mesh ran
+--faces caches the faces' boxes: read when the file exists, else written after the mesh ran
 (the mesh takes a few seconds a hundred frames; the tracker's runs to compare need it once).
 Needs mediapipe==0.10.14, numpy and OpenCV: `cargo xtask fetch-media` puts them in
 target/media/pose-venv, so run it with target/media/pose-venv/bin/python3.
@@ -53,6 +57,48 @@ def mesh_boxes(video, max_frames=None):
             ys = [p.y * height for p in face.landmark]
             boxes.append((min(xs), min(ys), max(xs), max(ys)))
         frames.append(boxes)
+    return frames
+
+
+def detector_boxes(video, max_frames=None):
+    """Per frame, the (x0, y0, x1, y1) pixel box of each face MediaPipe's full-range face
+    detector finds (score 0.5 or more)."""
+    import cv2
+    import mediapipe
+
+    detector = mediapipe.solutions.face_detection.FaceDetection(
+        model_selection=1, min_detection_confidence=0.5
+    )
+    frames = []
+    for image in frames_of(video, max_frames):
+        height, width = image.shape[:2]
+        found = detector.process(cv2.cvtColor(image, cv2.COLOR_BGR2RGB)).detections or []
+        boxes = []
+        for face in found:
+            box = face.location_data.relative_bounding_box
+            x0, y0 = box.xmin * width, box.ymin * height
+            boxes.append((x0, y0, x0 + box.width * width, y0 + box.height * height))
+        frames.append(boxes)
+    return frames
+
+
+def inside(x, y, box):
+    return box[0] <= x <= box[2] and box[1] <= y <= box[3]
+
+
+def judged_faces(found, judge):
+    """Per frame, the faces the judge takes: the mesh's, and with `mesh-or-detector` each
+    detector face whose centre lies in no mesh box."""
+    if judge == "mesh":
+        return found["mesh"]
+    frames = []
+    for mesh, detected in zip(found["mesh"], found["detector"]):
+        extra = [
+            box
+            for box in detected
+            if not any(inside((box[0] + box[2]) / 2, (box[1] + box[3]) / 2, m) for m in mesh)
+        ]
+        frames.append(list(mesh) + extra)
     return frames
 
 
@@ -143,22 +189,35 @@ def main():
     parser.add_argument("--json", help="write the numbers to this file")
     parser.add_argument("--min-face", type=float, default=40.0, help="pixels (default 40)")
     parser.add_argument("--max-frames", type=int)
-    parser.add_argument("--faces", help="cache of the mesh's boxes (JSON)")
+    parser.add_argument("--faces", help="cache of the faces' boxes (JSON)")
+    parser.add_argument(
+        "--judge",
+        choices=["mesh", "mesh-or-detector"],
+        default="mesh",
+        help="which faces count (default: the mesh's)",
+    )
     args = parser.parse_args()
 
+    found = {}
     if args.faces and os.path.exists(args.faces):
         with open(args.faces) as f:
-            boxes = json.load(f)
-    else:
-        boxes = mesh_boxes(args.video, args.max_frames)
-        if args.faces:
-            with open(args.faces, "w") as f:
-                json.dump(boxes, f)
+            found = json.load(f)
+        if isinstance(found, list):  # a cache of the mesh's boxes alone
+            found = {"mesh": found}
+    if "mesh" not in found:
+        found["mesh"] = mesh_boxes(args.video, args.max_frames)
+    if args.judge == "mesh-or-detector" and "detector" not in found:
+        found["detector"] = detector_boxes(args.video, args.max_frames)
+    if args.faces:
+        with open(args.faces, "w") as f:
+            json.dump(found, f)
+    boxes = judged_faces(found, args.judge)
     result = scores(boxes, tracking_rows(args.states_csv), args.min_face)
+    result["judge"] = args.judge
     auc = result["confidence_auc"]
     print(
         f"{result['tracking_rows']} tracking rows over {result['frames']} frames "
-        f"({result['frames_with_a_face']} with a face the mesh finds)\n"
+        f"({result['frames_with_a_face']} with a face the judge ({args.judge}) finds)\n"
         f"on face: {percent(result['on_face'])}\n"
         f"faces >= {args.min_face:g} px carrying a track: "
         f"{percent(result['faces_carrying_a_track'])} of {result['faces']}\n"
