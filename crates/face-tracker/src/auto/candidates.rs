@@ -64,7 +64,60 @@ pub(super) fn earlier_candidate(
     Some(candidate)
 }
 
+/// A track lost lately: where it was in the frame before it was lost, and that frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct LostFace {
+    pub(super) rect: FaceRect,
+    pub(super) frame: usize,
+}
+
+/// A face is found again when a detection of a frame at most this many detector periods after
+/// its track was lost lies within reach of where the track was.
+pub const FOUND_AGAIN_PERIODS: usize = 2;
+
+/// Whether a detection at `rect` of frame `frame` is the face of `lost`, found again within
+/// `within` frames of its loss.
+pub(super) fn is_found_again(
+    lost: &LostFace,
+    rect: &FaceRect,
+    frame: usize,
+    within: usize,
+) -> bool {
+    frame + 1 >= lost.frame && frame <= lost.frame + within && within_reach(&lost.rect, rect)
+}
+
 impl AutoTracker {
+    /// Whether a detection at `rect` of frame `frame` finds the face of a track lost lately
+    /// again (which then needs no second detection to start: it was confirmed once; on
+    /// Megamind.avi a track that slid off its face was lost at frame 120 and its face, detected
+    /// at frames 120, 125 and 130, was tracked again only from frame 136). Each lost track is
+    /// found again once.
+    pub(super) fn found_again(&mut self, rect: &FaceRect, frame: usize) -> bool {
+        let within = FOUND_AGAIN_PERIODS * self.config.detect_every;
+        let i = (self.lost.iter()).position(|lost| is_found_again(lost, rect, frame, within));
+        i.map(|i| self.lost.swap_remove(i)).is_some()
+    }
+
+    /// After a step: remembers the tracks lost at it (where they were before it; not those
+    /// `ended` at a scene cut, whose faces are another shot's), and forgets those lost too long
+    /// ago to be found again.
+    pub(super) fn remember_lost(&mut self, estimates: &[FaceEstimate], ended: &[usize]) {
+        let within = FOUND_AGAIN_PERIODS * self.config.detect_every;
+        let now = self.frame_index;
+        self.lost.retain(|lost| lost.frame + within >= now);
+        for e in estimates {
+            if matches!(e.status, TrackStatus::Lost { .. })
+                && !ended.contains(&e.track)
+                && let Some(t) = self.tracked.iter().find(|t| t.track == e.track)
+            {
+                self.lost.push(LostFace {
+                    rect: t.rect,
+                    frame: now,
+                });
+            }
+        }
+    }
+
     /// Sets new track `track`, started on a detection of frame `detected_at` and moving
     /// `per_frame`, going: its particles start where the motion has taken the face by the frame
     /// before the next step (with a detection delay the face has walked on meanwhile), drift as
@@ -157,6 +210,32 @@ mod tests {
         assert_eq!(earlier.motion_to(&walked, 180), None);
         assert!(!within_reach(&earlier.rect, &rect(240.0, 120.0)));
         assert!(!within_reach(&earlier.rect, &rect(560.0, 240.0)));
+    }
+
+    /// A track lost at frame 120 is found again by a detection within reach of where it was,
+    /// of a frame up to two periods later (and of the frame before its loss, which a detection
+    /// delay hands over late); not later, not far away, not at twice its size.
+    #[test]
+    fn a_lost_face_is_found_again_nearby_and_soon() {
+        let rect = |x: f32, width: f32| FaceRect {
+            x,
+            y: 100.0,
+            width,
+            height: 1.25 * width,
+        };
+        let lost = LostFace {
+            rect: rect(400.0, 100.0),
+            frame: 120,
+        };
+        let within = FOUND_AGAIN_PERIODS * 5;
+        let near = rect(440.0, 110.0);
+        for frame in [119, 120, 125, 130] {
+            assert!(is_found_again(&lost, &near, frame, within), "frame {frame}");
+        }
+        assert!(!is_found_again(&lost, &near, 131, within));
+        assert!(!is_found_again(&lost, &near, 117, within));
+        assert!(!is_found_again(&lost, &rect(700.0, 100.0), 125, within));
+        assert!(!is_found_again(&lost, &rect(400.0, 200.0), 125, within));
     }
 
     /// A detection sees again the candidate on its own face, not one listed first a walk away;

@@ -34,7 +34,7 @@ use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 pub use candidates::within_reach;
-use candidates::{Candidate, earlier_candidate};
+use candidates::{Candidate, LostFace, earlier_candidate};
 use detectors::{DetectionResult, Detectors};
 use tracked::Tracked;
 
@@ -203,6 +203,9 @@ pub struct AutoTracker {
     /// Tracks started on a walking face, and their last position (Tx, Ty), while they walk
     /// (`candidates.rs`).
     walking: std::collections::BTreeMap<usize, [f32; 2]>,
+    /// Tracks lost lately (not at a scene cut): where they were and the frame they were lost
+    /// at (`candidates::LostFace`).
+    lost: Vec<LostFace>,
     ended_at_cuts: usize,
 }
 
@@ -247,6 +250,7 @@ impl AutoTracker {
             cuts_seen: Vec::new(),
             ended_at_cuts: 0,
             walking: std::collections::BTreeMap::new(),
+            lost: Vec::new(),
         })
     }
 
@@ -331,7 +335,11 @@ impl AutoTracker {
                 continue;
             };
             let earlier = earlier_candidate(&self.candidates, &rect, &mut used);
-            let seen = 1 + earlier.map_or(0, |c| c.seen);
+            let seen = if self.found_again(&rect, result.frame_index) {
+                self.config.confirmations
+            } else {
+                1 + earlier.map_or(0, |c| c.seen)
+            };
             if seen < self.config.confirmations {
                 candidates.push(Candidate {
                     rect,
@@ -449,6 +457,7 @@ impl AutoTracker {
             unconfirmed: self.tracked.iter().map(|t| (t.track, t.rect)).collect(),
         });
         self.candidates.clear();
+        self.lost.clear();
         self.cuts_seen.push(self.frame_index);
         true
     }
@@ -529,6 +538,7 @@ impl AutoTracker {
             }
         }
         self.keep_walking(&out.estimates)?;
+        self.remember_lost(&out.estimates, &out.ended);
         self.tracked = out
             .estimates
             .iter()
