@@ -64,9 +64,10 @@ pub(super) fn earlier_candidate(
     Some(candidate)
 }
 
-/// A track lost lately: where it was in the frame before it was lost, and that frame.
+/// A track lost lately: which, where it was in the frame before it was lost, and that frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct LostFace {
+    pub(super) track: usize,
     pub(super) rect: FaceRect,
     pub(super) frame: usize,
 }
@@ -91,11 +92,11 @@ impl AutoTracker {
     /// again (which then needs no second detection to start: it was confirmed once; on
     /// Megamind.avi a track that slid off its face was lost at frame 120 and its face, detected
     /// at frames 120, 125 and 130, was tracked again only from frame 136). Each lost track is
-    /// found again once.
-    pub(super) fn found_again(&mut self, rect: &FaceRect, frame: usize) -> bool {
+    /// found again once; the lost track, if this is one.
+    pub(super) fn found_again(&mut self, rect: &FaceRect, frame: usize) -> Option<usize> {
         let within = FOUND_AGAIN_PERIODS * self.config.detect_every;
         let i = (self.lost.iter()).position(|lost| is_found_again(lost, rect, frame, within));
-        i.map(|i| self.lost.swap_remove(i)).is_some()
+        i.map(|i| self.lost.swap_remove(i).track)
     }
 
     /// After a step: remembers the tracks lost at it (where they were before it; not those
@@ -111,6 +112,7 @@ impl AutoTracker {
                 && let Some(t) = self.tracked.iter().find(|t| t.track == e.track)
             {
                 self.lost.push(LostFace {
+                    track: e.track,
                     rect: t.rect,
                     frame: now,
                 });
@@ -224,6 +226,7 @@ mod tests {
             height: 1.25 * width,
         };
         let lost = LostFace {
+            track: 3,
             rect: rect(400.0, 100.0),
             frame: 120,
         };

@@ -287,13 +287,20 @@ impl AutoTracker {
     /// frame the next `step` follows; returns the track's number.
     pub fn add_face(&mut self, frame: &GrayImage, rect: &FaceRect) -> Result<usize, FaceError> {
         let track = self.tracker.add_face(frame, rect)?;
-        self.identify(track, frame, rect);
+        self.identify(track, frame, rect, None);
         self.tracked.push(Tracked::started(track, rect));
         Ok(track)
     }
 
-    /// Gives new track `track`, started on `rect` of `frame`, its identity.
-    fn identify(&mut self, track: usize, frame: &GrayImage, rect: &FaceRect) {
+    /// Gives new track `track`, started on `rect` of `frame`, its identity (`found_again`: the
+    /// track lost a moment ago near there).
+    fn identify(
+        &mut self,
+        track: usize,
+        frame: &GrayImage,
+        rect: &FaceRect,
+        found_again: Option<usize>,
+    ) {
         let (Some(identities), Some(template), Some(off_face_error)) = (
             self.identities.as_mut(),
             self.tracker.template(track),
@@ -307,7 +314,11 @@ impl AutoTracker {
             template,
             off_face_error,
         };
-        identities.start(track, &face, &self.tracker.lens());
+        let lens = self.tracker.lens();
+        match found_again {
+            Some(lost) => identities.start_found_again(track, &face, &lens, lost),
+            None => identities.start(track, &face, &lens),
+        };
     }
 
     /// Starts tracks for a finished detection's new faces, and restarts failing tracks it finds.
@@ -335,7 +346,8 @@ impl AutoTracker {
                 continue;
             };
             let earlier = earlier_candidate(&self.candidates, &rect, &mut used);
-            let seen = if self.found_again(&rect, result.frame_index) {
+            let found_again = self.found_again(&rect, result.frame_index);
+            let seen = if found_again.is_some() {
                 self.config.confirmations
             } else {
                 1 + earlier.map_or(0, |c| c.seen)
@@ -358,7 +370,7 @@ impl AutoTracker {
                 {
                     self.start_moving(track, per_frame, result.frame_index)?;
                 }
-                self.identify(track, &result.frame, &rect);
+                self.identify(track, &result.frame, &rect, found_again);
                 self.tracked.push(Tracked::started(track, &rect));
                 out.started.push((track, rect, result.frame_index));
             }
