@@ -29,6 +29,7 @@ use crate::scene_cut::{PendingCut, SceneCuts};
 mod candidates;
 mod detectors;
 mod drift;
+mod duplicates;
 mod tracked;
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
@@ -180,6 +181,9 @@ pub struct AutoFrame {
     /// Tracks ended before this frame's step because the detection after a cut did not find
     /// their faces again (reported lost by this frame's step).
     pub ended: Vec<usize>,
+    /// Tracks ended after this frame's step because another track had held the same face
+    /// with them for several frames (reported lost by the next step).
+    pub duplicates: Vec<usize>,
 }
 
 /// A tracker fed by a detector thread.
@@ -206,6 +210,8 @@ pub struct AutoTracker {
     /// Tracks lost lately (not at a scene cut): where they were and the frame they were lost
     /// at (`candidates::LostFace`).
     lost: Vec<LostFace>,
+    /// How long pairs of tracks have sat on one face (`duplicates.rs`).
+    together: duplicates::Together,
     ended_at_cuts: usize,
 }
 
@@ -251,6 +257,7 @@ impl AutoTracker {
             ended_at_cuts: 0,
             walking: std::collections::BTreeMap::new(),
             lost: Vec::new(),
+            together: duplicates::Together::default(),
         })
     }
 
@@ -517,6 +524,7 @@ impl AutoTracker {
             ignored: 0,
             scene_cut: false,
             ended: Vec::new(),
+            duplicates: Vec::new(),
         };
         out.scene_cut = self.look_for_cut(frame);
         match self.config.detection_delay {
@@ -557,6 +565,7 @@ impl AutoTracker {
             .filter(|e| e.status == TrackStatus::Tracking)
             .map(Tracked::from_estimate)
             .collect();
+        out.duplicates = self.end_duplicates()?;
         self.frame_index += 1;
         Ok(out)
     }
