@@ -23,7 +23,7 @@
 //! printed at the start; set WGPU_ADAPTER_NAME to choose one.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use pf_core::anneal::Annealing;
+use pf_core::anneal::{Annealing, Tempering};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::resample::{Metropolis, Systematic};
 use pf_core::smooth::{Cloud, GaussianTransition, smooth_values};
@@ -276,16 +276,31 @@ fn bench_plugin_over_gpus(c: &mut Criterion) {
     group.finish();
 }
 
-/// The plug-in model with the face tracker's five annealing layers, fused against staged.
+/// The plug-in model with the face tracker's five annealing layers, fused against staged; and
+/// fused with five fixed exponents instead of the survival rule's (what choosing β costs).
 fn bench_annealed_layouts(c: &mut Criterion) {
     let ctx = context();
     let mut group = c.benchmark_group("annealed_step_7d_1000");
     group.sample_size(20);
+    let fixed = Annealing {
+        tempering: Tempering::Fixed(vec![0.2, 0.35, 0.5, 0.75, 1.0]),
+        ..Annealing::survival(5, 0.5, 0.7)
+    };
+    let schedules = [
+        ("fused", StepLayout::Fused, Annealing::survival(5, 0.5, 0.7)),
+        (
+            "staged",
+            StepLayout::Staged,
+            Annealing::survival(5, 0.5, 0.7),
+        ),
+        ("fused_fixed_beta", StepLayout::Fused, fixed),
+    ];
     for &targets in &[1usize, 16, 64, 256] {
         group.throughput(Throughput::Elements((targets * M) as u64));
-        let (config, initial) = toy_batch(targets, Annealing::survival(5, 0.5, 0.7));
         let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
-        for layout in [StepLayout::Fused, StepLayout::Staged] {
+        for (name, layout, annealing) in &schedules {
+            let (config, initial) = toy_batch(targets, annealing.clone());
+            let layout = *layout;
             let mut plugin = ModelFilter::new(
                 &ctx,
                 &config,
@@ -311,9 +326,8 @@ fn bench_annealed_layouts(c: &mut Criterion) {
                 frame += 1;
                 plugin.step(&obs).unwrap()
             };
-            let name = format!("{layout:?}").to_lowercase();
             let mut reported = false;
-            group.bench_function(BenchmarkId::new(&name, targets), |b| {
+            group.bench_function(BenchmarkId::new(*name, targets), |b| {
                 b.iter(|| std::hint::black_box(step(&mut plugin)));
                 if !reported {
                     let mut own: Vec<f64> = (0..50)
