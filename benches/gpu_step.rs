@@ -346,6 +346,84 @@ fn bench_annealed_layouts(c: &mut Criterion) {
     group.finish();
 }
 
+/// Where a plain step's GPU time goes: each stage alone, one submission each (the staged
+/// dispatches, with the step's copies back and timestamps), at 1 and 64 targets of the toy
+/// model; and the fused annealed step at one to five layers. Under `--bench` each prints the
+/// GPU's own time (timestamps, median of 50 steps).
+fn bench_stage_times(c: &mut Criterion) {
+    let ctx = context();
+    let measuring = std::env::args().any(|a| a == "--bench");
+    let mut group = c.benchmark_group("stage_times_7d_1000");
+    group.sample_size(10);
+    let stages: [(&str, &[GpuStage]); 7] = [
+        ("resample", &[GpuStage::Resample]),
+        ("gather", &[GpuStage::Gather]),
+        ("diffuse", &[GpuStage::Diffuse]),
+        ("likelihood", &[GpuStage::Likelihood]),
+        ("normalise", &[GpuStage::Normalise]),
+        ("estimate", &[GpuStage::Estimate]),
+        ("whole_step", &GpuStage::ALL),
+    ];
+    for &targets in &[1usize, 64] {
+        let (config, initial) = toy_batch(targets, Default::default());
+        let mut gpu = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &initial).unwrap();
+        let mut toy = ToyGaussianLikelihood::new(&ctx, targets, &OBS_SIGMA).unwrap();
+        toy.prepare(&ctx, &gpu.likelihood_inputs()).unwrap();
+        let obs: Vec<f32> = (0..targets).flat_map(|t| observed(t, 1)).collect();
+        toy.upload_observations(&ctx, &obs).unwrap();
+        for (name, only) in stages {
+            group.bench_function(BenchmarkId::new(name, targets), |b| {
+                b.iter(|| std::hint::black_box(gpu.run_stages(&ctx, only, &toy).unwrap()))
+            });
+            if measuring {
+                let time = || {
+                    let report = gpu.run_stages(&ctx, only, &toy).ok()?;
+                    Some(report.time.duration().as_secs_f64() * 1e6)
+                };
+                if let Some(us) = median_of_50(time) {
+                    eprintln!("stage {name}, {targets} targets: GPU's own time {us:.1} us");
+                }
+            }
+        }
+    }
+    let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
+    for layers in [1usize, 2, 5] {
+        let (config, initial) = toy_batch(1, Annealing::survival(layers, 0.5, 0.7));
+        let mut plugin = ModelFilter::new(
+            &ctx,
+            &config,
+            GpuResampler::Systematic,
+            &initial,
+            TOY_MODEL,
+            &constants,
+        )
+        .unwrap();
+        let obs = [ToyObservation { z: observed(0, 1) }];
+        group.bench_function(BenchmarkId::new("fused_layers", layers), |b| {
+            b.iter(|| std::hint::black_box(plugin.step(&obs).unwrap()))
+        });
+        if measuring {
+            let time = || {
+                let gpu_time = plugin.step(&obs).ok()?.gpu_time?;
+                Some(gpu_time.duration().as_secs_f64() * 1e6)
+            };
+            if let Some(us) = median_of_50(time) {
+                eprintln!(
+                    "fused annealed step, {layers} layers, 1 target: GPU's own time {us:.1} us"
+                );
+            }
+        }
+    }
+    group.finish();
+}
+
+/// The median of 50 of `sample`'s values (those it gives).
+fn median_of_50(mut sample: impl FnMut() -> Option<f64>) -> Option<f64> {
+    let mut values: Vec<f64> = (0..50).filter_map(|_| sample()).collect();
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied()
+}
+
 /// A track of `frames` random clouds of M particles in D values (the smoother's time does not
 /// depend on the values).
 fn random_track(frames: usize, seed: u64) -> Vec<Cloud> {
@@ -400,6 +478,7 @@ criterion_group!(
     benches,
     bench_smoother,
     bench_annealed_layouts,
+    bench_stage_times,
     bench_whole_step,
     bench_resampling_alone,
     bench_plugin_over_gpus
