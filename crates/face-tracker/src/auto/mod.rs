@@ -35,7 +35,7 @@ use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 pub use candidates::within_reach;
-use candidates::{Candidate, LostFace, earlier_candidate};
+use candidates::{Candidate, LostFace, Walking, earlier_candidate};
 use detectors::{DetectionResult, Detectors};
 use tracked::Tracked;
 
@@ -206,7 +206,7 @@ pub struct AutoTracker {
     cuts_seen: Vec<usize>,
     /// Tracks started on a walking face, and their last position (Tx, Ty), while they walk
     /// (`candidates.rs`).
-    walking: std::collections::BTreeMap<usize, [f32; 2]>,
+    walking: std::collections::BTreeMap<usize, Walking>,
     /// Tracks lost lately (not at a scene cut): where they were and the frame they were lost
     /// at (`candidates::LostFace`).
     lost: Vec<LostFace>,
