@@ -192,6 +192,41 @@ fn four_entering_faces_are_each_found_once_on_gpu() {
     run(FaceBackend::Gpu(Box::new(tracker_ctx)), detector.into(), 2);
 }
 
+/// A video's (or a shot's) first frames go to the detector one after another, whatever its
+/// period: the identity scenario's four people, in the picture from frame 0, with the
+/// detector's period at 10 frames and its results used a frame late, are each confirmed by
+/// frame 1's detection and tracked from frame 2, not from frame 11.
+#[test]
+fn faces_in_a_videos_first_frames_are_confirmed_a_frame_later() {
+    if media::opted_out("automatic tracking with opencv-data's cascade") {
+        return;
+    }
+    let video = FaceSynthConfig::paper(300).exits_and_crossings(300);
+    let model = FaceModel::generic(129).unwrap();
+    let mut config = auto_config(1);
+    config.detect_every = 10;
+    let mut tracker = AutoTracker::new(
+        (video.width, video.height),
+        FaceDetector::from(cascade()),
+        &model,
+        config,
+        FaceBackend::Cpu,
+    )
+    .unwrap();
+    let renderer = FaceVideoRenderer::new(&video, &model).unwrap();
+    let mut started = Vec::new();
+    for frame in 0..3 {
+        let out = tracker.step(&renderer.render(frame).unwrap()).unwrap();
+        for (track, rect, seen) in &out.started {
+            assert_eq!((frame, *seen), (2, 1), "track {track} started at {rect:?}");
+            let (cx, cy) = rect.centre();
+            started.push(nearest_face(&video, *seen, cx, cy).0);
+        }
+    }
+    started.sort();
+    assert_eq!(started, vec![0, 1, 2, 3]);
+}
+
 /// One face of 640×480, 100 px wide, walking 30 px a frame from frame 1 (`exit_after`), over
 /// `frames` frames, with its model and renderer.
 fn walking_face(frames: usize) -> (FaceSynthConfig, FaceModel, FaceVideoRenderer) {

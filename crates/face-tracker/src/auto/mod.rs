@@ -212,6 +212,8 @@ pub struct AutoTracker {
     lost: Vec<LostFace>,
     /// How long pairs of tracks have sat on one face (`duplicates.rs`).
     together: duplicates::Together,
+    /// The first frame of the current shot (0 until a scene cut).
+    shot_start: usize,
     ended_at_cuts: usize,
 }
 
@@ -258,6 +260,7 @@ impl AutoTracker {
             walking: std::collections::BTreeMap::new(),
             lost: Vec::new(),
             together: duplicates::Together::default(),
+            shot_start: 0,
         })
     }
 
@@ -478,13 +481,19 @@ impl AutoTracker {
         self.candidates.clear();
         self.lost.clear();
         self.cuts_seen.push(self.frame_index);
+        self.shot_start = self.frame_index;
         true
     }
 
-    /// Whether this frame goes to the detector: its period, or a cut's frame not yet sent.
+    /// Whether this frame goes to the detector: its period, a cut's frame not yet sent, or one
+    /// of the first frames of the video or of a shot. A shot's faces are all new: its first
+    /// [`AutoConfig::confirmations`] frames go to the detector one after another, so that they
+    /// are confirmed a frame after they are first seen instead of a period later (Megamind.avi's
+    /// shots started their tracks 6–11 frames after the cut).
     fn detect_now(&self) -> bool {
         self.frame_index.is_multiple_of(self.config.detect_every)
             || self.pending_cut.as_ref().is_some_and(|cut| !cut.sent)
+            || self.frame_index < self.shot_start + self.config.confirmations
     }
 
     fn send(&mut self, frame: &GrayImage) -> Result<(), FaceError> {
