@@ -246,7 +246,9 @@ fn finds_and_keeps_both_faces_of_the_first_shot_of_megamind() {
 /// Megamind.avi cuts from its first shot (the woman, a man behind her) to a close-up of another
 /// man at frame 98. The tracks of the first shot end at the cut (the detector does not find
 /// their faces again there); with `--scene-cut off` a track of the first shot goes on into the
-/// second, on whatever its template fits there.
+/// second, on whatever its template fits there, until its fit fails (measured: to frame 106;
+/// to the run's end at 114 before a shot's first frames went to the detector one after the
+/// other): still there six frames after the cut.
 #[test]
 fn tracks_end_at_a_scene_cut_unless_found_again() {
     if opted_out("face track on Megamind.avi across a cut") {
@@ -304,7 +306,7 @@ fn tracks_end_at_a_scene_cut_unless_found_again() {
     }
     let (_, rows) = run("off");
     let carried_over = (rows.iter())
-        .filter(|(frame, _, status)| *frame == 114 && status == "tracking")
+        .filter(|(frame, _, status)| *frame == 104 && status == "tracking")
         .any(|(_, track, _)| {
             rows.iter()
                 .any(|(frame, t, s)| *frame == 97 && t == track && s == "tracking")
