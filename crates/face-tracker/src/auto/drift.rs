@@ -34,6 +34,11 @@ pub const DRIFT_REACH: f32 = 2.0;
 /// widths away, went untracked and then took a new identity.
 pub const FAR_DRIFT_FIT_SHARE: f64 = STUCK_FIT_SHARE;
 
+/// ... and only a track near failing, its ε at least this share of the failure level: heads
+/// drawn alike fit each other's faces, and a healthy track (ε 0.01–0.03 on the four-face test
+/// video) was moved onto a face entering 3 widths away.
+pub const FAR_DRIFT_MIN_FAILURE_SHARE: f64 = 0.75;
+
 /// A track on the detected face is stuck in a wrong pose when its own template fits the
 /// detection at most this share of its ε (a healthy track's ε is within a few times what the
 /// search finds; a stuck one's many times).
@@ -145,6 +150,10 @@ impl AutoTracker {
                 } = *t;
                 let (tx, ty) = at.centre();
                 let near = (x - tx).hypot(y - ty) <= DRIFT_REACH * at.width;
+                let failing = f64::from(self.config.tracker.failure_error);
+                if !near && error < FAR_DRIFT_MIN_FAILURE_SHARE * failing {
+                    return None;
+                }
                 let (fit, state) = self.own_fit(track, width, frame, rect)?;
                 let off_face = self.tracker.off_face_error(track)?;
                 let fits = OwnFit {
