@@ -80,15 +80,22 @@ fn stuck_in_wrong_pose(fits: OwnFit, turned_away: bool) -> bool {
     fits_better && fit <= DRIFT_MATCH_SHARE * off_face
 }
 
-/// Whether a track has drifted off its face onto a detection on no track, by how its own
-/// template fits the detection (`near`: within [`DRIFT_REACH`]; farther needs
-/// [`FAR_DRIFT_FIT_SHARE`]).
-fn drifted_onto_it(fits: OwnFit, near: bool) -> bool {
-    let share = if near {
-        DRIFT_FIT_SHARE
+/// How closely a track's own template must fit a detection on no track for the track to have
+/// drifted onto it, by where the track is: within [`DRIFT_REACH`] a share
+/// [`DRIFT_FIT_SHARE`] of its ε; farther, [`FAR_DRIFT_FIT_SHARE`], and only for a track near
+/// failing (its ε at least [`FAR_DRIFT_MIN_FAILURE_SHARE`] of `failing`); `None` when it cannot
+/// have (and its template need not be fitted).
+fn drift_fit_share(near: bool, error: f64, failing: f64) -> Option<f64> {
+    if near {
+        Some(DRIFT_FIT_SHARE)
     } else {
-        FAR_DRIFT_FIT_SHARE
-    };
+        (error >= FAR_DRIFT_MIN_FAILURE_SHARE * failing).then_some(FAR_DRIFT_FIT_SHARE)
+    }
+}
+
+/// Whether a track has drifted onto a detection its template fits so (`share`:
+/// [`drift_fit_share`]): better than that share of its ε, and a face the template knows.
+fn drifted_onto_it(fits: OwnFit, share: f64) -> bool {
     fits.fit <= share * fits.error && fits.fit <= DRIFT_MATCH_SHARE * fits.off_face
 }
 
@@ -151,9 +158,7 @@ impl AutoTracker {
                 let (tx, ty) = at.centre();
                 let near = (x - tx).hypot(y - ty) <= DRIFT_REACH * at.width;
                 let failing = f64::from(self.config.tracker.failure_error);
-                if !near && error < FAR_DRIFT_MIN_FAILURE_SHARE * failing {
-                    return None;
-                }
+                let share = drift_fit_share(near, error, failing)?;
                 let (fit, state) = self.own_fit(track, width, frame, rect)?;
                 let off_face = self.tracker.off_face_error(track)?;
                 let fits = OwnFit {
@@ -161,7 +166,7 @@ impl AutoTracker {
                     error,
                     off_face,
                 };
-                drifted_onto_it(fits, near).then_some((i, fit, state))
+                drifted_onto_it(fits, share).then_some((i, fit, state))
             })
             .min_by(|a, b| a.1.total_cmp(&b.1))
             .map(|(i, _, state)| (i, state))
@@ -225,27 +230,37 @@ mod tests {
         assert!(!stuck_in_wrong_pose(background_like, false));
     }
 
-    /// A track on background at ε 0.11 whose template fits a detection at 0.04: near, it has
-    /// drifted there (half its ε); far, only at a quarter of it (0.02).
+    /// A track on background at ε 0.11 (failure level 0.12) whose template fits a detection at
+    /// 0.04: near, it has drifted there (half its ε); far, only at a quarter of it (0.02), and a
+    /// healthy track far away (ε 0.03) is not fitted at all.
     #[test]
     fn a_far_detection_needs_a_closer_fit_to_take_a_drifted_track() {
+        let failing = 0.12;
+        let near = drift_fit_share(true, 0.11, failing).unwrap();
+        let far = drift_fit_share(false, 0.11, failing).unwrap();
+        assert_eq!(
+            drift_fit_share(false, 0.03, failing),
+            None,
+            "a healthy far track"
+        );
+        assert_eq!(drift_fit_share(true, 0.03, failing), Some(DRIFT_FIT_SHARE));
         let on_background = OwnFit {
             fit: 0.04,
             error: 0.11,
             off_face: 0.25,
         };
-        assert!(drifted_onto_it(on_background, true));
-        assert!(!drifted_onto_it(on_background, false));
+        assert!(drifted_onto_it(on_background, near));
+        assert!(!drifted_onto_it(on_background, far));
         let close_fit = OwnFit {
             fit: 0.02,
             ..on_background
         };
-        assert!(drifted_onto_it(close_fit, false));
+        assert!(drifted_onto_it(close_fit, far));
         let like_background = OwnFit {
             fit: 0.02,
             error: 0.11,
             off_face: 0.06,
         };
-        assert!(!drifted_onto_it(like_background, true));
+        assert!(!drifted_onto_it(like_background, near));
     }
 }
