@@ -118,6 +118,11 @@ impl Identities {
                 self.people.len() - 1
             }
         };
+        self.assign(track, id)
+    }
+
+    /// Person `id` is followed by track `track` from now on; their identity.
+    fn assign(&mut self, track: usize, id: usize) -> usize {
         self.people[id].track = Some(track);
         self.of_track.insert(track, id);
         id
@@ -133,12 +138,10 @@ impl Identities {
         lens: &Lens,
         lost: usize,
     ) -> usize {
-        let Some(id) = self.continued(lost, face, lens) else {
-            return self.start(track, face, lens);
-        };
-        self.people[id].track = Some(track);
-        self.of_track.insert(track, id);
-        id
+        match self.continued(lost, face, lens) {
+            Some(id) => self.assign(track, id),
+            None => self.start(track, face, lens),
+        }
     }
 
     /// The person of lost track `lost` if `face` may be them found again.

@@ -217,17 +217,21 @@ fn walking_drift(walk: &Walking, now: [f32; 2]) -> Option<[f32; 2]> {
 mod tests {
     use super::*;
 
+    /// A face rectangle `width` wide at `x` (its top at 100).
+    fn rect(x: f32, width: f32) -> FaceRect {
+        FaceRect {
+            x,
+            y: 100.0,
+            width,
+            height: 1.25 * width,
+        }
+    }
+
     /// A face that walked 150 px between two detector runs five frames apart is the same
     /// candidate (within two widths, about its size), moving 30 px a frame; one three widths
     /// away, or twice the size, is not.
     #[test]
     fn a_candidate_seen_again_a_walk_away_is_confirmed_with_its_motion() {
-        let rect = |x: f32, width: f32| FaceRect {
-            x,
-            y: 100.0,
-            width,
-            height: 1.25 * width,
-        };
         let earlier = Candidate {
             rect: rect(600.0, 120.0),
             seen: 1,
@@ -247,12 +251,6 @@ mod tests {
     /// delay hands over late); not later, not far away, not at twice its size.
     #[test]
     fn a_lost_face_is_found_again_nearby_and_soon() {
-        let rect = |x: f32, width: f32| FaceRect {
-            x,
-            y: 100.0,
-            width,
-            height: 1.25 * width,
-        };
         let lost = LostFace {
             track: 3,
             rect: rect(400.0, 100.0),
