@@ -330,12 +330,11 @@ fn bench_annealed_layouts(c: &mut Criterion) {
             group.bench_function(BenchmarkId::new(*name, targets), |b| {
                 b.iter(|| std::hint::black_box(step(&mut plugin)));
                 if !reported {
-                    let mut own: Vec<f64> = (0..50)
-                        .filter_map(|_| step(&mut plugin).gpu_time)
-                        .map(|t| t.duration().as_secs_f64() * 1e6)
-                        .collect();
-                    own.sort_by(f64::total_cmp);
-                    if let Some(median) = own.get(own.len() / 2) {
+                    let own = || {
+                        let time = step(&mut plugin).gpu_time?;
+                        Some(time.duration().as_secs_f64() * 1e6)
+                    };
+                    if let Some(median) = median_of_50(own) {
                         eprintln!("annealed step, {name}, {targets} targets: GPU's own time {median:.1} us (median of 50)");
                     }
                     reported = true;
