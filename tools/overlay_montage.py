@@ -27,7 +27,8 @@ def tile(overlay_dir, frames):
         image = cv2.imread(path)
         if image is None:
             sys.exit(f"cannot read {path} (is frame {frame} in the run?)")
-        half = cv2.resize(image, (image.shape[1] // 2, image.shape[0] // 2), cv2.INTER_AREA)
+        size = (image.shape[1] // 2, image.shape[0] // 2)
+        half = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
         label = f"frame {frame}"
         (w, h), _ = cv2.getTextSize(label, cv2.FONT_HERSHEY_PLAIN, 1.0, 1)
         cv2.rectangle(half, (0, 0), (w + 8, h + 8), (0, 0, 0), -1)
