@@ -184,6 +184,19 @@ fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) 
     );
 }
 
+/// Where the face step's GPU time goes, dispatch by dispatch (`FaceTracker::profile_dispatches`).
+fn report_face_dispatches(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) {
+    if let Err(e) = tracker.profile_dispatches(true) {
+        eprintln!("face step dispatch profile: {e}");
+        return;
+    }
+    common::report_dispatch_profile(&format!("face step, {faces} faces"), || {
+        tracker.step(frame).ok()?;
+        tracker.dispatch_times().ok()
+    });
+    tracker.profile_dispatches(false).unwrap();
+}
+
 /// The whole step with the faces split over every hardware GPU (`FaceBackend::Gpus`) against
 /// one of them, at loads that fill one GPU, each one frame at a time and with two frames in
 /// flight. With one hardware GPU only the one-GPU variants run.
@@ -326,6 +339,9 @@ fn fig7(c: &mut Criterion) {
             b.iter(|| std::hint::black_box(gpu.step(&frame).unwrap()));
             if !reported {
                 report_gpu_share(&mut gpu, &frame, faces);
+                if full_size() {
+                    report_face_dispatches(&mut gpu, &frame, faces);
+                }
                 reported = true;
             }
         });

@@ -22,6 +22,8 @@
 //! Every GPU timing includes the submission, the device wait and the readback. The adapter is
 //! printed at the start; set WGPU_ADAPTER_NAME to choose one.
 
+mod common;
+
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use pf_core::anneal::{Annealing, Tempering};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
@@ -414,6 +416,45 @@ fn bench_stage_times(c: &mut Criterion) {
         }
     }
     group.finish();
+    if measuring {
+        profile_fused_dispatches(&ctx);
+    }
+}
+
+/// Each dispatch of the fused five-layer annealed step of the toy plug-in, at 1 and 64
+/// targets, timed in a pass of its own (`GpuFilter::profile_dispatches`).
+fn profile_fused_dispatches(ctx: &GpuContext) {
+    let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
+    for targets in [1usize, 64] {
+        let (config, initial) = toy_batch(targets, Annealing::survival(5, 0.5, 0.7));
+        let mut plugin = ModelFilter::new(
+            ctx,
+            &config,
+            GpuResampler::Systematic,
+            &initial,
+            TOY_MODEL,
+            &constants,
+        )
+        .unwrap();
+        let obs: Vec<ToyObservation> = (0..targets)
+            .map(|t| ToyObservation { z: observed(t, 1) })
+            .collect();
+        let Some((ctx, gpu, _)) = plugin.gpu_parts() else {
+            return;
+        };
+        if let Err(e) = gpu.profile_dispatches(ctx, true) {
+            eprintln!("dispatch profile: {e}");
+            return;
+        }
+        common::report_dispatch_profile(
+            &format!("fused annealed step, 5 layers, {targets} targets"),
+            || {
+                plugin.step(&obs).ok()?;
+                let (ctx, gpu, _) = plugin.gpu_parts()?;
+                gpu.dispatch_times(ctx).ok()
+            },
+        );
+    }
 }
 
 /// The median of 50 of `sample`'s values (those it gives).

@@ -48,3 +48,84 @@ fn step_time_is_positive_and_within_the_host_wall_clock() {
         );
     }
 }
+
+/// The toy plug-in's filter: `targets` targets of 300 particles in 7 values, three survival-rule
+/// annealing layers, the fused layout.
+fn toy_plugin(
+    ctx: &pf_gpu::GpuContext,
+    targets: usize,
+) -> pf_gpu::model::ModelFilter<pf_gpu::toy::ToyObservation, pf_gpu::toy::ToyConstants> {
+    use pf_core::anneal::Annealing;
+    let shape = BatchShape::new(targets, 300, 7).unwrap();
+    let mut config = BatchConfig::new(shape, 5, vec![0.5; 7]);
+    config.annealing = Annealing::survival(3, 0.5, 0.7);
+    let means: Vec<f32> = (0..targets * 7).map(|i| i as f32).collect();
+    let initial = pf_core::batch::gaussian_clouds(&shape, 3, &means, &[1.0; 7]);
+    let constants = pf_gpu::toy::ToyConstants::from_sigma(&[1.0; 7]).unwrap();
+    let mut filter = pf_gpu::model::ModelFilter::new(
+        ctx,
+        &config,
+        GpuResampler::Systematic,
+        &initial,
+        pf_gpu::toy::TOY_MODEL,
+        &constants,
+    )
+    .unwrap();
+    let (_, gpu, _) = filter.gpu_parts().unwrap();
+    gpu.set_step_layout(pf_gpu::StepLayout::Fused).unwrap();
+    filter
+}
+
+#[test]
+fn a_profiled_fused_step_names_and_times_each_dispatch_and_keeps_its_particles() {
+    let Some(ctx) = common::gpu_context("dispatch_profile") else {
+        return;
+    };
+    let targets = 3;
+    let observations: Vec<_> = (0..targets)
+        .map(|t| pf_gpu::toy::ToyObservation {
+            z: std::array::from_fn(|d| (t * 7 + d) as f32 + 0.3),
+        })
+        .collect();
+    let mut plain = toy_plugin(&ctx, targets);
+    let mut profiled = toy_plugin(&ctx, targets);
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    if !ctx.has_timestamps() {
+        let refusal = gpu.profile_dispatches(ctx_p, true).unwrap_err();
+        assert!(refusal.to_string().contains("timestamp"), "{refusal}");
+        return;
+    }
+    gpu.profile_dispatches(ctx_p, true).unwrap();
+    for _ in 0..3 {
+        let expected = plain.step(&observations).unwrap();
+        let got = profiled.step(&observations).unwrap();
+        // Only the passes' boundaries differ: the same particles, hence the same estimates.
+        assert_eq!(got.estimates, expected.estimates);
+        let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+        let times = gpu.dispatch_times(ctx_p).unwrap();
+        let labels: Vec<&str> = times.iter().map(|t| t.label.as_str()).collect();
+        assert_eq!(
+            labels,
+            [
+                "layer 0: select and move",
+                "layer 0: likelihood",
+                "layer 1: select and move",
+                "layer 1: likelihood",
+                "layer 2: select and move",
+                "layer 2: likelihood",
+                "last normalise",
+                "estimate",
+            ]
+        );
+        let end = times.iter().map(|t| t.start + t.duration).max().unwrap();
+        assert!(end > std::time::Duration::ZERO, "{times:?}");
+        assert!(times.iter().all(|t| t.start <= end), "{times:?}");
+    }
+    // Profiling off: no dispatches reported, and a staged step is refused profiling.
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    gpu.profile_dispatches(ctx_p, false).unwrap();
+    assert!(gpu.dispatch_times(ctx_p).unwrap().is_empty());
+    gpu.set_step_layout(pf_gpu::StepLayout::Staged).unwrap();
+    let refusal = gpu.profile_dispatches(ctx_p, true).unwrap_err();
+    assert!(refusal.to_string().contains("fused"), "{refusal}");
+}

@@ -1,5 +1,6 @@
 // Log-weight normalisation per target, one workgroup per target: the stage of the staged step
-// (and the fused step's last layer). The work is normalise_target (normalise_target.wgsl).
+// (the fused step settles its last layer with layer.wgsl's settle_last_layer). The work is
+// normalise_target (normalise_target.wgsl).
 // CPU twin: pf_core::batch::normalise_target.
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -7,6 +8,16 @@
 @group(0) @binding(2) var<storage, read> log_likelihood: array<f32>;
 @group(0) @binding(3) var<storage, read_write> weights: array<f32>;
 @group(0) @binding(4) var<storage, read_write> stats: array<TargetStats>;
+
+// Where normalise_target's survival-rule bisection reads the log-weights and log-likelihoods:
+// this stage's storage buffers (any M; the fused layer's kernel reads copies in workgroup memory).
+fn prior_at(base: u32, i: u32) -> f32 {
+    return log_weights[base + i];
+}
+
+fn likelihood_at(base: u32, i: u32) -> f32 {
+    return log_likelihood[base + i];
+}
 
 @compute @workgroup_size(256)
 fn normalise(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {

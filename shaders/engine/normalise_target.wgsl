@@ -6,7 +6,10 @@
 // weights uniform (the failure policy of pf-core). Layer 0 also writes the frame's log evidence,
 // log sum exp(lw + ll) at beta = 1 (CPU twin: pf_core::batch::frame_log_evidence).
 // A library, parameterised by the layer's Params p: the including kernel declares log_weights,
-// log_likelihood, weights and stats (normalise.wgsl for the stage, layer.wgsl for the fused layer).
+// log_likelihood, weights and stats (normalise.wgsl for the stage, layer.wgsl for the fused layer),
+// and prior_at(base, i) / likelihood_at(base, i), where the survival rule's bisection reads the
+// log-weights and log-likelihoods of its 21 passes (the storage buffers in normalise.wgsl; the
+// fused layer's copies in workgroup memory, which it loads before calling normalise_target).
 // CPU twin: pf_core::batch::normalise_target.
 
 const NORMALISE_WG: u32 = 256u;
@@ -69,7 +72,7 @@ fn merge_ess(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
 fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
     var acc = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let x = tempered(log_weights[base + i], log_likelihood[base + i], beta);
+        let x = tempered(prior_at(base, i), likelihood_at(base, i), beta);
         if (!is_neg_inf(x)) {
             acc = merge_ess(acc, vec3<f32>(x, 1.0, 1.0));
         }

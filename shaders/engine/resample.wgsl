@@ -23,6 +23,24 @@
 
 const WG: u32 = 256u;
 
+// Where prefix_sum_and_search (resample_target.wgsl) keeps the weights, the CDF and the
+// ancestors: this stage's storage buffers.
+fn weight_at(base: u32, i: u32) -> f32 {
+    return weights[base + i];
+}
+
+fn cdf_at(base: u32, i: u32) -> f32 {
+    return cdf[base + i];
+}
+
+fn set_cdf(base: u32, i: u32, value: f32) {
+    cdf[base + i] = value;
+}
+
+fn set_ancestor(base: u32, k: u32, ancestor: u32) {
+    ancestors[base + k] = ancestor;
+}
+
 @compute @workgroup_size(256)
 fn systematic(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     prefix_sum_and_search(lid.x, wid.y, false);

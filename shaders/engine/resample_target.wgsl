@@ -1,8 +1,11 @@
 // Resampling one target in one workgroup of 256 invocations (SCAN_WG): the ancestors of the
 // target's M offspring from its normalised weights, by a parallel prefix sum into cdf[] and a
 // binary search per offspring (systematic: one uniform per target; stratified: one per offspring).
-// A library: the including kernel declares params, weights, cdf, ancestors, stats and
-// resample_keys (resample.wgsl for the resample stage, layer.wgsl for the fused layer).
+// A library: the including kernel declares params, stats and resample_keys, and where the weights,
+// the CDF and the ancestors live: weight_at(base, i), cdf_at(base, i), set_cdf(base, i, value) and
+// set_ancestor(base, k, ancestor) (resample.wgsl: the storage buffers, for the resample stage;
+// layer.wgsl: workgroup memory, whose latency is a fraction of a storage buffer's, for the fused
+// layer, where one workgroup's serial chain of loads is the layer's time).
 // CPU twins: pf_core::resample::{Systematic, Stratified} fed CounterUniforms with the target's
 // resampling key.
 
@@ -19,12 +22,12 @@ fn resampling_due(t: u32) -> bool {
 // never be picked. Move to the nearest positive weight: forward first, then backward.
 fn positive_weight_near(base: u32, i: u32, n: u32) -> u32 {
     for (var j = i; j < n; j = j + 1u) {
-        if (weights[base + j] > 0.0) {
+        if (weight_at(base, j) > 0.0) {
             return j;
         }
     }
     var j = i;
-    while (j > 0u && !(weights[base + j] > 0.0)) {
+    while (j > 0u && !(weight_at(base, j) > 0.0)) {
         j = j - 1u;
     }
     return j;
@@ -46,7 +49,7 @@ fn search_cdf(base: u32, n: u32, point: f32) -> u32 {
     var hi = n - 1u;
     while (lo < hi) {
         let mid = (lo + hi) / 2u;
-        if (cdf[base + mid] <= point) {
+        if (cdf_at(base, mid) <= point) {
             lo = mid + 1u;
         } else {
             hi = mid;
@@ -65,7 +68,7 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
     workgroupBarrier();
     if (workgroupUniformLoad(&due) == 0u) {
         for (var k = lid; k < n; k = k + SCAN_WG) {
-            ancestors[base + k] = k;
+            set_ancestor(base, k, k);
         }
         return;
     }
@@ -75,7 +78,7 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
     let end = min(begin + chunk, n);
     var sum = 0.0;
     for (var i = begin; i < end; i = i + 1u) {
-        sum = sum + weights[base + i];
+        sum = sum + weight_at(base, i);
     }
     chunk_sums[lid] = sum;
     workgroupBarrier();
@@ -93,8 +96,8 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
         running = chunk_sums[lid - 1u];
     }
     for (var i = begin; i < end; i = i + 1u) {
-        running = running + weights[base + i];
-        cdf[base + i] = running;
+        running = running + weight_at(base, i);
+        set_cdf(base, i, running);
     }
     let total = chunk_sums[SCAN_WG - 1u];
     storageBarrier();
@@ -102,6 +105,6 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
 
     for (var k = lid; k < n; k = k + SCAN_WG) {
         let point = (f32(k) + ordered_uniform(t, k, stratified)) / f32(n) * total;
-        ancestors[base + k] = search_cdf(base, n, point);
+        set_ancestor(base, k, search_cdf(base, n, point));
     }
 }

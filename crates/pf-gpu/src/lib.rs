@@ -31,9 +31,9 @@ pub mod toy;
 
 pub use context::{ContextOptions, GpuContext};
 pub use filter::{
-    FUSED_DEFAULT_MAX_VALUES, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, GpuStepReport,
-    LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood, ParticlesBack,
-    PendingStep, ReadbackSource, StepLayout, TargetStats, fused_layout_refusal,
+    DispatchTime, FUSED_DEFAULT_MAX_VALUES, GpuFilter, GpuLikelihood, GpuResampler, GpuStage,
+    GpuStepReport, LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood,
+    ParticlesBack, PendingStep, ReadbackSource, StepLayout, TargetStats, fused_layout_refusal,
     fused_workgroup_bytes,
 };
 pub use image::GrayTexture;

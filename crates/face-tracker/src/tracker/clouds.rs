@@ -32,6 +32,24 @@ impl FaceTracker {
         Ok(())
     }
 
+    /// Times each dispatch of the first GPU's fused step from the next step on, or stops
+    /// (`pf_gpu::GpuFilter::profile_dispatches`): where a step's GPU time goes.
+    pub fn profile_dispatches(&mut self, on: bool) -> Result<(), FaceError> {
+        if let Some(shard) = self.shards.first_mut() {
+            shard.filter.engine_mut().profile_dispatches(on)?;
+        }
+        Ok(())
+    }
+
+    /// The first GPU's dispatches in the last profiled step, and their times.
+    pub fn dispatch_times(&self) -> Result<Vec<pf_gpu::DispatchTime>, FaceError> {
+        self.check_nothing_in_flight("the dispatch times are read")?;
+        match self.shards.first() {
+            Some(shard) => Ok(shard.filter.engine().dispatch_times()?),
+            None => Ok(Vec::new()),
+        }
+    }
+
     /// Every slot's lineage after the last step, `[slot·M + m]` (each particle's ancestor among
     /// its slot's particles of the frame before); `None` on a GPU that does not keep it.
     pub fn lineage(&self) -> Result<Option<Vec<u32>>, FaceError> {

@@ -229,6 +229,26 @@ impl FilterEngine {
         }
     }
 
+    /// Times each dispatch of the GPU's fused step from the next step on, or stops
+    /// ([`GpuFilter::profile_dispatches`]); the CPU engine has no dispatches to time.
+    pub fn profile_dispatches(&mut self, on: bool) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(_) if on => Err(GpuError::InvalidConfig(
+                "the CPU engine has no dispatches to profile".into(),
+            )),
+            Self::Cpu(_) => Ok(()),
+            Self::Gpu(gpu) => gpu.filter.profile_dispatches(&gpu.ctx, on),
+        }
+    }
+
+    /// The last profiled step's dispatches and their times (empty when not profiling).
+    pub fn dispatch_times(&self) -> Result<Vec<crate::filter::DispatchTime>, GpuError> {
+        match self {
+            Self::Cpu(_) => Ok(Vec::new()),
+            Self::Gpu(gpu) => gpu.filter.dispatch_times(&gpu.ctx),
+        }
+    }
+
     /// The last step's lineage, `[t·M + m]`: each particle's ancestor among the previous frame's
     /// particles (`pf_core::smooth::ancestry`); `None` on a GPU that does not keep it
     /// ([`Self::keep_lineage`]). The GPU engine reads it back (a wait).

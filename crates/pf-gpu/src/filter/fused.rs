@@ -13,6 +13,7 @@
 use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
+use super::profile::{DispatchProfiler, Passes};
 use super::setup::Streams;
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
 use crate::context::GpuContext;
@@ -38,12 +39,13 @@ pub enum StepLayout {
 pub const FUSED_DEFAULT_MAX_VALUES: usize = 16_384;
 
 /// Storage buffers the fused kernel binds.
-const FUSED_STORAGE_BUFFERS: u32 = 13;
+const FUSED_STORAGE_BUFFERS: u32 = 12;
 
 /// Bytes of workgroup memory the fused kernel needs for `particles` a target: one dimension of
-/// them staged, plus the scan's and the normalisation's partial sums.
+/// them staged (the CDF before), their weights and ancestors, plus the scan's and the
+/// normalisation's partial sums.
 pub fn fused_workgroup_bytes(particles: usize) -> u64 {
-    let staged = 4 * particles as u64;
+    let staged = 3 * 4 * particles as u64;
     let scan = 256 * 4 + 4;
     let normalise = 256 * 4 + 256 * 16 + 2 * 4;
     staged + scan + normalise
@@ -100,8 +102,10 @@ pub(super) struct FusedLayers {
     /// `moving`'s bind group per layer (its parameter slice and the one before it).
     moving_groups: Vec<wgpu::BindGroup>,
     selecting_group: wgpu::BindGroup,
-    /// The normalise stage bound to the last layer's parameters.
-    last_normalise: wgpu::BindGroup,
+    /// The last layer's normalisation (the normalise stage's work, with the survival rule's
+    /// passes in workgroup memory), bound to that layer's parameters.
+    settling: Kernel,
+    settling_group: wgpu::BindGroup,
 }
 
 /// The line of `layer.wgsl` that sizes its workgroup array.
@@ -130,14 +134,11 @@ impl FusedLayers {
         shape: &BatchShape,
         resampler: GpuResampler,
         streams: &Streams,
-        normalise: &Kernel,
         layers: &LayerParams<'_>,
     ) -> Result<(Option<Self>, Option<String>), GpuError> {
         Ok(match fused_layout_refusal(ctx, shape, resampler) {
             None => (
-                Some(Self::new(
-                    ctx, shape, resampler, streams, normalise, layers,
-                )?),
+                Some(Self::new(ctx, shape, resampler, streams, layers)?),
                 None,
             ),
             Some(why) => (None, Some(why)),
@@ -151,7 +152,6 @@ impl FusedLayers {
         shape: &BatchShape,
         resampler: GpuResampler,
         streams: &Streams,
-        normalise: &Kernel,
         layers: &LayerParams<'_>,
     ) -> Result<Self, GpuError> {
         let source = layer_source(shape.particles)?;
@@ -174,7 +174,6 @@ impl FusedLayers {
                     (3, s.log_likelihood.binding()),
                     (4, s.weights.binding()),
                     (5, s.stats.binding()),
-                    (6, s.cdf.binding()),
                     (7, s.ancestors.binding()),
                     (8, s.resampling_keys.binding()),
                     (9, s.states.binding()),
@@ -190,14 +189,15 @@ impl FusedLayers {
             .map(|layer| bind(&moving, layer))
             .collect::<Result<Vec<_>, _>>()?;
         let selecting_group = bind(&selecting, 0)?;
-        let last_normalise = normalise.bind(
+        let settling = Kernel::new(ctx, "fused settle", &source, "settle_last_layer")?;
+        let settling_group = settling.bind(
             ctx,
             &[
                 (0, layers.slice(layers.count - 1)),
-                (1, streams.log_weights.binding()),
-                (2, streams.log_likelihood.binding()),
-                (3, streams.weights.binding()),
-                (4, streams.stats.binding()),
+                (2, streams.log_weights.binding()),
+                (3, streams.log_likelihood.binding()),
+                (4, streams.weights.binding()),
+                (5, streams.stats.binding()),
             ],
         )?;
         Ok(Self {
@@ -205,7 +205,8 @@ impl FusedLayers {
             selecting,
             moving_groups,
             selecting_group,
-            last_normalise,
+            settling,
+            settling_group,
         })
     }
 }
@@ -255,38 +256,65 @@ impl GpuFilter {
     }
 
     /// Records a frame's whole step the fused way, in one compute pass (the layers' parameters
-    /// written by [`GpuFilter::write_layer_params`] first).
+    /// written by [`GpuFilter::write_layer_params`] first); with `profiler`, each dispatch in a
+    /// timed pass of its own ([`GpuFilter::profile_dispatches`]).
     pub(super) fn record_fused(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         fused: &FusedLayers,
         likelihood: &dyn GpuLikelihood,
+        profiler: Option<&mut DispatchProfiler>,
     ) {
         let per_target = [1, self.shape.targets as u32, 1];
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("fused step"),
-                timestamp_writes: None,
-            });
-            for layer in 0..self.annealing.layers {
-                if layer == 0 && likelihood.propagates() {
-                    fused
-                        .selecting
-                        .record(&mut pass, &fused.selecting_group, per_target);
-                    likelihood.record(LikelihoodPhase::Propagate, &mut pass);
-                } else {
-                    fused
-                        .moving
-                        .record(&mut pass, &fused.moving_groups[layer], per_target);
-                }
-                self.record_lineage(&mut pass, layer);
-                likelihood.record(LikelihoodPhase::Measure { layer }, &mut pass);
+        let mut passes = Passes::begin(encoder, profiler, "fused step");
+        for layer in 0..self.annealing.layers {
+            if layer == 0 && likelihood.propagates() {
+                passes.dispatch(
+                    || "layer 0: select".into(),
+                    |pass| {
+                        fused
+                            .selecting
+                            .record(pass, &fused.selecting_group, per_target)
+                    },
+                );
+                passes.dispatch(
+                    || "layer 0: the likelihood's dynamics".into(),
+                    |pass| likelihood.record(LikelihoodPhase::Propagate, pass),
+                );
+            } else {
+                passes.dispatch(
+                    || format!("layer {layer}: select and move"),
+                    |pass| {
+                        fused
+                            .moving
+                            .record(pass, &fused.moving_groups[layer], per_target)
+                    },
+                );
             }
-            self.stages
-                .normalise
-                .record(&mut pass, &fused.last_normalise, per_target);
-            self.record_estimate_into(&mut pass, likelihood);
+            if self.lineage.is_some() {
+                passes.dispatch(
+                    || format!("layer {layer}: lineage"),
+                    |pass| self.record_lineage(pass, layer),
+                );
+            }
+            passes.dispatch(
+                || format!("layer {layer}: likelihood"),
+                |pass| likelihood.record(LikelihoodPhase::Measure { layer }, pass),
+            );
         }
+        passes.dispatch(
+            || "last normalise".into(),
+            |pass| {
+                fused
+                    .settling
+                    .record(pass, &fused.settling_group, per_target)
+            },
+        );
+        passes.dispatch(
+            || "estimate".into(),
+            |pass| self.record_estimate_into(pass, likelihood),
+        );
+        passes.end();
         self.record_copies_back(encoder, likelihood);
     }
 }

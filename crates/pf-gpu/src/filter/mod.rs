@@ -13,6 +13,7 @@ mod fused;
 mod likelihood;
 mod lineage;
 mod params;
+mod profile;
 mod record;
 mod setup;
 mod targets;
@@ -25,6 +26,7 @@ pub use likelihood::{
     ReadbackSource,
 };
 pub use params::{FrameParams, TargetStats};
+pub use profile::DispatchTime;
 
 pub use lineage::ParticlesBack;
 pub use setup::FilterStreams;
@@ -184,6 +186,8 @@ pub struct GpuFilter {
     likelihood_sections: Vec<(&'static str, u64)>,
     has_best: bool,
     timer: Option<StepTimer>,
+    /// Each dispatch timed in a pass of its own, when asked ([`Self::profile_dispatches`]).
+    profiler: Option<profile::DispatchProfiler>,
     step: u64,
     /// The configuration's seed (the targets' random keys derive from it).
     seed: u64,
@@ -224,14 +228,8 @@ impl GpuFilter {
             stride: layer_stride,
             count: config.annealing.layers,
         };
-        let (fused, fused_refusal) = fused::FusedLayers::where_fits(
-            ctx,
-            &shape,
-            resampler,
-            &streams,
-            &stages.normalise,
-            &layers,
-        )?;
+        let (fused, fused_refusal) =
+            fused::FusedLayers::where_fits(ctx, &shape, resampler, &streams, &layers)?;
         let groups = BindGroups::new(ctx, &stages, &streams, &params_buffer)?;
         let resample_steps = resample_dispatches(
             ctx,
@@ -270,6 +268,7 @@ impl GpuFilter {
             likelihood_sections: Vec::new(),
             has_best: config.best > 0,
             timer,
+            profiler: None,
             streams,
             stages,
             groups,

@@ -41,7 +41,9 @@ impl GpuFilter {
             // the step a likelihood's own dynamics draw with).
             ctx.queue
                 .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&blocks[0]));
-            self.record_fused(encoder, fused, likelihood);
+            let mut profiler = self.profiler.take();
+            self.record_fused(encoder, fused, likelihood, profiler.as_mut());
+            self.profiler = profiler;
             return;
         }
         let block_bytes = std::mem::size_of::<FrameParams>() as u64;
