@@ -107,11 +107,14 @@ fn a_profiled_fused_step_names_and_times_each_dispatch_and_keeps_its_particles()
         assert_eq!(
             labels,
             [
-                "layer 0: select and move",
+                "layer 0: select",
+                "layer 0: move",
                 "layer 0: likelihood",
-                "layer 1: select and move",
+                "layer 1: select",
+                "layer 1: move",
                 "layer 1: likelihood",
-                "layer 2: select and move",
+                "layer 2: select",
+                "layer 2: move",
                 "layer 2: likelihood",
                 "last normalise",
                 "estimate",

@@ -1,28 +1,34 @@
-// One annealing layer's selection and moving, fused into one dispatch of one workgroup (256
-// invocations) per target: layers after the first normalise the previous layer's weights first
-// (normalise_target), then the target resamples (prefix_sum_and_search), gathers its ancestors'
-// states through workgroup memory one dimension at a time (in place: no second buffer and no
-// copy back) and moves them (moved_value). With the likelihood's dispatch after it, a layer is
-// two dispatches where the staged step records five and a copy (resample, gather, copy, diffuse,
-// likelihood, normalise); the driver then normalises the last layer and estimates.
-// One workgroup's chain of dependent loads is this kernel's time (a few targets leave the GPU
-// idle but for it), so the resampling works in workgroup memory: the weights are copied in once,
-// the CDF's binary searches and the gather's ancestor lookups never wait on a storage buffer.
+// One annealing layer's selection and moving in two dispatches. `select_*`: one workgroup (256
+// invocations) per target normalises the previous layer's weights (normalise_target; layers after
+// the first), resamples (prefix_sum_and_search) and gathers the ancestors' states into `selected`.
+// `move_selected`: one invocation per particle, across the whole GPU, moves each particle from
+// `selected` back into `states` (moved_by), drawing each pair of dimensions' noise from one
+// Philox block; `copy_selected` copies them back unmoved (layer 0 of a likelihood with its own
+// dynamics, whose Propagate follows). With the likelihood's dispatch after them a layer is three
+// dispatches where the staged step records five and a copy (resample, gather, copy, diffuse,
+// likelihood, normalise); the driver then settles the last layer (settle_last_layer) and
+// estimates.
+// Why this shape: one workgroup's serial chain is the layer's time when a frame has few targets
+// (the GPU is idle but for it). So the selecting workgroup keeps the resampling in workgroup
+// memory (the weights copied in once, the CDF's searches and the ancestors never in a storage
+// buffer) and leaves the random numbers, most of a layer's arithmetic (a Philox block is some
+// 350 instructions), to a dispatch that spreads them over every SM.
 // The same arithmetic in the same order as the staged stages: the same random numbers, hence
-// the same particles. CPU twins: those of
-// the libraries it calls — pf_core::batch::normalise_target, pf_core::resample::{Systematic,
-// Stratified}, pf_core::ParticleSet::select, pf_core::batch::diffuse.
+// the same particles. CPU twins: those of the libraries it calls — pf_core::batch::normalise_target,
+// pf_core::resample::{Systematic, Stratified}, pf_core::ParticleSet::select,
+// pf_core::batch::diffuse.
 // Systematic and stratified resampling of at most STAGE_CAPACITY particles a target; the driver
 // builds the kernel with STAGE_CAPACITY set to the filter's M (pf_gpu::filter::fused).
 
-// This layer's parameters, and the previous layer's (whose weights this dispatch normalises;
-// unused in layer 0).
+// This layer's parameters, and the previous layer's (whose weights select_* normalises; unused
+// in layer 0).
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> settle_params: Params;
 @group(0) @binding(2) var<storage, read_write> log_weights: array<f32>;
 @group(0) @binding(3) var<storage, read> log_likelihood: array<f32>;
 @group(0) @binding(4) var<storage, read_write> weights: array<f32>;
 @group(0) @binding(5) var<storage, read_write> stats: array<TargetStats>;
+@group(0) @binding(6) var<storage, read_write> selected: array<f32>;
 @group(0) @binding(7) var<storage, read_write> ancestors: array<u32>;
 @group(0) @binding(8) var<storage, read> resample_keys: array<vec2<u32>>;
 @group(0) @binding(9) var<storage, read_write> states: array<f32>;
@@ -34,16 +40,14 @@
 
 const STAGE_CAPACITY: u32 = 4096u;
 const LAYER_WG: u32 = 256u;
-// The CDF while the target resamples; then one dimension of its particles, read before any of
-// them is overwritten.
+// The layer's log-likelihoods while the previous layer settles; then the CDF while the target
+// resamples.
 var<workgroup> staged: array<f32, STAGE_CAPACITY>;
-// The target's normalised weights, and the ancestor of each offspring.
+// The layer's log-weights while it settles; then its normalised weights.
 var<workgroup> local_weights: array<f32, STAGE_CAPACITY>;
-var<workgroup> local_ancestors: array<u32, STAGE_CAPACITY>;
 
 // Where normalise_target's bisection reads a layer's log-weights and log-likelihoods: the
-// copies that load_for_normalise puts in workgroup memory (local_weights and staged are free
-// until the resampling).
+// copies settle puts in workgroup memory.
 fn prior_at(base: u32, i: u32) -> f32 {
     return local_weights[i];
 }
@@ -66,8 +70,8 @@ fn settle(lid: u32, t: u32, p: Params) {
 }
 
 // Where prefix_sum_and_search (resample_target.wgsl) keeps the weights, the CDF and the
-// ancestors: workgroup memory (the ancestors also go to their buffer, for the lineage and the
-// tests that read them).
+// ancestors: workgroup memory, and the ancestors' buffer (the gather, the lineage and the tests
+// read it).
 fn weight_at(base: u32, i: u32) -> f32 {
     return local_weights[i];
 }
@@ -82,12 +86,11 @@ fn set_cdf(base: u32, i: u32, value: f32) {
 
 fn set_ancestor(base: u32, k: u32, ancestor: u32) {
     ancestors[base + k] = ancestor;
-    local_ancestors[k] = ancestor;
 }
 
-// Normalise (after the first layer), resample, then gather and (when `diffuses`) move every
-// dimension of target t.
-fn select_and_move(lid: u32, t: u32, stratified: bool, diffuses: bool) {
+// Normalise (after the first layer), resample, then gather every dimension of target t's
+// ancestors into `selected`.
+fn select_target(lid: u32, t: u32, stratified: bool) {
     if (params.layer > 0u) {
         settle(lid, t, settle_params);
         storageBarrier();
@@ -111,42 +114,61 @@ fn select_and_move(lid: u32, t: u32, stratified: bool, diffuses: bool) {
             log_weights[base + k] = equal;
         }
     }
-    let step = vec2<u32>(params.step_lo, params.step_hi);
-    for (var d = 0u; d < params.dims; d = d + 1u) {
-        for (var m = lid; m < n; m = m + LAYER_WG) {
-            staged[m] = states[state_index(t, d, m)];
+    // Each invocation gathers the offspring it searched for (their ancestors are its own writes).
+    for (var k = lid; k < n; k = k + LAYER_WG) {
+        let a = ancestors[base + k];
+        for (var d = 0u; d < params.dims; d = d + 1u) {
+            selected[state_index(t, d, k)] = states[state_index(t, d, a)];
         }
-        workgroupBarrier();
-        for (var k = lid; k < n; k = k + LAYER_WG) {
-            var x = staged[local_ancestors[k]];
-            if (diffuses) {
-                x = moved_value(t, d, k, x, step);
-            }
-            states[state_index(t, d, k)] = x;
-        }
-        workgroupBarrier();
     }
 }
 
 @compute @workgroup_size(256)
-fn systematic_layer(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
-    select_and_move(lid.x, wid.y, false, true);
+fn select_systematic(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    select_target(lid.x, wid.y, false);
 }
 
 @compute @workgroup_size(256)
-fn stratified_layer(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
-    select_and_move(lid.x, wid.y, true, true);
+fn select_stratified(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    select_target(lid.x, wid.y, true);
 }
 
-// Layer 0 of a likelihood that brings its own dynamics: select only (its Propagate follows).
-@compute @workgroup_size(256)
-fn systematic_select(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
-    select_and_move(lid.x, wid.y, false, false);
+// Dimensions 2j and 2j + 1 of particle m of target t moved from `selected` into `states`, both
+// from one Philox block (counter_gaussian's draws, the block computed once a pair); one
+// invocation per (particle, pair) so that even one target's move fills many SMs.
+@compute @workgroup_size(64)
+fn move_selected(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.particles;
+    let t = gid.y;
+    let pairs = (params.dims + 1u) / 2u;
+    if (gid.x >= n * pairs || t >= params.targets) {
+        return;
+    }
+    let m = gid.x % n;
+    let d = 2u * (gid.x / n);
+    let step = vec2<u32>(params.step_lo, params.step_hi);
+    let block = gaussian_block(diffusion_keys[t], m, d, step);
+    let i = state_index(t, d, m);
+    states[i] = moved_by(t, d, selected[i], gaussian_of_block(block, d));
+    if (d + 1u < params.dims) {
+        let j = state_index(t, d + 1u, m);
+        states[j] = moved_by(t, d + 1u, selected[j], gaussian_of_block(block, d + 1u));
+    }
 }
 
-@compute @workgroup_size(256)
-fn stratified_select(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
-    select_and_move(lid.x, wid.y, true, false);
+// Layer 0 of a likelihood that brings its own dynamics: the selected states back unmoved (its
+// Propagate follows).
+@compute @workgroup_size(64)
+fn copy_selected(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let m = gid.x;
+    let t = gid.y;
+    if (m >= params.particles || t >= params.targets) {
+        return;
+    }
+    for (var d = 0u; d < params.dims; d = d + 1u) {
+        let i = state_index(t, d, m);
+        states[i] = selected[i];
+    }
 }
 
 // The frame's last layer normalised (`params`: that layer's), after its likelihood: the step's

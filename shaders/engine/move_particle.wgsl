@@ -9,12 +9,18 @@
 // pf_core::batch::add_drift.
 
 fn moved_value(t: u32, d: u32, m: u32, value: f32, step: vec2<u32>) -> f32 {
+    return moved_by(t, d, value, counter_gaussian(diffusion_keys[t], m, d, step));
+}
+
+// moved_value with the standard normal draw n given (the fused layer draws a pair of
+// dimensions' from one Philox block).
+fn moved_by(t: u32, d: u32, value: f32, n: f32) -> f32 {
     var x = value;
     if (params.velocity_gain > 0.0 && params.layer == 0u) {
         x = x + velocity[t * params.dims + d];
     }
     let sigma_d = sigma[params.layer * params.dims + d];
-    x = x + (sigma_d * params.sigma_scale) * counter_gaussian(diffusion_keys[t], m, d, step);
+    x = x + (sigma_d * params.sigma_scale) * n;
     // A NaN state stays NaN (clamp would turn it into a bound), so the failure policy sees it.
     if (params.has_bounds == 1u && !is_nan(x)) {
         x = clamp(x, lower[d], upper[d]);

@@ -56,7 +56,17 @@ fn minus_two_log_unit(word: u32) -> f32 {
 // The standard normal draw of dimension `dim` of `particle` at `step` (Box-Muller on lanes
 // 2(dim % 2) and 2(dim % 2) + 1 of block dim / 2).
 fn counter_gaussian(key: vec2<u32>, particle: u32, dim: u32, step: vec2<u32>) -> f32 {
-    let block = philox4x32_10(vec4<u32>(particle, dim / 2u, step.x, step.y), key);
+    return gaussian_of_block(gaussian_block(key, particle, dim, step), dim);
+}
+
+// The Philox block that dimensions 2j and 2j + 1 (j = dim / 2) of `particle` draw from at `step`:
+// a kernel moving both dimensions of a pair computes it once.
+fn gaussian_block(key: vec2<u32>, particle: u32, dim: u32, step: vec2<u32>) -> vec4<u32> {
+    return philox4x32_10(vec4<u32>(particle, dim / 2u, step.x, step.y), key);
+}
+
+// Dimension `dim`'s standard normal draw from its pair's block (counter_gaussian's second half).
+fn gaussian_of_block(block: vec4<u32>, dim: u32) -> f32 {
     var w0 = block.x;
     var w1 = block.y;
     if ((dim & 1u) == 1u) {

@@ -103,8 +103,17 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
     storageBarrier();
     workgroupBarrier();
 
+    // Systematic resampling's one uniform, drawn once per invocation (a Philox block each).
+    var systematic_uniform = 0.0;
+    if (!stratified) {
+        systematic_uniform = ordered_uniform(t, 0u, false);
+    }
     for (var k = lid; k < n; k = k + SCAN_WG) {
-        let point = (f32(k) + ordered_uniform(t, k, stratified)) / f32(n) * total;
+        var uniform = systematic_uniform;
+        if (stratified) {
+            uniform = ordered_uniform(t, k, true);
+        }
+        let point = (f32(k) + uniform) / f32(n) * total;
         set_ancestor(base, k, search_cdf(base, n, point));
     }
 }

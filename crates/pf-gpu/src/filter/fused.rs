@@ -1,7 +1,8 @@
-//! The fused step (`shaders/engine/layer.wgsl`): each annealing layer is one dispatch of one
-//! workgroup per target that normalises the layer before it, resamples, gathers its ancestors'
-//! states through workgroup memory and moves them, then the likelihood's own dispatches; the frame
-//! ends with the last layer's normalisation and the estimate. All of it is one compute pass: each
+//! The fused step (`shaders/engine/layer.wgsl`): each annealing layer is a dispatch of one
+//! workgroup per target that normalises the layer before it, resamples in workgroup memory and
+//! gathers its ancestors' states, a dispatch of one invocation per particle that moves them (the
+//! random numbers spread over the whole GPU), then the likelihood's own dispatches; the frame ends
+//! with the last layer's normalisation and the estimate. All of it is one compute pass: each
 //! layer's parameters are a slice of one uniform buffer, bound by a bind group of its own, so no
 //! copy splits the pass. The staged step (`record.rs`: resample, gather, copy, diffuse,
 //! likelihood, normalise per layer) stays as the reference and for what the fused one does not
@@ -14,7 +15,7 @@ use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
 use super::profile::{DispatchProfiler, Passes};
-use super::setup::Streams;
+use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -23,7 +24,8 @@ use crate::kernels::{Kernel, sources, stage_source};
 /// How a [`GpuFilter`] records a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum StepLayout {
-    /// One dispatch per layer for selection and moving (`layer.wgsl`): the default where it fits
+    /// A dispatch a layer for normalising and selection, one for moving (`layer.wgsl`), in one
+    /// compute pass: the default where it fits
     /// ([`fused_layout_refusal`]) and pays ([`FUSED_DEFAULT_MAX_VALUES`]).
     Fused,
     /// Every stage its own dispatch, as `run_stages` records them: the reference.
@@ -39,15 +41,15 @@ pub enum StepLayout {
 pub const FUSED_DEFAULT_MAX_VALUES: usize = 16_384;
 
 /// Storage buffers the fused kernel binds.
-const FUSED_STORAGE_BUFFERS: u32 = 12;
+const FUSED_STORAGE_BUFFERS: u32 = 8;
 
-/// Bytes of workgroup memory the fused kernel needs for `particles` a target: one dimension of
-/// them staged (the CDF before), their weights and ancestors, plus the scan's and the
+/// Bytes of workgroup memory the fused kernel needs for `particles` a target: their
+/// log-likelihoods (the CDF after) and log-weights (the weights after), plus the scan's and the
 /// normalisation's partial sums.
 pub fn fused_workgroup_bytes(particles: usize) -> u64 {
-    let staged = 3 * 4 * particles as u64;
+    let staged = 2 * 4 * particles as u64;
     let scan = 256 * 4 + 4;
-    let normalise = 256 * 4 + 256 * 16 + 2 * 4;
+    let normalise = 256 * 4 + 3 * 256 * 16 + 2 * 4;
     staged + scan + normalise
 }
 
@@ -94,14 +96,17 @@ pub(super) fn default_layout(shape: &BatchShape, fits: bool) -> StepLayout {
 
 /// The fused layer's kernels and bind groups, built once.
 pub(super) struct FusedLayers {
-    /// Normalise the previous layer, select, move (every layer but a propagating likelihood's
-    /// first).
-    moving: Kernel,
-    /// Normalise the previous layer and select only (layer 0 of a likelihood that propagates).
+    /// Normalise the previous layer, resample and gather into `selected`: one workgroup a target.
     selecting: Kernel,
-    /// `moving`'s bind group per layer (its parameter slice and the one before it).
+    /// Move the selected particles back into `states`: one invocation a particle.
+    moving: Kernel,
+    /// Copy the selected particles back unmoved (layer 0 of a likelihood that propagates).
+    copying: Kernel,
+    /// `selecting`'s and `moving`'s bind groups per layer (its parameter slice, and for
+    /// `selecting` the one before it).
+    selecting_groups: Vec<wgpu::BindGroup>,
     moving_groups: Vec<wgpu::BindGroup>,
-    selecting_group: wgpu::BindGroup,
+    copying_group: wgpu::BindGroup,
     /// The last layer's normalisation (the normalise stage's work, with the survival rule's
     /// passes in workgroup memory), bound to that layer's parameters.
     settling: Kernel,
@@ -160,22 +165,33 @@ impl FusedLayers {
         } else {
             "systematic"
         };
-        let moving = Kernel::new(ctx, "fused layer", &source, &format!("{prefix}_layer"))?;
-        let selecting = Kernel::new(ctx, "fused select", &source, &format!("{prefix}_select"))?;
-        let bind = |kernel: &Kernel, layer: usize| {
-            let previous = layer.saturating_sub(1);
-            let s = streams;
-            kernel.bind(
+        let selecting = Kernel::new(ctx, "fused select", &source, &format!("select_{prefix}"))?;
+        let moving = Kernel::new(ctx, "fused move", &source, "move_selected")?;
+        let copying = Kernel::new(ctx, "fused copy", &source, "copy_selected")?;
+        let s = streams;
+        let bind_selecting = |layer: usize| {
+            selecting.bind(
                 ctx,
                 &[
                     (0, layers.slice(layer)),
-                    (1, layers.slice(previous)),
+                    (1, layers.slice(layer.saturating_sub(1))),
                     (2, s.log_weights.binding()),
                     (3, s.log_likelihood.binding()),
                     (4, s.weights.binding()),
                     (5, s.stats.binding()),
+                    (6, s.selected.binding()),
                     (7, s.ancestors.binding()),
                     (8, s.resampling_keys.binding()),
+                    (9, s.states.binding()),
+                ],
+            )
+        };
+        let bind_moving = |layer: usize| {
+            moving.bind(
+                ctx,
+                &[
+                    (0, layers.slice(layer)),
+                    (6, s.selected.binding()),
                     (9, s.states.binding()),
                     (10, s.sigma.binding()),
                     (11, s.lower.binding()),
@@ -185,10 +201,20 @@ impl FusedLayers {
                 ],
             )
         };
-        let moving_groups = (0..layers.count)
-            .map(|layer| bind(&moving, layer))
+        let selecting_groups = (0..layers.count)
+            .map(bind_selecting)
             .collect::<Result<Vec<_>, _>>()?;
-        let selecting_group = bind(&selecting, 0)?;
+        let moving_groups = (0..layers.count)
+            .map(bind_moving)
+            .collect::<Result<Vec<_>, _>>()?;
+        let copying_group = copying.bind(
+            ctx,
+            &[
+                (0, layers.slice(0)),
+                (6, s.selected.binding()),
+                (9, s.states.binding()),
+            ],
+        )?;
         let settling = Kernel::new(ctx, "fused settle", &source, "settle_last_layer")?;
         let settling_group = settling.bind(
             ctx,
@@ -201,10 +227,12 @@ impl FusedLayers {
             ],
         )?;
         Ok(Self {
-            moving,
             selecting,
+            moving,
+            copying,
+            selecting_groups,
             moving_groups,
-            selecting_group,
+            copying_group,
             settling,
             settling_group,
         })
@@ -266,15 +294,35 @@ impl GpuFilter {
         profiler: Option<&mut DispatchProfiler>,
     ) {
         let per_target = [1, self.shape.targets as u32, 1];
+        let per_particle = [
+            groups_for(self.shape.particles, 64),
+            self.shape.targets as u32,
+            1,
+        ];
+        // The move: one invocation per particle and pair of dimensions.
+        let pairs = self.shape.dims.div_ceil(2);
+        let per_pair = [
+            groups_for(self.shape.particles * pairs, 64),
+            self.shape.targets as u32,
+            1,
+        ];
         let mut passes = Passes::begin(encoder, profiler, "fused step");
         for layer in 0..self.annealing.layers {
+            passes.dispatch(
+                || format!("layer {layer}: select"),
+                |pass| {
+                    fused
+                        .selecting
+                        .record(pass, &fused.selecting_groups[layer], per_target)
+                },
+            );
             if layer == 0 && likelihood.propagates() {
                 passes.dispatch(
-                    || "layer 0: select".into(),
+                    || "layer 0: copy back".into(),
                     |pass| {
                         fused
-                            .selecting
-                            .record(pass, &fused.selecting_group, per_target)
+                            .copying
+                            .record(pass, &fused.copying_group, per_particle)
                     },
                 );
                 passes.dispatch(
@@ -283,11 +331,11 @@ impl GpuFilter {
                 );
             } else {
                 passes.dispatch(
-                    || format!("layer {layer}: select and move"),
+                    || format!("layer {layer}: move"),
                     |pass| {
                         fused
                             .moving
-                            .record(pass, &fused.moving_groups[layer], per_target)
+                            .record(pass, &fused.moving_groups[layer], per_pair)
                     },
                 );
             }
