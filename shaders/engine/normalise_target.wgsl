@@ -14,9 +14,8 @@
 
 const NORMALISE_WG: u32 = 256u;
 var<workgroup> partial: array<f32, 256>;
-// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS at
-// up to three exponents a pass (tempered_ess_at_three).
-var<workgroup> partial_ess: array<array<vec3<f32>, 3>, 256>;
+// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
+var<workgroup> partial_ess: array<vec3<f32>, 256>;
 var<workgroup> first_nan: atomic<u32>;
 var<workgroup> first_inf: atomic<u32>;
 
@@ -68,42 +67,30 @@ fn merge_ess(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(m, a.y * ea + b.y * eb, a.z * ea * ea + b.z * eb * eb);
 }
 
-// The effective sample sizes of exp(prior + beta_j * ll) over target t's particles at three
-// exponents at once (0 where every weight is zero): one pass over the particles and one tree of
-// (max, s1, s2) merges, each exponent's values and merges exactly those of a pass of its own (so
-// two bisection steps cost one pass's loads and barriers). Twin of pf_core::anneal::tempered_ess.
-fn tempered_ess_at_three(lid: u32, base: u32, n: u32, betas: vec3<f32>) -> vec3<f32> {
-    let empty = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
-    var acc = array<vec3<f32>, 3>(empty, empty, empty);
+// The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
+// weight is zero): one pass, one reduction of (max, s1, s2). Twin of pf_core::anneal::tempered_ess.
+fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
+    var acc = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let prior = prior_at(base, i);
-        let ll = likelihood_at(base, i);
-        for (var j = 0u; j < 3u; j = j + 1u) {
-            let x = tempered(prior, ll, betas[j]);
-            if (!is_neg_inf(x)) {
-                acc[j] = merge_ess(acc[j], vec3<f32>(x, 1.0, 1.0));
-            }
+        let x = tempered(prior_at(base, i), likelihood_at(base, i), beta);
+        if (!is_neg_inf(x)) {
+            acc = merge_ess(acc, vec3<f32>(x, 1.0, 1.0));
         }
     }
     partial_ess[lid] = acc;
     workgroupBarrier();
     for (var stride = NORMALISE_WG / 2u; stride > 0u; stride = stride / 2u) {
         if (lid < stride) {
-            for (var j = 0u; j < 3u; j = j + 1u) {
-                partial_ess[lid][j] = merge_ess(partial_ess[lid][j], partial_ess[lid + stride][j]);
-            }
+            partial_ess[lid] = merge_ess(partial_ess[lid], partial_ess[lid + stride]);
         }
         workgroupBarrier();
     }
-    let totals = partial_ess[0];
+    let total = partial_ess[0];
     workgroupBarrier();
-    var ess = vec3<f32>(0.0);
-    for (var j = 0u; j < 3u; j = j + 1u) {
-        if (!is_neg_inf(totals[j].x)) {
-            ess[j] = totals[j].y * totals[j].y / totals[j].z;
-        }
+    if (is_neg_inf(total.x)) {
+        return 0.0;
     }
-    return ess;
+    return total.y * total.y / total.z;
 }
 
 // This invocation's share of sum exp(lw + ll - max_at_one) over target t's particles (beta = 1).
@@ -119,35 +106,20 @@ fn sum_exp_at_one(lid: u32, base: u32, n: u32, max_at_one: f32) -> f32 {
 }
 
 // The survival rule: max_beta when it keeps rate * M effective particles, else the midpoint of
-// a 20-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta, whose steps it
-// takes two a pass: the step's midpoint and both midpoints the next step may take, the same
-// floats as the one-step bisection's (the same β, bit for bit, in half the passes).
+// a 20-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta.
 fn survival_beta(lid: u32, base: u32, n: u32, p: Params) -> f32 {
     let wanted = p.survival_rate * f32(n);
-    if (tempered_ess_at_three(lid, base, n, vec3<f32>(p.max_beta)).x >= wanted) {
+    if (tempered_ess(lid, base, n, p.max_beta) >= wanted) {
         return p.max_beta;
     }
     var lo = 0.0;
     var hi = p.max_beta;
-    for (var k = 0u; k < 10u; k = k + 1u) {
+    for (var k = 0u; k < 20u; k = k + 1u) {
         let mid = 0.5 * (lo + hi);
-        let lower_mid = 0.5 * (lo + mid);
-        let upper_mid = 0.5 * (mid + hi);
-        let ess = tempered_ess_at_three(lid, base, n, vec3<f32>(mid, lower_mid, upper_mid));
-        if (ess.x >= wanted) {
+        if (tempered_ess(lid, base, n, mid) >= wanted) {
             lo = mid;
-            if (ess.z >= wanted) {
-                lo = upper_mid;
-            } else {
-                hi = upper_mid;
-            }
         } else {
             hi = mid;
-            if (ess.y >= wanted) {
-                lo = lower_mid;
-            } else {
-                hi = lower_mid;
-            }
         }
     }
     return 0.5 * (lo + hi);

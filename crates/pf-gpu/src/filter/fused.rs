@@ -49,7 +49,7 @@ const FUSED_STORAGE_BUFFERS: u32 = 8;
 pub fn fused_workgroup_bytes(particles: usize) -> u64 {
     let staged = 2 * 4 * particles as u64;
     let scan = 256 * 4 + 4;
-    let normalise = 256 * 4 + 3 * 256 * 16 + 2 * 4;
+    let normalise = 256 * 4 + 256 * 16 + 2 * 4;
     staged + scan + normalise
 }
 
