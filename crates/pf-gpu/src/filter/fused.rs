@@ -33,11 +33,12 @@ pub enum StepLayout {
 }
 
 /// The most values (particles × dimensions) a target may have for the fused step to be the
-/// default. Its workgroup gathers and moves a target's values alone, where the staged step spreads
-/// them over many workgroups: that pays for few values a target and costs for many. Measured on an
-/// NVIDIA H100: the face tracker (1 000 × 7 a face) fused took 0.49 ms of GPU time a step for one
-/// face against 0.52 staged, 0.80 against 0.89 for 64 faces; the body tracker (3 500 samples × its
-/// 30-odd angles, one target) 39.4 ms an annealed step against 35.0.
+/// default. Its select's one workgroup gathers a target's values alone, where the staged step
+/// spreads them over many workgroups: that pays for few values a target and costs for many.
+/// Measured on an NVIDIA H100 (docs/BENCHMARKS.md): the face tracker (1 000 × 7 a face) fused took
+/// 0.36 ms of GPU time a step for one face (0.52 staged, in an earlier build); the body tracker
+/// (3 500 samples × its 30-odd angles, one target) 39.4 ms an annealed step against 35.0 staged
+/// when the fused layer also moved the particles in that workgroup.
 pub const FUSED_DEFAULT_MAX_VALUES: usize = 16_384;
 
 /// Storage buffers the fused kernel binds.
