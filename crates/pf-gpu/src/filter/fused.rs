@@ -169,51 +169,18 @@ impl FusedLayers {
         let selecting = Kernel::new(ctx, "fused select", &source, &format!("select_{prefix}"))?;
         let moving = Kernel::new(ctx, "fused move", &source, "move_selected")?;
         let copying = Kernel::new(ctx, "fused copy", &source, "copy_selected")?;
-        let s = streams;
-        let bind_selecting = |layer: usize| {
-            selecting.bind(
-                ctx,
-                &[
-                    (0, layers.slice(layer)),
-                    (1, layers.slice(layer.saturating_sub(1))),
-                    (2, s.log_weights.binding()),
-                    (3, s.log_likelihood.binding()),
-                    (4, s.weights.binding()),
-                    (5, s.stats.binding()),
-                    (6, s.selected.binding()),
-                    (7, s.ancestors.binding()),
-                    (8, s.resampling_keys.binding()),
-                    (9, s.states.binding()),
-                ],
-            )
-        };
-        let bind_moving = |layer: usize| {
-            moving.bind(
-                ctx,
-                &[
-                    (0, layers.slice(layer)),
-                    (6, s.selected.binding()),
-                    (9, s.states.binding()),
-                    (10, s.sigma.binding()),
-                    (11, s.lower.binding()),
-                    (12, s.upper.binding()),
-                    (13, s.diffusion_keys.binding()),
-                    (14, s.velocity.binding()),
-                ],
-            )
-        };
         let selecting_groups = (0..layers.count)
-            .map(bind_selecting)
+            .map(|layer| bind_selecting(ctx, &selecting, streams, layers, layer))
             .collect::<Result<Vec<_>, _>>()?;
         let moving_groups = (0..layers.count)
-            .map(bind_moving)
+            .map(|layer| bind_moving(ctx, &moving, streams, layers, layer))
             .collect::<Result<Vec<_>, _>>()?;
         let copying_group = copying.bind(
             ctx,
             &[
                 (0, layers.slice(0)),
-                (6, s.selected.binding()),
-                (9, s.states.binding()),
+                (6, streams.selected.binding()),
+                (9, streams.states.binding()),
             ],
         )?;
         let settling = Kernel::new(ctx, "fused settle", &source, "settle_last_layer")?;
@@ -238,6 +205,54 @@ impl FusedLayers {
             settling_group,
         })
     }
+}
+
+/// `select_*`'s bind group for `layer` (its parameters and the previous layer's, which it settles).
+fn bind_selecting(
+    ctx: &GpuContext,
+    kernel: &Kernel,
+    s: &Streams,
+    layers: &LayerParams<'_>,
+    layer: usize,
+) -> Result<wgpu::BindGroup, GpuError> {
+    kernel.bind(
+        ctx,
+        &[
+            (0, layers.slice(layer)),
+            (1, layers.slice(layer.saturating_sub(1))),
+            (2, s.log_weights.binding()),
+            (3, s.log_likelihood.binding()),
+            (4, s.weights.binding()),
+            (5, s.stats.binding()),
+            (6, s.selected.binding()),
+            (7, s.ancestors.binding()),
+            (8, s.resampling_keys.binding()),
+            (9, s.states.binding()),
+        ],
+    )
+}
+
+/// `move_selected`'s bind group for `layer`.
+fn bind_moving(
+    ctx: &GpuContext,
+    kernel: &Kernel,
+    s: &Streams,
+    layers: &LayerParams<'_>,
+    layer: usize,
+) -> Result<wgpu::BindGroup, GpuError> {
+    kernel.bind(
+        ctx,
+        &[
+            (0, layers.slice(layer)),
+            (6, s.selected.binding()),
+            (9, s.states.binding()),
+            (10, s.sigma.binding()),
+            (11, s.lower.binding()),
+            (12, s.upper.binding()),
+            (13, s.diffusion_keys.binding()),
+            (14, s.velocity.binding()),
+        ],
+    )
 }
 
 /// The per-layer parameter blocks in one uniform buffer, `stride` bytes apart (the adapter's
@@ -294,62 +309,11 @@ impl GpuFilter {
         likelihood: &dyn GpuLikelihood,
         profiler: Option<&mut DispatchProfiler>,
     ) {
-        let per_target = [1, self.shape.targets as u32, 1];
-        let per_particle = [
-            groups_for(self.shape.particles, 64),
-            self.shape.targets as u32,
-            1,
-        ];
-        // The move: one invocation per particle and pair of dimensions.
-        let pairs = self.shape.dims.div_ceil(2);
-        let per_pair = [
-            groups_for(self.shape.particles * pairs, 64),
-            self.shape.targets as u32,
-            1,
-        ];
+        let grids = Grids::of(&self.shape);
+        let per_target = grids.per_target;
         let mut passes = Passes::begin(encoder, profiler, "fused step");
         for layer in 0..self.annealing.layers {
-            passes.dispatch(
-                || format!("layer {layer}: select"),
-                |pass| {
-                    fused
-                        .selecting
-                        .record(pass, &fused.selecting_groups[layer], per_target)
-                },
-            );
-            if layer == 0 && likelihood.propagates() {
-                passes.dispatch(
-                    || "layer 0: copy back".into(),
-                    |pass| {
-                        fused
-                            .copying
-                            .record(pass, &fused.copying_group, per_particle)
-                    },
-                );
-                passes.dispatch(
-                    || "layer 0: the likelihood's dynamics".into(),
-                    |pass| likelihood.record(LikelihoodPhase::Propagate, pass),
-                );
-            } else {
-                passes.dispatch(
-                    || format!("layer {layer}: move"),
-                    |pass| {
-                        fused
-                            .moving
-                            .record(pass, &fused.moving_groups[layer], per_pair)
-                    },
-                );
-            }
-            if self.lineage.is_some() {
-                passes.dispatch(
-                    || format!("layer {layer}: lineage"),
-                    |pass| self.record_lineage(pass, layer),
-                );
-            }
-            passes.dispatch(
-                || format!("layer {layer}: likelihood"),
-                |pass| likelihood.record(LikelihoodPhase::Measure { layer }, pass),
-            );
+            self.record_fused_layer(&mut passes, fused, likelihood, layer, &grids);
         }
         passes.dispatch(
             || "last normalise".into(),
@@ -365,5 +329,81 @@ impl GpuFilter {
         );
         passes.end();
         self.record_copies_back(encoder, likelihood);
+    }
+
+    /// One layer of the fused step: select, then move (or copy back and the likelihood's own
+    /// dynamics, in layer 0 of a likelihood that propagates), the lineage where kept, and the
+    /// likelihood's weighing.
+    fn record_fused_layer(
+        &self,
+        passes: &mut Passes<'_>,
+        fused: &FusedLayers,
+        likelihood: &dyn GpuLikelihood,
+        layer: usize,
+        grids: &Grids,
+    ) {
+        passes.dispatch(
+            || format!("layer {layer}: select"),
+            |pass| {
+                fused
+                    .selecting
+                    .record(pass, &fused.selecting_groups[layer], grids.per_target)
+            },
+        );
+        if layer == 0 && likelihood.propagates() {
+            passes.dispatch(
+                || "layer 0: copy back".into(),
+                |pass| {
+                    fused
+                        .copying
+                        .record(pass, &fused.copying_group, grids.per_particle)
+                },
+            );
+            passes.dispatch(
+                || "layer 0: the likelihood's dynamics".into(),
+                |pass| likelihood.record(LikelihoodPhase::Propagate, pass),
+            );
+        } else {
+            passes.dispatch(
+                || format!("layer {layer}: move"),
+                |pass| {
+                    fused
+                        .moving
+                        .record(pass, &fused.moving_groups[layer], grids.per_pair)
+                },
+            );
+        }
+        if self.lineage.is_some() {
+            passes.dispatch(
+                || format!("layer {layer}: lineage"),
+                |pass| self.record_lineage(pass, layer),
+            );
+        }
+        passes.dispatch(
+            || format!("layer {layer}: likelihood"),
+            |pass| likelihood.record(LikelihoodPhase::Measure { layer }, pass),
+        );
+    }
+}
+
+/// The workgroup counts of the fused step's dispatches.
+struct Grids {
+    /// One workgroup a target (select, settle).
+    per_target: [u32; 3],
+    /// One invocation a particle (copy back).
+    per_particle: [u32; 3],
+    /// One invocation a particle and pair of dimensions (move).
+    per_pair: [u32; 3],
+}
+
+impl Grids {
+    fn of(shape: &BatchShape) -> Self {
+        let targets = shape.targets as u32;
+        let pairs = shape.dims.div_ceil(2);
+        Self {
+            per_target: [1, targets, 1],
+            per_particle: [groups_for(shape.particles, 64), targets, 1],
+            per_pair: [groups_for(shape.particles * pairs, 64), targets, 1],
+        }
     }
 }
