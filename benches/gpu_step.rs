@@ -11,7 +11,7 @@
 //!
 //! Then the annealed step (five survival-rule layers, the face tracker's schedule) of the plug-in
 //! model for T ∈ {1, 16, 64, 256} targets, fused (`StepLayout::Fused`, the default: a layer is
-//! one engine dispatch and the model's) against staged (every stage its own dispatch), each with
+//! two engine dispatches, select and move, and the model's) against staged (every stage its own dispatch), each with
 //! the GPU's own time printed (timestamps, median of 50 steps).
 //!
 //! Then the marginal backward smoother (`pf_gpu::smooth::GpuSmoother`, each of the 7 values its

@@ -1,5 +1,5 @@
-//! The fused step (`shaders/engine/layer.wgsl`, `pf_gpu::StepLayout::Fused`: one dispatch a layer
-//! normalises the layer before, resamples, gathers and moves) against the staged step it
+//! The fused step (`shaders/engine/layer.wgsl`, `pf_gpu::StepLayout::Fused`: a layer's select
+//! normalises the layer before, resamples and gathers, its move diffuses) against the staged step it
 //! replaces and against the CPU twin, on fresh random configurations: shapes with edge cases (one
 //! particle, one target, particles around the workgroup's 256), one to four layers of fixed or
 //! survival β, partitioned layers, bounds, angles, the constant-velocity drift, a model with its

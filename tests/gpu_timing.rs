@@ -99,9 +99,17 @@ fn a_profiled_fused_step_names_and_times_each_dispatch_and_keeps_its_particles()
     for _ in 0..3 {
         let expected = plain.step(&observations).unwrap();
         let got = profiled.step(&observations).unwrap();
-        // Only the passes' boundaries differ: the same particles, hence the same estimates.
+        // Only the passes' boundaries differ: the same particles and weights, hence the same
+        // estimates.
         assert_eq!(got.estimates, expected.estimates);
+        let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
+        let (states_a, weights_a) = (
+            gpu_a.download_states(ctx_a).unwrap(),
+            gpu_a.download_log_weights(ctx_a).unwrap(),
+        );
         let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+        assert_eq!(gpu.download_states(ctx_p).unwrap(), states_a);
+        assert_eq!(gpu.download_log_weights(ctx_p).unwrap(), weights_a);
         let times = gpu.dispatch_times(ctx_p).unwrap();
         let labels: Vec<&str> = times.iter().map(|t| t.label.as_str()).collect();
         assert_eq!(

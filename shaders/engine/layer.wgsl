@@ -1,17 +1,17 @@
 // One annealing layer's selection and moving in two dispatches. `select_*`: one workgroup (256
 // invocations) per target normalises the previous layer's weights (normalise_target; layers after
 // the first), resamples (prefix_sum_and_search) and gathers the ancestors' states into `selected`.
-// `move_selected`: one invocation per particle, across the whole GPU, moves each particle from
-// `selected` back into `states` (moved_by), drawing each pair of dimensions' noise from one
-// Philox block; `copy_selected` copies them back unmoved (layer 0 of a likelihood with its own
+// `move_selected`: one invocation per particle and pair of dimensions, across the whole GPU, moves
+// the particles from `selected` back into `states` (moved_by), drawing each pair of dimensions'
+// noise from one Philox block; `copy_selected` copies them back unmoved (layer 0 of a likelihood with its own
 // dynamics, whose Propagate follows). With the likelihood's dispatch after them a layer is three
 // dispatches where the staged step records five and a copy (resample, gather, copy, diffuse,
 // likelihood, normalise); the driver then settles the last layer (settle_last_layer) and
 // estimates.
 // Why this shape: one workgroup's serial chain is the layer's time when a frame has few targets
 // (the GPU is idle but for it). So the selecting workgroup keeps the resampling in workgroup
-// memory (the weights copied in once, the CDF's searches and the ancestors never in a storage
-// buffer) and leaves the random numbers, most of a layer's arithmetic (a Philox block is some
+// memory (the weights copied in once, the CDF built and searched there; the ancestors are written
+// to their buffer for the gather and the lineage) and leaves the random numbers, most of a layer's arithmetic (a Philox block is some
 // 350 instructions), to a dispatch that spreads them over every SM.
 // The same arithmetic in the same order as the staged stages: the same random numbers, hence
 // the same particles. CPU twins: those of the libraries it calls — pf_core::batch::normalise_target,
@@ -42,18 +42,18 @@ const STAGE_CAPACITY: u32 = 4096u;
 const LAYER_WG: u32 = 256u;
 // The layer's log-likelihoods while the previous layer settles; then the CDF while the target
 // resamples.
-var<workgroup> staged: array<f32, STAGE_CAPACITY>;
+var<workgroup> scratch: array<f32, STAGE_CAPACITY>;
 // The layer's log-weights while it settles; then its normalised weights.
 var<workgroup> local_weights: array<f32, STAGE_CAPACITY>;
 
 // Where normalise_target's bisection reads a layer's log-weights and log-likelihoods: the
-// copies settle puts in workgroup memory.
+// copies settle puts in workgroup memory (scratch and local_weights).
 fn prior_at(base: u32, i: u32) -> f32 {
     return local_weights[i];
 }
 
 fn likelihood_at(base: u32, i: u32) -> f32 {
-    return staged[i];
+    return scratch[i];
 }
 
 // Normalises target t's weights after the layer `p` weighed (its log-weights and log-likelihoods
@@ -61,9 +61,12 @@ fn likelihood_at(base: u32, i: u32) -> f32 {
 fn settle(lid: u32, t: u32, p: Params) {
     let n = p.particles;
     let base = t * n;
-    for (var k = lid; k < n; k = k + LAYER_WG) {
-        local_weights[k] = log_weights[base + k];
-        staged[k] = log_likelihood[base + k];
+    // Only the survival rule's bisection reads the copies.
+    if (p.survival_rate > 0.0) {
+        for (var k = lid; k < n; k = k + LAYER_WG) {
+            local_weights[k] = log_weights[base + k];
+            scratch[k] = log_likelihood[base + k];
+        }
     }
     workgroupBarrier();
     normalise_target(lid, t, p);
@@ -77,11 +80,11 @@ fn weight_at(base: u32, i: u32) -> f32 {
 }
 
 fn cdf_at(base: u32, i: u32) -> f32 {
-    return staged[i];
+    return scratch[i];
 }
 
 fn set_cdf(base: u32, i: u32, value: f32) {
-    staged[i] = value;
+    scratch[i] = value;
 }
 
 fn set_ancestor(base: u32, k: u32, ancestor: u32) {

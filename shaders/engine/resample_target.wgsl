@@ -1,5 +1,5 @@
 // Resampling one target in one workgroup of 256 invocations (SCAN_WG): the ancestors of the
-// target's M offspring from its normalised weights, by a parallel prefix sum into cdf[] and a
+// target's M offspring from its normalised weights, by a parallel prefix sum into the CDF (set_cdf) and a
 // binary search per offspring (systematic: one uniform per target; stratified: one per offspring).
 // A library: the including kernel declares params, stats and resample_keys, and where the weights,
 // the CDF and the ancestors live: weight_at(base, i), cdf_at(base, i), set_cdf(base, i, value) and
@@ -43,7 +43,7 @@ fn ordered_uniform(t: u32, k: u32, stratified: bool) -> f32 {
     return unit_from_word(block.x);
 }
 
-// The smallest i with point < cdf[base + i] (n - 1 when none), moved to a positive weight.
+// The smallest i with point < cdf_at(base, i) (n - 1 when none), moved to a positive weight.
 fn search_cdf(base: u32, n: u32, point: f32) -> u32 {
     var lo = 0u;
     var hi = n - 1u;

@@ -1,7 +1,7 @@
 //! The fused step (`shaders/engine/layer.wgsl`): each annealing layer is a dispatch of one
 //! workgroup per target that normalises the layer before it, resamples in workgroup memory and
-//! gathers its ancestors' states, a dispatch of one invocation per particle that moves them (the
-//! random numbers spread over the whole GPU), then the likelihood's own dispatches; the frame ends
+//! gathers its ancestors' states, a dispatch of one invocation per particle and pair of
+//! dimensions that moves them (the random numbers spread over the whole GPU), then the likelihood's own dispatches; the frame ends
 //! with the last layer's normalisation and the estimate. All of it is one compute pass: each
 //! layer's parameters are a slice of one uniform buffer, bound by a bind group of its own, so no
 //! copy splits the pass. The staged step (`record.rs`: resample, gather, copy, diffuse,
@@ -77,6 +77,14 @@ pub fn fused_layout_refusal(
             shape.particles, limits.max_compute_workgroup_storage_size
         ));
     }
+    let move_groups = shape.particles * shape.dims.div_ceil(2) / 64 + 1;
+    if move_groups > limits.max_compute_workgroups_per_dimension as usize {
+        return Some(format!(
+            "{} particles × {} dimensions make {move_groups} workgroups of the move; the adapter \
+             allows {} a dimension",
+            shape.particles, shape.dims, limits.max_compute_workgroups_per_dimension
+        ));
+    }
     if limits.max_storage_buffers_per_shader_stage < FUSED_STORAGE_BUFFERS {
         return Some(format!(
             "the fused kernel binds {FUSED_STORAGE_BUFFERS} storage buffers; the adapter allows {}",
@@ -99,7 +107,8 @@ pub(super) fn default_layout(shape: &BatchShape, fits: bool) -> StepLayout {
 pub(super) struct FusedLayers {
     /// Normalise the previous layer, resample and gather into `selected`: one workgroup a target.
     selecting: Kernel,
-    /// Move the selected particles back into `states`: one invocation a particle.
+    /// Move the selected particles back into `states`: one invocation a particle and pair of
+    /// dimensions.
     moving: Kernel,
     /// Copy the selected particles back unmoved (layer 0 of a likelihood that propagates).
     copying: Kernel,
@@ -296,6 +305,10 @@ impl GpuFilter {
             )));
         }
         self.layout = layout;
+        if layout != StepLayout::Fused {
+            // Staged steps are not profiled: no stale times from the last fused step.
+            self.profiler = None;
+        }
         Ok(())
     }
 

@@ -17,7 +17,7 @@ const MAX_TIMED_DISPATCHES: u32 = 128;
 /// One dispatch of a profiled step.
 #[derive(Debug, Clone, PartialEq)]
 pub struct DispatchTime {
-    /// What the dispatch does ("layer 2: select and move", "layer 2: likelihood", ...).
+    /// What the dispatch does ("layer 2: select", "layer 2: move", "layer 2: likelihood", ...).
     pub label: String,
     /// From the beginning of the step's first timed pass to this pass's beginning.
     pub start: Duration,
@@ -180,9 +180,14 @@ impl GpuFilter {
     }
 
     /// Each dispatch's time in the last profiled step, once that step was finished (steps run
-    /// one at a time: a second step in flight would overwrite the timestamps). Empty when
-    /// profiling is off.
+    /// one at a time: refused while a submitted step is in flight, whose timestamps would
+    /// overwrite these). Empty when profiling is off (setting a staged layout turns it off).
     pub fn dispatch_times(&self, ctx: &GpuContext) -> Result<Vec<DispatchTime>, GpuError> {
+        if self.in_flight > 0 {
+            return Err(GpuError::InvalidConfig(
+                "a submitted step is in flight: finish it before reading the dispatch times".into(),
+            ));
+        }
         match &self.profiler {
             Some(profiler) => profiler.times(ctx),
             None => Ok(Vec::new()),

@@ -454,7 +454,8 @@ pub struct FilterStreams<'a> {
     pub log_likelihood: &'a DeviceStream<f32>,
     /// Normalised weights, `[t·M + m]`.
     pub weights: &'a DeviceStream<f32>,
-    /// The resampler's cumulative sums.
+    /// The resampler's cumulative sums (the staged step's; the fused step keeps its CDF in
+    /// workgroup memory).
     pub cdf: &'a DeviceStream<f32>,
     /// Ancestor indices, `[t·M + m]`.
     pub ancestors: &'a DeviceStream<u32>,
