@@ -1,7 +1,9 @@
 // Point estimates per target from the normalised weights: the weighted mean of every dimension
 // (angles as the mean of unit vectors, atan2(sum w sin, sum w cos)), and the posterior's spread
 // about it: the weighted standard deviation, or for an angle the circular one, sqrt(-2 ln R) with
-// R the length of the weighted mean unit vector. One workgroup per target.
+// R the length of the weighted mean unit vector. One workgroup per (dimension, target): a target's
+// dimensions are independent sums, so they run side by side on as many SMs (the same sums in the
+// same order as one workgroup looping over them).
 // CPU twins: pf_core::batch::weighted_means and pf_core::batch::weighted_means_and_spreads.
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -58,7 +60,11 @@ fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgro
     let lid = lid3.x;
     let t = wid.y;
     let n = params.particles;
-    for (var d = 0u; d < params.dims; d = d + 1u) {
+    let d = wid.x;
+    if (d >= params.dims) {
+        return;
+    }
+    {
         let angle = is_angle(d);
         var acc = vec2<f32>(0.0);
         for (var i = lid; i < n; i = i + WG) {
@@ -87,7 +93,7 @@ fn weighted_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgro
             if (lid == 0u) {
                 spreads[t * params.dims + d] = circular_spread(length(sums));
             }
-            continue;
+            return;
         }
         var sq = 0.0;
         for (var i = lid; i < n; i = i + WG) {
@@ -116,7 +122,8 @@ fn circular_spread(r: f32) -> f32 {
 // lower index. Non-negative f32 weights order like their bit patterns, so a 31-step bisection on
 // the bits finds the M'-th largest weight tau with workgroup counts; the particles above tau are
 // in, and the first (M' - count above) particles equal to tau in index order. One workgroup per
-// target; each invocation owns a contiguous chunk so that index order is chunk order.
+// (dimension, target), each finding tau for itself (the same tau) and summing its dimension; each
+// invocation owns a contiguous chunk so that index order is chunk order.
 // CPU twin: pf_core::batch::best_weighted_means (pf_core::estimate::best_weighted_mean).
 
 @group(0) @binding(4) var<storage, read_write> best_estimates: array<f32>;
@@ -146,6 +153,10 @@ fn count_at_least(lid: u32, base: u32, begin: u32, end: u32, bits: u32) -> u32 {
 fn best_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
     let t = wid.y;
+    let d = wid.x;
+    if (d >= params.dims) {
+        return;
+    }
     let n = params.particles;
     let base = t * n;
     let best = min(max(params.best, 1u), n);
@@ -188,7 +199,7 @@ fn best_mean(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_i
     }
     let first_tie_rank = tie_offsets[lid] - my_ties;
 
-    for (var d = 0u; d < params.dims; d = d + 1u) {
+    {
         let angle = is_angle(d);
         var acc = vec2<f32>(0.0);
         var rank = first_tie_rank;

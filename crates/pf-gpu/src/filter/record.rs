@@ -79,12 +79,13 @@ impl GpuFilter {
         pass: &mut wgpu::ComputePass<'_>,
         likelihood: &dyn GpuLikelihood,
     ) {
-        let per_target = [1, self.shape.targets as u32, 1];
+        // One workgroup per value and target: a target's values are independent sums.
+        let per_value = [self.shape.dims as u32, self.shape.targets as u32, 1];
         self.stages
             .estimate
-            .record(pass, &self.groups.estimate, per_target);
+            .record(pass, &self.groups.estimate, per_value);
         if let (Some(k), Some(g)) = (&self.stages.best_mean, &self.groups.best_mean) {
-            k.record(pass, g, per_target);
+            k.record(pass, g, per_value);
         }
         likelihood.record(LikelihoodPhase::AfterEstimate, pass);
     }
