@@ -434,3 +434,72 @@ fn the_default_layout_follows_the_values_a_target() {
     body_like.set_step_layout(StepLayout::Fused).unwrap();
     assert_eq!(body_like.step_layout(), StepLayout::Fused);
 }
+
+/// A profiled fused step of a model with its own dynamics and its lineage kept names layer 0's
+/// copy back and dynamics and every layer's lineage (`GpuFilter::profile_dispatches`), and
+/// keeps the unprofiled step's particles.
+#[test]
+fn a_profiled_step_names_the_dynamics_and_the_lineage() {
+    let Some(ctx) = common::gpu_context("profiled dynamics and lineage") else {
+        return;
+    };
+    let shape = BatchShape::new(2, 300, 5).unwrap();
+    let mut config = BatchConfig::new(shape, 11, vec![0.1; 5]);
+    config.annealing = Annealing::survival(2, 0.5, 0.7);
+    let case = Case {
+        config,
+        stratified: false,
+        propagates: true,
+    };
+    let mut plain = gpu_filter(&ctx, &case, StepLayout::Fused);
+    let mut profiled = gpu_filter(&ctx, &case, StepLayout::Fused);
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    if !ctx_p.has_timestamps() {
+        assert!(gpu.profile_dispatches(ctx_p, true).is_err());
+        return;
+    }
+    gpu.keep_lineage(ctx_p).unwrap();
+    gpu.profile_dispatches(ctx_p, true).unwrap();
+    let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
+    gpu_a.keep_lineage(ctx_a).unwrap();
+    for frame in 1..=2 {
+        let z = observations(2, frame);
+        let expected = plain.step(&z).unwrap();
+        let got = profiled.step(&z).unwrap();
+        assert_eq!(got.estimates, expected.estimates);
+    }
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    let labels: Vec<String> = gpu
+        .dispatch_times(ctx_p)
+        .unwrap()
+        .into_iter()
+        .map(|d| d.label)
+        .collect();
+    assert_eq!(
+        labels,
+        [
+            "layer 0: select",
+            "layer 0: copy back",
+            "layer 0: the likelihood's dynamics",
+            "layer 0: lineage",
+            "layer 0: likelihood",
+            "layer 1: select",
+            "layer 1: move",
+            "layer 1: lineage",
+            "layer 1: likelihood",
+            "last normalise",
+            "estimate",
+        ]
+    );
+    let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
+    let lineage = gpu_a.download_lineage(ctx_a).unwrap();
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    assert_eq!(gpu.download_lineage(ctx_p).unwrap(), lineage);
+    assert_eq!(
+        gpu.download_states(ctx_p).unwrap(),
+        plain
+            .gpu_parts()
+            .map(|(c, g, _)| g.download_states(c).unwrap())
+            .unwrap()
+    );
+}
