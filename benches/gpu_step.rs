@@ -80,6 +80,25 @@ fn toy_batch(targets: usize, annealing: Annealing) -> (BatchConfig, Vec<f32>) {
     (config, initial)
 }
 
+/// The toy model through the plug-in API (`pf_gpu::model`) for `config` and `initial` (from
+/// [`toy_batch`]), systematic resampling.
+fn toy_plugin(
+    ctx: &GpuContext,
+    config: &BatchConfig,
+    initial: &[f32],
+) -> ModelFilter<ToyObservation, ToyConstants> {
+    let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
+    ModelFilter::new(
+        ctx,
+        config,
+        GpuResampler::Systematic,
+        initial,
+        TOY_MODEL,
+        &constants,
+    )
+    .unwrap()
+}
+
 fn bench_whole_step(c: &mut Criterion) {
     let ctx = context();
     let mut group = c.benchmark_group("whole_step_7d_1000");
@@ -104,15 +123,7 @@ fn bench_whole_step(c: &mut Criterion) {
 
         // The same model through the plug-in API (pf_gpu::model), same filter settings.
         let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
-        let mut plugin = ModelFilter::new(
-            &ctx,
-            &config,
-            GpuResampler::Systematic,
-            &initial,
-            TOY_MODEL,
-            &constants,
-        )
-        .unwrap();
+        let mut plugin = toy_plugin(&ctx, &config, &initial);
         let mut frame = 0;
         group.bench_function(BenchmarkId::new("gpu_plugin", targets), |b| {
             b.iter(|| {
@@ -299,19 +310,10 @@ fn bench_annealed_layouts(c: &mut Criterion) {
     ];
     for &targets in &[1usize, 16, 64, 256] {
         group.throughput(Throughput::Elements((targets * M) as u64));
-        let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
         for (name, layout, annealing) in &schedules {
             let (config, initial) = toy_batch(targets, annealing.clone());
             let layout = *layout;
-            let mut plugin = ModelFilter::new(
-                &ctx,
-                &config,
-                GpuResampler::Systematic,
-                &initial,
-                TOY_MODEL,
-                &constants,
-            )
-            .unwrap();
+            let mut plugin = toy_plugin(&ctx, &config, &initial);
             plugin
                 .gpu_parts()
                 .unwrap()
@@ -387,18 +389,9 @@ fn bench_stage_times(c: &mut Criterion) {
             }
         }
     }
-    let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
     for layers in [1usize, 2, 5] {
         let (config, initial) = toy_batch(1, Annealing::survival(layers, 0.5, 0.7));
-        let mut plugin = ModelFilter::new(
-            &ctx,
-            &config,
-            GpuResampler::Systematic,
-            &initial,
-            TOY_MODEL,
-            &constants,
-        )
-        .unwrap();
+        let mut plugin = toy_plugin(&ctx, &config, &initial);
         let obs = [ToyObservation { z: observed(0, 1) }];
         group.bench_function(BenchmarkId::new("fused_layers", layers), |b| {
             b.iter(|| std::hint::black_box(plugin.step(&obs).unwrap()))
@@ -424,18 +417,9 @@ fn bench_stage_times(c: &mut Criterion) {
 /// Each dispatch of the fused five-layer annealed step of the toy plug-in, at 1 and 64
 /// targets, timed in a pass of its own (`GpuFilter::profile_dispatches`).
 fn profile_fused_dispatches(ctx: &GpuContext) {
-    let constants = ToyConstants::from_sigma(&OBS_SIGMA).unwrap();
     for targets in [1usize, 64] {
         let (config, initial) = toy_batch(targets, Annealing::survival(5, 0.5, 0.7));
-        let mut plugin = ModelFilter::new(
-            ctx,
-            &config,
-            GpuResampler::Systematic,
-            &initial,
-            TOY_MODEL,
-            &constants,
-        )
-        .unwrap();
+        let mut plugin = toy_plugin(ctx, &config, &initial);
         let obs: Vec<ToyObservation> = (0..targets)
             .map(|t| ToyObservation { z: observed(t, 1) })
             .collect();

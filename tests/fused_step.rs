@@ -400,6 +400,16 @@ fn metropolis_and_huge_clouds_keep_the_staged_step() {
         pf_gpu::fused_layout_refusal(&ctx, &small, GpuResampler::Stratified),
         None
     );
+    // 1 000 particles × 8 400 dimensions: 65 625 workgroups of the move, past the 65 535 a
+    // dimension WebGPU guarantees.
+    let wide = BatchShape::new(1, 1000, 8400).unwrap();
+    let limit = ctx.limits().max_compute_workgroups_per_dimension;
+    let refusal = pf_gpu::fused_layout_refusal(&ctx, &wide, GpuResampler::Systematic);
+    assert_eq!(
+        refusal.is_some_and(|why| why.contains("workgroups of the move")),
+        limit < 65_625,
+        "adapter allows {limit} workgroups a dimension"
+    );
     let config = BatchConfig::new(huge, 1, vec![0.1; 3]);
     let mut filter = pf_gpu::GpuFilter::new(
         &ctx,

@@ -48,10 +48,10 @@ const FUSED_STORAGE_BUFFERS: u32 = 8;
 /// log-likelihoods (the CDF after) and log-weights (the weights after), plus the scan's and the
 /// normalisation's partial sums.
 pub fn fused_workgroup_bytes(particles: usize) -> u64 {
-    let staged = 2 * 4 * particles as u64;
+    let held = 2 * 4 * particles as u64;
     let scan = 256 * 4 + 4;
     let normalise = 256 * 4 + 256 * 16 + 2 * 4;
-    staged + scan + normalise
+    held + scan + normalise
 }
 
 /// Why the fused step cannot run `shape` with `resampler` on this adapter (`None`: it can).
@@ -77,8 +77,8 @@ pub fn fused_layout_refusal(
             shape.particles, limits.max_compute_workgroup_storage_size
         ));
     }
-    let move_groups = shape.particles * shape.dims.div_ceil(2) / 64 + 1;
-    if move_groups > limits.max_compute_workgroups_per_dimension as usize {
+    let move_groups = Grids::of(shape).per_pair[0];
+    if move_groups > limits.max_compute_workgroups_per_dimension {
         return Some(format!(
             "{} particles × {} dimensions make {move_groups} workgroups of the move; the adapter \
              allows {} a dimension",

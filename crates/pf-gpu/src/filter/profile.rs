@@ -60,6 +60,12 @@ impl DispatchProfiler {
         })
     }
 
+    /// Forgets the last profiled step's dispatches (a step that was not fused, or only some
+    /// stages, has none to report).
+    pub(super) fn forget(&mut self) {
+        self.labels.clear();
+    }
+
     /// The times of the last profiled step's dispatches (waits for the queue).
     fn times(&self, ctx: &GpuContext) -> Result<Vec<DispatchTime>, GpuError> {
         let ticks = self.readback.read(ctx, None)?;

@@ -46,6 +46,10 @@ impl GpuFilter {
             self.profiler = profiler;
             return;
         }
+        // Not the fused step: nothing of it to report as profiled.
+        if let Some(profiler) = &mut self.profiler {
+            profiler.forget();
+        }
         let block_bytes = std::mem::size_of::<FrameParams>() as u64;
         for layer in 0..layers {
             encoder.copy_buffer_to_buffer(
