@@ -273,7 +273,10 @@ proptest! {
             prop_assert_eq!(first_difference(&log_w_a, &log_w_b), None, "frame {} log-weights", frame);
             prop_assert_eq!(first_difference(&a.estimates, &b.estimates), None, "frame {} estimates", frame);
             prop_assert_eq!(first_difference(&a.spreads, &b.spreads), None, "frame {} spreads", frame);
-            prop_assert_eq!(first_difference(&a.beta, &b.beta), None, "frame {} beta", frame);
+            // The survival rule's β, searched in rounds (fused) or bisected serially (staged):
+            // the same floats, bit for bit.
+            let bits = |beta: &[f32]| beta.iter().map(|b| b.to_bits()).collect::<Vec<_>>();
+            prop_assert_eq!(bits(&a.beta), bits(&b.beta), "frame {} beta", frame);
             prop_assert_eq!(&a.resampled, &b.resampled);
             for (x, y) in a.ess.iter().zip(&b.ess).chain(a.log_evidence.iter().zip(&b.log_evidence)) {
                 prop_assert!(same(*x as f32, *y as f32), "frame {}: ESS or evidence {} vs {}", frame, x, y);
@@ -485,22 +488,36 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
         .into_iter()
         .map(|d| d.label)
         .collect();
-    assert_eq!(
-        labels,
+    let rounds = |layer: usize| {
+        (0..pf_gpu::filter::survival_search_rounds(2))
+            .map(move |round| format!("layer {layer}: survival round {round}"))
+    };
+    let expected: Vec<String> = [
+        "layer 0: select",
+        "layer 0: copy back",
+        "layer 0: the likelihood's dynamics",
+        "layer 0: lineage",
+        "layer 0: likelihood",
+    ]
+    .into_iter()
+    .map(String::from)
+    .chain(rounds(0))
+    .chain(
         [
-            "layer 0: select",
-            "layer 0: copy back",
-            "layer 0: the likelihood's dynamics",
-            "layer 0: lineage",
-            "layer 0: likelihood",
             "layer 1: select",
             "layer 1: move",
             "layer 1: lineage",
             "layer 1: likelihood",
-            "last normalise",
-            "estimate",
         ]
-    );
+        .into_iter()
+        .map(String::from),
+    )
+    .chain(rounds(1))
+    .chain(["last normalise".into(), "estimate".into()])
+    .collect();
+    // Two targets: the survival rule searched in rounds after each likelihood.
+    assert!(pf_gpu::filter::survival_search_rounds(2) > 0);
+    assert_eq!(labels, expected);
     let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
     let lineage = gpu_a.download_lineage(ctx_a).unwrap();
     let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
@@ -512,4 +529,61 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
             .map(|(c, g, _)| g.download_states(c).unwrap())
             .unwrap()
     );
+}
+
+/// Fused against staged at a high survival rate (most targets bisect below max_beta): the same
+/// β bit for bit, and the same particles.
+fn survival_beta_matches_the_staged_step(ctx: &pf_gpu::GpuContext, targets: usize) {
+    let shape = BatchShape::new(targets, 40, 3).unwrap();
+    let mut config = BatchConfig::new(shape, 23, vec![0.1; 3]);
+    config.annealing = Annealing::survival(3, 0.95, 0.7);
+    let case = Case {
+        config,
+        stratified: true,
+        propagates: false,
+    };
+    let mut fused = gpu_filter(ctx, &case, StepLayout::Fused);
+    let mut staged = gpu_filter(ctx, &case, StepLayout::Staged);
+    for frame in 1..=FRAMES {
+        let z = observations(targets, frame);
+        let a = fused.step(&z).unwrap();
+        let b = staged.step(&z).unwrap();
+        let bits = |beta: &[f32]| beta.iter().map(|b| b.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&a.beta), bits(&b.beta), "frame {frame}");
+        assert!(a.beta.iter().all(|b| *b > 0.0 && *b <= 1.0), "{:?}", a.beta);
+        let bisected = a.beta.iter().filter(|b| **b < 1.0).count();
+        assert!(bisected * 2 > targets, "{bisected} of {targets} bisected");
+        let (_, fa, _) = fused.gpu_parts().unwrap();
+        let states_a = fa.download_states(ctx).unwrap();
+        let (_, fb, _) = staged.gpu_parts().unwrap();
+        let states_b = fb.download_states(ctx).unwrap();
+        assert_eq!(
+            first_difference(&states_a, &states_b),
+            None,
+            "frame {frame}"
+        );
+    }
+}
+
+/// Few targets: the survival rule searched in rounds over the GPU (ten levels a round for one
+/// target, nine for three), walked to the serial bisection's β.
+#[test]
+fn few_targets_search_in_rounds_and_keep_the_staged_beta() {
+    let Some(ctx) = common::gpu_context("survival rule in search rounds") else {
+        return;
+    };
+    for targets in [1, 3] {
+        assert!(pf_gpu::filter::survival_search_rounds(targets) > 0);
+        survival_beta_matches_the_staged_step(&ctx, targets);
+    }
+}
+
+/// Too many targets for search rounds to pay: the fused layer's workgroup bisects for itself.
+#[test]
+fn many_targets_bisect_in_the_workgroup_and_keep_the_staged_beta() {
+    let Some(ctx) = common::gpu_context("survival rule without search rounds") else {
+        return;
+    };
+    assert_eq!(pf_gpu::filter::survival_search_rounds(300), 0);
+    survival_beta_matches_the_staged_step(&ctx, 300);
 }

@@ -16,6 +16,7 @@ mod params;
 mod profile;
 mod record;
 mod setup;
+mod survival;
 mod targets;
 
 pub use fused::{
@@ -27,6 +28,7 @@ pub use likelihood::{
 };
 pub use params::{FrameParams, TargetStats};
 pub use profile::DispatchTime;
+pub use survival::{survival_search_levels, survival_search_rounds};
 
 pub use lineage::ParticlesBack;
 pub use setup::FilterStreams;
