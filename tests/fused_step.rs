@@ -273,8 +273,8 @@ proptest! {
             prop_assert_eq!(first_difference(&log_w_a, &log_w_b), None, "frame {} log-weights", frame);
             prop_assert_eq!(first_difference(&a.estimates, &b.estimates), None, "frame {} estimates", frame);
             prop_assert_eq!(first_difference(&a.spreads, &b.spreads), None, "frame {} spreads", frame);
-            // The survival rule's β, searched in rounds (fused) or bisected serially (staged):
-            // the same floats, bit for bit.
+            // The survival rule's β, bisected over workgroup copies (fused) or over the storage
+            // buffers (staged): the same floats, bit for bit.
             let bits = |beta: &[f32]| beta.iter().map(|b| b.to_bits()).collect::<Vec<_>>();
             prop_assert_eq!(bits(&a.beta), bits(&b.beta), "frame {} beta", frame);
             prop_assert_eq!(&a.resampled, &b.resampled);
@@ -488,36 +488,22 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
         .into_iter()
         .map(|d| d.label)
         .collect();
-    let rounds = |layer: usize| {
-        (0..pf_gpu::filter::survival_search_rounds(2))
-            .map(move |round| format!("layer {layer}: survival round {round}"))
-    };
-    let expected: Vec<String> = [
-        "layer 0: select",
-        "layer 0: copy back",
-        "layer 0: the likelihood's dynamics",
-        "layer 0: lineage",
-        "layer 0: likelihood",
-    ]
-    .into_iter()
-    .map(String::from)
-    .chain(rounds(0))
-    .chain(
+    assert_eq!(
+        labels,
         [
+            "layer 0: select",
+            "layer 0: copy back",
+            "layer 0: the likelihood's dynamics",
+            "layer 0: lineage",
+            "layer 0: likelihood",
             "layer 1: select",
             "layer 1: move",
             "layer 1: lineage",
             "layer 1: likelihood",
+            "last normalise",
+            "estimate",
         ]
-        .into_iter()
-        .map(String::from),
-    )
-    .chain(rounds(1))
-    .chain(["last normalise".into(), "estimate".into()])
-    .collect();
-    // Two targets: the survival rule searched in rounds after each likelihood.
-    assert!(pf_gpu::filter::survival_search_rounds(2) > 0);
-    assert_eq!(labels, expected);
+    );
     let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
     let lineage = gpu_a.download_lineage(ctx_a).unwrap();
     let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
@@ -565,25 +551,14 @@ fn survival_beta_matches_the_staged_step(ctx: &pf_gpu::GpuContext, targets: usiz
     }
 }
 
-/// Few targets: the survival rule searched in rounds over the GPU (ten levels a round for one
-/// target, nine for three), walked to the serial bisection's β.
+/// The survival rule's β at a high survival rate, fused against staged, for one, three and 300
+/// targets.
 #[test]
-fn few_targets_search_in_rounds_and_keep_the_staged_beta() {
-    let Some(ctx) = common::gpu_context("survival rule in search rounds") else {
+fn a_bisected_survival_beta_is_the_staged_steps_bit_for_bit() {
+    let Some(ctx) = common::gpu_context("survival β fused against staged") else {
         return;
     };
-    for targets in [1, 3] {
-        assert!(pf_gpu::filter::survival_search_rounds(targets) > 0);
+    for targets in [1, 3, 300] {
         survival_beta_matches_the_staged_step(&ctx, targets);
     }
-}
-
-/// Too many targets for search rounds to pay: the fused layer's workgroup bisects for itself.
-#[test]
-fn many_targets_bisect_in_the_workgroup_and_keep_the_staged_beta() {
-    let Some(ctx) = common::gpu_context("survival rule without search rounds") else {
-        return;
-    };
-    assert_eq!(pf_gpu::filter::survival_search_rounds(300), 0);
-    survival_beta_matches_the_staged_step(&ctx, 300);
 }

@@ -18,14 +18,12 @@ fn root() -> &'static Path {
 
 /// The libraries prepended to other files (`stage_source`, and the stages' own in
 /// `pf_gpu::kernels::sources`), checked as part of those.
-const LIBRARIES: [&str; 7] = [
+const LIBRARIES: [&str; 5] = [
     "engine/philox.wgsl",
     "engine/common.wgsl",
     "engine/move_particle.wgsl",
     "engine/normalise_target.wgsl",
     "engine/resample_target.wgsl",
-    "engine/tempered_ess.wgsl",
-    "engine/survival_search.wgsl",
 ];
 
 /// Every shader file but the libraries (its path under `shaders/`) with the source it is

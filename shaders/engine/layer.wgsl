@@ -37,16 +37,9 @@
 @group(0) @binding(12) var<storage, read> upper: array<f32>;
 @group(0) @binding(13) var<storage, read> diffusion_keys: array<vec2<u32>>;
 @group(0) @binding(14) var<storage, read> velocity: array<f32>;
-// The survival rule's search rounds' decisions (survival_search.wgsl), where the filter searches
-// by rounds.
-@group(0) @binding(15) var<storage, read> survival_decisions: array<u32>;
 
 const STAGE_CAPACITY: u32 = 4096u;
 const LAYER_WG: u32 = 256u;
-// true: the survival rule's beta was searched by rounds after the likelihood (survival_round.wgsl)
-// and settle walks their decisions; false: settle bisects in this workgroup. Set by
-// pf_gpu::filter::fused from the target count (pf_gpu::filter::survival).
-const SURVIVAL_BY_ROUNDS: bool = false;
 // The layer's log-likelihoods while the previous layer settles; then the CDF while the target
 // resamples.
 var<workgroup> scratch: array<f32, STAGE_CAPACITY>;
@@ -63,22 +56,13 @@ fn likelihood_at(base: u32, i: u32) -> f32 {
     return scratch[i];
 }
 
-// normalise_target's survival beta: the search rounds' (walked from their decisions), or the
-// bisection in this workgroup.
-fn layer_survival_beta(lid: u32, t: u32, base: u32, n: u32, p: Params) -> f32 {
-    if (SURVIVAL_BY_ROUNDS) {
-        return searched_beta(t, p.max_beta);
-    }
-    return survival_beta(lid, base, n, p);
-}
-
 // Normalises target t's weights after the layer `p` weighed (its log-weights and log-likelihoods
-// first copied into workgroup memory for the survival rule's passes, where this workgroup bisects).
+// first copied into workgroup memory for the survival rule's passes).
 fn settle(lid: u32, t: u32, p: Params) {
     let n = p.particles;
     let base = t * n;
     // Only the survival rule's bisection reads the copies.
-    if (p.survival_rate > 0.0 && !SURVIVAL_BY_ROUNDS) {
+    if (p.survival_rate > 0.0) {
         for (var k = lid; k < n; k = k + LAYER_WG) {
             local_weights[k] = log_weights[base + k];
             scratch[k] = log_likelihood[base + k];

@@ -19,11 +19,6 @@ fn likelihood_at(base: u32, i: u32) -> f32 {
     return log_likelihood[base + i];
 }
 
-// The survival rule's beta: the bisection in this workgroup.
-fn layer_survival_beta(lid: u32, t: u32, base: u32, n: u32, p: Params) -> f32 {
-    return survival_beta(lid, base, n, p);
-}
-
 @compute @workgroup_size(256)
 fn normalise(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     normalise_target(lid.x, wid.y, params);

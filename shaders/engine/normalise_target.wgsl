@@ -5,16 +5,17 @@
 // A NaN or +inf log-weight, or every log-weight -inf, sets the target's status and leaves its
 // weights uniform (the failure policy of pf-core). Layer 0 also writes the frame's log evidence,
 // log sum exp(lw + ll) at beta = 1 (CPU twin: pf_core::batch::frame_log_evidence).
-// A library, parameterised by the layer's Params p, compiled after tempered_ess.wgsl: the
-// including kernel declares log_weights, log_likelihood, weights and stats (normalise.wgsl for the
-// stage, layer.wgsl for the fused layer), prior_at(base, i) / likelihood_at(base, i), where the
-// survival rule's bisection reads the log-weights and log-likelihoods of its 21 passes (the
-// storage buffers in normalise.wgsl; the fused layer's copies in workgroup memory), and
-// layer_survival_beta(lid, t, base, n, p): the survival rule's beta (survival_beta below, or in the
-// fused layer the one its search rounds found, survival_search.wgsl).
+// A library, parameterised by the layer's Params p: the including kernel declares log_weights,
+// log_likelihood, weights and stats (normalise.wgsl for the stage, layer.wgsl for the fused layer),
+// and prior_at(base, i) / likelihood_at(base, i), where the survival rule's bisection reads the
+// log-weights and log-likelihoods of its 21 passes (the storage buffers in normalise.wgsl; the
+// fused layer's copies in workgroup memory, which it loads before calling normalise_target).
 // CPU twin: pf_core::batch::normalise_target.
 
+const NORMALISE_WG: u32 = 256u;
 var<workgroup> partial: array<f32, 256>;
+// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
+var<workgroup> partial_ess: array<vec3<f32>, 256>;
 var<workgroup> first_nan: atomic<u32>;
 var<workgroup> first_inf: atomic<u32>;
 
@@ -44,6 +45,52 @@ fn reduce_sum(lid: u32, value: f32) -> f32 {
     let result = partial[0];
     workgroupBarrier();
     return result;
+}
+
+// prior + beta * ll (beta > 0 always, so NaN, +inf and zero weights stay so). Twin of
+// pf_core::anneal::tempered.
+fn tempered(prior: f32, ll: f32, beta: f32) -> f32 {
+    return prior + beta * ll;
+}
+
+// Merges two (max, s1, s2) triples of shifted sums into one at the larger max.
+fn merge_ess(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
+    if (is_neg_inf(a.x)) {
+        return b;
+    }
+    if (is_neg_inf(b.x)) {
+        return a;
+    }
+    let m = max(a.x, b.x);
+    let ea = exp(a.x - m);
+    let eb = exp(b.x - m);
+    return vec3<f32>(m, a.y * ea + b.y * eb, a.z * ea * ea + b.z * eb * eb);
+}
+
+// The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
+// weight is zero): one pass, one reduction of (max, s1, s2). Twin of pf_core::anneal::tempered_ess.
+fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
+    var acc = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
+    for (var i = lid; i < n; i = i + NORMALISE_WG) {
+        let x = tempered(prior_at(base, i), likelihood_at(base, i), beta);
+        if (!is_neg_inf(x)) {
+            acc = merge_ess(acc, vec3<f32>(x, 1.0, 1.0));
+        }
+    }
+    partial_ess[lid] = acc;
+    workgroupBarrier();
+    for (var stride = NORMALISE_WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial_ess[lid] = merge_ess(partial_ess[lid], partial_ess[lid + stride]);
+        }
+        workgroupBarrier();
+    }
+    let total = partial_ess[0];
+    workgroupBarrier();
+    if (is_neg_inf(total.x)) {
+        return 0.0;
+    }
+    return total.y * total.y / total.z;
 }
 
 // This invocation's share of sum exp(lw + ll - max_at_one) over target t's particles (beta = 1).
@@ -149,7 +196,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     // sums of pass 1).
     var beta = p.beta;
     if (p.survival_rate > 0.0) {
-        beta = layer_survival_beta(lid, t, base, n, p);
+        beta = survival_beta(lid, base, n, p);
     }
     // Layer 0's evidence at beta = 1, before tempering (at beta = 1 it is pass 2's sum).
     if (p.layer == 0u && beta != 1.0) {

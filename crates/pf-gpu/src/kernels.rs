@@ -21,8 +21,6 @@ pub mod sources {
     /// The normalisation stage (with the normalisation of one target it shares with the fused
     /// layer).
     pub const NORMALISE: &str = concat!(
-        include_str!("../../../shaders/engine/tempered_ess.wgsl"),
-        "\n",
         include_str!("../../../shaders/engine/normalise_target.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/normalise.wgsl")
@@ -35,13 +33,8 @@ pub mod sources {
         include_str!("../../../shaders/engine/resample.wgsl")
     );
     /// The fused annealing layer: normalise the previous layer, resample, gather and move, one
-    /// workgroup per target (`STAGE_CAPACITY` set to M by `filter::fused`, and the survival
-    /// search's constants by `filter::survival`).
+    /// workgroup per target (`STAGE_CAPACITY` set to M by `filter::fused`).
     pub const LAYER: &str = concat!(
-        include_str!("../../../shaders/engine/tempered_ess.wgsl"),
-        "\n",
-        include_str!("../../../shaders/engine/survival_search.wgsl"),
-        "\n",
         include_str!("../../../shaders/engine/normalise_target.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/resample_target.wgsl"),
@@ -49,15 +42,6 @@ pub mod sources {
         include_str!("../../../shaders/engine/move_particle.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/layer.wgsl")
-    );
-    /// One round of the survival rule's search spread over the GPU (the fused step's; its
-    /// constants set by `filter::survival`).
-    pub const SURVIVAL_ROUND: &str = concat!(
-        include_str!("../../../shaders/engine/tempered_ess.wgsl"),
-        "\n",
-        include_str!("../../../shaders/engine/survival_search.wgsl"),
-        "\n",
-        include_str!("../../../shaders/engine/survival_round.wgsl")
     );
     /// The particles' lineage through a frame's resamplings.
     pub const LINEAGE: &str = include_str!("../../../shaders/engine/lineage.wgsl");
@@ -71,7 +55,7 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 9] = [
+    pub const STAGES: [(&str, &str); 8] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
@@ -79,7 +63,6 @@ pub mod sources {
         ("gather.wgsl", GATHER),
         ("estimate.wgsl", ESTIMATE),
         ("layer.wgsl", LAYER),
-        ("survival_round.wgsl", SURVIVAL_ROUND),
         ("lineage.wgsl", LINEAGE),
     ];
 }

@@ -11,17 +11,15 @@
 //! Both draw the same random numbers in the same order, so they give the same particles (the
 //! `fused_step` tests check it, and each against the CPU twin `pf_core::batch::BatchFilter`).
 
-use pf_core::batch::{BatchShape, LayerBeta};
+use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
 use super::profile::{DispatchProfiler, Passes};
 use super::setup::{Streams, groups_for};
-use super::survival::{self, SurvivalSearch, survival_search_levels};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::kernels::{Kernel, sources, stage_source};
-use crate::stream::DeviceStream;
 
 /// How a [`GpuFilter`] records a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,7 +42,7 @@ pub enum StepLayout {
 pub const FUSED_DEFAULT_MAX_VALUES: usize = 16_384;
 
 /// Storage buffers the fused kernel binds.
-const FUSED_STORAGE_BUFFERS: u32 = 9;
+const FUSED_STORAGE_BUFFERS: u32 = 8;
 
 /// Bytes of workgroup memory the fused kernel needs for `particles` a target: their
 /// log-likelihoods (the CDF after) and log-weights (the weights after), plus the scan's and the
@@ -123,29 +121,25 @@ pub(super) struct FusedLayers {
     /// passes in workgroup memory), bound to that layer's parameters.
     settling: Kernel,
     settling_group: wgpu::BindGroup,
-    /// The survival rule's β searched in rounds after each survival layer's likelihood, where
-    /// the targets are few enough for that to pay ([`survival_search_levels`]); else `select_*`
-    /// and the settle bisect in their workgroup.
-    search: Option<SurvivalSearch>,
-    /// Bound in place of the search's decisions where there is no search (the kernel declares
-    /// them either way).
-    _no_decisions: DeviceStream<u32>,
 }
 
 /// The line of `layer.wgsl` that sizes its workgroup array.
 const STAGE_CAPACITY_LINE: &str = "const STAGE_CAPACITY: u32 = 4096u;";
 
 /// The layer kernel's source for `particles` a target (its workgroup array sized to them; the
-/// limits were checked for that size, so a source without the line to resize is an error), set
-/// to take the survival β from search rounds of `search_levels` where given.
-fn layer_source(particles: usize, search_levels: Option<u32>) -> Result<String, GpuError> {
-    let sized = survival::with_line(
-        stage_source(sources::LAYER),
-        "fused layer",
+/// limits were checked for that size, so a source without the line to resize is an error).
+fn layer_source(particles: usize) -> Result<String, GpuError> {
+    let source = stage_source(sources::LAYER);
+    if !source.contains(STAGE_CAPACITY_LINE) {
+        return Err(GpuError::Shader {
+            kernel: "fused layer".into(),
+            message: format!("layer.wgsl has no line `{STAGE_CAPACITY_LINE}` to size"),
+        });
+    }
+    Ok(source.replace(
         STAGE_CAPACITY_LINE,
         &format!("const STAGE_CAPACITY: u32 = {}u;", particles.max(1)),
-    )?;
-    survival::layer_with_search(sized, search_levels)
+    ))
 }
 
 impl FusedLayers {
@@ -175,16 +169,7 @@ impl FusedLayers {
         streams: &Streams,
         layers: &LayerParams<'_>,
     ) -> Result<Self, GpuError> {
-        let search = match survival_search_levels(shape.targets) {
-            Some(levels) => Some(SurvivalSearch::new(ctx, shape, levels, streams, layers)?),
-            None => None,
-        };
-        let source = layer_source(shape.particles, search.as_ref().map(SurvivalSearch::levels))?;
-        let no_decisions = DeviceStream::zeroed(ctx, "no survival decisions", 1)?;
-        let decisions = || match &search {
-            Some(search) => search.decisions(),
-            None => no_decisions.binding(),
-        };
+        let source = layer_source(shape.particles)?;
         let prefix = if resampler == GpuResampler::Stratified {
             "stratified"
         } else {
@@ -194,7 +179,7 @@ impl FusedLayers {
         let moving = Kernel::new(ctx, "fused move", &source, "move_selected")?;
         let copying = Kernel::new(ctx, "fused copy", &source, "copy_selected")?;
         let selecting_groups = (0..layers.count)
-            .map(|layer| bind_selecting(ctx, &selecting, streams, layers, layer, decisions()))
+            .map(|layer| bind_selecting(ctx, &selecting, streams, layers, layer))
             .collect::<Result<Vec<_>, _>>()?;
         let moving_groups = (0..layers.count)
             .map(|layer| bind_moving(ctx, &moving, streams, layers, layer))
@@ -216,7 +201,6 @@ impl FusedLayers {
                 (3, streams.log_likelihood.binding()),
                 (4, streams.weights.binding()),
                 (5, streams.stats.binding()),
-                (15, decisions()),
             ],
         )?;
         Ok(Self {
@@ -228,8 +212,6 @@ impl FusedLayers {
             copying_group,
             settling,
             settling_group,
-            search,
-            _no_decisions: no_decisions,
         })
     }
 }
@@ -241,7 +223,6 @@ fn bind_selecting(
     s: &Streams,
     layers: &LayerParams<'_>,
     layer: usize,
-    decisions: wgpu::BindingResource<'_>,
 ) -> Result<wgpu::BindGroup, GpuError> {
     kernel.bind(
         ctx,
@@ -256,7 +237,6 @@ fn bind_selecting(
             (7, s.ancestors.binding()),
             (8, s.resampling_keys.binding()),
             (9, s.states.binding()),
-            (15, decisions),
         ],
     )
 }
@@ -293,7 +273,7 @@ pub(super) struct LayerParams<'a> {
 }
 
 impl LayerParams<'_> {
-    pub(super) fn slice(&self, layer: usize) -> wgpu::BindingResource<'_> {
+    fn slice(&self, layer: usize) -> wgpu::BindingResource<'_> {
         wgpu::BindingResource::Buffer(wgpu::BufferBinding {
             buffer: self.buffer,
             offset: layer as u64 * self.stride,
@@ -416,14 +396,6 @@ impl GpuFilter {
             || format!("layer {layer}: likelihood"),
             |pass| likelihood.record(LikelihoodPhase::Measure { layer }, pass),
         );
-        if let Some(search) = &fused.search
-            && matches!(
-                LayerBeta::of_layer(&self.annealing, layer),
-                LayerBeta::Survival { .. }
-            )
-        {
-            search.record(passes, layer, self.shape.targets);
-        }
     }
 }
 

@@ -16,7 +16,6 @@ mod params;
 mod profile;
 mod record;
 mod setup;
-mod survival;
 mod targets;
 
 pub use fused::{
@@ -28,7 +27,6 @@ pub use likelihood::{
 };
 pub use params::{FrameParams, TargetStats};
 pub use profile::DispatchTime;
-pub use survival::{survival_search_levels, survival_search_rounds};
 
 pub use lineage::ParticlesBack;
 pub use setup::FilterStreams;
