@@ -163,14 +163,32 @@ fn fig6(c: &mut Criterion, ctx: &GpuContext) {
 fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) {
     let mut gpu = Vec::new();
     let mut wall = Vec::new();
+    // The host's two halves of a step: submit (the frame's upload, recording, submission) and
+    // finish (the wait, the readback, the estimates).
+    let (mut submit, mut finish) = (Vec::new(), Vec::new());
     for _ in 0..50 {
         let started = std::time::Instant::now();
-        tracker.step(frame).unwrap();
-        wall.push(started.elapsed().as_secs_f64() * 1e6);
+        tracker.submit(frame).unwrap();
+        let submitted = started.elapsed();
+        tracker.finish().unwrap();
+        let finished = started.elapsed();
+        submit.push(submitted.as_secs_f64() * 1e6);
+        finish.push((finished - submitted).as_secs_f64() * 1e6);
+        wall.push(finished.as_secs_f64() * 1e6);
         if let Some(time) = tracker.last_gpu_time() {
             gpu.push((time.duration().as_secs_f64() * 1e6, time.source()));
         }
     }
+    // Two frames in flight, as `face track` streams them: a frame's share of the stream.
+    let streamed = 50;
+    tracker.submit(frame).unwrap();
+    let started = std::time::Instant::now();
+    for _ in 0..streamed {
+        tracker.submit(frame).unwrap();
+        tracker.finish().unwrap();
+    }
+    tracker.finish().unwrap();
+    let per_streamed = started.elapsed().as_secs_f64() * 1e6 / streamed as f64;
     let median = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
@@ -178,9 +196,11 @@ fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) 
     let source = gpu.first().map_or("none", |g| g.1);
     let mut gpu: Vec<f64> = gpu.into_iter().map(|g| g.0).collect();
     eprintln!(
-        "face step, {faces} faces: median {:.1} us per step, of which the submission took {:.1} us on the GPU ({source})",
+        "face step, {faces} faces: median {:.1} us per step, of which the submission took {:.1} us on the GPU ({source}); the host's submit {:.1} us and finish {:.1} us (medians); two frames in flight {per_streamed:.1} us a frame",
         median(&mut wall),
-        median(&mut gpu)
+        median(&mut gpu),
+        median(&mut submit),
+        median(&mut finish),
     );
 }
 
