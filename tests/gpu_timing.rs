@@ -140,3 +140,36 @@ fn a_profiled_fused_step_names_and_times_each_dispatch_and_keeps_its_particles()
     let refusal = gpu.profile_dispatches(ctx_p, true).unwrap_err();
     assert!(refusal.to_string().contains("fused"), "{refusal}");
 }
+
+/// Reading a copy back as it lands (`GpuContext::wait_for_map`, the spin before the blocking wait)
+/// gives the bytes the blocking wait gives, for freshly drawn values, and the map is reported
+/// arrived only once it has.
+#[test]
+fn a_readback_read_as_it_lands_holds_the_copied_values() {
+    let Some(ctx) = common::gpu_context("wait_for_map") else {
+        return;
+    };
+    let seed = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(7, |d| d.as_nanos() as u64);
+    for round in 0..4u64 {
+        let len = 1 + ((seed >> (8 * round)) % 5000) as usize;
+        let values: Vec<u32> = (0..len as u64)
+            .map(|i| (i ^ seed.rotate_left(round as u32 * 7)) as u32)
+            .collect();
+        let source = pf_gpu::stream::DeviceStream::from_slice(&ctx, "values", &values).unwrap();
+        let readback = pf_gpu::stream::Readback::<u32>::new(&ctx, "values back", len).unwrap();
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&pf_gpu::wgpu::CommandEncoderDescriptor { label: None });
+        readback.record_copy(&mut encoder, &source);
+        let submission = ctx.queue.submit([encoder.finish()]);
+        let mut pending = readback.request_map();
+        ctx.wait_for_map(&mut pending, submission, "the copy")
+            .unwrap();
+        assert!(pending.arrived());
+        assert_eq!(readback.collect(pending).unwrap(), values, "{len} values");
+        // The same readback again through the blocking wait.
+        assert_eq!(readback.read(&ctx, None).unwrap(), values);
+    }
+}

@@ -240,7 +240,10 @@ impl<T: Pod> Readback<T> {
                     let _ = sender.send(result);
                 });
         }
-        PendingMap { receiver }
+        PendingMap {
+            receiver,
+            arrived: None,
+        }
     }
 
     /// The values of a map requested with [`Readback::request_map`], after the wait.
@@ -261,6 +264,18 @@ impl<T: Pod> Readback<T> {
 #[derive(Debug)]
 pub struct PendingMap {
     receiver: std::sync::mpsc::Receiver<Result<(), wgpu::BufferAsyncError>>,
+    /// The map's outcome once a poll delivered it ([`PendingMap::arrived`]).
+    arrived: Option<Result<(), wgpu::BufferAsyncError>>,
+}
+
+impl PendingMap {
+    /// Whether the map has completed (or failed) by the last poll.
+    pub fn arrived(&mut self) -> bool {
+        if self.arrived.is_none() {
+            self.arrived = self.receiver.try_recv().ok();
+        }
+        self.arrived.is_some()
+    }
 }
 
 /// The bytes of `range` of a staging buffer whose map was requested before the wait; unmaps it
@@ -268,16 +283,17 @@ pub struct PendingMap {
 fn read_mapped(
     staging: &wgpu::Buffer,
     label: &str,
-    pending: PendingMap,
+    mut pending: PendingMap,
     range: std::ops::Range<u64>,
 ) -> Result<Vec<u8>, GpuError> {
     let failed = |message: String| GpuError::Readback {
         what: label.to_string(),
         message,
     };
-    let mapped = match pending.receiver.try_recv() {
-        Ok(result) => result.map_err(|e| failed(e.to_string())),
-        Err(_) => Err(failed("the buffer was not mapped by the wait".into())),
+    pending.arrived();
+    let mapped = match pending.arrived {
+        Some(result) => result.map_err(|e| failed(e.to_string())),
+        None => Err(failed("the buffer was not mapped by the wait".into())),
     };
     let bytes = mapped.and_then(|()| {
         staging
@@ -351,7 +367,10 @@ impl ReadbackSet {
             .map_async(wgpu::MapMode::Read, .., move |result| {
                 let _ = sender.send(result);
             });
-        PendingMap { receiver }
+        PendingMap {
+            receiver,
+            arrived: None,
+        }
     }
 
     /// Each section's bytes after the wait, in the order of `new`'s sections (cast them with

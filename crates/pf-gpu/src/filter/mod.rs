@@ -416,7 +416,7 @@ impl GpuFilter {
         let PendingStep {
             submission,
             back,
-            map,
+            mut map,
             started,
         } = pending;
         let oldest = (self.next_back + 2 - self.in_flight) % 2;
@@ -426,7 +426,14 @@ impl GpuFilter {
             ));
         }
         self.in_flight -= 1;
-        ctx.wait(Some(submission), "the filter step")?;
+        if self.in_flight == 0 {
+            // Nothing queued behind this step: its caller waits for it, so read it as it lands.
+            ctx.wait_for_map(&mut map, submission, "the filter step")?;
+        } else {
+            // A step queued behind keeps the GPU busy: block, leaving the cores to the host's
+            // next frame.
+            ctx.wait(Some(submission), "the filter step")?;
+        }
         let wall = started.elapsed();
         let sections = self.step_backs[back].collect(map)?;
         let estimates = bytemuck::pod_collect_to_vec(&sections[STEP_BACK_ESTIMATES]);
