@@ -38,6 +38,24 @@ pub struct SmoothArgs {
     /// (ancestry for a filter that resamples once a frame, marginal for an annealed one).
     #[arg(long, value_enum, default_value = "auto", requires = "smooth_lag")]
     pub lag_smoother: LagSmootherArg,
+    /// How far the smoother lets a value move from one frame to the next, as a share of the
+    /// tracker's own diffusion over a frame (its annealing layers' random walks composed, the
+    /// default 1): below 1 the smoother holds the track to slower motion, steadier and with
+    /// narrower intervals (docs/POSTERIOR.md measures it).
+    #[arg(long, value_name = "SCALE", value_parser = positive_scale, allow_negative_numbers = true)]
+    pub smooth_motion: Option<f32>,
+}
+
+/// `--smooth-motion`: a finite scale above 0.
+fn positive_scale(text: &str) -> Result<f32, String> {
+    let scale: f32 = text
+        .parse()
+        .map_err(|_| format!("`{text}` is not a number"))?;
+    if scale.is_finite() && scale > 0.0 {
+        Ok(scale)
+    } else {
+        Err(format!("the scale must be finite and above 0, not {text}"))
+    }
 }
 
 /// `--lag-smoother`.
@@ -64,6 +82,30 @@ impl LagSmootherArg {
 }
 
 impl SmoothArgs {
+    /// An error when `--smooth-motion` is given without `--smooth` or `--smooth-lag` (it would
+    /// scale nothing).
+    pub fn check_motion(&self) -> anyhow::Result<()> {
+        if self.smooth_motion.is_some() && self.mode().is_none() {
+            anyhow::bail!(
+                "--smooth-motion scales the smoother's motion: give --smooth full or --smooth-lag L too"
+            );
+        }
+        Ok(())
+    }
+
+    /// The tracker's transition with `--smooth-motion`'s scale applied to every σ; an error
+    /// when the scale is given without `--smooth` or `--smooth-lag`.
+    pub fn transition(&self, tracker: GaussianTransition) -> anyhow::Result<GaussianTransition> {
+        self.check_motion()?;
+        let Some(scale) = self.smooth_motion else {
+            return Ok(tracker);
+        };
+        Ok(GaussianTransition {
+            sigma: tracker.sigma.iter().map(|s| s * scale).collect(),
+            ..tracker
+        })
+    }
+
     /// `None`: no smoothing; `Some(None)`: the whole run; `Some(Some(L))`: a lag of L frames.
     pub fn mode(&self) -> Option<Option<usize>> {
         match (&self.smooth, self.smooth_lag) {

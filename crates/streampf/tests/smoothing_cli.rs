@@ -250,6 +250,20 @@ fn bad_smoothing_options_are_refused() {
         assert!(err.contains("--smooth"), "{args:?}: {err}");
     }
     for args in [
+        &["--smooth", "full", "--smooth-motion", "0"][..],
+        &["--smooth", "full", "--smooth-motion", "-0.5"],
+        &["--smooth", "full", "--smooth-motion", "NaN"],
+        &["--smooth", "full", "--smooth-motion", "inf"],
+        &["--smooth-lag", "2", "--smooth-motion", "slow"],
+        // Nothing to scale without a smoother.
+        &["--smooth-motion", "0.5"],
+    ] {
+        let mut all = vec!["face", "track", "--synthetic", "--max-frames", "2"];
+        all.extend(args);
+        let err = failure(&streampf(&all));
+        assert!(err.contains("--smooth-motion"), "{args:?}: {err}");
+    }
+    for args in [
         &["--lag-smoother", "marginal"][..],
         &["--smooth-lag", "2", "--lag-smoother", "sideways"],
     ] {
@@ -258,4 +272,47 @@ fn bad_smoothing_options_are_refused() {
         let err = failure(&streampf(&all));
         assert!(err.contains("--lag-smoother"), "{args:?}: {err}");
     }
+}
+
+/// `--smooth-motion` below 1 holds the smoother to slower motion: the same rows, each mean within
+/// its interval, a track's last frame (its filtered cloud) unchanged, and narrower intervals
+/// before it.
+#[test]
+fn a_slower_smoothing_motion_narrows_the_intervals_and_keeps_the_last_frame() {
+    let dir = scratch("face-smoothing-motion");
+    face_run(&dir.join("own"), &["--smooth", "full"]);
+    face_run(
+        &dir.join("slow"),
+        &["--smooth", "full", "--smooth-motion", "0.25"],
+    );
+    let (header, own) = rows(&dir.join("own/smoothed.csv"));
+    let (_, slow) = rows(&dir.join("slow/smoothed.csv"));
+    check_intervals(&header, &slow, 2);
+    let keys = |rows: &[Vec<String>]| -> Vec<(String, String)> {
+        rows.iter().map(|r| (r[0].clone(), r[1].clone())).collect()
+    };
+    assert_eq!(keys(&own), keys(&slow));
+    let last = |rows: &[Vec<String>]| rows.iter().find(|r| r[0] == "11" && r[1] == "0").cloned();
+    assert!(last(&own).is_some());
+    assert_eq!(last(&own), last(&slow));
+    // The summed width of every value's interval over the frames before the last.
+    let width = |rows: &[Vec<String>]| -> f64 {
+        rows.iter()
+            .filter(|r| r[0] != "11")
+            .flat_map(|r| {
+                (2..header.len()).step_by(3).map(move |k| {
+                    let lo: f64 = r[k + 1].parse().unwrap();
+                    let hi: f64 = r[k + 2].parse().unwrap();
+                    hi - lo
+                })
+            })
+            .sum()
+    };
+    assert!(
+        width(&slow) < width(&own),
+        "{} against {}",
+        width(&slow),
+        width(&own)
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -29,6 +29,7 @@ impl BodySmoothing {
         tracker: &mut BodyTracker,
         with_truth: bool,
     ) -> anyhow::Result<Option<Self>> {
+        asked.check_motion()?;
         let Some(lag) = asked.mode() else {
             return Ok(None);
         };
@@ -41,7 +42,8 @@ impl BodySmoothing {
                 );
             }
         }
-        Self::create(out, (lag, how), tracker, with_truth).map(Some)
+        let transition = asked.transition(tracker.transition()?)?;
+        Self::create(out, (lag, how), tracker, transition, with_truth).map(Some)
     }
 
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
@@ -49,10 +51,10 @@ impl BodySmoothing {
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &BodyTracker,
+        transition: pf_core::smooth::GaussianTransition,
         with_truth: bool,
     ) -> anyhow::Result<Self> {
         let names = tracker.skeleton().pose_names();
-        let transition = tracker.transition()?;
         let angular = transition.angular.clone();
         let smoother = Smoother::create(
             out,

@@ -30,6 +30,7 @@ impl FaceSmoothing {
         runner: &mut Runner,
         with_truth: bool,
     ) -> anyhow::Result<Option<Self>> {
+        asked.check_motion()?;
         let Some(lag) = asked.mode() else {
             return Ok(None);
         };
@@ -39,7 +40,8 @@ impl FaceSmoothing {
         let how = asked
             .lag_smoother
             .resolve(runner.tracker().annealing_layers());
-        Self::create(out, (lag, how), runner.tracker(), with_truth).map(Some)
+        let transition = asked.transition(runner.tracker().transition())?;
+        Self::create(out, (lag, how), runner.tracker(), transition, with_truth).map(Some)
     }
 
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
@@ -47,13 +49,14 @@ impl FaceSmoothing {
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &FaceTracker,
+        transition: pf_core::smooth::GaussianTransition,
         with_truth: bool,
     ) -> anyhow::Result<Self> {
         let names: Vec<String> = STATE_NAMES.iter().map(|n| n.to_string()).collect();
         let smoother = Smoother::create(
             out,
             lag,
-            tracker.transition(),
+            transition,
             tracker.motion_gain(),
             &names,
             true,
