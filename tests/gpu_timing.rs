@@ -141,12 +141,12 @@ fn a_profiled_fused_step_names_and_times_each_dispatch_and_keeps_its_particles()
     assert!(refusal.to_string().contains("fused"), "{refusal}");
 }
 
-/// Reading a copy back as it lands (`GpuContext::wait_for_map`, the spin before the blocking wait)
+/// Reading a copy back as it lands (`PendingMap::wait_as_it_lands`, the spin before the blocking wait)
 /// gives the bytes the blocking wait gives, for freshly drawn values, and the map is reported
 /// arrived only once it has.
 #[test]
 fn a_readback_read_as_it_lands_holds_the_copied_values() {
-    let Some(ctx) = common::gpu_context("wait_for_map") else {
+    let Some(ctx) = common::gpu_context("wait_as_it_lands") else {
         return;
     };
     let seed = std::time::SystemTime::now()
@@ -165,7 +165,8 @@ fn a_readback_read_as_it_lands_holds_the_copied_values() {
         readback.record_copy(&mut encoder, &source);
         let submission = ctx.queue.submit([encoder.finish()]);
         let mut pending = readback.request_map();
-        ctx.wait_for_map(&mut pending, submission, "the copy")
+        pending
+            .wait_as_it_lands(&ctx, submission, "the copy")
             .unwrap();
         assert!(pending.arrived());
         assert_eq!(readback.collect(pending).unwrap(), values, "{len} values");

@@ -47,10 +47,6 @@ impl ContextOptions {
     }
 }
 
-/// How long [`GpuContext::wait_for_map`] polls before it blocks: a little more than a face
-/// step's GPU time, so that a frame's results are read as they land.
-pub const SPIN_BEFORE_BLOCKING: std::time::Duration = std::time::Duration::from_millis(2);
-
 /// An open device on one adapter. A clone is another handle to the same device and queue (wgpu's
 /// handles are reference-counted), so a filter can own its context while its caller keeps one.
 #[derive(Clone)]
@@ -261,33 +257,6 @@ impl GpuContext {
             }),
             Err(e) => Err(GpuError::DeviceLost(e.to_string())),
         }
-    }
-
-    /// Waits until `pending`'s map has arrived (its submission and every one before it done):
-    /// polls without blocking for up to [`SPIN_BEFORE_BLOCKING`], then blocks in
-    /// [`GpuContext::wait`] for `submission`. A short step's results are read the moment they
-    /// land instead of after the blocking wait's wake-up (on an NVIDIA H100 a one-face step took
-    /// 13–21 % less, docs/BENCHMARKS.md); a long one costs a core only for the spin. For a
-    /// caller with nothing else in flight: with a frame queued behind, the blocking wait leaves
-    /// the cores to the host's next frame.
-    pub fn wait_for_map(
-        &self,
-        pending: &mut crate::stream::PendingMap,
-        submission: wgpu::SubmissionIndex,
-        what: &str,
-    ) -> Result<(), GpuError> {
-        let started = std::time::Instant::now();
-        while started.elapsed() < SPIN_BEFORE_BLOCKING {
-            // A poll error (a lost device) is the blocking wait's to report.
-            if self.device.poll(wgpu::PollType::Poll).is_err() {
-                break;
-            }
-            if pending.arrived() {
-                return self.check_lost();
-            }
-            std::hint::spin_loop();
-        }
-        self.wait(Some(submission), what)
     }
 
     /// Checks a storage buffer of `bytes` against the adapter's limits.

@@ -428,7 +428,7 @@ impl GpuFilter {
         self.in_flight -= 1;
         if self.in_flight == 0 {
             // Nothing queued behind this step: its caller waits for it, so read it as it lands.
-            ctx.wait_for_map(&mut map, submission, "the filter step")?;
+            map.wait_as_it_lands(ctx, submission, "the filter step")?;
         } else {
             // A step queued behind keeps the GPU busy: block, leaving the cores to the host's
             // next frame.
