@@ -18,14 +18,31 @@ pub struct Smoothing {
     frames: usize,
 }
 
+/// `smooth_motion=`: a finite scale above 0 of the motion the smoother allows between frames.
+pub fn motion_scale(motion: f64) -> PyResult<f32> {
+    if motion.is_finite() && motion > 0.0 && motion <= f64::from(f32::MAX) {
+        Ok(motion as f32)
+    } else {
+        Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "smooth_motion must be finite and above 0, not {motion}"
+        )))
+    }
+}
+
 impl Smoothing {
     /// Whole-track smoothing under the tracker's dynamics, on `gpu` (the tracker's GPU) when it
     /// has one (`pf_gpu::smooth::OnGpu`), else on the CPU's cores.
+    /// `motion` scales the transition's σ (`smooth_motion=`; 1: the tracker's own diffusion).
     pub fn new(
         transition: GaussianTransition,
+        motion: f32,
         gain: f32,
         gpu: Option<&pf_gpu::GpuContext>,
     ) -> PyResult<Self> {
+        let transition = GaussianTransition {
+            sigma: transition.sigma.iter().map(|s| s * motion).collect(),
+            ..transition
+        };
         let mut smoother = TrackSmoother::new(None, transition, gain);
         if let Some(ctx) = gpu {
             let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)

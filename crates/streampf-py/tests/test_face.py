@@ -257,3 +257,31 @@ def test_smoothing_gives_every_tracked_face_frame_with_an_interval(two_face_vide
     assert tracker.smoothed()["mean"].shape == (22, 7)
     with pytest.raises(ValueError, match="smooth=True"):
         streampf.FaceTracker(width, height, backend="cpu").smoothed()
+
+
+def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
+    video = two_face_video
+    frames = video["frames"][:8]
+    height, width = frames.shape[1:3]
+
+    def smoothed(motion):
+        tracker = streampf.FaceTracker(
+            width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
+            smooth=True, smooth_motion=motion,
+        )
+        for rect in video["rects"]:
+            tracker.add_face(frames[0], tuple(float(v) for v in rect))
+        for frame in frames:
+            tracker.step(frame)
+        return tracker.smoothed()
+
+    own, slow = smoothed(1.0), smoothed(0.25)
+    assert np.array_equal(own["frame"], slow["frame"])
+    # A track's last frame is its filtered cloud whatever the motion.
+    last = own["frame"] == 7
+    assert np.array_equal(own["mean"][last], slow["mean"][last])
+    width_of = lambda s: float(np.sum((s["upper"] - s["lower"])[~last]))
+    assert width_of(slow) < width_of(own)
+    for bad in [0.0, -1.0, float("nan"), float("inf")]:
+        with pytest.raises(ValueError, match="smooth_motion"):
+            streampf.FaceTracker(width, height, backend="cpu", smooth=True, smooth_motion=bad)
