@@ -181,9 +181,9 @@ fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) 
     }
     // Two frames in flight, as `face track` streams them: a frame's share of the stream.
     let streamed = 50;
-    tracker.submit(frame).unwrap();
     let started = std::time::Instant::now();
-    for _ in 0..streamed {
+    tracker.submit(frame).unwrap();
+    for _ in 1..streamed {
         tracker.submit(frame).unwrap();
         tracker.finish().unwrap();
     }

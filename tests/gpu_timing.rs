@@ -141,9 +141,10 @@ fn a_profiled_fused_step_names_and_times_each_dispatch_and_keeps_its_particles()
     assert!(refusal.to_string().contains("fused"), "{refusal}");
 }
 
-/// Reading a copy back as it lands (`PendingMap::wait_as_it_lands`, the spin before the blocking wait)
-/// gives the bytes the blocking wait gives, for freshly drawn values, and the map is reported
-/// arrived only once it has.
+/// Reading a copy back as it lands (`PendingMap::wait_as_it_lands`, polling before the blocking
+/// wait) gives the copied values, for freshly drawn ones: a map is not reported arrived before a
+/// poll delivers it, polling alone delivers it, and the spinning wait and the blocking one read
+/// the same bytes.
 #[test]
 fn a_readback_read_as_it_lands_holds_the_copied_values() {
     let Some(ctx) = common::gpu_context("wait_as_it_lands") else {
@@ -159,18 +160,45 @@ fn a_readback_read_as_it_lands_holds_the_copied_values() {
             .collect();
         let source = pf_gpu::stream::DeviceStream::from_slice(&ctx, "values", &values).unwrap();
         let readback = pf_gpu::stream::Readback::<u32>::new(&ctx, "values back", len).unwrap();
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&pf_gpu::wgpu::CommandEncoderDescriptor { label: None });
-        readback.record_copy(&mut encoder, &source);
-        let submission = ctx.queue.submit([encoder.finish()]);
+        let copy = || {
+            let mut encoder = ctx
+                .device
+                .create_command_encoder(&pf_gpu::wgpu::CommandEncoderDescriptor { label: None });
+            readback.record_copy(&mut encoder, &source);
+            ctx.queue.submit([encoder.finish()])
+        };
+        // Polling alone delivers the map.
+        copy();
+        let mut pending = readback.request_map();
+        assert!(!pending.arrived(), "seed {seed}: arrived before any poll");
+        let started = std::time::Instant::now();
+        while !pending.arrived() {
+            assert!(
+                started.elapsed().as_secs() < 60,
+                "seed {seed}: never mapped"
+            );
+            ctx.device.poll(pf_gpu::wgpu::PollType::Poll).unwrap();
+        }
+        assert_eq!(readback.collect(pending).unwrap(), values, "seed {seed}");
+        // The spinning wait (a long spin, so that it is what finds the map here too).
+        let submission_2 = copy();
         let mut pending = readback.request_map();
         pending
-            .wait_as_it_lands(&ctx, submission, "the copy")
+            .wait_polling_for(
+                &ctx,
+                submission_2,
+                "the copy",
+                std::time::Duration::from_secs(60),
+            )
             .unwrap();
-        assert!(pending.arrived());
-        assert_eq!(readback.collect(pending).unwrap(), values, "{len} values");
-        // The same readback again through the blocking wait.
-        assert_eq!(readback.read(&ctx, None).unwrap(), values);
+        assert_eq!(readback.collect(pending).unwrap(), values, "seed {seed}");
+        // The adapter's own choice, and the blocking wait.
+        let submission_3 = copy();
+        let mut pending = readback.request_map();
+        pending
+            .wait_as_it_lands(&ctx, submission_3, "the copy")
+            .unwrap();
+        assert_eq!(readback.collect(pending).unwrap(), values, "seed {seed}");
+        assert_eq!(readback.read(&ctx, None).unwrap(), values, "seed {seed}");
     }
 }

@@ -66,7 +66,7 @@ impl BodyTracker {
         initial_pose = None, *, capsules = 19, skeleton = None, particles = 1500,
         backend = "auto", allow_software = false, seed = 1, layers = None, partitioned = true,
         coarse_points = DEFAULT_COARSE_POINTS as i128, coarse_layers = DEFAULT_COARSE_LAYERS as i128,
-        smooth = false, smooth_motion = 1.0
+        smooth = false, smooth_motion = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -83,9 +83,9 @@ impl BodyTracker {
         coarse_points: i128,
         coarse_layers: i128,
         smooth: bool,
-        smooth_motion: f64,
+        smooth_motion: Option<f64>,
     ) -> PyResult<Self> {
-        let motion = crate::smoothing::motion_scale(smooth_motion)?;
+        let motion = crate::smoothing::motion_scale(smooth, smooth_motion)?;
         let coarse = match whole::<usize>("coarse_layers", coarse_layers)? {
             0 => None,
             layers => Some(CoarseLayers {

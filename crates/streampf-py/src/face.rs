@@ -44,8 +44,10 @@ struct Inner {
 }
 
 impl Inner {
-    /// A tracker with no frame stepped, smoothing when `smooth` (its motion scaled by `motion`).
-    fn new(engine: Engine, smooth: bool, motion: f32) -> PyResult<Self> {
+    /// A tracker with no frame stepped, smoothing when `smooth` (its motion scaled by `motion`,
+    /// `smooth_motion=`).
+    fn new(engine: Engine, smooth: bool, motion: Option<f64>) -> PyResult<Self> {
+        let motion = crate::smoothing::motion_scale(smooth, motion)?;
         let smoothing = match smooth {
             true => {
                 let tracker = engine.tracker();
@@ -260,7 +262,7 @@ impl FaceTracker {
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
         layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto",
         smooth = false, camera = None, scene_cut = Some(face_tracker::scene_cut::DEFAULT_SCENE_CUT),
-        smooth_motion = 1.0
+        smooth_motion = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -284,9 +286,8 @@ impl FaceTracker {
         smooth: bool,
         camera: Option<&Bound<'_, PyAny>>,
         scene_cut: Option<f32>,
-        smooth_motion: f64,
+        smooth_motion: Option<f64>,
     ) -> PyResult<Self> {
-        let motion = crate::smoothing::motion_scale(smooth_motion)?;
         let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
         let particles: usize = whole("particles", particles)?;
@@ -325,7 +326,7 @@ impl FaceTracker {
             .detach(|| build_engine(size, max_faces, built_in, config, backend, detecting))
             .map_err(face)?;
         Ok(Self {
-            inner: Mutex::new(Inner::new(engine, smooth, motion)?),
+            inner: Mutex::new(Inner::new(engine, smooth, smooth_motion)?),
             buffer: Mutex::new(Vec::new()),
             size,
             order,

@@ -18,13 +18,26 @@ pub struct Smoothing {
     frames: usize,
 }
 
-/// `smooth_motion=`: a finite scale above 0 of the motion the smoother allows between frames.
-pub fn motion_scale(motion: f64) -> PyResult<f32> {
-    if motion.is_finite() && motion > 0.0 && motion <= f64::from(f32::MAX) {
-        Ok(motion as f32)
+/// `smooth_motion=`: the smoother's motion scale (`pf_core::smooth::MOTION_SCALES`), only
+/// with `smooth=True` (it would scale nothing).
+pub fn motion_scale(smooth: bool, motion: Option<f64>) -> PyResult<f32> {
+    let Some(motion) = motion else {
+        return Ok(1.0);
+    };
+    if !smooth {
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "smooth_motion scales the smoother's motion: pass smooth=True too",
+        ));
+    }
+    let scales = pf_core::smooth::MOTION_SCALES;
+    let scale = motion as f32;
+    if motion.is_finite() && scales.contains(&scale) {
+        Ok(scale)
     } else {
         Err(pyo3::exceptions::PyValueError::new_err(format!(
-            "smooth_motion must be finite and above 0, not {motion}"
+            "smooth_motion must lie from {} to {}, not {motion}",
+            scales.start(),
+            scales.end()
         )))
     }
 }
@@ -39,10 +52,9 @@ impl Smoothing {
         gain: f32,
         gpu: Option<&pf_gpu::GpuContext>,
     ) -> PyResult<Self> {
-        let transition = GaussianTransition {
-            sigma: transition.sigma.iter().map(|s| s * motion).collect(),
-            ..transition
-        };
+        let transition = transition
+            .with_motion(motion)
+            .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
         let mut smoother = TrackSmoother::new(None, transition, gain);
         if let Some(ctx) = gpu {
             let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)

@@ -279,9 +279,15 @@ def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
     assert np.array_equal(own["frame"], slow["frame"])
     # A track's last frame is its filtered cloud whatever the motion.
     last = own["frame"] == 7
+    assert last.any() and not last.all()
     assert np.array_equal(own["mean"][last], slow["mean"][last])
     width_of = lambda s: float(np.sum((s["upper"] - s["lower"])[~last]))
     assert width_of(slow) < width_of(own)
-    for bad in [0.0, -1.0, float("nan"), float("inf")]:
+    for bad in [0.0, -1.0, 1e-50, 1e9, float("nan"), float("inf")]:
         with pytest.raises(ValueError, match="smooth_motion"):
             streampf.FaceTracker(width, height, backend="cpu", smooth=True, smooth_motion=bad)
+    # Nothing to scale without a smoother.
+    with pytest.raises(ValueError, match="smooth=True"):
+        streampf.FaceTracker(width, height, backend="cpu", smooth_motion=0.5)
+    with pytest.raises(ValueError, match="smooth=True"):
+        streampf.BodyTracker(backend="cpu", smooth_motion=0.5)

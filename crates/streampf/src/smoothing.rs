@@ -24,12 +24,17 @@ pub struct SmoothArgs {
     /// Also write smoothed.csv: every tracked frame's values smoothed over the whole run (each
     /// track's when it ends), with 95 % credible intervals. Keeps every frame's particles in
     /// memory (particles × values × 4 bytes a track a frame) and reads them back from a GPU.
-    #[arg(long, value_parser = ["full"], conflicts_with = "smooth_lag")]
+    #[arg(long, value_parser = ["full"], conflicts_with = "smooth_lag", group = "smoother")]
     pub smooth: Option<String>,
     /// Also write smoothed.csv online: frame t − L smoothed by the frames up to t (by its
     /// particles' descendants at frame t), written once frame t is tracked. Keeps L frames'
     /// particles a track and reads each frame's particles and lineage back from a GPU.
-    #[arg(long, value_name = "L", value_parser = clap::value_parser!(u32).range(1..=1000))]
+    #[arg(
+        long,
+        value_name = "L",
+        value_parser = clap::value_parser!(u32).range(1..=1000),
+        group = "smoother"
+    )]
     pub smooth_lag: Option<u32>,
     /// How `--smooth-lag` smooths: `ancestry` (by each particle's descendants L frames on:
     /// cheap, online; an annealed tracker's many resamplings leave few descendants, which narrows
@@ -38,23 +43,35 @@ pub struct SmoothArgs {
     /// (ancestry for a filter that resamples once a frame, marginal for an annealed one).
     #[arg(long, value_enum, default_value = "auto", requires = "smooth_lag")]
     pub lag_smoother: LagSmootherArg,
-    /// How far the smoother lets a value move from one frame to the next, as a share of the
-    /// tracker's own diffusion over a frame (its annealing layers' random walks composed, the
-    /// default 1): below 1 the smoother holds the track to slower motion, steadier and with
-    /// narrower intervals (docs/POSTERIOR.md measures it).
-    #[arg(long, value_name = "SCALE", value_parser = positive_scale, allow_negative_numbers = true)]
+    /// How far the marginal smoother lets a value move from one frame to the next, as a share
+    /// of the tracker's own diffusion over a frame (its annealing layers' random walks composed,
+    /// the default 1): below 1 it holds the track to slower motion, steadier and with narrower
+    /// intervals, and lags a head that turns (docs/ACCURACY.md, "Smoothing against the mesh's
+    /// jitter"). From 0.001 to 1000. The ancestry smoother has no motion to scale.
+    #[arg(
+        long,
+        value_name = "SCALE",
+        value_parser = motion_scale,
+        allow_negative_numbers = true,
+        requires = "smoother"
+    )]
     pub smooth_motion: Option<f32>,
 }
 
-/// `--smooth-motion`: a finite scale above 0.
-fn positive_scale(text: &str) -> Result<f32, String> {
+/// `--smooth-motion`: a number in `pf_core::smooth::MOTION_SCALES`.
+fn motion_scale(text: &str) -> Result<f32, String> {
     let scale: f32 = text
         .parse()
         .map_err(|_| format!("`{text}` is not a number"))?;
-    if scale.is_finite() && scale > 0.0 {
+    let scales = pf_core::smooth::MOTION_SCALES;
+    if scales.contains(&scale) {
         Ok(scale)
     } else {
-        Err(format!("the scale must be finite and above 0, not {text}"))
+        Err(format!(
+            "the scale must lie from {} to {}, not {text}",
+            scales.start(),
+            scales.end()
+        ))
     }
 }
 
@@ -71,10 +88,11 @@ impl LagSmootherArg {
     /// The smoother for a filter of `layers` annealing layers: `auto` traces the ancestry only
     /// through one resampling a frame (measured: the annealed trackers' ancestry keeps a few per
     /// cent of a frame's effective sample size one frame back; the face's intervals held the
-    /// truth 53-70 % of the time at a lag of 8, the body's 56 % at a lag of 1).
-    pub fn resolve(self, layers: usize) -> LagSmoother {
+    /// truth 53-70 % of the time at a lag of 8, the body's 56 % at a lag of 1), and only when no
+    /// motion was asked for (`moving`: `--smooth-motion`, which only the marginal smoother has).
+    pub fn resolve(self, layers: usize, moving: bool) -> LagSmoother {
         match self {
-            Self::Auto if layers > 1 => LagSmoother::Marginal,
+            Self::Auto if layers > 1 || moving => LagSmoother::Marginal,
             Self::Auto | Self::Ancestry => LagSmoother::Ancestry,
             Self::Marginal => LagSmoother::Marginal,
         }
@@ -82,28 +100,30 @@ impl LagSmootherArg {
 }
 
 impl SmoothArgs {
-    /// An error when `--smooth-motion` is given without `--smooth` or `--smooth-lag` (it would
-    /// scale nothing).
-    pub fn check_motion(&self) -> anyhow::Result<()> {
-        if self.smooth_motion.is_some() && self.mode().is_none() {
+    /// Refuses what the arguments alone show cannot be smoothed as asked, before a run touches
+    /// its output: `--smooth-motion` with `--lag-smoother ancestry`, which has no motion.
+    pub fn check(&self) -> anyhow::Result<()> {
+        if self.smooth_motion.is_some() && self.lag_smoother == LagSmootherArg::Ancestry {
             anyhow::bail!(
-                "--smooth-motion scales the smoother's motion: give --smooth full or --smooth-lag L too"
+                "--smooth-motion scales the marginal smoother's motion; --lag-smoother ancestry has none: use --lag-smoother marginal (or auto)"
             );
         }
         Ok(())
     }
 
-    /// The tracker's transition with `--smooth-motion`'s scale applied to every σ; an error
-    /// when the scale is given without `--smooth` or `--smooth-lag`.
+    /// The lag smoother for a filter of `layers` annealing layers (`--lag-smoother`).
+    pub fn lag_smoother_for(&self, layers: usize) -> LagSmoother {
+        self.lag_smoother
+            .resolve(layers, self.smooth_motion.is_some())
+    }
+
+    /// The tracker's transition with `--smooth-motion`'s scale applied to every σ (the parser
+    /// kept the scale in range).
     pub fn transition(&self, tracker: GaussianTransition) -> anyhow::Result<GaussianTransition> {
-        self.check_motion()?;
-        let Some(scale) = self.smooth_motion else {
-            return Ok(tracker);
-        };
-        Ok(GaussianTransition {
-            sigma: tracker.sigma.iter().map(|s| s * scale).collect(),
-            ..tracker
-        })
+        match self.smooth_motion {
+            Some(scale) => Ok(tracker.with_motion(scale)?),
+            None => Ok(tracker),
+        }
     }
 
     /// `None`: no smoothing; `Some(None)`: the whole run; `Some(Some(L))`: a lag of L frames.

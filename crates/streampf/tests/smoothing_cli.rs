@@ -255,13 +255,31 @@ fn bad_smoothing_options_are_refused() {
         &["--smooth", "full", "--smooth-motion", "NaN"],
         &["--smooth", "full", "--smooth-motion", "inf"],
         &["--smooth-lag", "2", "--smooth-motion", "slow"],
-        // Nothing to scale without a smoother.
+        // Too small a scale leaves σ 0 (a value left out), too large one overflows.
+        &["--smooth", "full", "--smooth-motion", "1e-44"],
+        &["--smooth", "full", "--smooth-motion", "1e9"],
+        // Nothing to scale without a smoother, nor with the ancestry smoother.
         &["--smooth-motion", "0.5"],
+        &[
+            "--smooth-lag",
+            "2",
+            "--lag-smoother",
+            "ancestry",
+            "--smooth-motion",
+            "0.5",
+        ],
     ] {
-        let mut all = vec!["face", "track", "--synthetic", "--max-frames", "2"];
-        all.extend(args);
-        let err = failure(&streampf(&all));
-        assert!(err.contains("--smooth-motion"), "{args:?}: {err}");
+        for what in ["face", "body"] {
+            let dir = scratch("bad-smoothing-motion");
+            let mut all = vec![what, "track", "--synthetic", "--max-frames", "2"];
+            all.extend(["--out", dir.to_str().unwrap()]);
+            all.extend(args);
+            let err = failure(&streampf(&all));
+            assert!(err.contains("--smooth-motion"), "{what} {args:?}: {err}");
+            // Refused before the run touched its output.
+            assert!(!dir.join("states.csv").exists() && !dir.join("poses.csv").exists());
+            let _ = std::fs::remove_dir_all(&dir);
+        }
     }
     for args in [
         &["--lag-smoother", "marginal"][..],

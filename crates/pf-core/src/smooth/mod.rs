@@ -84,6 +84,9 @@ impl Cloud {
     }
 }
 
+/// The scales [`GaussianTransition::with_motion`] takes (`--smooth-motion`, `smooth_motion=`).
+pub const MOTION_SCALES: std::ops::RangeInclusive<f32> = 1e-3..=1e3;
+
 /// The dynamics' density up to a constant: x' ~ N(x + drift, diag σ²), angle differences taken
 /// the short way round.
 #[derive(Debug, Clone, PartialEq)]
@@ -116,6 +119,23 @@ impl GaussianTransition {
             ));
         }
         Ok(())
+    }
+
+    /// The same density with every σ times `scale` (how far the smoother lets a value move
+    /// between frames: below 1, slower motion): an error for a scale outside [`MOTION_SCALES`],
+    /// whose ends keep a σ from underflowing to 0 (a value left out) or overflowing.
+    pub fn with_motion(&self, scale: f32) -> Result<Self, PfError> {
+        if !MOTION_SCALES.contains(&scale) {
+            return Err(PfError::InvalidConfig(format!(
+                "the smoother's motion scale must lie from {} to {}, not {scale}",
+                MOTION_SCALES.start(),
+                MOTION_SCALES.end()
+            )));
+        }
+        Ok(Self {
+            sigma: self.sigma.iter().map(|s| s * scale).collect(),
+            angular: self.angular.clone(),
+        })
     }
 
     /// The density of the values `dims` alone (σ 0 for the others, which then do not enter it):
@@ -403,6 +423,30 @@ mod tests {
             states,
             weights,
             drift,
+        }
+    }
+
+    proptest::proptest! {
+        /// A motion scale in range scales every σ (a still value stays still); one outside it,
+        /// or not a number, is refused.
+        #[test]
+        fn a_motion_scale_scales_every_sigma_or_is_refused(
+            sigma in proptest::collection::vec(proptest::prop_oneof![proptest::strategy::Just(0.0f32), 1e-3f32..10.0], 1..9),
+            scale in proptest::prop_oneof![1e-3f32..=1e3, proptest::num::f32::ANY],
+        ) {
+            let transition = GaussianTransition { angular: vec![false; sigma.len()], sigma };
+            match transition.with_motion(scale) {
+                Ok(moved) => {
+                    proptest::prop_assert!(MOTION_SCALES.contains(&scale));
+                    for (a, b) in transition.sigma.iter().zip(&moved.sigma) {
+                        proptest::prop_assert_eq!(*b, a * scale);
+                        proptest::prop_assert_eq!(*a == 0.0, *b == 0.0);
+                        proptest::prop_assert!(b.is_finite());
+                    }
+                    proptest::prop_assert_eq!(&moved.angular, &transition.angular);
+                }
+                Err(_) => proptest::prop_assert!(!MOTION_SCALES.contains(&scale)),
+            }
         }
     }
 

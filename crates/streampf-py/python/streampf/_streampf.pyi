@@ -70,7 +70,7 @@ class FaceTracker:
         smooth: bool = False,
         camera: Union[Tuple[float, float, float, float], str, PathLike, None] = None,
         scene_cut: Optional[float] = 0.25,
-        smooth_motion: float = 1.0,
+        smooth_motion: Optional[float] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it
@@ -145,7 +145,7 @@ class BodyTracker:
         coarse_points: int = 5000,
         coarse_layers: int = 7,
         smooth: bool = False,
-        smooth_motion: float = 1.0,
+        smooth_motion: Optional[float] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every frame so far smoothed by the frames after it: ``frame``

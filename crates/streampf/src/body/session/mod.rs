@@ -30,6 +30,7 @@ use run::BodyRun;
 use smoothed::BodySmoothing;
 
 pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
+    args.smoothing.check()?;
     check_overlay_path(args)?;
     let recording = args
         .rerun

@@ -29,11 +29,10 @@ impl BodySmoothing {
         tracker: &mut BodyTracker,
         with_truth: bool,
     ) -> anyhow::Result<Option<Self>> {
-        asked.check_motion()?;
         let Some(lag) = asked.mode() else {
             return Ok(None);
         };
-        let how = asked.lag_smoother.resolve(tracker.annealing_layers()?);
+        let how = asked.lag_smoother_for(tracker.annealing_layers()?);
         if lag.is_some() {
             tracker.keep_lineage()?;
             if how == LagSmoother::Ancestry && tracker.lineage()?.is_none() {

@@ -149,6 +149,7 @@ fn detector_summary(auto: &face_tracker::AutoTracker) {
 }
 
 fn checked_input(args: &TrackArgs) -> anyhow::Result<Input> {
+    args.smoothing.check()?;
     let (source, mut rects, truth) = open_input(args)?;
     if !args.faces_at.is_empty() {
         rects = args

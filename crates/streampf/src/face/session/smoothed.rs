@@ -30,16 +30,13 @@ impl FaceSmoothing {
         runner: &mut Runner,
         with_truth: bool,
     ) -> anyhow::Result<Option<Self>> {
-        asked.check_motion()?;
         let Some(lag) = asked.mode() else {
             return Ok(None);
         };
         if lag.is_some() {
             runner.keep_lineage()?;
         }
-        let how = asked
-            .lag_smoother
-            .resolve(runner.tracker().annealing_layers());
+        let how = asked.lag_smoother_for(runner.tracker().annealing_layers());
         let transition = asked.transition(runner.tracker().transition())?;
         Self::create(out, (lag, how), runner.tracker(), transition, with_truth).map(Some)
     }
