@@ -29,17 +29,9 @@ pub fn motion_scale(smooth: bool, motion: Option<f64>) -> PyResult<f32> {
             "smooth_motion scales the smoother's motion: pass smooth=True too",
         ));
     }
-    let scales = pf_core::smooth::MOTION_SCALES;
-    let scale = motion as f32;
-    if motion.is_finite() && scales.contains(&scale) {
-        Ok(scale)
-    } else {
-        Err(pyo3::exceptions::PyValueError::new_err(format!(
-            "smooth_motion must lie from {} to {}, not {motion}",
-            scales.start(),
-            scales.end()
-        )))
-    }
+    // Out of f32's range becomes ±inf or 0, and NaN stays NaN: all outside the range.
+    pf_core::smooth::checked_motion_scale(motion as f32)
+        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("smooth_motion: {e}")))
 }
 
 impl Smoothing {

@@ -63,16 +63,7 @@ fn motion_scale(text: &str) -> Result<f32, String> {
     let scale: f32 = text
         .parse()
         .map_err(|_| format!("`{text}` is not a number"))?;
-    let scales = pf_core::smooth::MOTION_SCALES;
-    if scales.contains(&scale) {
-        Ok(scale)
-    } else {
-        Err(format!(
-            "the scale must lie from {} to {}, not {text}",
-            scales.start(),
-            scales.end()
-        ))
-    }
+    pf_core::smooth::checked_motion_scale(scale).map_err(|e| e.to_string())
 }
 
 /// `--lag-smoother`.

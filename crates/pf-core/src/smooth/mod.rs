@@ -87,6 +87,21 @@ impl Cloud {
 /// The scales [`GaussianTransition::with_motion`] takes (`--smooth-motion`, `smooth_motion=`).
 pub const MOTION_SCALES: std::ops::RangeInclusive<f32> = 1e-3..=1e3;
 
+/// `scale` when it lies in [`MOTION_SCALES`] (whose ends keep a σ from underflowing to 0, a value
+/// left out, or overflowing), else an error naming the range: the one check behind
+/// `--smooth-motion`, Python's `smooth_motion=` and [`GaussianTransition::with_motion`].
+pub fn checked_motion_scale(scale: f32) -> Result<f32, PfError> {
+    if MOTION_SCALES.contains(&scale) {
+        Ok(scale)
+    } else {
+        Err(PfError::InvalidConfig(format!(
+            "the smoother's motion scale must lie from {} to {}, not {scale}",
+            MOTION_SCALES.start(),
+            MOTION_SCALES.end()
+        )))
+    }
+}
+
 /// The dynamics' density up to a constant: x' ~ N(x + drift, diag σ²), angle differences taken
 /// the short way round.
 #[derive(Debug, Clone, PartialEq)]
@@ -122,16 +137,10 @@ impl GaussianTransition {
     }
 
     /// The same density with every σ times `scale` (how far the smoother lets a value move
-    /// between frames: below 1, slower motion): an error for a scale outside [`MOTION_SCALES`],
-    /// whose ends keep a σ from underflowing to 0 (a value left out) or overflowing.
+    /// between frames: below 1, slower motion): an error for a scale outside [`MOTION_SCALES`]
+    /// ([`checked_motion_scale`]).
     pub fn with_motion(&self, scale: f32) -> Result<Self, PfError> {
-        if !MOTION_SCALES.contains(&scale) {
-            return Err(PfError::InvalidConfig(format!(
-                "the smoother's motion scale must lie from {} to {}, not {scale}",
-                MOTION_SCALES.start(),
-                MOTION_SCALES.end()
-            )));
-        }
+        let scale = checked_motion_scale(scale)?;
         Ok(Self {
             sigma: self.sigma.iter().map(|s| s * scale).collect(),
             angular: self.angular.clone(),
