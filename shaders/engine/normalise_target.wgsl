@@ -8,11 +8,14 @@
 // A library, parameterised by the layer's Params p: the including kernel declares log_weights,
 // log_likelihood, weights and stats (normalise.wgsl for the stage, layer.wgsl for the fused layer),
 // and prior_at(base, i) / likelihood_at(base, i), where the survival rule's bisection reads the
-// log-weights and log-likelihoods of its 21 passes (the storage buffers in normalise.wgsl; the
+// log-weights and log-likelihoods of each pass (the storage buffers in normalise.wgsl; the
 // fused layer's copies in workgroup memory, which it loads before calling normalise_target).
 // CPU twin: pf_core::batch::normalise_target.
 
 const NORMALISE_WG: u32 = 256u;
+// The survival rule's bisection steps: pf_core::anneal::SURVIVAL_BISECTION_STEPS (a pf-gpu test
+// holds the two equal).
+const SURVIVAL_BISECTION_STEPS: u32 = 10u;
 var<workgroup> partial: array<f32, 256>;
 // (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
 var<workgroup> partial_ess: array<vec3<f32>, 256>;
@@ -106,7 +109,7 @@ fn sum_exp_at_one(lid: u32, base: u32, n: u32, max_at_one: f32) -> f32 {
 }
 
 // The survival rule: max_beta when it keeps rate * M effective particles, else the midpoint of
-// a 20-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta.
+// a SURVIVAL_BISECTION_STEPS-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta.
 fn survival_beta(lid: u32, base: u32, n: u32, p: Params) -> f32 {
     let wanted = p.survival_rate * f32(n);
     if (tempered_ess(lid, base, n, p.max_beta) >= wanted) {
@@ -114,7 +117,7 @@ fn survival_beta(lid: u32, base: u32, n: u32, p: Params) -> f32 {
     }
     var lo = 0.0;
     var hi = p.max_beta;
-    for (var k = 0u; k < 20u; k = k + 1u) {
+    for (var k = 0u; k < SURVIVAL_BISECTION_STEPS; k = k + 1u) {
         let mid = 0.5 * (lo + hi);
         if (tempered_ess(lid, base, n, mid) >= wanted) {
             lo = mid;

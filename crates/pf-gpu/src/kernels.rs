@@ -247,4 +247,21 @@ mod tests {
             .unwrap_err();
         assert!(!err.is_empty());
     }
+
+    /// The survival rule's bisection runs as many steps on the GPU as its CPU twin, or the two
+    /// would choose different exponents and every particle after them would differ.
+    #[test]
+    fn the_gpu_bisects_as_many_steps_as_the_cpu() {
+        use wgpu::naga;
+        let source = stage_source(sources::NORMALISE);
+        let module = naga::front::wgsl::parse_str(&source).expect("normalise.wgsl parses");
+        let (_, constant) = (module.constants.iter())
+            .find(|(_, c)| c.name.as_deref() == Some("SURVIVAL_BISECTION_STEPS"))
+            .expect("normalise_target.wgsl declares SURVIVAL_BISECTION_STEPS");
+        let steps = match module.global_expressions[constant.init] {
+            naga::Expression::Literal(naga::Literal::U32(steps)) => steps,
+            ref other => panic!("SURVIVAL_BISECTION_STEPS is {other:?}, not a u32 literal"),
+        };
+        assert_eq!(steps, pf_core::anneal::SURVIVAL_BISECTION_STEPS);
+    }
 }
