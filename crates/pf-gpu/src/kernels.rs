@@ -43,6 +43,8 @@ pub mod sources {
         "\n",
         include_str!("../../../shaders/engine/layer.wgsl")
     );
+    /// Fixed-lag smoothing from the ancestry, summarised on the device.
+    pub const LAG_SUMMARY: &str = include_str!("../../../shaders/engine/lag_summary.wgsl");
     /// The particles' lineage through a frame's resamplings.
     pub const LINEAGE: &str = include_str!("../../../shaders/engine/lineage.wgsl");
     /// The gather stage.
@@ -55,7 +57,7 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 8] = [
+    pub const STAGES: [(&str, &str); 9] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
@@ -64,6 +66,7 @@ pub mod sources {
         ("estimate.wgsl", ESTIMATE),
         ("layer.wgsl", LAYER),
         ("lineage.wgsl", LINEAGE),
+        ("lag_summary.wgsl", LAG_SUMMARY),
     ];
 }
 

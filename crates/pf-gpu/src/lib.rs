@@ -32,9 +32,9 @@ pub mod toy;
 pub use context::{ContextOptions, GpuContext};
 pub use filter::{
     DispatchTime, FUSED_DEFAULT_MAX_VALUES, GpuFilter, GpuLikelihood, GpuResampler, GpuStage,
-    GpuStepReport, LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood,
-    ParticlesBack, PendingStep, ReadbackSource, StepLayout, TargetStats, fused_layout_refusal,
-    fused_workgroup_bytes,
+    GpuStepReport, LagFrame, LaggedSummaries, LaggedTarget, LikelihoodInputs, LikelihoodPhase,
+    LikelihoodReadbacks, MAX_LAG, NoLikelihood, ParticlesBack, PendingStep, ReadbackSource,
+    StepLayout, TargetStats, fused_layout_refusal, fused_workgroup_bytes,
 };
 pub use image::GrayTexture;
 pub use kernels::Kernel;

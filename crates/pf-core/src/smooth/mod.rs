@@ -25,6 +25,7 @@ use crate::batch::wrap_angle_floor;
 use crate::error::PfError;
 
 pub mod ancestry;
+pub mod lag_window;
 mod summary;
 use summary::value_summary;
 pub use summary::{Summary, summarise, summarise_value};

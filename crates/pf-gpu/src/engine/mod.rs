@@ -20,6 +20,7 @@ pub use sharded::{Sharded, ShardedPending, shard_ranges};
 use pf_core::PfError;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, Propagate};
 use pf_core::resample::{Resampler, ResamplerKind};
+use pf_core::smooth::lag_window::LaggedSummaries;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -61,6 +62,7 @@ impl GpuEngine {
             spreads: report.spreads,
             gpu_time: Some(report.time),
             likelihood: report.likelihood,
+            lagged: report.lagged,
         }
     }
 }
@@ -91,6 +93,9 @@ pub struct EngineReport {
     pub gpu_time: Option<GpuTime>,
     /// What the GPU likelihood asked to read back (empty on the CPU engine).
     pub likelihood: LikelihoodReadbacks,
+    /// The frame a lag behind, smoothed from the ancestry on the device, where the GPU engine
+    /// keeps a lag window ([`FilterEngine::keep_lag_window`]).
+    pub lagged: Option<LaggedSummaries>,
 }
 
 impl EngineReport {
@@ -185,6 +190,7 @@ impl FilterEngine {
             status: report.status,
             gpu_time: None,
             likelihood: LikelihoodReadbacks::default(),
+            lagged: None,
         })
     }
 
@@ -226,6 +232,21 @@ impl FilterEngine {
         match self {
             Self::Cpu(_) => Ok(()),
             Self::Gpu(gpu) => gpu.filter.keep_lineage(&gpu.ctx),
+        }
+    }
+
+    /// Smooths from the ancestry on the GPU from the next step on, `lag` frames behind
+    /// ([`GpuFilter::keep_lag_window`]: each report's `lagged`). The CPU engine has its particles
+    /// on the host, where `pf_core::smooth::lag_window::LagWindow` (the twin) or
+    /// `pf_core::smooth_tracks::TrackSmoother` smooths them: refused there.
+    pub fn keep_lag_window(&mut self, lag: usize, compare_filtered: bool) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(_) => Err(GpuError::InvalidConfig(
+                "the CPU engine keeps no lag window on a device: smooth its particles on the host \
+                 (pf_core::smooth::lag_window::LagWindow)"
+                    .into(),
+            )),
+            Self::Gpu(gpu) => gpu.filter.keep_lag_window(&gpu.ctx, lag, compare_filtered),
         }
     }
 

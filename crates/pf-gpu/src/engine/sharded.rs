@@ -17,7 +17,7 @@ use pf_core::batch::{BatchConfig, BatchShape};
 use super::{EngineReport, Filter, InFlight, Model};
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuResampler, LikelihoodReadbacks};
+use crate::filter::{GpuResampler, LaggedSummaries, LikelihoodReadbacks};
 
 /// One GPU's share of the targets.
 struct Shard<M: Model> {
@@ -162,13 +162,25 @@ where
             status: Vec::with_capacity(t),
             gpu_time: None,
             likelihood: LikelihoodReadbacks::default(),
+            lagged: None,
         };
         // Every shard is waited for even when one fails, so that none is left in flight.
         let parts: Vec<_> = (self.shards.iter_mut().zip(frame.pending))
             .map(|(shard, pending)| shard.filter.finish(pending))
             .collect();
+        let mut lagged: Option<Vec<_>> = Some(Vec::with_capacity(t));
+        let mut lag = 0;
         for part in parts {
             let part = part?;
+            // The shards' lagged targets in order, where every shard summarised its window.
+            lagged = match (lagged, part.lagged) {
+                (Some(mut all), Some(more)) => {
+                    lag = more.lag;
+                    all.extend(more.targets);
+                    Some(all)
+                }
+                _ => None,
+            };
             report.estimates.extend(part.estimates);
             report.best_estimates.extend(part.best_estimates);
             report.spreads.extend(part.spreads);
@@ -182,6 +194,7 @@ where
                 (a, b) => b.or(a),
             };
         }
+        report.lagged = lagged.map(|targets| LaggedSummaries { lag, targets });
         Ok(report)
     }
 

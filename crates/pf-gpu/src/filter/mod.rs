@@ -10,6 +10,7 @@ use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape};
 
 mod fused;
+mod lag_window;
 mod likelihood;
 mod lineage;
 mod params;
@@ -28,7 +29,9 @@ pub use likelihood::{
 pub use params::{FrameParams, TargetStats};
 pub use profile::DispatchTime;
 
+pub use lag_window::{LagFrame, MAX_LAG};
 pub use lineage::ParticlesBack;
+pub use pf_core::smooth::lag_window::{LaggedSummaries, LaggedTarget};
 pub use setup::FilterStreams;
 use setup::{
     BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, layer_params_buffer,
@@ -135,6 +138,9 @@ pub struct GpuStepReport {
     pub time: GpuTime,
     /// What the likelihood asked to read back ([`GpuLikelihood::readbacks`]).
     pub likelihood: LikelihoodReadbacks,
+    /// The frame `lag` steps back, smoothed from the ancestry on the device, where the filter
+    /// keeps a lag window ([`GpuFilter::keep_lag_window`]) and has stepped `lag + 1` frames.
+    pub lagged: Option<LaggedSummaries>,
 }
 
 /// A step submitted by [`GpuFilter::submit_stages`] and not yet read back.
@@ -145,6 +151,8 @@ pub struct PendingStep {
     back: usize,
     map: crate::stream::PendingMap,
     started: std::time::Instant,
+    /// Whether the step summarised its lag window's first frame.
+    lagged: bool,
 }
 
 /// T targets × M particles on one GPU.
@@ -165,6 +173,10 @@ pub struct GpuFilter {
     fused_refusal: Option<String>,
     /// The particles' lineage through each frame, once asked for ([`Self::keep_lineage`]).
     lineage: Option<lineage::Lineage>,
+    /// The last frames on the device, summarised a lag behind ([`Self::keep_lag_window`]).
+    lag_window: Option<lag_window::LagWindow>,
+    /// The byte lengths of the lag window's sections of `step_backs` (after the likelihood's).
+    lag_sections: Vec<u64>,
     /// Every device stream, created once (some only for the bind groups).
     streams: Streams,
     stages: Stages,
@@ -261,6 +273,8 @@ impl GpuFilter {
             fused,
             fused_refusal,
             lineage: None,
+            lag_window: None,
+            lag_sections: Vec::new(),
             step_backs,
             next_back: 0,
             in_flight: 0,
@@ -383,11 +397,12 @@ impl GpuFilter {
             });
         let started = std::time::Instant::now();
         let back = self.next_back;
+        let mut lagged = false;
         let submission = ctx.scoped("recording filter stages", || {
             if let Some(timer) = &self.timer {
                 timer.begin(&mut encoder);
             }
-            self.record_stages(ctx, &mut encoder, stages, likelihood);
+            lagged = self.record_stages(ctx, &mut encoder, stages, likelihood);
             if let Some(timer) = &self.timer {
                 timer.end(&mut encoder);
                 self.step_backs[back].record_copy(&mut encoder, STEP_BACK_TICKS, timer.resolved());
@@ -403,6 +418,7 @@ impl GpuFilter {
             back,
             map,
             started,
+            lagged,
         })
     }
 
@@ -418,6 +434,7 @@ impl GpuFilter {
             back,
             mut map,
             started,
+            lagged,
         } = pending;
         let oldest = (self.next_back + 2 - self.in_flight) % 2;
         if self.in_flight == 0 || back != oldest {
@@ -446,6 +463,11 @@ impl GpuFilter {
             ),
             None => GpuTime::WallClock(wall),
         };
+        let lagged = if lagged {
+            self.lagged_from(&sections)
+        } else {
+            None
+        };
         let likelihood = LikelihoodReadbacks::new(
             self.likelihood_sections
                 .iter()
@@ -460,6 +482,7 @@ impl GpuFilter {
             spreads,
             time,
             likelihood,
+            lagged,
         })
     }
 
@@ -486,13 +509,20 @@ impl GpuFilter {
                 "another likelihood's readbacks while a filter step is in flight".into(),
             ));
         }
+        self.likelihood_sections = wanted;
+        self.refit_step_backs(ctx)
+    }
+
+    /// Builds the step's two staging buffers for the filter's own sections, the likelihood's and
+    /// the lag window's.
+    fn refit_step_backs(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
         let mut bytes = self.own_sections.to_vec();
-        bytes.extend(wanted.iter().map(|&(_, b)| b));
+        bytes.extend(self.likelihood_sections.iter().map(|&(_, b)| b));
+        bytes.extend(&self.lag_sections);
         self.step_backs = [
             ReadbackSet::new(ctx, "step readback", &bytes)?,
             ReadbackSet::new(ctx, "step readback (second)", &bytes)?,
         ];
-        self.likelihood_sections = wanted;
         Ok(())
     }
 

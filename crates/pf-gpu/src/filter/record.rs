@@ -11,8 +11,22 @@ use crate::context::GpuContext;
 impl GpuFilter {
     /// Records the given stages, in the step's order: the selection, moving, measuring and
     /// weighing stages once per annealing layer (each layer with the next step index), then the
-    /// estimate.
+    /// estimate, and for a whole step the lag window (where kept). Returns whether the step
+    /// summarises a lagged frame.
     pub(super) fn record_stages(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) -> bool {
+        let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
+        self.record_frame(ctx, encoder, stages, likelihood);
+        whole_step && self.record_lag_window(ctx, encoder)
+    }
+
+    /// [`Self::record_stages`] but the lag window.
+    fn record_frame(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,

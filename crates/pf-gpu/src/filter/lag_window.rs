@@ -1,0 +1,358 @@
+//! Fixed-lag smoothing from the ancestry on the GPU ([`super::GpuFilter::keep_lag_window`]): the
+//! filter keeps its last frames' particles, normalised log-weights and lineages in a ring on the
+//! device, and after each step `shaders/engine/lag_summary.wgsl` summarises the frame `lag` steps
+//! back by the newest frame's weights traced through the lineages. Only the summaries (a mean
+//! and a 95 % interval per value and target) come back, in the step's own readback: reading
+//! every particle back each frame for the host to trace cost the face tracker 17 % (4 faces) to
+//! 142 % (64 faces) of a step (docs/POSTERIOR.md).
+//!
+//! The ring holds `lag + 2` frames: the lag window, and one more so that a step in flight behind
+//! the one being read has not yet overwritten the oldest frame a host may still download
+//! ([`super::GpuFilter::download_lag_frames`], for a track that ends or restarts inside its
+//! window, which the trace from the newest frame cannot reach).
+//!
+//! CPU twin: `pf_core::smooth::lag_window::LagWindow` (`ancestry::trace_back`, then
+//! `summarise`), which gives the same [`LaggedSummaries`].
+
+use bytemuck::{Pod, Zeroable};
+use pf_core::batch::BatchShape;
+use pf_core::smooth::Summary;
+use pf_core::smooth::lag_window::{LaggedSummaries, LaggedTarget};
+
+use super::GpuFilter;
+use crate::context::GpuContext;
+use crate::error::GpuError;
+use crate::kernels::{Kernel, sources, stage_source};
+use crate::stream::DeviceStream;
+
+/// `LagParams` of `lag_summary.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+struct LagParams {
+    slots: u32,
+    newest: u32,
+    lag: u32,
+    filtered: u32,
+}
+
+/// The line of `lag_summary.wgsl` the driver sizes to the filter's particles.
+const CAPACITY_LINE: &str = "const CAPACITY: u32 = 4096u;";
+
+/// Workgroup memory the kernel needs for `particles` a target: values, weights and ancestors,
+/// and the reductions' partial sums.
+fn workgroup_bytes(particles: usize) -> u64 {
+    3 * 4 * particles as u64 + 256 * 4 + 4
+}
+
+/// Floats the kernel writes per target and value: smoothed and filtered mean, lower, upper.
+const SUMMARY_FLOATS: usize = 6;
+
+/// The lag window's ring on the device, its kernel and what it has recorded.
+pub(super) struct LagWindow {
+    lag: usize,
+    slots: usize,
+    compare_filtered: bool,
+    states: DeviceStream<f32>,
+    log_weights: DeviceStream<f32>,
+    lineage: DeviceStream<u32>,
+    summaries: DeviceStream<f32>,
+    kept: DeviceStream<f32>,
+    params: wgpu::Buffer,
+    kernel: Kernel,
+    group: wgpu::BindGroup,
+    /// Frames copied into the ring so far.
+    recorded: u64,
+}
+
+/// A frame of one target read back from the lag window's ring.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LagFrame {
+    /// The states, `[d·M + m]`.
+    pub states: Vec<f32>,
+    /// The normalised log-weights, `[m]`.
+    pub log_weights: Vec<f32>,
+    /// Each particle's ancestor among the frame before's, `[m]`.
+    pub lineage: Vec<u32>,
+}
+
+impl LagWindow {
+    fn new(
+        ctx: &GpuContext,
+        shape: &BatchShape,
+        lag: usize,
+        compare_filtered: bool,
+        frame_params: &wgpu::Buffer,
+    ) -> Result<Self, GpuError> {
+        check_fits(ctx, shape, lag)?;
+        let slots = lag + 2;
+        let source = stage_source(sources::LAG_SUMMARY).replace(
+            CAPACITY_LINE,
+            &format!("const CAPACITY: u32 = {}u;", shape.particles.max(1)),
+        );
+        let kernel = Kernel::new(ctx, "lag summary", &source, "summarise_lagged")?;
+        let states = DeviceStream::zeroed(ctx, "lag window states", slots * shape.state_len())?;
+        let log_weights =
+            DeviceStream::zeroed(ctx, "lag window log-weights", slots * shape.particle_len())?;
+        let lineage =
+            DeviceStream::zeroed(ctx, "lag window lineage", slots * shape.particle_len())?;
+        let summaries = DeviceStream::zeroed(
+            ctx,
+            "lag summaries",
+            shape.targets * shape.dims * SUMMARY_FLOATS,
+        )?;
+        let kept = DeviceStream::zeroed(ctx, "lag window kept share", shape.targets)?;
+        let params = crate::stream::uniform_buffer(
+            ctx,
+            "lag window params",
+            &LagParams {
+                slots: slots as u32,
+                newest: 0,
+                lag: lag as u32,
+                filtered: u32::from(compare_filtered),
+            },
+        )?;
+        let group = kernel.bind(
+            ctx,
+            &[
+                (0, frame_params.as_entire_binding()),
+                (1, params.as_entire_binding()),
+                (2, states.binding()),
+                (3, log_weights.binding()),
+                (4, lineage.binding()),
+                (5, summaries.binding()),
+                (6, kept.binding()),
+            ],
+        )?;
+        Ok(Self {
+            lag,
+            slots,
+            compare_filtered,
+            states,
+            log_weights,
+            lineage,
+            summaries,
+            kept,
+            params,
+            kernel,
+            group,
+            recorded: 0,
+        })
+    }
+
+    /// The byte lengths of the step readback's sections for the summaries and the kept shares.
+    pub(super) fn readback_sections(&self) -> [u64; 2] {
+        [4 * self.summaries.len() as u64, 4 * self.kept.len() as u64]
+    }
+}
+
+/// Why a lag window of `lag` frames cannot run on this adapter for `shape`.
+fn check_fits(ctx: &GpuContext, shape: &BatchShape, lag: usize) -> Result<(), GpuError> {
+    if lag == 0 || lag > MAX_LAG {
+        return Err(GpuError::InvalidConfig(format!(
+            "a lag window of {lag} frames: the lag is 1 to {MAX_LAG}"
+        )));
+    }
+    let limits = ctx.limits();
+    let bytes = workgroup_bytes(shape.particles);
+    if bytes > u64::from(limits.max_compute_workgroup_storage_size) {
+        return Err(GpuError::InvalidConfig(format!(
+            "summarising a lag window of {} particles a target needs {bytes} bytes of workgroup \
+             memory; the adapter has {} (smooth on the host instead)",
+            shape.particles, limits.max_compute_workgroup_storage_size
+        )));
+    }
+    let ring = (lag as u64 + 2) * shape.state_len() as u64 * 4;
+    if ring > limits.max_storage_buffer_binding_size {
+        return Err(GpuError::InvalidConfig(format!(
+            "a lag window of {lag} frames holds {ring} bytes of states; the adapter binds at most {}",
+            limits.max_storage_buffer_binding_size
+        )));
+    }
+    Ok(())
+}
+
+/// The longest lag a window keeps on the device.
+pub const MAX_LAG: usize = 256;
+
+impl GpuFilter {
+    /// Smooths from the ancestry on the device from the next step on: each step's report then
+    /// carries the frame `lag` steps back summarised ([`GpuStepReport::lagged`]), once `lag + 1`
+    /// frames have been stepped, with the filtered summary of the same particles beside it when
+    /// `compare_filtered`. Keeps the lineage. Refused while steps are in flight, for a lag of 0
+    /// or above [`MAX_LAG`], or where the adapter's workgroup memory cannot hold a target.
+    ///
+    /// [`GpuStepReport::lagged`]: super::GpuStepReport::lagged
+    pub fn keep_lag_window(
+        &mut self,
+        ctx: &GpuContext,
+        lag: usize,
+        compare_filtered: bool,
+    ) -> Result<(), GpuError> {
+        if self.in_flight > 0 {
+            return Err(GpuError::InvalidConfig(
+                "a lag window while a filter step is in flight: finish it first".into(),
+            ));
+        }
+        self.keep_lineage(ctx)?;
+        let window = LagWindow::new(ctx, &self.shape, lag, compare_filtered, &self.params_buffer)?;
+        self.lag_sections = window.readback_sections().to_vec();
+        self.lag_window = Some(window);
+        self.refit_step_backs(ctx)
+    }
+
+    /// The lag of the window the filter keeps ([`Self::keep_lag_window`]).
+    pub fn lag_window(&self) -> Option<usize> {
+        self.lag_window.as_ref().map(|w| w.lag)
+    }
+
+    /// Records the end of a whole step: the step's particles, log-weights and lineage copied
+    /// into the ring, and once the window is full the summary of its first frame, copied into
+    /// the step's staging buffer. Returns whether the step summarises a lagged frame.
+    pub(super) fn record_lag_window(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+    ) -> bool {
+        let layers = self.annealing.layers;
+        let first_section = self.lag_section_index();
+        let (Some(window), Some(lineage)) = (&mut self.lag_window, &self.lineage) else {
+            return false;
+        };
+        let slot = (window.recorded % window.slots as u64) as usize;
+        let copy_into = |encoder: &mut wgpu::CommandEncoder, from: &wgpu::Buffer, to, bytes| {
+            encoder.copy_buffer_to_buffer(from, 0, to, slot as u64 * bytes, bytes);
+        };
+        let state_bytes = self.shape.state_len() as u64 * 4;
+        let particle_bytes = self.shape.particle_len() as u64 * 4;
+        copy_into(
+            encoder,
+            self.streams.states.buffer(),
+            window.states.buffer(),
+            state_bytes,
+        );
+        copy_into(
+            encoder,
+            self.streams.log_weights.buffer(),
+            window.log_weights.buffer(),
+            particle_bytes,
+        );
+        copy_into(
+            encoder,
+            lineage.result(layers).buffer(),
+            window.lineage.buffer(),
+            particle_bytes,
+        );
+        window.recorded += 1;
+        if window.recorded <= window.lag as u64 {
+            return false;
+        }
+        let params = LagParams {
+            slots: window.slots as u32,
+            newest: slot as u32,
+            lag: window.lag as u32,
+            filtered: u32::from(window.compare_filtered),
+        };
+        ctx.queue
+            .write_buffer(&window.params, 0, bytemuck::bytes_of(&params));
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("lag summary"),
+                timestamp_writes: None,
+            });
+            let grid = [self.shape.dims as u32, self.shape.targets as u32, 1];
+            window.kernel.record(&mut pass, &window.group, grid);
+        }
+        let back = &self.step_backs[self.next_back];
+        back.record_copy(encoder, first_section, window.summaries.buffer());
+        back.record_copy(encoder, first_section + 1, window.kept.buffer());
+        true
+    }
+
+    /// The index of the lag window's first section in the step readback (after the filter's own
+    /// and the likelihood's).
+    pub(super) fn lag_section_index(&self) -> usize {
+        super::STEP_BACK_OWN + self.likelihood_sections.len()
+    }
+
+    /// The lag window's summaries from a step's readback sections.
+    pub(super) fn lagged_from(&self, sections: &[Vec<u8>]) -> Option<LaggedSummaries> {
+        let window = self.lag_window.as_ref()?;
+        let first = self.lag_section_index();
+        let floats: Vec<f32> = bytemuck::pod_collect_to_vec(sections.get(first)?);
+        let kept: Vec<f32> = bytemuck::pod_collect_to_vec(sections.get(first + 1)?);
+        let dims = self.shape.dims;
+        let summary = |at: usize| Summary {
+            mean: floats[at],
+            lower: floats[at + 1],
+            upper: floats[at + 2],
+        };
+        let targets = (0..self.shape.targets)
+            .map(|t| {
+                let share = kept.get(t).copied().unwrap_or(f32::NAN);
+                if share.is_nan() {
+                    return None;
+                }
+                let at = |d: usize| (t * dims + d) * SUMMARY_FLOATS;
+                Some(LaggedTarget {
+                    smoothed: (0..dims).map(|d| summary(at(d))).collect(),
+                    filtered: if window.compare_filtered {
+                        (0..dims).map(|d| summary(at(d) + 3)).collect()
+                    } else {
+                        Vec::new()
+                    },
+                    kept: share,
+                })
+            })
+            .collect();
+        Some(LaggedSummaries {
+            lag: window.lag,
+            targets,
+        })
+    }
+
+    /// Target `t`'s last `frames` frames in the lag window's ring, oldest first (at most the
+    /// lag + 1 frames the window spans, and no more than were stepped): what the host needs to
+    /// smooth a target that ended or restarted within its window. Call it with no step in flight.
+    pub fn download_lag_frames(
+        &self,
+        ctx: &GpuContext,
+        t: usize,
+        frames: usize,
+    ) -> Result<Vec<LagFrame>, GpuError> {
+        let window = self.lag_window.as_ref().ok_or_else(|| {
+            GpuError::InvalidConfig("the filter keeps no lag window (keep_lag_window)".into())
+        })?;
+        if self.in_flight > 0 {
+            return Err(GpuError::InvalidConfig(
+                "reading the lag window while a step is in flight: finish it first".into(),
+            ));
+        }
+        if t >= self.shape.targets || frames as u64 > window.recorded || frames > window.lag + 1 {
+            return Err(GpuError::InvalidConfig(format!(
+                "frames {frames} of target {t}: the window holds {} of {} targets",
+                window.recorded.min(window.lag as u64 + 1),
+                self.shape.targets
+            )));
+        }
+        let (states, log_weights, lineage) = (
+            window.states.download(ctx)?,
+            window.log_weights.download(ctx)?,
+            window.lineage.download(ctx)?,
+        );
+        let (m, block) = (self.shape.particles, self.shape.dims * self.shape.particles);
+        let newest = ((window.recorded - 1) % window.slots as u64) as usize;
+        Ok((0..frames)
+            .rev()
+            .map(|back| {
+                let slot = (newest + window.slots - back) % window.slots;
+                let particles = (slot * self.shape.targets + t) * m;
+                let values = (slot * self.shape.targets + t) * block;
+                LagFrame {
+                    states: states[values..values + block].to_vec(),
+                    log_weights: log_weights[particles..particles + m].to_vec(),
+                    lineage: lineage[particles..particles + m].to_vec(),
+                }
+            })
+            .collect())
+    }
+}

@@ -1,0 +1,275 @@
+// Fixed-lag smoothing from the ancestry, summarised on the GPU: the filter keeps its last frames'
+// particles, normalised log-weights and lineages in a ring of `slots` frames (copied there at the
+// end of each step), and after each step this kernel summarises the frame `lag` steps back by the
+// newest frame's weights traced back through the lineages (the path smoother of Kitagawa 1996):
+// each newest particle m carries its weight w_m to its ancestor A(m) in the lagged frame, so the
+// lagged frame's smoothed cloud is {(x_A(m), w_m)}. Only the summaries leave the GPU: per target
+// and value the mean (on the circle for an angle) and the 95 % interval's ends, the same for the
+// lagged frame's own (filtered) weights where asked, and per target the share of the lagged
+// frame's effective sample size the trace kept. A target whose trace meets a particle without an
+// ancestor (restarted within the window) gets NaN throughout: the host smooths it from a download.
+// One workgroup of 256 invocations per (value, target); workgroup memory holds one target's
+// particles (CAPACITY set to M by the driver, pf_gpu::filter::lag_window).
+// CPU twins: pf_core::smooth::ancestry::trace_back, pf_core::smooth::summarise (summary.rs) and
+// pf_core::smooth_tracks::AncestryHealth.
+
+struct LagParams {
+    // Frames the ring holds.
+    slots: u32,
+    // The ring slot this step wrote.
+    newest: u32,
+    // How many frames back the summarised frame lies (1 or more).
+    lag: u32,
+    // 1: also summarise the lagged frame under its own weights.
+    filtered: u32,
+}
+
+@group(0) @binding(0) var<uniform> params: Params;
+@group(0) @binding(1) var<uniform> lag_params: LagParams;
+// [((slot * T + t) * D + d) * M + m]
+@group(0) @binding(2) var<storage, read> window_states: array<f32>;
+// [(slot * T + t) * M + m], normalised.
+@group(0) @binding(3) var<storage, read> window_log_weights: array<f32>;
+// [(slot * T + t) * M + m]: the particle's ancestor among the frame before's.
+@group(0) @binding(4) var<storage, read> window_lineage: array<u32>;
+// [(t * D + d) * 6 + k]: smoothed mean, lower, upper; filtered mean, lower, upper.
+@group(0) @binding(5) var<storage, read_write> summaries: array<f32>;
+// [t]: traced over filtered effective sample size of the lagged frame.
+@group(0) @binding(6) var<storage, read_write> kept: array<f32>;
+
+const CAPACITY: u32 = 4096u;
+const LAG_WG: u32 = 256u;
+const NO_ANCESTOR: u32 = 0xffffffffu;
+const LOWER_Q: f32 = 0.025;
+const UPPER_Q: f32 = 0.975;
+
+// The cloud being summarised: each particle's value (then its offset from the mean) and weight.
+var<workgroup> values: array<f32, CAPACITY>;
+var<workgroup> cloud_weights: array<f32, CAPACITY>;
+// Each newest particle's ancestor in the lagged frame.
+var<workgroup> ancestor_of: array<u32, CAPACITY>;
+var<workgroup> partial: array<f32, 256>;
+var<workgroup> broken: atomic<u32>;
+
+fn reduce(lid: u32, value: f32, op: u32) -> f32 {
+    partial[lid] = value;
+    workgroupBarrier();
+    for (var stride = LAG_WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            let other = partial[lid + stride];
+            if (op == 0u) {
+                partial[lid] = partial[lid] + other;
+            } else if (op == 1u) {
+                partial[lid] = min(partial[lid], other);
+            } else {
+                partial[lid] = max(partial[lid], other);
+            }
+        }
+        workgroupBarrier();
+    }
+    let result = partial[0];
+    workgroupBarrier();
+    return result;
+}
+
+fn ring_slot(frames_back: u32) -> u32 {
+    return (lag_params.newest + lag_params.slots - frames_back) % lag_params.slots;
+}
+
+fn particle_at(slot: u32, t: u32, m: u32) -> u32 {
+    return (slot * params.targets + t) * params.particles + m;
+}
+
+fn state_at(slot: u32, t: u32, d: u32, m: u32) -> f32 {
+    return window_states[((slot * params.targets + t) * params.dims + d) * params.particles + m];
+}
+
+fn weight_of(log_weight: f32) -> f32 {
+    if (is_neg_inf(log_weight)) {
+        return 0.0;
+    }
+    return exp(log_weight);
+}
+
+// The mean, lower and upper end of the 95 % interval of `values` under `cloud_weights` (n
+// particles): the quantiles are the smallest offsets from the mean whose cumulative weight reaches
+// 2.5 % and 97.5 % (offsets wrapped for an angle), each particle's cumulative weight summed over
+// every particle at or below it, O(M²) and no sort. Twin of pf_core::smooth::summary.
+fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
+    var a = 0.0;
+    var b = 0.0;
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        let w = cloud_weights[m];
+        let x = values[m];
+        if (angle) {
+            a = a + w * sin(x);
+            b = b + w * cos(x);
+        } else {
+            a = a + w * x;
+        }
+    }
+    var mean = reduce(lid, a, 0u);
+    if (angle) {
+        mean = atan2(mean, reduce(lid, b, 0u));
+    }
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        var e = values[m] - mean;
+        if (angle) {
+            e = wrap_angle(e);
+        }
+        values[m] = e;
+    }
+    workgroupBarrier();
+    let none = bitcast<f32>(0x7f800000u);
+    var lower = none;
+    var upper = none;
+    var top = -none;
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        let e = values[m];
+        if (cloud_weights[m] == 0.0) {
+            continue;
+        }
+        top = max(top, e);
+        var cumulative = 0.0;
+        for (var k = 0u; k < n; k = k + 1u) {
+            if (values[k] <= e) {
+                cumulative = cumulative + cloud_weights[k];
+            }
+        }
+        if (cumulative >= LOWER_Q) {
+            lower = min(lower, e);
+        }
+        if (cumulative >= UPPER_Q) {
+            upper = min(upper, e);
+        }
+    }
+    lower = reduce(lid, lower, 1u);
+    upper = reduce(lid, upper, 1u);
+    top = reduce(lid, top, 2u);
+    // Rounding can leave the total just under a quantile: the largest offset then, as on the CPU.
+    if (lower == none) {
+        lower = top;
+    }
+    if (upper == none) {
+        upper = top;
+    }
+    return vec3<f32>(mean, mean + lower, mean + upper);
+}
+
+// sum w^2 over the lagged frame's particles with the traced weights: each ancestor's weight is
+// the sum over its descendants, so sum_i W_i^2 = sum_m w_m W_A(m), O(M²).
+fn traced_square_sum(lid: u32, n: u32) -> f32 {
+    var acc = 0.0;
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        let ancestor = ancestor_of[m];
+        var of_ancestor = 0.0;
+        for (var k = 0u; k < n; k = k + 1u) {
+            if (ancestor_of[k] == ancestor) {
+                of_ancestor = of_ancestor + cloud_weights[k];
+            }
+        }
+        acc = acc + cloud_weights[m] * of_ancestor;
+    }
+    return reduce(lid, acc, 0u);
+}
+
+// (sum w)^2 / sum w^2 of the lagged frame's own weights (in cloud_weights).
+fn filtered_ess(lid: u32, n: u32) -> f32 {
+    var s1 = 0.0;
+    var s2 = 0.0;
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        let w = cloud_weights[m];
+        s1 = s1 + w;
+        s2 = s2 + w * w;
+    }
+    let sum = reduce(lid, s1, 0u);
+    let squares = reduce(lid, s2, 0u);
+    if (squares == 0.0) {
+        return 0.0;
+    }
+    return sum * sum / squares;
+}
+
+@compute @workgroup_size(256)
+fn summarise_lagged(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(local_invocation_id) local: vec3<u32>,
+) {
+    let d = group.x;
+    let t = group.y;
+    let lid = local.x;
+    let n = params.particles;
+    if (lid == 0u) {
+        atomicStore(&broken, 0u);
+    }
+    workgroupBarrier();
+    let newest = ring_slot(0u);
+    let lagged = ring_slot(lag_params.lag);
+    // Each newest particle's ancestor lag frames back, and its weight.
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        var a = m;
+        for (var k = 0u; k < lag_params.lag; k = k + 1u) {
+            a = window_lineage[particle_at(ring_slot(k), t, a)];
+            if (a >= n) {
+                atomicStore(&broken, 1u);
+                a = 0u;
+                break;
+            }
+        }
+        ancestor_of[m] = a;
+        cloud_weights[m] = weight_of(window_log_weights[particle_at(newest, t, m)]);
+        values[m] = state_at(lagged, t, d, a);
+    }
+    workgroupBarrier();
+    let out = (t * params.dims + d) * 6u;
+    if (atomicLoad(&broken) != 0u) {
+        if (lid == 0u) {
+            let nan = bitcast<f32>(0x7fc00000u);
+            for (var k = 0u; k < 6u; k = k + 1u) {
+                summaries[out + k] = nan;
+            }
+            if (d == 0u) {
+                kept[t] = nan;
+            }
+        }
+        return;
+    }
+    let smoothed = summarise(lid, n, is_angle(d));
+    var traced_squares = 0.0;
+    if (d == 0u) {
+        traced_squares = traced_square_sum(lid, n);
+    }
+    // The lagged frame's own particles under their own weights.
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
+        values[m] = state_at(lagged, t, d, m);
+    }
+    workgroupBarrier();
+    var filtered = vec3<f32>(0.0);
+    if (lag_params.filtered == 1u) {
+        filtered = summarise(lid, n, is_angle(d));
+        workgroupBarrier();
+        for (var m = lid; m < n; m = m + LAG_WG) {
+            cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
+        }
+        workgroupBarrier();
+    }
+    if (d == 0u) {
+        let own = filtered_ess(lid, n);
+        if (lid == 0u) {
+            var share = 0.0;
+            if (own > 0.0 && traced_squares > 0.0) {
+                share = (1.0 / traced_squares) / own;
+            }
+            kept[t] = share;
+        }
+    }
+    if (lid == 0u) {
+        summaries[out] = smoothed.x;
+        summaries[out + 1u] = smoothed.y;
+        summaries[out + 2u] = smoothed.z;
+        summaries[out + 3u] = filtered.x;
+        summaries[out + 4u] = filtered.y;
+        summaries[out + 5u] = filtered.z;
+    }
+}
