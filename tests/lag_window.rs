@@ -384,9 +384,12 @@ fn a_lag_window_out_of_range_is_refused() {
         gpu.download_lag_frames(&ctx, 0, 1).is_err(),
         "no window, nothing to read"
     );
-    let mut cpu =
-        pf_gpu::engine::FilterEngine::cpu(&config, pf_core::ResamplerKind::Systematic, start(&shape))
-            .unwrap();
+    let mut cpu = pf_gpu::engine::FilterEngine::cpu(
+        &config,
+        pf_core::ResamplerKind::Systematic,
+        start(&shape),
+    )
+    .unwrap();
     let err = cpu.keep_lag_window(2, false).unwrap_err();
     assert!(err.to_string().contains("host"), "{err}");
 }

@@ -35,6 +35,18 @@ pub struct LaggedSummaries {
     pub targets: Vec<Option<LaggedTarget>>,
 }
 
+/// One target's frame in a lag window, read back from a device (`pf_gpu::GpuFilter::
+/// download_lag_frames`) to be smoothed on the host.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LagFrame {
+    /// The states, `[d·M + m]`.
+    pub states: Vec<f32>,
+    /// The normalised log-weights, `[m]`.
+    pub log_weights: Vec<f32>,
+    /// Each particle's ancestor among the frame before's, `[m]`.
+    pub lineage: Vec<u32>,
+}
+
 /// One frame of a batch in the window.
 #[derive(Debug, Clone)]
 struct WindowFrame {

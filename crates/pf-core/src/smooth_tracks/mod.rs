@@ -6,7 +6,9 @@
 //! these rows to smoothed.csv; Python's trackers return them.
 
 mod coverage;
+mod lagged;
 pub use coverage::Coverage;
+pub use lagged::{LaggedTracks, ReadFrames, SlotTrack};
 
 use std::collections::{BTreeMap, VecDeque};
 
@@ -82,6 +84,11 @@ impl AncestryHealth {
         } else {
             0.0
         };
+        self.add_share(kept);
+    }
+
+    /// One more row that kept `kept` of its filtered effective sample size.
+    fn add_share(&mut self, kept: f64) {
         self.mean_kept += (kept - self.mean_kept) / (self.rows + 1) as f64;
         self.rows += 1;
         if kept < 0.1 {

@@ -17,7 +17,7 @@
 use bytemuck::{Pod, Zeroable};
 use pf_core::batch::BatchShape;
 use pf_core::smooth::Summary;
-use pf_core::smooth::lag_window::{LaggedSummaries, LaggedTarget};
+use pf_core::smooth::lag_window::{LagFrame, LaggedSummaries, LaggedTarget};
 
 use super::GpuFilter;
 use crate::context::GpuContext;
@@ -62,17 +62,6 @@ pub(super) struct LagWindow {
     group: wgpu::BindGroup,
     /// Frames copied into the ring so far.
     recorded: u64,
-}
-
-/// A frame of one target read back from the lag window's ring.
-#[derive(Debug, Clone, PartialEq)]
-pub struct LagFrame {
-    /// The states, `[d·M + m]`.
-    pub states: Vec<f32>,
-    /// The normalised log-weights, `[m]`.
-    pub log_weights: Vec<f32>,
-    /// Each particle's ancestor among the frame before's, `[m]`.
-    pub lineage: Vec<u32>,
 }
 
 impl LagWindow {

@@ -29,9 +29,9 @@ pub use likelihood::{
 pub use params::{FrameParams, TargetStats};
 pub use profile::DispatchTime;
 
-pub use lag_window::{LagFrame, MAX_LAG};
+pub use lag_window::MAX_LAG;
 pub use lineage::ParticlesBack;
-pub use pf_core::smooth::lag_window::{LaggedSummaries, LaggedTarget};
+pub use pf_core::smooth::lag_window::{LagFrame, LaggedSummaries, LaggedTarget};
 pub use setup::FilterStreams;
 use setup::{
     BindGroups, Dispatch, Stages, Streams, check_fits, groups_for, layer_params_buffer,
