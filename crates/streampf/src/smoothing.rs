@@ -5,14 +5,18 @@
 //! particles' filtered weights carry what the values share, and the backward weights of many
 //! values at once collapse). `--smooth-lag L` writes frame t − L once frame t is tracked, smoothed
 //! from the particles' ancestry (`pf_core::smooth::ancestry`: the weights of each particle's
-//! descendants L frames on, traced through the engine's lineage). A run that is interrupted or
-//! fails smooths and writes what it had tracked.
+//! descendants L frames on, traced through the engine's lineage; on a GPU, in a lag window kept
+//! there, `pf_gpu::GpuFilter::keep_lag_window`, whose summaries `LaggedTracks` turns into rows).
+//! A run that is interrupted or fails smooths and writes what it had tracked.
 
 use std::path::Path;
 
 use clap::Args;
 use pf_core::smooth::GaussianTransition;
-pub use pf_core::smooth_tracks::{Coverage, LagSmoother, SmoothedRow, TrackCloud, TrackSmoother};
+pub use pf_core::smooth_tracks::{
+    Coverage, LagSmoother, LaggedTracks, ReadFrames, SlotTrack, SmoothedRow, TrackCloud,
+    TrackSmoother,
+};
 
 use crate::run_output::CsvStream;
 
@@ -27,8 +31,9 @@ pub struct SmoothArgs {
     #[arg(long, value_parser = ["full"], conflicts_with = "smooth_lag", group = "smoother")]
     pub smooth: Option<String>,
     /// Also write smoothed.csv online: frame t − L smoothed by the frames up to t (by its
-    /// particles' descendants at frame t), written once frame t is tracked. Keeps L frames'
-    /// particles a track and reads each frame's particles and lineage back from a GPU.
+    /// particles' descendants at frame t), written once frame t is tracked. From the ancestry on
+    /// a GPU the last L + 2 frames stay on the GPU and only each frame's summaries come back;
+    /// otherwise the host keeps L frames' particles a track (read back from a GPU each frame).
     #[arg(
         long,
         value_name = "L",
@@ -127,9 +132,12 @@ impl SmoothArgs {
     }
 }
 
-/// The smoother of a run: a [`TrackSmoother`] whose rows go to smoothed.csv.
+/// The smoother of a run: a [`TrackSmoother`] whose rows go to smoothed.csv, or, smoothing from
+/// the ancestry on the tracker's GPU, a [`LaggedTracks`] turning its summaries into rows.
 pub struct Smoother {
     tracks: TrackSmoother,
+    /// The rows of a lag window the tracker's GPU keeps ([`Smoother::on_device`]).
+    device: Option<LaggedTracks>,
     lag: Option<usize>,
     how: LagSmoother,
     /// The GPU smoother, when the backward passes run on a GPU (for its fallback report).
@@ -170,6 +178,7 @@ impl Smoother {
         }
         Ok(Self {
             tracks,
+            device: None,
             lag,
             how: LagSmoother::default(),
             on_gpu,
@@ -192,10 +201,29 @@ impl Smoother {
         self
     }
 
+    /// The same smoother taking its lag rows from a lag window on the tracker's GPU (smoothing
+    /// from the ancestry: [`Smoother::add_device_frame`]), for values flagged `angular`, with the
+    /// filtered summaries beside them when `compare_filtered` (the GPU must make them too).
+    pub fn on_device(mut self, dims: usize, angular: Vec<bool>, compare_filtered: bool) -> Self {
+        if let Some(lag) = self.lag {
+            self.device = Some(LaggedTracks::new(lag, dims, angular, compare_filtered));
+            self.how = LagSmoother::Ancestry;
+        }
+        self
+    }
+
+    /// Whether the lag rows come from the tracker's GPU ([`Smoother::on_device`]).
+    pub fn is_on_device(&self) -> bool {
+        self.device.is_some()
+    }
+
     /// How this run smooths, for its summary: "over the whole run" or "with a lag of L frames
     /// (from the ancestry)".
     pub fn how(&self) -> String {
         match (self.lag, self.how) {
+            (Some(lag), _) if self.device.is_some() => {
+                format!("with a lag of {lag} frames (from the ancestry, on the GPU)")
+            }
             (None, _) => "over the whole run".to_string(),
             (Some(lag), LagSmoother::Ancestry) => {
                 format!("with a lag of {lag} frames (from the ancestry)")
@@ -209,7 +237,11 @@ impl Smoother {
     /// What smoothing from the ancestry kept of the lagged frames' effective sample size, on
     /// stdout (path degeneracy: the less, the narrower the intervals).
     pub fn report_ancestry(&self) {
-        let Some(health) = self.tracks.ancestry_health() else {
+        let health = match &self.device {
+            Some(device) => Some(device.health()),
+            None => self.tracks.ancestry_health(),
+        };
+        let Some(health) = health else {
             return;
         };
         if health.rows == 0 {
@@ -241,6 +273,33 @@ impl Smoother {
     ) -> anyhow::Result<Vec<SmoothedRow>> {
         let rows = (self.tracks.add_frame(frame, clouds))
             .map_err(|e| anyhow::anyhow!("smoothing frame {frame}: {e}"))?;
+        self.write(&rows)?;
+        Ok(rows)
+    }
+
+    /// [`LaggedTracks::add_frame`] (a lag window on the tracker's GPU), its rows written.
+    pub fn add_device_frame(
+        &mut self,
+        frame: usize,
+        tracking: &[SlotTrack],
+        lagged: Option<&pf_core::smooth::lag_window::LaggedSummaries>,
+        read: &mut ReadFrames<'_>,
+    ) -> anyhow::Result<Vec<SmoothedRow>> {
+        let device = (self.device.as_mut())
+            .ok_or_else(|| anyhow::anyhow!("no lag window on the GPU to smooth from"))?;
+        let rows = (device.add_frame(frame, tracking, lagged, read))
+            .map_err(|e| anyhow::anyhow!("smoothing frame {frame}: {e}"))?;
+        self.write(&rows)?;
+        Ok(rows)
+    }
+
+    /// Smooths and writes every frame still waiting in the GPU's lag window (the run's end).
+    pub fn finish_device(&mut self, read: &mut ReadFrames<'_>) -> anyhow::Result<Vec<SmoothedRow>> {
+        let rows = match self.device.as_mut() {
+            Some(device) => (device.finish(read))
+                .map_err(|e| anyhow::anyhow!("smoothing the tracks at the run's end: {e}"))?,
+            None => Vec::new(),
+        };
         self.write(&rows)?;
         Ok(rows)
     }

@@ -158,6 +158,16 @@ fn face_smoothing_on_the_gpu_writes_every_tracked_row() {
     assert_eq!(lagged.len(), tracked);
     let last = |rows: &[Vec<String>]| rows.iter().find(|r| r[0] == "11" && r[1] == "0").cloned();
     assert_eq!(last(&smoothed), last(&lagged));
+    // From the ancestry the lag window stays on the GPU: only its summaries come back.
+    let ancestry = ok(&face_command(
+        &dir.join("ancestry"),
+        "gpu",
+        &["--smooth-lag", "3", "--lag-smoother", "ancestry"],
+    ));
+    assert!(ancestry.contains("(from the ancestry, on the GPU)"), "{ancestry}");
+    let (_, traced) = rows(&dir.join("ancestry/smoothed.csv"));
+    assert_eq!(traced.len(), tracked);
+    check_intervals(&header, &traced, 2);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -286,6 +286,11 @@ impl AutoTracker {
         self.tracker.keep_lineage()
     }
 
+    /// See [`FaceTracker::keep_lag_window`].
+    pub fn keep_lag_window(&mut self, lag: usize, compare_filtered: bool) -> Result<(), FaceError> {
+        self.tracker.keep_lag_window(lag, compare_filtered)
+    }
+
     /// See [`FaceTracker::set_personaliser`].
     pub fn set_personaliser(
         &mut self,

@@ -31,6 +31,7 @@ use std::sync::atomic::AtomicUsize;
 
 mod clouds;
 pub mod in_flight;
+mod lag_window;
 mod model;
 pub mod shards;
 mod start;
@@ -205,6 +206,9 @@ struct Track {
     /// The last [`RECENT_ESTIMATES`] estimates (frame, state), oldest first: a restart poses
     /// its new template in the estimate of the frame the template was taken from.
     recent: VecDeque<(usize, [f32; DIMS])>,
+    /// The frame its particles were last started before (a start, restart or move): its
+    /// lineage names no ancestors there ([`FaceTracker::slot_tracks`]).
+    started_before: usize,
 }
 
 impl Track {
@@ -238,6 +242,8 @@ pub struct FaceTracker {
     pub(crate) shards: Vec<Shard>,
     /// The last step's GPU time (GPU engines only; the longest of the GPUs').
     last_time: Option<GpuTime>,
+    /// The last step's slots a lag behind, smoothed on the GPUs ([`Self::keep_lag_window`]).
+    last_lagged: Option<pf_core::smooth::lag_window::LaggedSummaries>,
     /// Frames submitted and not yet finished, oldest first ([`in_flight`]).
     pub(crate) in_flight: VecDeque<FrameInFlight>,
 }
@@ -354,6 +360,7 @@ impl FaceTracker {
             frame_index: 0,
             shards,
             last_time: None,
+            last_lagged: None,
             in_flight: VecDeque::new(),
             config,
         })
@@ -488,6 +495,7 @@ impl FaceTracker {
             std::array::from_fn(|d| estimates[t * DIMS + d])
         };
         self.last_time = (steps.iter().filter_map(|s| s.gpu_time)).max_by_key(|t| t.duration());
+        self.last_lagged = lag_window::joined(&steps);
         let (mut estimates, mut spreads, mut ess, mut log_evidence, mut errors) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
         for step in steps {

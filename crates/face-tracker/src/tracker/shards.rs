@@ -11,6 +11,7 @@
 use crate::likelihood::gpu::FaceLikelihoodGpu;
 use pf_core::batch::{BatchConfig, BatchShape};
 use pf_core::resample::ResamplerKind;
+use pf_core::smooth::lag_window::LaggedSummaries;
 use pf_gpu::engine::{EngineReport, Filter, InFlight};
 use pf_gpu::{GpuContext, GpuResampler, GpuTime};
 use rayon::prelude::*;
@@ -40,6 +41,8 @@ pub(crate) struct ShardStep {
     pub log_evidence: Vec<f64>,
     pub errors: Vec<f64>,
     pub gpu_time: Option<GpuTime>,
+    /// The shard's slots a lag behind, smoothed on its GPU (`FaceTracker::keep_lag_window`).
+    pub lagged: Option<LaggedSummaries>,
 }
 
 /// Template points a face is weighed at when the load is modelled (the paper's templates have
@@ -247,6 +250,7 @@ impl Shard {
             log_evidence: report.log_evidence,
             errors,
             gpu_time: report.gpu_time,
+            lagged: None,
         })
     }
 
@@ -289,6 +293,7 @@ fn gpu_shard_step(report: EngineReport) -> Result<ShardStep, FaceError> {
         log_evidence: report.log_evidence,
         errors,
         gpu_time: report.gpu_time,
+        lagged: report.lagged,
     })
 }
 

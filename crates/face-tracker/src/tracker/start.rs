@@ -385,6 +385,7 @@ impl FaceTracker {
             bad_frames: 0,
             ending: false,
             recent: VecDeque::with_capacity(RECENT_ESTIMATES),
+            started_before: self.frame_index,
         });
         Ok(())
     }

@@ -20,7 +20,7 @@ pub use sharded::{Sharded, ShardedPending, shard_ranges};
 use pf_core::PfError;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, Propagate};
 use pf_core::resample::{Resampler, ResamplerKind};
-use pf_core::smooth::lag_window::LaggedSummaries;
+use pf_core::smooth::lag_window::{LagFrame, LaggedSummaries};
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -247,6 +247,17 @@ impl FilterEngine {
                     .into(),
             )),
             Self::Gpu(gpu) => gpu.filter.keep_lag_window(&gpu.ctx, lag, compare_filtered),
+        }
+    }
+
+    /// Target `t`'s last `frames` frames in the GPU's lag window, oldest first
+    /// ([`GpuFilter::download_lag_frames`]); the CPU engine keeps none.
+    pub fn lag_frames(&self, t: usize, frames: usize) -> Result<Vec<LagFrame>, GpuError> {
+        match self {
+            Self::Cpu(_) => Err(GpuError::InvalidConfig(
+                "the CPU engine keeps no lag window".into(),
+            )),
+            Self::Gpu(gpu) => gpu.filter.download_lag_frames(&gpu.ctx, t, frames),
         }
     }
 

@@ -79,6 +79,19 @@ impl Runner {
         Ok(())
     }
 
+    /// Keeps a lag window on the tracker's GPUs (`FaceTracker::keep_lag_window`).
+    pub(super) fn keep_lag_window(
+        &mut self,
+        lag: usize,
+        compare_filtered: bool,
+    ) -> anyhow::Result<()> {
+        match self {
+            Runner::Fixed(tracker) => tracker.keep_lag_window(lag, compare_filtered)?,
+            Runner::Auto(auto) => auto.keep_lag_window(lag, compare_filtered)?,
+        }
+        Ok(())
+    }
+
     pub(super) fn set_personaliser(&mut self, personaliser: Option<Arc<Personaliser>>) {
         match self {
             Runner::Fixed(tracker) => tracker.set_personaliser(personaliser),

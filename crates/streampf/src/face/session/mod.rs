@@ -402,7 +402,7 @@ impl FaceRun<'_> {
         // Smoothed whatever ended the run: smoothed.csv gets every frame tracked.
         let truth = self.truth.as_deref();
         let closed = closed.and(match self.smoothing.as_mut() {
-            Some(smoothing) => smoothing.finish(truth).context("--smooth"),
+            Some(smoothing) => (smoothing.finish(runner.tracker(), truth)).context("--smooth"),
             None => Ok(()),
         });
         let written = matches!(end, LoopEnd::Done);

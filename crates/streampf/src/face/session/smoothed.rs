@@ -38,7 +38,43 @@ impl FaceSmoothing {
         }
         let how = asked.lag_smoother_for(runner.tracker().annealing_layers());
         let transition = asked.transition(runner.tracker().transition())?;
-        Self::create(out, (lag, how), runner.tracker(), transition, with_truth).map(Some)
+        let on_device = Self::keep_lag_on_device(runner, (lag, how), with_truth);
+        let smoothing = Self::create(out, (lag, how), runner.tracker(), transition, with_truth)?;
+        Ok(Some(if on_device {
+            Self {
+                smoother: smoothing
+                    .smoother
+                    .on_device(DIMS, ANGULAR.to_vec(), with_truth),
+                ..smoothing
+            }
+        } else {
+            smoothing
+        }))
+    }
+
+    /// Whether the lag window is kept on the tracker's GPU: smoothing from the ancestry with a
+    /// lag, on a GPU whose workgroup memory holds a face's particles (else the particles are
+    /// read back each frame and smoothed on the host, as on the CPU).
+    fn keep_lag_on_device(
+        runner: &mut Runner,
+        (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
+        with_truth: bool,
+    ) -> bool {
+        let Some(lag) = lag else { return false };
+        if how != crate::smoothing::LagSmoother::Ancestry
+            || runner.tracker().gpu_context().is_none()
+        {
+            return false;
+        }
+        match runner.keep_lag_window(lag, with_truth) {
+            Ok(()) => true,
+            Err(e) => {
+                errln!(
+                    "note: smoothing on the host, reading the particles back each frame ({e:#})"
+                );
+                false
+            }
+        }
     }
 
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
@@ -82,15 +118,29 @@ impl FaceSmoothing {
         estimates: &[FaceEstimate],
         truth: Option<&[Vec<[f32; DIMS]>]>,
     ) -> anyhow::Result<()> {
-        let clouds = tracker.track_clouds(estimates)?;
-        let rows = self.smoother.add_frame(frame, clouds)?;
+        let rows = if self.smoother.is_on_device() {
+            let tracking = tracker.slot_tracks(estimates);
+            let mut read = read_from(tracker);
+            (self.smoother).add_device_frame(frame, &tracking, tracker.lagged(), &mut read)?
+        } else {
+            self.smoother
+                .add_frame(frame, tracker.track_clouds(estimates)?)?
+        };
         self.score(&rows, truth);
         Ok(())
     }
 
     /// Smooths and writes what is still waiting (the run's end, however it ended).
-    pub(super) fn finish(&mut self, truth: Option<&[Vec<[f32; DIMS]>]>) -> anyhow::Result<()> {
-        let rows = self.smoother.finish()?;
+    pub(super) fn finish(
+        &mut self,
+        tracker: &FaceTracker,
+        truth: Option<&[Vec<[f32; DIMS]>]>,
+    ) -> anyhow::Result<()> {
+        let rows = if self.smoother.is_on_device() {
+            self.smoother.finish_device(&mut read_from(tracker))?
+        } else {
+            self.smoother.finish()?
+        };
         self.score(&rows, truth);
         Ok(())
     }
@@ -145,5 +195,17 @@ impl FaceSmoothing {
             coverage(0),
             coverage(1)
         );
+    }
+}
+
+/// Reads a slot's frames back from the tracker's lag window (`FaceTracker::lag_frames`).
+fn read_from(
+    tracker: &FaceTracker,
+) -> impl FnMut(usize, usize) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError> + '_
+{
+    |slot, frames| {
+        (tracker.lag_frames(slot, frames)).map_err(|e| {
+            pf_core::PfError::InvalidConfig(format!("reading the lag window back: {e}"))
+        })
     }
 }
