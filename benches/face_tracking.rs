@@ -7,7 +7,8 @@
 //! `FaceTrackerConfig::gpu_dispatch` to `Batched` for the paper's layout). `face_step_over_gpus`:
 //! 64, 256 and 1 024 faces on one GPU and split over every GPU (where there are two or more),
 //! one frame at a time and with two frames in flight. `face_step_lag_smoothing`: what smoothing
-//! with a lag of 8 (from the ancestry, or the marginal smoother) adds to the step.
+//! with a lag of 8 (from the ancestry read back, from the ancestry kept on the GPU, or the
+//! marginal smoother) adds to the step.
 //! GPU times include the submission, the wait and the readback. Fig. 6 also times the plain C
 //! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick,
 //! and the one-thread reference built without AVX2.
@@ -31,7 +32,7 @@ use face_tracker::synth::{
 use face_tracker::tracker::in_flight::MAX_FRAMES_IN_FLIGHT;
 use face_tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, GrayImage};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
-use pf_core::smooth_tracks::{LagSmoother, TrackSmoother};
+use pf_core::smooth_tracks::{LagSmoother, LaggedTracks, TrackSmoother};
 use pf_gpu::stream::DeviceStream;
 use pf_gpu::{GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 
@@ -428,9 +429,9 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
 
 /// What smoothing with a lag of 8 adds to the face step on the GPU (1 000 particles a face,
 /// 1024×768): the step alone; with the lineage kept (a dispatch more per layer); with every
-/// tracked face's particles and lineage read back each frame (what any smoother of the run
-/// needs); and with the ancestry smoother, or the marginal smoother on the same GPU, writing
-/// the frame eight back.
+/// tracked face's particles and lineage read back each frame (what a host smoother needs); with
+/// the ancestry smoother, or the marginal smoother on the same GPU, writing the frame eight
+/// back; and with the ancestry's lag window kept on the GPU (no particles read back).
 fn lag_smoothing(c: &mut Criterion) {
     let mut group = c.benchmark_group("face_step_lag_smoothing");
     group.sample_size(10);
@@ -486,6 +487,32 @@ fn lag_smoothing(c: &mut Criterion) {
                 })
             });
         }
+        drop(kept);
+        // The lag window kept on the GPU: only the summaries come back with the step.
+        let mut on_gpu = tracker(true);
+        on_gpu.keep_lag_window(LAG, false).unwrap();
+        let angular = on_gpu.transition().angular;
+        let mut rows = LaggedTracks::new(LAG, angular.len(), angular, false);
+        let mut frame_index = 0;
+        group.bench_function(
+            BenchmarkId::new("step_smoothing_lag_8_on_gpu", faces),
+            |b| {
+                b.iter(|| {
+                    let estimates = on_gpu.step(&frame).unwrap();
+                    let tracking = on_gpu.slot_tracks(&estimates);
+                    frame_index += 1;
+                    let mut read = |slot: usize, n: usize| {
+                        (on_gpu.lag_frames(slot, n))
+                            .map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
+                    };
+                    let lagged = on_gpu.lagged();
+                    std::hint::black_box(
+                        rows.add_frame(frame_index, &tracking, lagged, &mut read)
+                            .unwrap(),
+                    )
+                })
+            },
+        );
     }
     group.finish();
 }

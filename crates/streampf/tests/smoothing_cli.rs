@@ -164,7 +164,10 @@ fn face_smoothing_on_the_gpu_writes_every_tracked_row() {
         "gpu",
         &["--smooth-lag", "3", "--lag-smoother", "ancestry"],
     ));
-    assert!(ancestry.contains("(from the ancestry, on the GPU)"), "{ancestry}");
+    assert!(
+        ancestry.contains("(from the ancestry, on the GPU)"),
+        "{ancestry}"
+    );
     let (_, traced) = rows(&dir.join("ancestry/smoothed.csv"));
     assert_eq!(traced.len(), tracked);
     check_intervals(&header, &traced, 2);
