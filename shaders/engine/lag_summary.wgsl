@@ -37,17 +37,19 @@ struct LagParams {
 // [t]: traced over filtered effective sample size of the lagged frame.
 @group(0) @binding(6) var<storage, read_write> kept: array<f32>;
 
-const CAPACITY: u32 = 4096u;
+const SORT_SIZE: u32 = 4096u;
 const LAG_WG: u32 = 256u;
-const NO_ANCESTOR: u32 = 0xffffffffu;
 const LOWER_Q: f32 = 0.025;
 const UPPER_Q: f32 = 0.975;
+// The traced weights' fixed point: weights sum to 1, so 2^30 leaves room for rounding.
+const FIXED_ONE: f32 = 1073741824.0;
 
-// The cloud being summarised: each particle's value (then its offset from the mean) and weight.
-var<workgroup> values: array<f32, CAPACITY>;
-var<workgroup> cloud_weights: array<f32, CAPACITY>;
-// Each newest particle's ancestor in the lagged frame.
-var<workgroup> ancestor_of: array<u32, CAPACITY>;
+// The cloud being summarised: each particle's value (then its offset from the mean, sorted)
+// and weight; padding at +inf with weight 0.
+var<workgroup> values: array<f32, SORT_SIZE>;
+var<workgroup> cloud_weights: array<f32, SORT_SIZE>;
+// Each lagged particle's traced weight (the sum of its descendants'), in FIXED_ONE units.
+var<workgroup> ancestor_weight: array<atomic<u32>, SORT_SIZE>;
 var<workgroup> partial: array<f32, 256>;
 var<workgroup> broken: atomic<u32>;
 
@@ -72,6 +74,24 @@ fn reduce(lid: u32, value: f32, op: u32) -> f32 {
     return result;
 }
 
+// The sum of `value` over the invocations before this one (Hillis-Steele).
+fn exclusive_scan(lid: u32, value: f32) -> f32 {
+    partial[lid] = value;
+    workgroupBarrier();
+    for (var stride = 1u; stride < LAG_WG; stride = stride * 2u) {
+        var add = 0.0;
+        if (lid >= stride) {
+            add = partial[lid - stride];
+        }
+        workgroupBarrier();
+        partial[lid] = partial[lid] + add;
+        workgroupBarrier();
+    }
+    let inclusive = partial[lid];
+    workgroupBarrier();
+    return inclusive - value;
+}
+
 fn ring_slot(frames_back: u32) -> u32 {
     return (lag_params.newest + lag_params.slots - frames_back) % lag_params.slots;
 }
@@ -91,10 +111,33 @@ fn weight_of(log_weight: f32) -> f32 {
     return exp(log_weight);
 }
 
-// The mean, lower and upper end of the 95 % interval of `values` under `cloud_weights` (n
-// particles): the quantiles are the smallest offsets from the mean whose cumulative weight reaches
-// 2.5 % and 97.5 % (offsets wrapped for an angle), each particle's cumulative weight summed over
-// every particle at or below it, O(M²) and no sort. Twin of pf_core::smooth::summary.
+// Sorts values (with their weights) ascending in workgroup memory.
+fn bitonic_sort(lid: u32) {
+    for (var k = 2u; k <= SORT_SIZE; k = k * 2u) {
+        for (var j = k / 2u; j > 0u; j = j / 2u) {
+            for (var i = lid; i < SORT_SIZE; i = i + LAG_WG) {
+                let l = i ^ j;
+                if (l > i) {
+                    let a = values[i];
+                    let b = values[l];
+                    if ((a > b) == ((i & k) == 0u)) {
+                        values[i] = b;
+                        values[l] = a;
+                        let w = cloud_weights[i];
+                        cloud_weights[i] = cloud_weights[l];
+                        cloud_weights[l] = w;
+                    }
+                }
+            }
+            workgroupBarrier();
+        }
+    }
+}
+
+// The mean, lower and upper end of the 95 % interval of the n `values` under `cloud_weights`:
+// the quantiles are the smallest offsets from the mean (wrapped for an angle) whose cumulative
+// weight in sorted order reaches 2.5 % and 97.5 %, else the largest offset of positive weight.
+// Twin of pf_core::smooth::summary.
 fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
     var a = 0.0;
     var b = 0.0;
@@ -112,69 +155,64 @@ fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
     if (angle) {
         mean = atan2(mean, reduce(lid, b, 0u));
     }
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        var e = values[m] - mean;
-        if (angle) {
-            e = wrap_angle(e);
+    let none = bitcast<f32>(0x7f800000u);
+    for (var m = lid; m < SORT_SIZE; m = m + LAG_WG) {
+        if (m < n) {
+            var e = values[m] - mean;
+            if (angle) {
+                e = wrap_angle(e);
+            }
+            values[m] = e;
+        } else {
+            values[m] = none;
+            cloud_weights[m] = 0.0;
         }
-        values[m] = e;
     }
     workgroupBarrier();
-    let none = bitcast<f32>(0x7f800000u);
-    var lower = none;
-    var upper = none;
-    var top = -none;
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        let e = values[m];
-        if (cloud_weights[m] == 0.0) {
-            continue;
+    bitonic_sort(lid);
+    // Each invocation a run of consecutive sorted particles: their cumulative weights.
+    let run = SORT_SIZE / LAG_WG;
+    let first = lid * run;
+    var own = 0.0;
+    for (var c = 0u; c < run; c = c + 1u) {
+        own = own + cloud_weights[first + c];
+    }
+    var cumulative = exclusive_scan(lid, own);
+    var lower_at = none;
+    var upper_at = none;
+    var last_weighed = -1.0;
+    for (var c = 0u; c < run; c = c + 1u) {
+        let w = cloud_weights[first + c];
+        cumulative = cumulative + w;
+        let at = f32(first + c);
+        if (w > 0.0) {
+            last_weighed = at;
         }
-        top = max(top, e);
-        var cumulative = 0.0;
-        for (var k = 0u; k < n; k = k + 1u) {
-            if (values[k] <= e) {
-                cumulative = cumulative + cloud_weights[k];
-            }
+        if (cumulative >= LOWER_Q && w > 0.0) {
+            lower_at = min(lower_at, at);
         }
-        if (cumulative >= LOWER_Q) {
-            lower = min(lower, e);
-        }
-        if (cumulative >= UPPER_Q) {
-            upper = min(upper, e);
+        if (cumulative >= UPPER_Q && w > 0.0) {
+            upper_at = min(upper_at, at);
         }
     }
-    lower = reduce(lid, lower, 1u);
-    upper = reduce(lid, upper, 1u);
-    top = reduce(lid, top, 2u);
+    lower_at = reduce(lid, lower_at, 1u);
+    upper_at = reduce(lid, upper_at, 1u);
+    last_weighed = reduce(lid, last_weighed, 2u);
     // Rounding can leave the total just under a quantile: the largest offset then, as on the CPU.
-    if (lower == none) {
-        lower = top;
+    if (lower_at == none) {
+        lower_at = last_weighed;
     }
-    if (upper == none) {
-        upper = top;
+    if (upper_at == none) {
+        upper_at = last_weighed;
     }
+    let lower = values[u32(max(lower_at, 0.0))];
+    let upper = values[u32(max(upper_at, 0.0))];
+    workgroupBarrier();
     return vec3<f32>(mean, mean + lower, mean + upper);
 }
 
-// sum w^2 over the lagged frame's particles with the traced weights: each ancestor's weight is
-// the sum over its descendants, so sum_i W_i^2 = sum_m w_m W_A(m), O(M²).
-fn traced_square_sum(lid: u32, n: u32) -> f32 {
-    var acc = 0.0;
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        let ancestor = ancestor_of[m];
-        var of_ancestor = 0.0;
-        for (var k = 0u; k < n; k = k + 1u) {
-            if (ancestor_of[k] == ancestor) {
-                of_ancestor = of_ancestor + cloud_weights[k];
-            }
-        }
-        acc = acc + cloud_weights[m] * of_ancestor;
-    }
-    return reduce(lid, acc, 0u);
-}
-
-// (sum w)^2 / sum w^2 of the lagged frame's own weights (in cloud_weights).
-fn filtered_ess(lid: u32, n: u32) -> f32 {
+// (sum w)^2 / sum w^2 of the n weights w in cloud_weights.
+fn weights_ess(lid: u32, n: u32) -> f32 {
     var s1 = 0.0;
     var s2 = 0.0;
     for (var m = lid; m < n; m = m + LAG_WG) {
@@ -190,6 +228,15 @@ fn filtered_ess(lid: u32, n: u32) -> f32 {
     return sum * sum / squares;
 }
 
+// The effective sample size of the lagged frame's traced weights (ancestor_weight).
+fn traced_ess(lid: u32, n: u32) -> f32 {
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        cloud_weights[m] = f32(atomicLoad(&ancestor_weight[m])) / FIXED_ONE;
+    }
+    workgroupBarrier();
+    return weights_ess(lid, n);
+}
+
 @compute @workgroup_size(256)
 fn summarise_lagged(
     @builtin(workgroup_id) group: vec3<u32>,
@@ -202,10 +249,14 @@ fn summarise_lagged(
     if (lid == 0u) {
         atomicStore(&broken, 0u);
     }
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        atomicStore(&ancestor_weight[m], 0u);
+    }
     workgroupBarrier();
     let newest = ring_slot(0u);
     let lagged = ring_slot(lag_params.lag);
-    // Each newest particle's ancestor lag frames back, and its weight.
+    // Each newest particle's ancestor lag frames back: the ancestor's value with the newest
+    // particle's weight (and, for value 0, the weight added to the ancestor's).
     for (var m = lid; m < n; m = m + LAG_WG) {
         var a = m;
         for (var k = 0u; k < lag_params.lag; k = k + 1u) {
@@ -216,9 +267,12 @@ fn summarise_lagged(
                 break;
             }
         }
-        ancestor_of[m] = a;
-        cloud_weights[m] = weight_of(window_log_weights[particle_at(newest, t, m)]);
+        let w = weight_of(window_log_weights[particle_at(newest, t, m)]);
+        cloud_weights[m] = w;
         values[m] = state_at(lagged, t, d, a);
+        if (d == 0u) {
+            atomicAdd(&ancestor_weight[a], u32(round(w * FIXED_ONE)));
+        }
     }
     workgroupBarrier();
     let out = (t * params.dims + d) * 6u;
@@ -235,31 +289,27 @@ fn summarise_lagged(
         return;
     }
     let smoothed = summarise(lid, n, is_angle(d));
-    var traced_squares = 0.0;
-    if (d == 0u) {
-        traced_squares = traced_square_sum(lid, n);
-    }
-    // The lagged frame's own particles under their own weights.
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
-        values[m] = state_at(lagged, t, d, m);
-    }
-    workgroupBarrier();
     var filtered = vec3<f32>(0.0);
     if (lag_params.filtered == 1u) {
-        filtered = summarise(lid, n, is_angle(d));
+        // The lagged frame's own particles under their own weights.
+        for (var m = lid; m < n; m = m + LAG_WG) {
+            cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
+            values[m] = state_at(lagged, t, d, m);
+        }
         workgroupBarrier();
+        filtered = summarise(lid, n, is_angle(d));
+    }
+    if (d == 0u) {
+        let traced = traced_ess(lid, n);
         for (var m = lid; m < n; m = m + LAG_WG) {
             cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
         }
         workgroupBarrier();
-    }
-    if (d == 0u) {
-        let own = filtered_ess(lid, n);
+        let own = weights_ess(lid, n);
         if (lid == 0u) {
             var share = 0.0;
-            if (own > 0.0 && traced_squares > 0.0) {
-                share = (1.0 / traced_squares) / own;
+            if (own > 0.0) {
+                share = traced / own;
             }
             kept[t] = share;
         }

@@ -36,12 +36,17 @@ struct LagParams {
 }
 
 /// The line of `lag_summary.wgsl` the driver sizes to the filter's particles.
-const CAPACITY_LINE: &str = "const CAPACITY: u32 = 4096u;";
+const SORT_SIZE_LINE: &str = "const SORT_SIZE: u32 = 4096u;";
 
-/// Workgroup memory the kernel needs for `particles` a target: values, weights and ancestors,
-/// and the reductions' partial sums.
+/// The kernel's sort size for `particles` a target: a power of two, at least its workgroup.
+fn sort_size(particles: usize) -> usize {
+    particles.next_power_of_two().max(256)
+}
+
+/// Workgroup memory the kernel needs for `particles` a target: values, weights and traced
+/// weights at the sort's size, and the reductions' partial sums.
 fn workgroup_bytes(particles: usize) -> u64 {
-    3 * 4 * particles as u64 + 256 * 4 + 4
+    3 * 4 * sort_size(particles) as u64 + 256 * 4 + 4
 }
 
 /// Floats the kernel writes per target and value: smoothed and filtered mean, lower, upper.
@@ -75,8 +80,8 @@ impl LagWindow {
         check_fits(ctx, shape, lag)?;
         let slots = lag + 2;
         let source = stage_source(sources::LAG_SUMMARY).replace(
-            CAPACITY_LINE,
-            &format!("const CAPACITY: u32 = {}u;", shape.particles.max(1)),
+            SORT_SIZE_LINE,
+            &format!("const SORT_SIZE: u32 = {}u;", sort_size(shape.particles)),
         );
         let kernel = Kernel::new(ctx, "lag summary", &source, "summarise_lagged")?;
         let states = DeviceStream::zeroed(ctx, "lag window states", slots * shape.state_len())?;
