@@ -82,7 +82,9 @@ fn rows_both_ways(backend: FaceBackend) -> (Vec<SmoothedRow>, Vec<SmoothedRow>) 
     let mut read = |slot: usize, n: usize| -> Result<Vec<LagFrame>, pf_core::PfError> {
         (tracker.lag_frames(slot, n)).map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
     };
-    on_device.extend(device.finish(&mut read).unwrap());
+    let (rest, unsmoothed) = device.finish(&mut read).unwrap();
+    assert!(unsmoothed.is_empty(), "{unsmoothed:?}");
+    on_device.extend(rest);
     (on_host, on_device)
 }
 

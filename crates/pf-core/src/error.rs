@@ -56,6 +56,10 @@ pub enum PfError {
         got: usize,
     },
 
+    /// The device holding the particles failed while they were read (a lost GPU, say).
+    #[error("{0}")]
+    Device(String),
+
     /// A configuration value is out of its domain.
     #[error("invalid configuration: {0}")]
     InvalidConfig(String),

@@ -294,13 +294,23 @@ impl Smoother {
     }
 
     /// Smooths and writes every frame still waiting in the GPU's lag window (the run's end).
+    /// Frames whose window could not be read back (a lost device) are named on stderr: the rows
+    /// before them are written, and states.csv has every frame tracked.
     pub fn finish_device(&mut self, read: &mut ReadFrames<'_>) -> anyhow::Result<Vec<SmoothedRow>> {
-        let rows = match self.device.as_mut() {
+        let (rows, unsmoothed) = match self.device.as_mut() {
             Some(device) => (device.finish(read))
                 .map_err(|e| anyhow::anyhow!("smoothing the tracks at the run's end: {e}"))?,
-            None => Vec::new(),
+            None => (Vec::new(), Vec::new()),
         };
         self.write(&rows)?;
+        for lost in unsmoothed {
+            let (first, last) = lost.frames;
+            errln!(
+                "warning: track {}'s frames {first}-{last} were not smoothed: their lag window on the GPU could not be read back ({}); smoothed.csv stops before them, states.csv has them",
+                lost.track,
+                lost.reason
+            );
+        }
         Ok(rows)
     }
 

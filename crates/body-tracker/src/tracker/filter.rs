@@ -119,6 +119,8 @@ pub struct FilterStep {
     pub estimate_sum: Option<f64>,
     /// The step's own time on its GPU (timestamps where the adapter has them); `None` on the CPU.
     pub gpu_time: Option<pf_gpu::GpuTime>,
+    /// The frame a lag behind, smoothed on the GPU, where the filter keeps a lag window.
+    pub lagged: Option<pf_core::smooth::lag_window::LaggedSummaries>,
 }
 
 /// A frame as every filter weighs it.
@@ -211,6 +213,7 @@ impl Filter {
             log_evidence: report.log_evidence[0],
             estimate_sum,
             gpu_time: report.gpu_time,
+            lagged: report.lagged,
         })
     }
 }

@@ -25,6 +25,7 @@ use crate::error::BodyError;
 
 mod filter;
 pub mod islands;
+mod lag_window;
 
 use crate::frame::{FramePreparer, PreparedFrame};
 use crate::likelihood::{
@@ -179,6 +180,8 @@ pub struct BodyTracker {
     frames: u64,
     /// The islands' weights at the last frame (empty with one filter).
     island_weights: Vec<f64>,
+    /// The last frame a lag behind, smoothed on the GPU ([`Self::keep_lag_window`]).
+    last_lagged: Option<pf_core::smooth::lag_window::LaggedSummaries>,
     /// The last frame's GPU time (the slowest island's); `None` on the CPU.
     last_gpu_time: Option<pf_gpu::GpuTime>,
     /// Frames submitted and not yet finished, oldest first.
@@ -232,6 +235,7 @@ impl BodyTracker {
             frames: 0,
             island_weights: Vec::new(),
             last_gpu_time: None,
+            last_lagged: None,
             in_flight: std::collections::VecDeque::new(),
         })
     }
@@ -278,29 +282,6 @@ impl BodyTracker {
     /// The annealing layers of a frame (each resamples).
     pub fn annealing_layers(&self) -> Result<usize, BodyError> {
         Ok(filter::annealing(&self.skeleton, &self.config)?.layers)
-    }
-
-    /// Keeps each frame's lineage from the next step on (what smoothing with a lag traces back;
-    /// the GPU composes it, the CPU engine always does).
-    pub fn keep_lineage(&mut self) -> Result<(), BodyError> {
-        for filter in &mut self.filters {
-            filter.engine_mut().keep_lineage()?;
-        }
-        Ok(())
-    }
-
-    /// The last step's lineage, `[j]` (each sample's ancestor among the frame before's); `None`
-    /// where it is not kept, or with several islands (particles move between them).
-    pub fn lineage(&self) -> Result<Option<Vec<u32>>, BodyError> {
-        if !self.in_flight.is_empty() {
-            return Err(BodyError::InvalidInput(
-                "the lineage of a finished frame: frames are still in flight".into(),
-            ));
-        }
-        match self.filters.as_slice() {
-            [filter] => Ok(filter.engine().lineage()?),
-            _ => Ok(None),
-        }
     }
 
     /// The last frame's own time on the GPU (the slowest island's with several; GPU timestamps
@@ -449,6 +430,10 @@ impl BodyTracker {
         let log_evidence = pf_core::islands::pooled_log_evidence(
             &steps.iter().map(|s| s.log_evidence).collect::<Vec<_>>(),
         );
+        self.last_lagged = match steps.as_slice() {
+            [one] => one.lagged.clone(),
+            _ => None,
+        };
         let (pose, spread, ess, fit) = if let [one] = steps.as_slice() {
             (
                 one.pose.clone(),

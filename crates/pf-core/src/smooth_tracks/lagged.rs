@@ -39,6 +39,18 @@ struct SlotWindow {
     frames: VecDeque<usize>,
 }
 
+/// Frames a track waited in that could not be smoothed: the device's window could not be read
+/// back at the run's end (a lost device keeps its memory).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unsmoothed {
+    /// The track.
+    pub track: usize,
+    /// Its first and last waiting frame.
+    pub frames: (usize, usize),
+    /// Why the window could not be read.
+    pub reason: String,
+}
+
 /// Tracks smoothed from the ancestry a lag behind, from a device's summaries (see the module).
 #[derive(Debug, Clone)]
 pub struct LaggedTracks {
@@ -119,15 +131,29 @@ impl LaggedTracks {
         Ok(rows)
     }
 
-    /// Every frame still waiting, smoothed from the last frame stepped (the run's end).
-    pub fn finish(&mut self, read: &mut ReadFrames<'_>) -> Result<Vec<SmoothedRow>, PfError> {
+    /// Every frame still waiting, smoothed from the last frame stepped (the run's end), and the
+    /// tracks' waiting frames whose window could not be read back (a lost device): every track
+    /// that can be read is smoothed whatever happened to the others.
+    pub fn finish(
+        &mut self,
+        read: &mut ReadFrames<'_>,
+    ) -> Result<(Vec<SmoothedRow>, Vec<Unsmoothed>), PfError> {
         let windows = std::mem::take(&mut self.windows);
-        let mut rows = Vec::new();
+        let (mut rows, mut unsmoothed) = (Vec::new(), Vec::new());
         for (slot, window) in windows {
-            let frames = read(slot, window.frames.len())?;
-            rows.extend(self.host_rows(&window, frames)?);
+            let (Some(&first), Some(&last)) = (window.frames.front(), window.frames.back()) else {
+                continue;
+            };
+            match read(slot, window.frames.len()) {
+                Ok(frames) => rows.extend(self.host_rows(&window, frames)?),
+                Err(e) => unsmoothed.push(Unsmoothed {
+                    track: window.track,
+                    frames: (first, last),
+                    reason: e.to_string(),
+                }),
+            }
         }
-        Ok(rows)
+        Ok((rows, unsmoothed))
     }
 
     /// A full window's first frame: the device's row where it traced the slot, else the slot's
@@ -406,7 +432,9 @@ mod tests {
                 theirs.extend(host.add_frame(f, clouds).unwrap());
             }
             let mut read = |slot: usize, n: usize| read_ring(&ring, (slot, n), (dims, m), lag);
-            ours.extend(lagged_tracks.finish(&mut read).unwrap());
+            let (rest, unsmoothed) = lagged_tracks.finish(&mut read).unwrap();
+            prop_assert!(unsmoothed.is_empty());
+            ours.extend(rest);
             theirs.extend(host.finish().unwrap());
             let (ours, theirs) = (sorted(ours), sorted(theirs));
             prop_assert_eq!(ours.len(), theirs.len());

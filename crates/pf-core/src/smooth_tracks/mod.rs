@@ -8,7 +8,7 @@
 mod coverage;
 mod lagged;
 pub use coverage::Coverage;
-pub use lagged::{LaggedTracks, ReadFrames, SlotTrack};
+pub use lagged::{LaggedTracks, ReadFrames, SlotTrack, Unsmoothed};
 
 use std::collections::{BTreeMap, VecDeque};
 

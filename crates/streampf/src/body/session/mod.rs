@@ -100,7 +100,7 @@ pub(super) fn track(args: &TrackArgs) -> anyhow::Result<()> {
     finish_run(
         args,
         &mut run,
-        (&skeleton, truth.as_deref()),
+        (&tracker, truth.as_deref()),
         (overlay, recording),
         started,
         end,
@@ -187,7 +187,7 @@ fn resume_point(args: &TrackArgs, skeleton: &Skeleton) -> anyhow::Result<Option<
 fn finish_run(
     args: &TrackArgs,
     run: &mut BodyRun,
-    (skeleton, truth): (&Skeleton, Option<&[Vec<f32>]>),
+    (tracker, truth): (&BodyTracker, Option<&[Vec<f32>]>),
     (overlay, recording): (Option<BodyOverlay>, Option<Recording>),
     started: Instant,
     mut end: LoopEnd,
@@ -196,7 +196,7 @@ fn finish_run(
     let closed = closed.and(recording.map_or(Ok(()), Recording::finish));
     // Smoothed whatever ended the run: smoothed.csv gets every frame tracked.
     let closed = closed.and(match run.smoothing.as_mut() {
-        Some(smoothing) => smoothing.finish(skeleton, truth).context("--smooth"),
+        Some(smoothing) => smoothing.finish(tracker, truth).context("--smooth"),
         None => Ok(()),
     });
     if let (Err(e), LoopEnd::Done | LoopEnd::Interrupted) = (closed, &end) {

@@ -5,7 +5,7 @@
 use body_tracker::{BodyTracker, Skeleton, mean_joint_error};
 use std::path::Path;
 
-use crate::smoothing::{Coverage, LagSmoother, SmoothArgs, SmoothedRow, Smoother};
+use crate::smoothing::{Coverage, LagSmoother, SlotTrack, SmoothArgs, SmoothedRow, Smoother};
 
 /// A body run's smoother and what its rows scored against the truth.
 pub(in crate::body) struct BodySmoothing {
@@ -42,7 +42,38 @@ impl BodySmoothing {
             }
         }
         let transition = asked.transition(tracker.transition()?)?;
-        Self::create(out, (lag, how), tracker, transition, with_truth).map(Some)
+        let on_device = Self::keep_lag_on_device(tracker, (lag, how), with_truth);
+        let smoothing = Self::create(out, (lag, how), tracker, transition, with_truth)?;
+        Ok(Some(if on_device {
+            let angular = smoothing.angular.clone();
+            Self {
+                smoother: (smoothing.smoother).on_device(angular.len(), angular, with_truth),
+                ..smoothing
+            }
+        } else {
+            smoothing
+        }))
+    }
+
+    /// Whether the lag window is kept on the tracker's GPU: smoothing from the ancestry with a
+    /// lag on one GPU whose workgroup memory holds the samples (else they are read back each
+    /// frame and smoothed on the host, as on the CPU).
+    fn keep_lag_on_device(
+        tracker: &mut BodyTracker,
+        (lag, how): (Option<usize>, LagSmoother),
+        with_truth: bool,
+    ) -> bool {
+        let Some(lag) = lag else { return false };
+        if how != LagSmoother::Ancestry || tracker.gpu_context().is_none() {
+            return false;
+        }
+        match tracker.keep_lag_window(lag, with_truth) {
+            Ok(()) => true,
+            Err(e) => {
+                errln!("note: smoothing on the host, reading the samples back each frame ({e:#})");
+                false
+            }
+        }
     }
 
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
@@ -87,25 +118,40 @@ impl BodySmoothing {
         tracker: &BodyTracker,
         truth: Option<&[Vec<f32>]>,
     ) -> anyhow::Result<()> {
-        let (_, states, log_weights) = tracker.particles()?;
-        let cloud = crate::smoothing::TrackCloud {
-            track: 0,
-            states,
-            log_weights,
-            lineage: tracker.lineage()?,
+        let rows = if self.smoother.is_on_device() {
+            // One target, the body, never restarted.
+            let tracking = [SlotTrack {
+                slot: 0,
+                track: 0,
+                restarted: false,
+            }];
+            let mut read = read_from(tracker);
+            (self.smoother).add_device_frame(frame, &tracking, tracker.lagged(), &mut read)?
+        } else {
+            let (_, states, log_weights) = tracker.particles()?;
+            let cloud = crate::smoothing::TrackCloud {
+                track: 0,
+                states,
+                log_weights,
+                lineage: tracker.lineage()?,
+            };
+            self.smoother.add_frame(frame, vec![cloud])?
         };
-        let rows = self.smoother.add_frame(frame, vec![cloud])?;
         self.score(tracker.skeleton(), &rows, truth)
     }
 
     /// Smooths and writes what is still waiting (the run's end, however it ended).
     pub(in crate::body) fn finish(
         &mut self,
-        skeleton: &Skeleton,
+        tracker: &BodyTracker,
         truth: Option<&[Vec<f32>]>,
     ) -> anyhow::Result<()> {
-        let rows = self.smoother.finish()?;
-        self.score(skeleton, &rows, truth)
+        let rows = if self.smoother.is_on_device() {
+            self.smoother.finish_device(&mut read_from(tracker))?
+        } else {
+            self.smoother.finish()?
+        };
+        self.score(tracker.skeleton(), &rows, truth)
     }
 
     fn score(
@@ -152,4 +198,12 @@ impl BodySmoothing {
             share(1)
         );
     }
+}
+
+/// Reads the body's frames back from the tracker's lag window (`BodyTracker::lag_frames`).
+fn read_from(
+    tracker: &BodyTracker,
+) -> impl FnMut(usize, usize) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError> + '_
+{
+    |_, frames| (tracker.lag_frames(frames)).map_err(|e| pf_core::PfError::Device(e.to_string()))
 }

@@ -204,8 +204,6 @@ fn read_from(
 ) -> impl FnMut(usize, usize) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError> + '_
 {
     |slot, frames| {
-        (tracker.lag_frames(slot, frames)).map_err(|e| {
-            pf_core::PfError::InvalidConfig(format!("reading the lag window back: {e}"))
-        })
+        (tracker.lag_frames(slot, frames)).map_err(|e| pf_core::PfError::Device(e.to_string()))
     }
 }
