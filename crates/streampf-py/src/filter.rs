@@ -68,6 +68,8 @@ pub struct ParticleFilter {
     engine: Mutex<Engine>,
     /// `smooth=True`: every step's particles, for `smoothed()`.
     history: Option<History>,
+    /// `lag=` on the CPU: the host's lag window (on the GPU the engine keeps it).
+    cpu_lag: Option<Mutex<pf_core::smooth::lag_window::LagWindow>>,
     shape: BatchShape,
     device: String,
     /// Whether the model is WGSL on the GPU (else a Python likelihood on the CPU).
@@ -117,7 +119,7 @@ impl ParticleFilter {
         initial, *, sigma, wgsl = None, likelihood = None, observation_size = None,
         constants = None, name = "model", angular = None, bounds = None,
         resampler = "systematic", layers = 1, seed = 1, backend = "auto",
-        allow_software = false, smooth = false
+        allow_software = false, smooth = false, lag = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -137,7 +139,9 @@ impl ParticleFilter {
         backend: &str,
         allow_software: bool,
         smooth: bool,
+        lag: Option<i128>,
     ) -> PyResult<Self> {
+        let lag = crate::lagged::lag_arg(lag)?;
         let observation_size: Option<usize> = whole_opt("observation_size", observation_size)?;
         let (dims, values) = finite_f32(initial, &[None, None, None], "initial")?;
         let shape = BatchShape::new(dims[0], dims[1], dims[2]).map_err(pf)?;
@@ -176,7 +180,24 @@ impl ParticleFilter {
             }
         };
         let on_gpu = matches!(engine, Engine::Gpu { .. });
+        let mut engine = engine;
+        let cpu_lag = match (lag, &mut engine) {
+            (Some(lag), Engine::Gpu { filter, .. }) => {
+                filter
+                    .engine_mut()
+                    .keep_lag_window(lag, false)
+                    .map_err(gpu)?;
+                None
+            }
+            (Some(lag), Engine::Cpu { .. }) => Some(crate::lagged::cpu_window(
+                shape,
+                lag,
+                config.angular.clone(),
+            )?),
+            (None, _) => None,
+        };
         Ok(Self {
+            cpu_lag,
             history: History::for_filter(smooth, &engine, &config)?,
             on_gpu,
             engine: Mutex::new(engine),
@@ -204,7 +225,7 @@ impl ParticleFilter {
         observations: &Bound<'py, PyAny>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let shape = self.shape;
-        let (estimates, spreads, ess, resampled, log_evidence) = if self.on_gpu {
+        let (estimates, spreads, ess, resampled, log_evidence, lagged) = if self.on_gpu {
             let (_, values) =
                 finite_f32(observations, &[Some(shape.targets), None], "observations")?;
             py.detach(|| {
@@ -231,6 +252,7 @@ impl ParticleFilter {
                     report.ess,
                     report.resampled,
                     report.log_evidence,
+                    report.lagged,
                 ))
             })?
         } else {
@@ -254,12 +276,19 @@ impl ParticleFilter {
             }
             let report = report.map_err(pf)?;
             check_statuses(&report.status)?;
+            let lagged = match &self.cpu_lag {
+                Some(window) => (window.lock().map_err(|_| poisoned())?)
+                    .push(&filter.states, &filter.log_weights, filter.lineage())
+                    .map_err(pf)?,
+                None => None,
+            };
             (
                 report.estimates,
                 report.spreads,
                 report.ess,
                 report.resampled,
                 report.log_evidence,
+                lagged,
             )
         };
         let (t, d) = (shape.targets, shape.dims);
@@ -269,6 +298,8 @@ impl ParticleFilter {
         out.set_item("ess", to_numpy(py, ess, &[t])?)?;
         out.set_item("resampled", to_numpy(py, resampled, &[t])?)?;
         out.set_item("log_evidence", to_numpy(py, log_evidence, &[t])?)?;
+        let lagged = crate::lagged::lagged_dict(py, lagged.as_ref(), &shape)?;
+        out.set_item("lagged", lagged)?;
         self.keep_for_smoothing(py)?;
         Ok(out)
     }

@@ -16,6 +16,7 @@ mod camera;
 mod errors;
 mod face;
 mod filter;
+mod lagged;
 mod mot;
 mod settings;
 mod smoothing;

@@ -250,3 +250,42 @@ fn propagate(x: State, n: State, c: Constants) -> State {
             initial, sigma=[WALK], wgsl=own_dynamics, observation_size=1,
             constants=np.array([SEEN, LOG_NORM], np.float32), smooth=True, **gpu_backend,
         )
+
+
+def test_lagged_means_match_the_fixed_lag_kalman_smoother_on_cpu_and_gpu(gpu_backend):
+    """lag=L: each step returns the step L back smoothed from the particles' ancestry (on the
+    GPU summarised there). Against the exact fixed-lag answer, RTS over the observations up to
+    now, within the filters' Monte Carlo error; None before the window fills."""
+    filters, particles, steps, lag = 24, 800, 16, 3
+    rng = np.random.default_rng(10)
+    ys = (np.cumsum(rng.normal(0, WALK, steps)) + rng.normal(0, SEEN, steps)).astype(np.float32)
+    initial = rng.normal(0, 1, (filters, particles, 1)).astype(np.float32)
+    gpu = streampf.ParticleFilter(
+        initial, sigma=[WALK], wgsl=WALK_WGSL, observation_size=1,
+        constants=np.array([SEEN, LOG_NORM], np.float32), seed=4, lag=lag, **gpu_backend,
+    )
+    cpu = streampf.ParticleFilter(
+        initial, sigma=[WALK], likelihood=walk_likelihood, seed=4, backend="cpu", lag=lag
+    )
+    for name, pf in [("gpu", gpu), ("cpu", cpu)]:
+        errors = []
+        for t, y in enumerate(ys):
+            lagged = pf.step(np.full((filters, 1), y, np.float32))["lagged"]
+            if t < lag:
+                assert lagged is None, (name, t)
+                continue
+            assert lagged["lag"] == lag and lagged["mean"].shape == (filters, 1)
+            assert np.all(lagged["lower"] <= lagged["upper"])
+            assert np.all((lagged["kept"] > 0) & (lagged["kept"] <= 1.0 + 1e-4)), lagged["kept"]
+            exact = np.array(
+                [kalman_smoother(ys[: t + 1], c.mean(), c.var())[t - lag] for c in initial[..., 0]]
+            )
+            errors.append((lagged["mean"][:, 0] - exact[:, 0]) / np.sqrt(exact[:, 1]))
+        errors = np.array(errors)  # (steps - lag, filters)
+        bound = 4 * errors.std(axis=1, ddof=1) / np.sqrt(filters) + 0.05
+        assert np.all(np.abs(errors.mean(axis=1)) <= bound), (name, errors.mean(axis=1), bound)
+    plain = streampf.ParticleFilter(initial, sigma=[WALK], likelihood=walk_likelihood, backend="cpu")
+    assert plain.step(np.full((filters, 1), ys[0], np.float32))["lagged"] is None
+    for bad in (0, 257, -1):
+        with pytest.raises(ValueError, match="lag"):
+            streampf.ParticleFilter(initial, sigma=[WALK], likelihood=walk_likelihood, backend="cpu", lag=bad)

@@ -201,6 +201,9 @@ class ParticleFilter:
     "residual", "rejection" (CPU). ``layers`` > 1 anneals (survival rate 0.5, noise ×0.7 a
     layer). The GPU and CPU paths draw the same random numbers. ``smooth=True`` keeps every
     step's particles for ``smoothed()`` (not with a WGSL ``propagate``, whose density is unknown).
+    ``lag`` (1 to 256) smooths online: each step also returns the step ``lag`` back smoothed
+    from the particles' ancestry (on the GPU the window stays there and only the summaries come
+    back).
     """
 
     def __init__(
@@ -221,6 +224,7 @@ class ParticleFilter:
         backend: str = "auto",
         allow_software: bool = False,
         smooth: bool = False,
+        lag: Optional[int] = None,
     ) -> None: ...
     @property
     def device(self) -> str: ...
@@ -233,7 +237,12 @@ class ParticleFilter:
         mean), ``spread`` (T, D) float32, ``ess`` (T,) float64, ``resampled`` (T,) bool and
         ``log_evidence`` (T,) float64: each target's log p̂(z_t | z_1:t−1) up to the likelihood's
         constant (include the constant in the likelihood for the true value); summed over steps,
-        the log-likelihood of the sequence."""
+        the log-likelihood of the sequence. With ``lag``: ``lagged``, ``None`` for the first
+        ``lag`` steps, then a dict of ``lag``, ``mean``, ``lower``, ``upper`` (T, D) float32 (the
+        step ``lag`` back, smoothed from its particles' descendants now, with a 95 % interval)
+        and ``kept`` (T,) float32 (the share of that step's effective sample size the trace
+        kept); NaN for a target whose particles were restarted within the window. Without
+        ``lag``, ``lagged`` is ``None``."""
     def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """``(states, log_weights)``: (T, M, D) and (T, M), normalised log-weights."""
     def smoothed(self) -> Dict[str, np.ndarray]:
