@@ -181,21 +181,7 @@ impl ParticleFilter {
         };
         let on_gpu = matches!(engine, Engine::Gpu { .. });
         let mut engine = engine;
-        let cpu_lag = match (lag, &mut engine) {
-            (Some(lag), Engine::Gpu { filter, .. }) => {
-                filter
-                    .engine_mut()
-                    .keep_lag_window(lag, false)
-                    .map_err(gpu)?;
-                None
-            }
-            (Some(lag), Engine::Cpu { .. }) => Some(crate::lagged::cpu_window(
-                shape,
-                lag,
-                config.angular.clone(),
-            )?),
-            (None, _) => None,
-        };
+        let cpu_lag = keep_lag(lag, &mut engine, shape, &config)?;
         Ok(Self {
             cpu_lag,
             history: History::for_filter(smooth, &engine, &config)?,
@@ -276,12 +262,7 @@ impl ParticleFilter {
             }
             let report = report.map_err(pf)?;
             check_statuses(&report.status)?;
-            let lagged = match &self.cpu_lag {
-                Some(window) => (window.lock().map_err(|_| poisoned())?)
-                    .push(&filter.states, &filter.log_weights, filter.lineage())
-                    .map_err(pf)?,
-                None => None,
-            };
+            let lagged = self.cpu_lagged(filter)?;
             (
                 report.estimates,
                 report.spreads,
@@ -494,6 +475,45 @@ impl ParticleFilter {
             )),
             Err(TryLockError::Poisoned(_)) => Err(poisoned()),
         }
+    }
+}
+
+/// `lag=`: the GPU engine keeps its window on the device (None returned); the CPU engine's is the
+/// host's twin, returned to be pushed after each step.
+fn keep_lag(
+    lag: Option<usize>,
+    engine: &mut Engine,
+    shape: BatchShape,
+    config: &BatchConfig,
+) -> PyResult<Option<Mutex<pf_core::smooth::lag_window::LagWindow>>> {
+    match (lag, engine) {
+        (Some(lag), Engine::Gpu { filter, .. }) => {
+            filter
+                .engine_mut()
+                .keep_lag_window(lag, false)
+                .map_err(gpu)?;
+            Ok(None)
+        }
+        (Some(lag), Engine::Cpu { .. }) => Ok(Some(crate::lagged::cpu_window(
+            shape,
+            lag,
+            config.angular.clone(),
+        )?)),
+        (None, _) => Ok(None),
+    }
+}
+
+impl ParticleFilter {
+    /// The CPU filter's step `lag` back from its host window (`lag=`), after a step.
+    fn cpu_lagged(
+        &self,
+        filter: &BatchFilter<Box<dyn Resampler>>,
+    ) -> PyResult<Option<pf_core::smooth::lag_window::LaggedSummaries>> {
+        let Some(window) = &self.cpu_lag else {
+            return Ok(None);
+        };
+        let mut window = window.lock().map_err(|_| poisoned())?;
+        (window.push(&filter.states, &filter.log_weights, filter.lineage())).map_err(pf)
     }
 }
 
