@@ -501,8 +501,8 @@ fn lag_smoothing(c: &mut Criterion) {
                     let estimates = on_gpu.step(&frame).unwrap();
                     let tracking = on_gpu.slot_tracks(&estimates);
                     frame_index += 1;
-                    let mut read = |slot: usize, n: usize| {
-                        (on_gpu.lag_frames(slot, n))
+                    let mut read = |slot: usize, first: u64, n: usize| {
+                        (on_gpu.lag_frames(slot, first, n))
                             .map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
                     };
                     let lagged = on_gpu.lagged();

@@ -63,11 +63,12 @@ fn rows_both_ways(backend: FaceBackend) -> (Vec<SmoothedRow>, Vec<SmoothedRow>) 
                 .unwrap(),
         );
         let tracking = tracker.slot_tracks(&estimates);
-        let mut read = |slot: usize, n: usize| -> Result<Vec<LagFrame>, pf_core::PfError> {
-            reads += 1;
-            (tracker.lag_frames(slot, n))
-                .map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
-        };
+        let mut read =
+            |slot: usize, first: u64, n: usize| -> Result<Vec<LagFrame>, pf_core::PfError> {
+                reads += 1;
+                (tracker.lag_frames(slot, first, n))
+                    .map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
+            };
         let rows = device
             .add_frame(frame, &tracking, tracker.lagged(), &mut read)
             .unwrap();
@@ -78,9 +79,13 @@ fn rows_both_ways(backend: FaceBackend) -> (Vec<SmoothedRow>, Vec<SmoothedRow>) 
     }
     // Only the ended track's frames were read back while tracking: the rest came as summaries.
     assert_eq!(reads, 1, "slots read back while tracking");
+    // A step neither smoother is given (a run that fails between a step and its smoothing): the
+    // device is a step ahead, and its window's spare slot still holds the host's frames.
+    tracker.step(&renderer.render(FRAMES - 1).unwrap()).unwrap();
     on_host.extend(host.finish().unwrap());
-    let mut read = |slot: usize, n: usize| -> Result<Vec<LagFrame>, pf_core::PfError> {
-        (tracker.lag_frames(slot, n)).map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
+    let mut read = |slot: usize, first: u64, n: usize| -> Result<Vec<LagFrame>, pf_core::PfError> {
+        (tracker.lag_frames(slot, first, n))
+            .map_err(|e| pf_core::PfError::InvalidConfig(e.to_string()))
     };
     let (rest, unsmoothed) = device.finish(&mut read).unwrap();
     assert!(unsmoothed.is_empty(), "{unsmoothed:?}");

@@ -331,10 +331,24 @@ fn check_gpu(ctx: &pf_gpu::GpuContext, case: &Case) -> Result<(), TestCaseError>
     }
     // The frames still in the window, read back for a host that smooths a target's last frames.
     let (_, gpu, _) = filter.gpu_parts().unwrap();
-    let frames = gpu.download_lag_frames(ctx, 0, case.lag + 1).unwrap();
+    // The ring holds the last lag + 2 steps (numbered from 1): the window and a spare.
+    let recorded = kept.states.len() as u64;
+    prop_assert_eq!(gpu.lag_steps_recorded(), Some(recorded));
+    let first = recorded - case.lag as u64 - 1;
+    let frames = gpu
+        .download_lag_frames(ctx, 0, first, case.lag + 2)
+        .unwrap();
+    prop_assert!(
+        gpu.download_lag_frames(ctx, 0, first - 1, 1).is_err(),
+        "a step the ring overwrote"
+    );
+    prop_assert!(
+        gpu.download_lag_frames(ctx, 0, recorded, 2).is_err(),
+        "a step not yet taken"
+    );
     let m = shape.particles;
     for (k, f) in frames.iter().enumerate() {
-        let at = kept.states.len() - case.lag - 1 + k;
+        let at = first as usize - 1 + k;
         prop_assert_eq!(&f.states[..], &kept.states[at][..shape.dims * m]);
         prop_assert_eq!(&f.log_weights[..], &kept.log_weights[at][..m]);
         prop_assert_eq!(&f.lineage[..], &kept.lineage[at][..m]);
@@ -381,7 +395,7 @@ fn a_lag_window_out_of_range_is_refused() {
     }
     let (_, gpu, _) = filter.gpu_parts().unwrap();
     assert!(
-        gpu.download_lag_frames(&ctx, 0, 1).is_err(),
+        gpu.download_lag_frames(&ctx, 0, 1, 1).is_err(),
         "no window, nothing to read"
     );
     let mut cpu = pf_gpu::engine::FilterEngine::cpu(

@@ -56,7 +56,8 @@ pub enum PfError {
         got: usize,
     },
 
-    /// The device holding the particles failed while they were read (a lost GPU, say).
+    /// Reading particles back from the device that holds them failed (a lost GPU, say); the
+    /// message says why.
     #[error("{0}")]
     Device(String),
 

@@ -413,9 +413,20 @@ impl ReadbackSet {
         section: usize,
         source: &wgpu::Buffer,
     ) {
+        self.record_copy_from(encoder, section, source, 0);
+    }
+
+    /// Records a copy of `source` from byte `from` on into section `section` (its whole length).
+    pub fn record_copy_from(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        section: usize,
+        source: &wgpu::Buffer,
+        from: u64,
+    ) {
         let (offset, bytes) = self.sections[section];
         if bytes > 0 {
-            encoder.copy_buffer_to_buffer(source, 0, &self.staging, offset, bytes);
+            encoder.copy_buffer_to_buffer(source, from, &self.staging, offset, bytes);
         }
     }
 

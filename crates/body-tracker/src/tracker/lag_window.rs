@@ -55,16 +55,16 @@ impl BodyTracker {
         self.last_lagged.as_ref()
     }
 
-    /// The last `frames` frames of the GPU's lag window, oldest first, the newest the last frame
-    /// stepped.
-    pub fn lag_frames(&self, frames: usize) -> Result<Vec<LagFrame>, BodyError> {
+    /// Frames `first_step ..` (`count` of them, oldest first) of the GPU's lag window, steps
+    /// numbered from 1, the first step after [`Self::keep_lag_window`].
+    pub fn lag_frames(&self, first_step: u64, count: usize) -> Result<Vec<LagFrame>, BodyError> {
         if !self.in_flight.is_empty() {
             return Err(BodyError::InvalidInput(
                 "the lag window of a finished frame: frames are still in flight".into(),
             ));
         }
         match self.filters.as_slice() {
-            [filter] => Ok(filter.engine().lag_frames(0, frames)?),
+            [filter] => Ok(filter.engine().lag_frames(0, first_step, count)?),
             _ => Err(BodyError::InvalidInput(
                 "several islands keep no lag window".into(),
             )),

@@ -48,16 +48,21 @@ impl FaceTracker {
             .collect()
     }
 
-    /// Slot `slot`'s last `frames` frames from its GPU's lag window, oldest first, the newest
-    /// the last frame stepped.
-    pub fn lag_frames(&self, slot: usize, frames: usize) -> Result<Vec<LagFrame>, FaceError> {
+    /// Slot `slot`'s frames `first_step ..` (`count` of them, oldest first) from its GPU's lag
+    /// window, steps numbered from 1, the first step after [`Self::keep_lag_window`].
+    pub fn lag_frames(
+        &self,
+        slot: usize,
+        first_step: u64,
+        count: usize,
+    ) -> Result<Vec<LagFrame>, FaceError> {
         self.check_nothing_in_flight("the lag window is read")?;
         let shard = (self.shards.iter().find(|s| s.holds(slot)))
             .ok_or_else(|| FaceError::InvalidInput(format!("slot {slot} is in no shard")))?;
         Ok(shard
             .filter
             .engine()
-            .lag_frames(slot - shard.first_slot, frames)?)
+            .lag_frames(slot - shard.first_slot, first_step, count)?)
     }
 }
 

@@ -28,9 +28,11 @@ pub struct SlotTrack {
     pub restarted: bool,
 }
 
-/// Reads back a slot's last `n` frames from the device's window, oldest first, the newest the
-/// frame just stepped.
-pub type ReadFrames<'a> = dyn FnMut(usize, usize) -> Result<Vec<LagFrame>, PfError> + 'a;
+/// Reads back a slot's frames from the device's window: `(slot, first_step, count)`, oldest
+/// first, steps numbered from 1 (the first frame given to [`LaggedTracks::add_frame`]; the
+/// device counts the steps its window recorded the same way, and keeps one step more than the
+/// window, so a device a step ahead of the host still has the host's frames).
+pub type ReadFrames<'a> = dyn FnMut(usize, u64, usize) -> Result<Vec<LagFrame>, PfError> + 'a;
 
 /// The frames a slot's track waits in, oldest first (contiguous, the last the latest stepped).
 #[derive(Debug, Clone)]
@@ -60,6 +62,10 @@ pub struct LaggedTracks {
     compare_filtered: bool,
     windows: BTreeMap<usize, SlotWindow>,
     health: AncestryHealth,
+    /// Frames given so far (the step number of the latest).
+    stepped: u64,
+    /// Waiting frames of ended tracks whose window could not be read back.
+    unsmoothed: Vec<Unsmoothed>,
 }
 
 impl LaggedTracks {
@@ -74,6 +80,8 @@ impl LaggedTracks {
             compare_filtered,
             windows: BTreeMap::new(),
             health: AncestryHealth::default(),
+            stepped: 0,
+            unsmoothed: Vec::new(),
         }
     }
 
@@ -105,13 +113,14 @@ impl LaggedTracks {
             .filter(|(slot, w)| !continues(**slot, w))
             .map(|(slot, _)| *slot)
             .collect();
+        self.stepped += 1;
         let mut rows = Vec::new();
         for slot in ended {
             if let Some(window) = self.windows.remove(&slot) {
-                // Its frames end a frame before the newest: read one more and drop it.
-                let mut frames = read(slot, window.frames.len() + 1)?;
-                frames.pop();
-                rows.extend(self.host_rows(&window, frames)?);
+                // Its frames end a step before this one.
+                let count = window.frames.len();
+                let read_back = read(slot, self.stepped - count as u64, count);
+                rows.extend(self.rows_or_unsmoothed(&window, read_back));
             }
         }
         for s in tracking {
@@ -131,29 +140,43 @@ impl LaggedTracks {
         Ok(rows)
     }
 
-    /// Every frame still waiting, smoothed from the last frame stepped (the run's end), and the
-    /// tracks' waiting frames whose window could not be read back (a lost device): every track
-    /// that can be read is smoothed whatever happened to the others.
+    /// Every frame still waiting, smoothed from the last frame stepped (the run's end), and every
+    /// track's waiting frames that could not be read back (a lost device), at the run's end or
+    /// when the track ended: every track that can be read is smoothed whatever happened to the
+    /// others.
     pub fn finish(
         &mut self,
         read: &mut ReadFrames<'_>,
     ) -> Result<(Vec<SmoothedRow>, Vec<Unsmoothed>), PfError> {
         let windows = std::mem::take(&mut self.windows);
-        let (mut rows, mut unsmoothed) = (Vec::new(), Vec::new());
+        let mut rows = Vec::new();
         for (slot, window) in windows {
-            let (Some(&first), Some(&last)) = (window.frames.front(), window.frames.back()) else {
-                continue;
-            };
-            match read(slot, window.frames.len()) {
-                Ok(frames) => rows.extend(self.host_rows(&window, frames)?),
-                Err(e) => unsmoothed.push(Unsmoothed {
-                    track: window.track,
-                    frames: (first, last),
-                    reason: e.to_string(),
-                }),
+            let count = window.frames.len();
+            let read_back = read(slot, self.stepped + 1 - count as u64, count);
+            rows.extend(self.rows_or_unsmoothed(&window, read_back));
+        }
+        Ok((rows, std::mem::take(&mut self.unsmoothed)))
+    }
+
+    /// `window`'s rows from its frames read back, or none and the frames named as unsmoothed.
+    fn rows_or_unsmoothed(
+        &mut self,
+        window: &SlotWindow,
+        read_back: Result<Vec<LagFrame>, PfError>,
+    ) -> Vec<SmoothedRow> {
+        match read_back.and_then(|frames| self.host_rows(window, frames)) {
+            Ok(rows) => rows,
+            Err(e) => {
+                if let (Some(&first), Some(&last)) = (window.frames.front(), window.frames.back()) {
+                    self.unsmoothed.push(Unsmoothed {
+                        track: window.track,
+                        frames: (first, last),
+                        reason: e.to_string(),
+                    });
+                }
+                Vec::new()
             }
         }
-        Ok((rows, unsmoothed))
     }
 
     /// A full window's first frame: the device's row where it traced the slot, else the slot's
@@ -186,7 +209,7 @@ impl LaggedTracks {
                 }
             }
             None => {
-                let frames = read(slot, self.lag + 1)?;
+                let frames = read(slot, self.stepped - self.lag as u64, self.lag + 1)?;
                 let clouds = self.clouds(&frames)?;
                 let weights = self.traced(&clouds, &frames)?;
                 let (cloud, traced) = (clouds.first(), weights.first());
@@ -369,21 +392,24 @@ mod tests {
     /// A frame of the batch as the device keeps it: states, log-weights, lineage.
     type BatchFrame = (Vec<f32>, Vec<f32>, Vec<u32>);
 
-    /// Slot `slot`'s last `n` frames of `ring`, as a device with a window of `lag` reads them back
-    /// (never more than the lag and one).
+    /// Slot `slot`'s steps `first ..` (`n` of them, numbered from 1) of `ring`, as a device with
+    /// a window of `lag` reads them back: only its last lag + 2 steps.
     fn read_ring(
         ring: &[BatchFrame],
-        (slot, n): (usize, usize),
+        (slot, first, n): (usize, u64, usize),
         (dims, m): (usize, usize),
         lag: usize,
     ) -> Result<Vec<LagFrame>, PfError> {
-        if n > lag + 1 || n > ring.len() {
+        let start = (first as usize).saturating_sub(1);
+        if first == 0 || start + lag + 2 < ring.len() || start + n > ring.len() {
             return Err(PfError::InvalidConfig(format!(
-                "{n} frames read back, the window holds {}",
-                lag + 1
+                "steps {first} to {} read back; the window holds the last {} of {}",
+                start + n,
+                lag + 2,
+                ring.len()
             )));
         }
-        Ok((ring[ring.len() - n..].iter())
+        Ok((ring[start..start + n].iter())
             .map(|(s, w, l)| LagFrame {
                 states: s[slot * dims * m..(slot + 1) * dims * m].to_vec(),
                 log_weights: w[slot * m..(slot + 1) * m].to_vec(),
@@ -427,11 +453,11 @@ mod tests {
                     log_weights: log_weights[s.slot * m..(s.slot + 1) * m].to_vec(),
                     lineage: Some(lineage[s.slot * m..(s.slot + 1) * m].to_vec()),
                 }).collect();
-                let mut read = |slot: usize, n: usize| read_ring(&ring, (slot, n), (dims, m), lag);
+                let mut read = |slot: usize, first: u64, n: usize| read_ring(&ring, (slot, first, n), (dims, m), lag);
                 ours.extend(lagged_tracks.add_frame(f, &tracking, summaries.as_ref(), &mut read).unwrap());
                 theirs.extend(host.add_frame(f, clouds).unwrap());
             }
-            let mut read = |slot: usize, n: usize| read_ring(&ring, (slot, n), (dims, m), lag);
+            let mut read = |slot: usize, first: u64, n: usize| read_ring(&ring, (slot, first, n), (dims, m), lag);
             let (rest, unsmoothed) = lagged_tracks.finish(&mut read).unwrap();
             prop_assert!(unsmoothed.is_empty());
             ours.extend(rest);

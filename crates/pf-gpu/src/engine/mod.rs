@@ -250,14 +250,22 @@ impl FilterEngine {
         }
     }
 
-    /// Target `t`'s last `frames` frames in the GPU's lag window, oldest first
-    /// ([`GpuFilter::download_lag_frames`]); the CPU engine keeps none.
-    pub fn lag_frames(&self, t: usize, frames: usize) -> Result<Vec<LagFrame>, GpuError> {
+    /// Target `t`'s frames `first_step ..` (`count` of them) in the GPU's lag window, oldest
+    /// first, steps numbered from 1 ([`GpuFilter::download_lag_frames`]); the CPU engine keeps
+    /// none.
+    pub fn lag_frames(
+        &self,
+        t: usize,
+        first_step: u64,
+        count: usize,
+    ) -> Result<Vec<LagFrame>, GpuError> {
         match self {
             Self::Cpu(_) => Err(GpuError::InvalidConfig(
                 "the CPU engine keeps no lag window".into(),
             )),
-            Self::Gpu(gpu) => gpu.filter.download_lag_frames(&gpu.ctx, t, frames),
+            Self::Gpu(gpu) => gpu
+                .filter
+                .download_lag_frames(&gpu.ctx, t, first_step, count),
         }
     }
 

@@ -3,13 +3,14 @@
 //! device, and after each step `shaders/engine/lag_summary.wgsl` summarises the frame `lag` steps
 //! back by the newest frame's weights traced through the lineages. Only the summaries (a mean
 //! and a 95 % interval per value and target) come back, in the step's own readback: reading
-//! every particle back each frame for the host to trace cost the face tracker 17 % (4 faces) to
-//! 142 % (64 faces) of a step (docs/POSTERIOR.md).
+//! every particle back each frame for the host to trace added 40 % (4 faces) to 146 % (64 faces)
+//! to a step that keeps the lineage (docs/POSTERIOR.md).
 //!
-//! The ring holds `lag + 2` frames: the lag window, and one more so that a step in flight behind
-//! the one being read has not yet overwritten the oldest frame a host may still download
-//! ([`super::GpuFilter::download_lag_frames`], for a track that ends or restarts inside its
-//! window, which the trace from the newest frame cannot reach).
+//! The ring holds `lag + 2` frames: the lag window, and one more, so that a host one step behind
+//! the device (a step whose results it never took, a failure between the two) can still read
+//! the frames of its own window back ([`super::GpuFilter::download_lag_frames`] addresses them by
+//! step number): what it needs for a track that ends or restarts inside its window, which the
+//! trace from the newest frame cannot reach.
 //!
 //! CPU twin: `pf_core::smooth::lag_window::LagWindow` (`ancestry::trace_back`, then
 //! `summarise`), which gives the same [`LaggedSummaries`].
@@ -79,7 +80,14 @@ impl LagWindow {
     ) -> Result<Self, GpuError> {
         check_fits(ctx, shape, lag)?;
         let slots = lag + 2;
-        let source = stage_source(sources::LAG_SUMMARY).replace(
+        let source = stage_source(sources::LAG_SUMMARY);
+        if !source.contains(SORT_SIZE_LINE) {
+            return Err(GpuError::Shader {
+                kernel: "lag summary".into(),
+                message: format!("lag_summary.wgsl has no line `{SORT_SIZE_LINE}` to size"),
+            });
+        }
+        let source = source.replace(
             SORT_SIZE_LINE,
             &format!("const SORT_SIZE: u32 = {}u;", sort_size(shape.particles)),
         );
@@ -187,8 +195,9 @@ impl GpuFilter {
                 "a lag window while a filter step is in flight: finish it first".into(),
             ));
         }
-        self.keep_lineage(ctx)?;
+        // Built before the lineage is kept, so that a window the adapter refuses leaves none.
         let window = LagWindow::new(ctx, &self.shape, lag, compare_filtered, &self.params_buffer)?;
+        self.keep_lineage(ctx)?;
         self.lag_sections = window.readback_sections().to_vec();
         self.lag_window = Some(window);
         self.refit_step_backs(ctx)
@@ -275,6 +284,9 @@ impl GpuFilter {
         let floats: Vec<f32> = bytemuck::pod_collect_to_vec(sections.get(first)?);
         let kept: Vec<f32> = bytemuck::pod_collect_to_vec(sections.get(first + 1)?);
         let dims = self.shape.dims;
+        if floats.len() < self.shape.targets * dims * SUMMARY_FLOATS {
+            return None;
+        }
         let summary = |at: usize| Summary {
             mean: floats[at],
             lower: floats[at + 1],
@@ -304,14 +316,23 @@ impl GpuFilter {
         })
     }
 
-    /// Target `t`'s last `frames` frames in the lag window's ring, oldest first (at most the
-    /// lag + 1 frames the window spans, and no more than were stepped): what the host needs to
-    /// smooth a target that ended or restarted within its window. Call it with no step in flight.
+    /// How many frames the lag window has recorded: the step number of the newest (steps are
+    /// numbered from 1, the first step after [`Self::keep_lag_window`]).
+    pub fn lag_steps_recorded(&self) -> Option<u64> {
+        self.lag_window.as_ref().map(|w| w.recorded)
+    }
+
+    /// Target `t`'s frames `first_step ..` (`count` of them, oldest first) from the lag window's
+    /// ring, steps numbered from 1 as [`Self::lag_steps_recorded`] counts them: what the host needs
+    /// to smooth a target that ended or restarted within its window. The ring keeps the last
+    /// `lag + 2` steps; call it with no step in flight. Copies only those frames of that target,
+    /// in one readback.
     pub fn download_lag_frames(
         &self,
         ctx: &GpuContext,
         t: usize,
-        frames: usize,
+        first_step: u64,
+        count: usize,
     ) -> Result<Vec<LagFrame>, GpuError> {
         let window = self.lag_window.as_ref().ok_or_else(|| {
             GpuError::InvalidConfig("the filter keeps no lag window (keep_lag_window)".into())
@@ -321,31 +342,55 @@ impl GpuFilter {
                 "reading the lag window while a step is in flight: finish it first".into(),
             ));
         }
-        if t >= self.shape.targets || frames as u64 > window.recorded || frames > window.lag + 1 {
+        let last_step = first_step + count as u64 - 1;
+        let oldest = window
+            .recorded
+            .saturating_sub(window.slots as u64 - 1)
+            .max(1);
+        if t >= self.shape.targets
+            || count == 0
+            || first_step < oldest
+            || last_step > window.recorded
+        {
             return Err(GpuError::InvalidConfig(format!(
-                "frames {frames} of target {t}: the window holds {} of {} targets",
-                window.recorded.min(window.lag as u64 + 1),
-                self.shape.targets
+                "steps {first_step} to {last_step} of target {t}: the window holds steps \
+                 {oldest} to {} of {} targets",
+                window.recorded, self.shape.targets
             )));
         }
-        let (states, log_weights, lineage) = (
-            window.states.download(ctx)?,
-            window.log_weights.download(ctx)?,
-            window.lineage.download(ctx)?,
-        );
         let (m, block) = (self.shape.particles, self.shape.dims * self.shape.particles);
-        let newest = ((window.recorded - 1) % window.slots as u64) as usize;
-        Ok((0..frames)
-            .rev()
-            .map(|back| {
-                let slot = (newest + window.slots - back) % window.slots;
-                let particles = (slot * self.shape.targets + t) * m;
-                let values = (slot * self.shape.targets + t) * block;
-                LagFrame {
-                    states: states[values..values + block].to_vec(),
-                    log_weights: log_weights[particles..particles + m].to_vec(),
-                    lineage: lineage[particles..particles + m].to_vec(),
-                }
+        let (state_bytes, particle_bytes) = (4 * block as u64, 4 * m as u64);
+        let sections: Vec<u64> = (0..count)
+            .flat_map(|_| [state_bytes, particle_bytes, particle_bytes])
+            .collect();
+        let back = crate::stream::ReadbackSet::new(ctx, "lag window readback", &sections)?;
+        let mut encoder = ctx
+            .device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+                label: Some("lag window readback"),
+            });
+        for k in 0..count {
+            let slot = ((first_step - 1 + k as u64) % window.slots as u64) as usize;
+            let target = (slot * self.shape.targets + t) as u64;
+            back.record_copy_from(
+                &mut encoder,
+                3 * k,
+                window.states.buffer(),
+                target * state_bytes,
+            );
+            let at = target * particle_bytes;
+            back.record_copy_from(&mut encoder, 3 * k + 1, window.log_weights.buffer(), at);
+            back.record_copy_from(&mut encoder, 3 * k + 2, window.lineage.buffer(), at);
+        }
+        let submission = ctx.queue.submit([encoder.finish()]);
+        let map = back.request_map();
+        ctx.wait(Some(submission), "reading the lag window back")?;
+        let sections = back.collect(map)?;
+        Ok((sections.chunks(3))
+            .map(|frame| LagFrame {
+                states: bytemuck::pod_collect_to_vec(&frame[0]),
+                log_weights: bytemuck::pod_collect_to_vec(&frame[1]),
+                lineage: bytemuck::pod_collect_to_vec(&frame[2]),
             })
             .collect())
     }

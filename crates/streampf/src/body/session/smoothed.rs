@@ -203,7 +203,13 @@ impl BodySmoothing {
 /// Reads the body's frames back from the tracker's lag window (`BodyTracker::lag_frames`).
 fn read_from(
     tracker: &BodyTracker,
-) -> impl FnMut(usize, usize) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError> + '_
-{
-    |_, frames| (tracker.lag_frames(frames)).map_err(|e| pf_core::PfError::Device(e.to_string()))
+) -> impl FnMut(
+    usize,
+    u64,
+    usize,
+) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError>
++ '_ {
+    |_, first_step, count| {
+        (tracker.lag_frames(first_step, count)).map_err(|e| pf_core::PfError::Device(e.to_string()))
+    }
 }

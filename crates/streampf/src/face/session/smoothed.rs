@@ -201,9 +201,14 @@ impl FaceSmoothing {
 /// Reads a slot's frames back from the tracker's lag window (`FaceTracker::lag_frames`).
 fn read_from(
     tracker: &FaceTracker,
-) -> impl FnMut(usize, usize) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError> + '_
-{
-    |slot, frames| {
-        (tracker.lag_frames(slot, frames)).map_err(|e| pf_core::PfError::Device(e.to_string()))
+) -> impl FnMut(
+    usize,
+    u64,
+    usize,
+) -> Result<Vec<pf_core::smooth::lag_window::LagFrame>, pf_core::PfError>
++ '_ {
+    |slot, first_step, count| {
+        (tracker.lag_frames(slot, first_step, count))
+            .map_err(|e| pf_core::PfError::Device(e.to_string()))
     }
 }
