@@ -132,6 +132,29 @@ impl SmoothArgs {
     }
 }
 
+/// Whether a run's lag window is kept on its tracker's GPU: smoothing from the ancestry with a
+/// lag, on a GPU, where `keep` (the tracker's `keep_lag_window`) succeeds. A GPU that refuses it
+/// (its workgroup memory cannot hold a target's `what`) leaves the run reading them back each
+/// frame and smoothing on the host, said on stderr.
+pub fn keep_lag_on_device(
+    (lag, how): (Option<usize>, LagSmoother),
+    on_gpu: bool,
+    what: &str,
+    keep: impl FnOnce(usize) -> anyhow::Result<()>,
+) -> bool {
+    let Some(lag) = lag else { return false };
+    if how != LagSmoother::Ancestry || !on_gpu {
+        return false;
+    }
+    match keep(lag) {
+        Ok(()) => true,
+        Err(e) => {
+            errln!("note: smoothing on the host, reading the {what} back each frame ({e:#})");
+            false
+        }
+    }
+}
+
 /// The smoother of a run: a [`TrackSmoother`] whose rows go to smoothed.csv, or, smoothing from
 /// the ancestry on the tracker's GPU, a [`LaggedTracks`] turning its summaries into rows.
 pub struct Smoother {

@@ -342,7 +342,8 @@ impl GpuFilter {
                 "reading the lag window while a step is in flight: finish it first".into(),
             ));
         }
-        let last_step = first_step + count as u64 - 1;
+        // Saturating: a count of 0 or a step 0 is refused below, not wrapped.
+        let last_step = first_step.saturating_add(count as u64).saturating_sub(1);
         let oldest = window
             .recorded
             .saturating_sub(window.slots as u64 - 1)

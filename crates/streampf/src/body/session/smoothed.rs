@@ -42,7 +42,10 @@ impl BodySmoothing {
             }
         }
         let transition = asked.transition(tracker.transition()?)?;
-        let on_device = Self::keep_lag_on_device(tracker, (lag, how), with_truth);
+        let on_gpu = tracker.gpu_context().is_some();
+        let on_device = crate::smoothing::keep_lag_on_device((lag, how), on_gpu, "samples", |l| {
+            Ok(tracker.keep_lag_window(l, with_truth)?)
+        });
         let smoothing = Self::create(out, (lag, how), tracker, transition, with_truth)?;
         Ok(Some(if on_device {
             let angular = smoothing.angular.clone();
@@ -53,27 +56,6 @@ impl BodySmoothing {
         } else {
             smoothing
         }))
-    }
-
-    /// Whether the lag window is kept on the tracker's GPU: smoothing from the ancestry with a
-    /// lag on one GPU whose workgroup memory holds the samples (else they are read back each
-    /// frame and smoothed on the host, as on the CPU).
-    fn keep_lag_on_device(
-        tracker: &mut BodyTracker,
-        (lag, how): (Option<usize>, LagSmoother),
-        with_truth: bool,
-    ) -> bool {
-        let Some(lag) = lag else { return false };
-        if how != LagSmoother::Ancestry || tracker.gpu_context().is_none() {
-            return false;
-        }
-        match tracker.keep_lag_window(lag, with_truth) {
-            Ok(()) => true,
-            Err(e) => {
-                errln!("note: smoothing on the host, reading the samples back each frame ({e:#})");
-                false
-            }
-        }
     }
 
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).

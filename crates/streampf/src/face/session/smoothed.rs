@@ -38,7 +38,11 @@ impl FaceSmoothing {
         }
         let how = asked.lag_smoother_for(runner.tracker().annealing_layers());
         let transition = asked.transition(runner.tracker().transition())?;
-        let on_device = Self::keep_lag_on_device(runner, (lag, how), with_truth);
+        let on_gpu = runner.tracker().gpu_context().is_some();
+        let on_device =
+            crate::smoothing::keep_lag_on_device((lag, how), on_gpu, "particles", |l| {
+                runner.keep_lag_window(l, with_truth)
+            });
         let smoothing = Self::create(out, (lag, how), runner.tracker(), transition, with_truth)?;
         Ok(Some(if on_device {
             Self {
@@ -50,31 +54,6 @@ impl FaceSmoothing {
         } else {
             smoothing
         }))
-    }
-
-    /// Whether the lag window is kept on the tracker's GPU: smoothing from the ancestry with a
-    /// lag, on a GPU whose workgroup memory holds a face's particles (else the particles are
-    /// read back each frame and smoothed on the host, as on the CPU).
-    fn keep_lag_on_device(
-        runner: &mut Runner,
-        (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
-        with_truth: bool,
-    ) -> bool {
-        let Some(lag) = lag else { return false };
-        if how != crate::smoothing::LagSmoother::Ancestry
-            || runner.tracker().gpu_context().is_none()
-        {
-            return false;
-        }
-        match runner.keep_lag_window(lag, with_truth) {
-            Ok(()) => true,
-            Err(e) => {
-                errln!(
-                    "note: smoothing on the host, reading the particles back each frame ({e:#})"
-                );
-                false
-            }
-        }
     }
 
     /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
