@@ -346,6 +346,15 @@ fn check_gpu(ctx: &pf_gpu::GpuContext, case: &Case) -> Result<(), TestCaseError>
         gpu.download_lag_frames(ctx, 0, recorded, 2).is_err(),
         "a step not yet taken"
     );
+    prop_assert!(
+        gpu.download_lag_frames(ctx, 0, 0, 0).is_err(),
+        "no steps: step 0, count 0"
+    );
+    prop_assert!(
+        gpu.download_lag_frames(ctx, shape.targets, first, 1)
+            .is_err(),
+        "no such target"
+    );
     let m = shape.particles;
     for (k, f) in frames.iter().enumerate() {
         let at = first as usize - 1 + k;
