@@ -367,6 +367,25 @@ fn fig7(c: &mut Criterion) {
             }
         });
         drop(gpu);
+        // The packed kernel with other lanes a particle than the tracker's (docs/BENCHMARKS.md,
+        // "Lanes a particle").
+        let lanes: &[u32] = if full_size() {
+            &[8, 16, 32, 128]
+        } else {
+            &[16]
+        };
+        for &lanes in lanes {
+            let config = FaceTrackerConfig {
+                gpu_dispatch: FaceDispatch::Packed { lanes },
+                ..config.clone()
+            };
+            let backend = FaceBackend::Gpu(Box::new(context()));
+            let mut gpu = FaceTracker::new(&frame, &rects, &model, config, backend).unwrap();
+            let name = format!("gpu_{lanes}_lanes");
+            group.bench_function(BenchmarkId::new(name, faces), |b| {
+                b.iter(|| std::hint::black_box(gpu.step(&frame).unwrap()))
+            });
+        }
         let mut cpu =
             FaceTracker::new(&frame, &rects, &model, config.clone(), FaceBackend::Cpu).unwrap();
         group.bench_function(BenchmarkId::new("cpu_all_cores", faces), |b| {
@@ -394,7 +413,7 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
     let (frame, ..) = scene(1);
     let likelihood = FaceLikelihoodGpu::new(
         ctx,
-        FaceDispatch::Packed,
+        FaceDispatch::PACKED,
         1,
         1,
         frame.width,

@@ -33,7 +33,7 @@ use face_tracker::projection::{DIMS, Pose};
 use face_tracker::{FeaturePoint, GrayImage, Template};
 use nalgebra::Vector3;
 use pf_core::batch::{BatchConfig, BatchShape};
-use pf_gpu::{GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
+use pf_gpu::{GpuError, GpuFilter, GpuLikelihood, GpuResampler, GpuStage};
 use proptest::prelude::*;
 use proptest::test_runner::TestRunner;
 
@@ -280,7 +280,44 @@ fn batched_dispatch_matches_cpu_within_tolerance() {
 
 #[test]
 fn packed_dispatch_matches_cpu_within_tolerance() {
-    check(FaceDispatch::Packed, 10);
+    check(FaceDispatch::PACKED, 10);
+}
+
+/// Every lane count a particle: one lane looping over every point, more lanes than points, a
+/// whole workgroup a particle.
+#[test]
+fn packed_dispatch_with_any_lanes_matches_cpu_within_tolerance() {
+    for lanes in [1, 8, 32, 256] {
+        check(FaceDispatch::Packed { lanes }, 3);
+    }
+}
+
+#[test]
+fn packed_dispatch_refuses_lanes_that_do_not_divide_a_workgroup() {
+    let Some(ctx) = common::gpu_context("packed lanes refused") else {
+        return;
+    };
+    for lanes in [0, 3, 48, 512] {
+        let built = FaceLikelihoodGpu::new(
+            &ctx,
+            FaceDispatch::Packed { lanes },
+            1,
+            10,
+            64,
+            48,
+            SHARPNESS,
+            MIN_ERROR,
+            MIN_VISIBLE_SHARE,
+            Lens::WEAK,
+        );
+        match built {
+            Err(GpuError::InvalidConfig(message)) => {
+                assert!(message.contains("lanes"), "{message}")
+            }
+            Err(other) => panic!("{lanes} lanes: {other}"),
+            Ok(_) => panic!("{lanes} lanes were accepted"),
+        }
+    }
 }
 
 /// The check of each face's estimate after a whole step (the tracker's failure test) against
@@ -333,7 +370,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
                 GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();
             let mut gpu = FaceLikelihoodGpu::new(
                 &ctx,
-                FaceDispatch::Packed,
+                FaceDispatch::PACKED,
                 faces,
                 points,
                 width,

@@ -1,7 +1,7 @@
 // The sparse-template face likelihood (eq. 10-13 of the face paper) on the GPU. Two layouts:
 // weigh_faces is the paper's (one workgroup per particle, one invocation per feature point,
 // looping when a template has more points than the workgroup, the sums reduced in workgroup
-// memory); weigh_faces_packed puts four particles in a workgroup, 64 invocations each. The grid's
+// memory); weigh_faces_packed puts WG / LANES particles in a workgroup, LANES invocations each. The grid's
 // y is the face: one dispatch weighs every face of a frame (the batched form), or one dispatch
 // per face with `face_offset` (the paper's form). CPU twin:
 // face_tracker::likelihood::residual_error_through (residual_error through weak perspective).
@@ -221,18 +221,19 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
     }
 }
 
-// The packed layout: each workgroup weighs PACKED particles, 256 / PACKED invocations each
-// looping over the points. A quarter of the workgroups and of the per-invocation pose set-up,
-// and a shorter reduction.
-const PACKED: u32 = 4u;
-const LANES: u32 = 64u;
+// The packed layout: each workgroup weighs WG / LANES particles, LANES invocations each looping
+// over the points (LANES a power of two up to WG, set by the launcher,
+// face_tracker::likelihood::gpu::FaceDispatch::Packed). Fewer lanes a particle: fewer
+// workgroups, less of the per-invocation pose set-up and a shorter reduction, against a longer
+// loop.
+override LANES: u32 = 64u;
 
 @compute @workgroup_size(256)
 fn weigh_faces_packed(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
     let slot = lid / LANES;
     let lane = lid % LANES;
-    let m = wid.x * PACKED + slot;
+    let m = wid.x * (WG / LANES) + slot;
     let t = fp.face_offset + wid.y;
     let live = m < params.particles && t < params.targets;
     var sums = vec2<f32>(0.0, 0.0);

@@ -142,9 +142,44 @@ pub struct Kernel {
     layout: wgpu::BindGroupLayout,
 }
 
+/// How a [`Kernel`] is built beyond its source: the values of its `override` constants, and
+/// whether its workgroup memory starts zeroed.
+#[derive(Debug, Clone, Copy)]
+pub struct KernelOptions<'a> {
+    /// `(name, value)` of each pipeline-overridable constant set (the others keep their WGSL
+    /// defaults).
+    pub constants: &'a [(&'a str, f64)],
+    /// WebGPU zeroes a workgroup's memory before it starts (wgpu's default), a store by every
+    /// invocation and a barrier in each workgroup. A kernel that writes every workgroup value
+    /// before it reads it can do without (`false`), which pays in kernels of many small
+    /// workgroups.
+    pub zero_workgroup_memory: bool,
+}
+
+impl Default for KernelOptions<'_> {
+    fn default() -> Self {
+        Self {
+            constants: &[],
+            zero_workgroup_memory: true,
+        }
+    }
+}
+
 impl Kernel {
     /// Builds `entry` of `source`. Invalid WGSL is a [`GpuError::Shader`] with naga's message.
     pub fn new(ctx: &GpuContext, name: &str, source: &str, entry: &str) -> Result<Self, GpuError> {
+        Self::with_options(ctx, name, source, entry, KernelOptions::default())
+    }
+
+    /// Builds `entry` of `source` with `options` (its override constants, its workgroup
+    /// memory's zeroing).
+    pub fn with_options(
+        ctx: &GpuContext,
+        name: &str,
+        source: &str,
+        entry: &str,
+        options: KernelOptions<'_>,
+    ) -> Result<Self, GpuError> {
         validate_wgsl(source).map_err(|message| GpuError::Shader {
             kernel: name.to_string(),
             message,
@@ -163,7 +198,10 @@ impl Kernel {
                     layout: None,
                     module: &module,
                     entry_point: Some(entry),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: options.constants,
+                        zero_initialize_workgroup_memory: options.zero_workgroup_memory,
+                    },
                     cache: None,
                 });
             let layout = pipeline.get_bind_group_layout(0);

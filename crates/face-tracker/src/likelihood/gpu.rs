@@ -11,7 +11,7 @@ use pf_gpu::GpuContext;
 use pf_gpu::GpuError;
 use pf_gpu::GrayTexture;
 use pf_gpu::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
-use pf_gpu::kernels::{Kernel, stage_source};
+use pf_gpu::kernels::{Kernel, KernelOptions, stage_source};
 use pf_gpu::stream::DeviceStream;
 use pf_gpu::wgpu;
 
@@ -25,13 +25,20 @@ pub enum FaceDispatch {
     PerFace,
     /// The paper's layout, every face of the frame in one dispatch (grid: particles × faces).
     Batched,
-    /// Four particles per workgroup, 64 invocations each looping over the points, every face in
-    /// one dispatch: the tracker's choice.
-    Packed,
+    /// `lanes` invocations a particle looping over the points (a power of two up to 256: 256 /
+    /// `lanes` particles a workgroup), every face in one dispatch: the tracker's choice, with
+    /// [`FaceDispatch::PACKED`]'s lanes.
+    Packed { lanes: u32 },
 }
 
-/// Particles per workgroup of the packed kernel (`PACKED` in the shader).
-const PACKED: usize = 4;
+impl FaceDispatch {
+    /// The tracker's layout: the packed kernel with the lanes a particle that weighed fastest
+    /// (docs/BENCHMARKS.md, "Lanes a particle").
+    pub const PACKED: FaceDispatch = FaceDispatch::Packed { lanes: 64 };
+}
+
+/// Invocations in a workgroup of the face kernels (`WG` in the shader).
+const WORKGROUP: u32 = 256;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
@@ -116,11 +123,7 @@ impl FaceLikelihoodGpu {
         let frame = GrayTexture::new(ctx, "face frame", width, height)?;
         let points = DeviceStream::zeroed(ctx, "feature points", point_values)?;
         let counts = DeviceStream::zeroed(ctx, "feature point counts", faces)?;
-        let entry = match dispatch {
-            FaceDispatch::Packed => "weigh_faces_packed",
-            _ => "weigh_faces",
-        };
-        let kernel = Kernel::new(ctx, "face likelihood", &stage_source(super::SHADER), entry)?;
+        let kernel = weighing_kernel(ctx, dispatch)?;
         let estimate_kernel = Kernel::new(
             ctx,
             "face estimate check",
@@ -279,8 +282,8 @@ impl GpuLikelihood for FaceLikelihoodGpu {
                 let (x, y) = match self.dispatch {
                     FaceDispatch::PerFace => (self.particles, 1),
                     FaceDispatch::Batched => (self.particles, self.faces as u32),
-                    FaceDispatch::Packed => (
-                        (self.particles as usize).div_ceil(PACKED) as u32,
+                    FaceDispatch::Packed { lanes } => (
+                        self.particles.div_ceil(WORKGROUP / lanes),
                         self.faces as u32,
                     ),
                 };
@@ -304,6 +307,34 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             .map(|check| ReadbackSource::of(Self::ESTIMATE_ERRORS, &check.errors))
             .collect()
     }
+}
+
+/// The weighing kernel of `dispatch`. Its workgroup memory is not zeroed first: every
+/// invocation writes its own sums before the reduction reads any (`reduce_groups`).
+fn weighing_kernel(ctx: &GpuContext, dispatch: FaceDispatch) -> Result<Kernel, GpuError> {
+    let lanes = match dispatch {
+        FaceDispatch::Packed { lanes } => {
+            if !(lanes.is_power_of_two() && lanes <= WORKGROUP) {
+                return Err(GpuError::InvalidConfig(format!(
+                    "the packed face kernel needs a power of two up to {WORKGROUP} lanes a particle, got {lanes}"
+                )));
+            }
+            Some(lanes)
+        }
+        FaceDispatch::PerFace | FaceDispatch::Batched => None,
+    };
+    let constants = lanes.map(|l| [("LANES", f64::from(l))]);
+    let options = KernelOptions {
+        constants: constants.as_ref().map_or(&[], |c| c.as_slice()),
+        zero_workgroup_memory: false,
+    };
+    let entry = if lanes.is_some() {
+        "weigh_faces_packed"
+    } else {
+        "weigh_faces"
+    };
+    let source = stage_source(super::SHADER);
+    Kernel::with_options(ctx, "face likelihood", &source, entry, options)
 }
 
 /// Checks the lens and the weighing's settings (`FaceLikelihoodGpu::new`'s).
@@ -339,7 +370,7 @@ fn params_per_dispatch(
 ) -> Result<Vec<wgpu::Buffer>, GpuError> {
     let offsets: Vec<u32> = match dispatch {
         FaceDispatch::PerFace => (0..faces as u32).collect(),
-        FaceDispatch::Batched | FaceDispatch::Packed => vec![0],
+        FaceDispatch::Batched | FaceDispatch::Packed { .. } => vec![0],
     };
     offsets
         .into_iter()
