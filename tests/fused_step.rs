@@ -472,9 +472,13 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
         return;
     }
     gpu.keep_lineage(ctx_p).unwrap();
+    // The lineage in dispatches of its own (the reference), named; the plain filter composes it
+    // in its select.
+    gpu.set_lineage_in_select(ctx_p, false).unwrap();
     gpu.profile_dispatches(ctx_p, true).unwrap();
     let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
     gpu_a.keep_lineage(ctx_a).unwrap();
+    assert!(gpu_a.lineage_in_select());
     for frame in 1..=2 {
         let z = observations(2, frame);
         let expected = plain.step(&z).unwrap();
@@ -515,6 +519,23 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
             .map(|(c, g, _)| g.download_states(c).unwrap())
             .unwrap()
     );
+    // Composed in the select: no lineage dispatch, the same lineage as the plain filter's.
+    gpu.set_lineage_in_select(ctx_p, true).unwrap();
+    let z = observations(2, 3);
+    plain.step(&z).unwrap();
+    profiled.step(&z).unwrap();
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    let labels: Vec<String> = gpu
+        .dispatch_times(ctx_p)
+        .unwrap()
+        .into_iter()
+        .map(|d| d.label)
+        .collect();
+    assert_eq!(labels.len(), 9, "{labels:?}");
+    assert!(!labels.iter().any(|l| l.contains("lineage")), "{labels:?}");
+    let lineage = gpu.download_lineage(ctx_p).unwrap();
+    let (ctx_a, gpu_a, _) = plain.gpu_parts().unwrap();
+    assert_eq!(gpu_a.download_lineage(ctx_a).unwrap(), lineage);
 }
 
 /// Fused against staged at a high survival rate (most targets bisect below max_beta): the same

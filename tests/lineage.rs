@@ -245,6 +245,7 @@ fn check_gpu(
     case: &Case,
     resampler: GpuResampler,
     layout: StepLayout,
+    in_select: bool,
 ) -> Result<(), TestCaseError> {
     let shape = case.config.shape;
     let source = ModelSource {
@@ -263,6 +264,11 @@ fn check_gpu(
     filter.engine_mut().keep_lineage().unwrap();
     let (_, gpu, _) = filter.gpu_parts().unwrap();
     gpu.set_step_layout(layout).unwrap();
+    gpu.set_lineage_in_select(ctx, in_select).unwrap();
+    prop_assert_eq!(
+        gpu.lineage_in_select(),
+        in_select && layout == StepLayout::Fused
+    );
     for frame in 0..FRAMES {
         let reset = (frame == RESET_BEFORE).then_some(case.reset);
         if let Some(t) = reset {
@@ -278,7 +284,8 @@ fn check_gpu(
         let (_, gpu, _) = filter.gpu_parts().unwrap();
         let labels = carried(&shape, &gpu.download_states(ctx).unwrap());
         let lineage = filter.engine().lineage().unwrap().unwrap();
-        let what = format!("GPU {layout:?} {resampler:?} frame {frame}");
+        let what =
+            format!("GPU {layout:?} {resampler:?} (lineage in select: {in_select}) frame {frame}");
         check(&shape, &lineage, &labels, reset, &what)?;
         // Read back in one go: the same streams.
         let (_, gpu, _) = filter.gpu_parts().unwrap();
@@ -308,9 +315,11 @@ proptest! {
         } else {
             GpuResampler::Systematic
         };
-        check_gpu(&ctx, &case, resampler, StepLayout::Fused)?;
-        check_gpu(&ctx, &case, resampler, StepLayout::Staged)?;
-        check_gpu(&ctx, &case, GpuResampler::Metropolis(8), StepLayout::Staged)?;
+        // The fused step composing the lineage in its select, and in dispatches of its own.
+        check_gpu(&ctx, &case, resampler, StepLayout::Fused, true)?;
+        check_gpu(&ctx, &case, resampler, StepLayout::Fused, false)?;
+        check_gpu(&ctx, &case, resampler, StepLayout::Staged, false)?;
+        check_gpu(&ctx, &case, GpuResampler::Metropolis(8), StepLayout::Staged, false)?;
     }
 }
 

@@ -76,3 +76,7 @@ fn wrap_angle(x: f32) -> f32 {
 fn state_index(t: u32, d: u32, m: u32) -> u32 {
     return (t * params.dims + d) * params.particles + m;
 }
+
+// A particle that descends from no particle of the frame before (its target restarted): the
+// lineage's mark, pf_core::smooth::ancestry::NO_ANCESTOR (lineage.wgsl, layer.wgsl).
+const NO_ANCESTOR: u32 = 0xffffffffu;

@@ -126,6 +126,50 @@ fn select_target(lid: u32, t: u32, stratified: bool) {
     }
 }
 
+// The lineage composed in the select, for a filter that keeps it (pf_gpu::filter::lineage; the
+// same values as lineage.wgsl's own dispatches, which the staged step and adapters with fewer
+// storage bindings use): the layer before's lineage, this layer's, and each target's restart
+// flag, read by layer 0 and cleared there (only this target's workgroup reads it).
+@group(0) @binding(15) var<storage, read> lineage_before: array<u32>;
+@group(0) @binding(16) var<storage, read_write> lineage_after: array<u32>;
+@group(0) @binding(17) var<storage, read_write> restarts: array<u32>;
+var<workgroup> restarted: u32;
+
+// Each particle's ancestor among the previous frame's particles after this layer's resampling,
+// from the ancestors select_target wrote (each invocation reads its own writes).
+fn compose_lineage(lid: u32, t: u32) {
+    let n = params.particles;
+    let base = t * n;
+    if (params.layer > 0u) {
+        for (var k = lid; k < n; k = k + LAYER_WG) {
+            lineage_after[base + k] = lineage_before[base + ancestors[base + k]];
+        }
+        return;
+    }
+    if (lid == 0u) {
+        restarted = restarts[t];
+    }
+    let fresh = workgroupUniformLoad(&restarted) != 0u;
+    for (var k = lid; k < n; k = k + LAYER_WG) {
+        lineage_after[base + k] = select(ancestors[base + k], NO_ANCESTOR, fresh);
+    }
+    if (lid == 0u) {
+        restarts[t] = 0u;
+    }
+}
+
+@compute @workgroup_size(256)
+fn select_systematic_keeping_lineage(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    select_target(lid.x, wid.y, false);
+    compose_lineage(lid.x, wid.y);
+}
+
+@compute @workgroup_size(256)
+fn select_stratified_keeping_lineage(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    select_target(lid.x, wid.y, true);
+    compose_lineage(lid.x, wid.y);
+}
+
 @compute @workgroup_size(256)
 fn select_systematic(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     select_target(lid.x, wid.y, false);

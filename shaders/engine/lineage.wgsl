@@ -3,7 +3,8 @@
 // composed), what smoothing from the ancestry traces back (pf_core::smooth::ancestry). Recorded
 // after each layer's resampling when the filter keeps a lineage. One invocation per (particle,
 // target). CPU twin: pf_core::smooth::ancestry::compose (the CPU engine composes the same way in
-// pf_core::batch::BatchFilter).
+// pf_core::batch::BatchFilter). The fused step composes it in its select instead where the adapter
+// binds enough storage buffers (layer.wgsl, select_*_keeping_lineage): the same values.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<storage, read> ancestors: array<u32>;
@@ -13,8 +14,6 @@
 // Each target's restart flag, cleared once the first layer has read it (its own dispatch, so no
 // invocation of the first layer can see it cleared).
 @group(0) @binding(4) var<storage, read_write> restarts: array<u32>;
-
-const NO_ANCESTOR: u32 = 0xffffffffu;
 
 // Layer 0: the ancestors themselves, or none for a target restarted since the last frame (its
 // particles are new: they descend from no particle of the frame before).

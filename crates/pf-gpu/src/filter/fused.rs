@@ -14,6 +14,7 @@
 use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
+use super::lineage::Lineage;
 use super::profile::{DispatchProfiler, Passes};
 use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
@@ -43,6 +44,10 @@ pub const FUSED_DEFAULT_MAX_VALUES: usize = 16_384;
 
 /// Storage buffers the fused kernel binds.
 const FUSED_STORAGE_BUFFERS: u32 = 8;
+
+/// Storage buffers the select binds when it also composes the lineage (the lineage before, the
+/// lineage after, the restart flags).
+const LINEAGE_SELECT_STORAGE_BUFFERS: u32 = FUSED_STORAGE_BUFFERS + 3;
 
 /// Bytes of workgroup memory the fused kernel needs for `particles` a target: their
 /// log-likelihoods (the CDF after) and log-weights (the weights after), plus the scan's and the
@@ -121,6 +126,20 @@ pub(super) struct FusedLayers {
     /// passes in workgroup memory), bound to that layer's parameters.
     settling: Kernel,
     settling_group: wgpu::BindGroup,
+    /// `select_systematic` or `select_stratified`: the resampler's entry points.
+    select_entry: &'static str,
+    /// The select that also composes the lineage, once the filter keeps it and where the
+    /// adapter binds its storage buffers ([`FusedLayers::keep_lineage`]).
+    keeping_lineage: Option<SelectKeepingLineage>,
+    /// Whether that select is used (else the lineage's own dispatches, the reference).
+    lineage_in_select: bool,
+}
+
+/// `select_*_keeping_lineage` and its bind group per layer: the lineage composed in the
+/// select's workgroup, with no dispatch of its own (`lineage.wgsl`'s, which it replaces).
+struct SelectKeepingLineage {
+    kernel: Kernel,
+    groups: Vec<wgpu::BindGroup>,
 }
 
 /// The line of `layer.wgsl` that sizes its workgroup array.
@@ -170,12 +189,12 @@ impl FusedLayers {
         layers: &LayerParams<'_>,
     ) -> Result<Self, GpuError> {
         let source = layer_source(shape.particles)?;
-        let prefix = if resampler == GpuResampler::Stratified {
-            "stratified"
+        let select_entry = if resampler == GpuResampler::Stratified {
+            "select_stratified"
         } else {
-            "systematic"
+            "select_systematic"
         };
-        let selecting = Kernel::new(ctx, "fused select", &source, &format!("select_{prefix}"))?;
+        let selecting = Kernel::new(ctx, "fused select", &source, select_entry)?;
         let moving = Kernel::new(ctx, "fused move", &source, "move_selected")?;
         let copying = Kernel::new(ctx, "fused copy", &source, "copy_selected")?;
         let selecting_groups = (0..layers.count)
@@ -212,8 +231,85 @@ impl FusedLayers {
             copying_group,
             settling,
             settling_group,
+            select_entry,
+            keeping_lineage: None,
+            lineage_in_select: lineage_fits_in_select(ctx),
         })
     }
+
+    /// From the next step on, composes `lineage` in each layer's select where the adapter binds
+    /// the storage buffers it takes; elsewhere the lineage keeps its own dispatches.
+    pub(super) fn keep_lineage(
+        &mut self,
+        ctx: &GpuContext,
+        shape: &BatchShape,
+        streams: &Streams,
+        layers: &LayerParams<'_>,
+        lineage: &Lineage,
+    ) -> Result<(), GpuError> {
+        if self.keeping_lineage.is_some() || !lineage_fits_in_select(ctx) {
+            return Ok(());
+        }
+        let source = layer_source(shape.particles)?;
+        let entry = format!("{}_keeping_lineage", self.select_entry);
+        let kernel = Kernel::new(ctx, "fused select keeping the lineage", &source, &entry)?;
+        let groups = (0..layers.count)
+            .map(|layer| {
+                let mut entries = selecting_entries(streams, layers, layer);
+                entries.extend(lineage.select_bindings(layer));
+                kernel.bind(ctx, &entries)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        self.keeping_lineage = Some(SelectKeepingLineage { kernel, groups });
+        Ok(())
+    }
+
+    /// Whether each layer's select composes the lineage (no lineage dispatches).
+    pub(super) fn composes_lineage(&self) -> bool {
+        self.lineage_in_select && self.keeping_lineage.is_some()
+    }
+
+    /// Composes the lineage in the select (`on`, where the adapter binds its buffers) or in
+    /// the lineage's own dispatches.
+    pub(super) fn set_lineage_in_select(
+        &mut self,
+        ctx: &GpuContext,
+        on: bool,
+    ) -> Result<(), GpuError> {
+        if on && !lineage_fits_in_select(ctx) {
+            return Err(GpuError::InvalidConfig(format!(
+                "the select composing the lineage binds {LINEAGE_SELECT_STORAGE_BUFFERS} storage \
+                 buffers; the adapter allows {}",
+                ctx.limits().max_storage_buffers_per_shader_stage
+            )));
+        }
+        self.lineage_in_select = on;
+        Ok(())
+    }
+
+    /// Records layer `layer`'s select: the one that composes the lineage where the filter keeps
+    /// it (`keeps_lineage`) and it was built.
+    fn record_select(
+        &self,
+        pass: &mut wgpu::ComputePass<'_>,
+        layer: usize,
+        keeps_lineage: bool,
+        grid: [u32; 3],
+    ) {
+        match &self.keeping_lineage {
+            Some(select) if keeps_lineage && self.lineage_in_select => {
+                select.kernel.record(pass, &select.groups[layer], grid)
+            }
+            _ => self
+                .selecting
+                .record(pass, &self.selecting_groups[layer], grid),
+        }
+    }
+}
+
+/// Whether the adapter binds the storage buffers of the select that composes the lineage.
+fn lineage_fits_in_select(ctx: &GpuContext) -> bool {
+    ctx.limits().max_storage_buffers_per_shader_stage >= LINEAGE_SELECT_STORAGE_BUFFERS
 }
 
 /// `select_*`'s bind group for `layer` (its parameters and the previous layer's, which it settles).
@@ -224,21 +320,27 @@ fn bind_selecting(
     layers: &LayerParams<'_>,
     layer: usize,
 ) -> Result<wgpu::BindGroup, GpuError> {
-    kernel.bind(
-        ctx,
-        &[
-            (0, layers.slice(layer)),
-            (1, layers.slice(layer.saturating_sub(1))),
-            (2, s.log_weights.binding()),
-            (3, s.log_likelihood.binding()),
-            (4, s.weights.binding()),
-            (5, s.stats.binding()),
-            (6, s.selected.binding()),
-            (7, s.ancestors.binding()),
-            (8, s.resampling_keys.binding()),
-            (9, s.states.binding()),
-        ],
-    )
+    kernel.bind(ctx, &selecting_entries(s, layers, layer))
+}
+
+/// The bindings of `select_*` for `layer`.
+fn selecting_entries<'a>(
+    s: &'a Streams,
+    layers: &'a LayerParams<'_>,
+    layer: usize,
+) -> Vec<(u32, wgpu::BindingResource<'a>)> {
+    vec![
+        (0, layers.slice(layer)),
+        (1, layers.slice(layer.saturating_sub(1))),
+        (2, s.log_weights.binding()),
+        (3, s.log_likelihood.binding()),
+        (4, s.weights.binding()),
+        (5, s.stats.binding()),
+        (6, s.selected.binding()),
+        (7, s.ancestors.binding()),
+        (8, s.resampling_keys.binding()),
+        (9, s.states.binding()),
+    ]
 }
 
 /// `move_selected`'s bind group for `layer`.
@@ -355,13 +457,10 @@ impl GpuFilter {
         layer: usize,
         grids: &Grids,
     ) {
+        let keeps_lineage = self.lineage.is_some();
         passes.dispatch(
             || format!("layer {layer}: select"),
-            |pass| {
-                fused
-                    .selecting
-                    .record(pass, &fused.selecting_groups[layer], grids.per_target)
-            },
+            |pass| fused.record_select(pass, layer, keeps_lineage, grids.per_target),
         );
         if layer == 0 && likelihood.propagates() {
             passes.dispatch(
@@ -386,7 +485,7 @@ impl GpuFilter {
                 },
             );
         }
-        if self.lineage.is_some() {
+        if keeps_lineage && !fused.composes_lineage() {
             passes.dispatch(
                 || format!("layer {layer}: lineage"),
                 |pass| self.record_lineage(pass, layer),

@@ -102,6 +102,19 @@ impl Lineage {
         }
     }
 
+    /// The lineage's bindings in the fused select that composes it (`layer.wgsl`,
+    /// `select_*_keeping_lineage`): layer `layer` reads the buffer the layer before wrote (layer
+    /// 0 reads none; it is bound to the other buffer) and writes `buffers[layer % 2]`, as the
+    /// dispatches do.
+    pub(super) fn select_bindings(&self, layer: usize) -> [(u32, wgpu::BindingResource<'_>); 3] {
+        let write = layer % 2;
+        [
+            (15, self.buffers[1 - write].binding()),
+            (16, self.buffers[write].binding()),
+            (17, self.restarts.binding()),
+        ]
+    }
+
     /// The buffer holding the frame's lineage after `layers` layers.
     pub(super) fn result(&self, layers: usize) -> &DeviceStream<u32> {
         &self.buffers[(layers.max(1) - 1) % 2]
@@ -115,8 +128,9 @@ impl Lineage {
 
 impl super::GpuFilter {
     /// Keeps each frame's lineage from the next step on: each particle's ancestor among the
-    /// previous frame's particles, every layer's resampling composed (a dispatch more per layer;
-    /// what smoothing from the ancestry needs, `pf_core::smooth::ancestry`).
+    /// previous frame's particles, every layer's resampling composed (in the fused step's select
+    /// where the adapter binds its buffers, else a dispatch more per layer; what smoothing from
+    /// the ancestry needs, `pf_core::smooth::ancestry`).
     pub fn keep_lineage(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
         if self.lineage.is_none() {
             self.lineage = Some(Lineage::new(
@@ -126,7 +140,39 @@ impl super::GpuFilter {
                 &self.params_buffer,
             )?);
         }
+        if let (Some(fused), Some(lineage)) = (&mut self.fused, &self.lineage) {
+            let layers = super::fused::LayerParams {
+                buffer: &self.layer_params,
+                stride: self.layer_stride,
+                count: self.annealing.layers,
+            };
+            fused.keep_lineage(ctx, &self.shape, &self.streams, &layers, lineage)?;
+        }
         Ok(())
+    }
+
+    /// Whether the fused step composes the lineage in each layer's select (`on`, the default
+    /// where the adapter binds the select's storage buffers and the lineage's three) or in a
+    /// dispatch of its own per layer (`lineage.wgsl`, as the staged step does: the reference).
+    /// The same values either way; refused where the adapter cannot bind them, or where the
+    /// fused step does not fit this filter.
+    pub fn set_lineage_in_select(&mut self, ctx: &GpuContext, on: bool) -> Result<(), GpuError> {
+        match &mut self.fused {
+            Some(fused) => fused.set_lineage_in_select(ctx, on),
+            None if !on => Ok(()),
+            None => Err(GpuError::InvalidConfig(
+                "the fused step does not fit this filter: its lineage has dispatches of its own"
+                    .into(),
+            )),
+        }
+    }
+
+    /// Whether a step now composes the lineage in the fused select ([`Self::set_lineage_in_select`]):
+    /// the filter keeps the lineage and records fused steps with that select.
+    pub fn lineage_in_select(&self) -> bool {
+        self.lineage.is_some()
+            && self.layout == super::StepLayout::Fused
+            && self.fused.as_ref().is_some_and(|f| f.composes_lineage())
     }
 
     /// Whether the filter keeps the lineage ([`Self::keep_lineage`]).
