@@ -370,7 +370,7 @@ fn fig7(c: &mut Criterion) {
         // The packed kernel with other lanes a particle than the tracker's (docs/BENCHMARKS.md,
         // "Lanes a particle").
         let lanes: &[u32] = if full_size() {
-            &[8, 16, 32, 128]
+            &[4, 8, 16, 32, 128]
         } else {
             &[16]
         };
@@ -382,8 +382,14 @@ fn fig7(c: &mut Criterion) {
             let backend = FaceBackend::Gpu(Box::new(context()));
             let mut gpu = FaceTracker::new(&frame, &rects, &model, config, backend).unwrap();
             let name = format!("gpu_{lanes}_lanes");
+            let mut reported = false;
             group.bench_function(BenchmarkId::new(name, faces), |b| {
-                b.iter(|| std::hint::black_box(gpu.step(&frame).unwrap()))
+                b.iter(|| std::hint::black_box(gpu.step(&frame).unwrap()));
+                if !reported && full_size() {
+                    eprintln!("{lanes} lanes a particle:");
+                    report_face_dispatches(&mut gpu, &frame, faces);
+                    reported = true;
+                }
             });
         }
         let mut cpu =
