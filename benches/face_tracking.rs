@@ -16,6 +16,8 @@
 #[path = "baseline/mod.rs"]
 mod baseline;
 mod common;
+#[path = "face_weighing/mod.rs"]
+mod face_weighing;
 
 use common::context;
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
@@ -419,7 +421,7 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
     let (frame, ..) = scene(1);
     let likelihood = FaceLikelihoodGpu::new(
         ctx,
-        FaceDispatch::PACKED,
+        FaceDispatch::PackedByLoad,
         1,
         1,
         frame.width,
@@ -545,6 +547,7 @@ fn lag_smoothing(c: &mut Criterion) {
 fn bench(c: &mut Criterion) {
     let ctx = context();
     fig6(c, &ctx);
+    face_weighing::weighing_vs_lanes(c, &ctx);
     frame_upload(c, &ctx);
     fig7(c);
     lag_smoothing(c);

@@ -280,7 +280,7 @@ fn batched_dispatch_matches_cpu_within_tolerance() {
 
 #[test]
 fn packed_dispatch_matches_cpu_within_tolerance() {
-    check(FaceDispatch::PACKED, 10);
+    check(FaceDispatch::PackedByLoad, 10);
 }
 
 /// Every lane count a particle: one lane looping over every point, more lanes than points, a
@@ -370,7 +370,7 @@ fn estimate_check_matches_cpu_within_tolerance() {
                 GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &layout).unwrap();
             let mut gpu = FaceLikelihoodGpu::new(
                 &ctx,
-                FaceDispatch::PACKED,
+                FaceDispatch::PackedByLoad,
                 faces,
                 points,
                 width,

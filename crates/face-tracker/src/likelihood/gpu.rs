@@ -26,15 +26,27 @@ pub enum FaceDispatch {
     /// The paper's layout, every face of the frame in one dispatch (grid: particles × faces).
     Batched,
     /// `lanes` invocations a particle looping over the points (a power of two up to 256: 256 /
-    /// `lanes` particles a workgroup), every face in one dispatch: the tracker's choice, with
-    /// [`FaceDispatch::PACKED`]'s lanes.
+    /// `lanes` particles a workgroup), every face in one dispatch.
     Packed { lanes: u32 },
+    /// The packed kernel with the lanes a particle chosen from the frame's particles
+    /// ([`packed_lanes_for`]): the tracker's choice.
+    PackedByLoad,
 }
 
-impl FaceDispatch {
-    /// The tracker's layout: the packed kernel with the lanes a particle that weighed fastest
-    /// (docs/BENCHMARKS.md, "Lanes a particle").
-    pub const PACKED: FaceDispatch = FaceDispatch::Packed { lanes: 64 };
+/// Invocations a packed dispatch aims at: about as many as an NVIDIA H100 keeps resident (132
+/// SMs × 2 048). Measured there (docs/BENCHMARKS.md, "Lanes a particle"): with fewer the
+/// weighing waits on each point's texture read, with more each particle's pose set-up and
+/// reduction are repeated for nothing.
+pub const PACKED_TARGET_INVOCATIONS: usize = 1 << 18;
+
+/// The lanes a particle [`FaceDispatch::PackedByLoad`] weighs `particles` (every face's, one
+/// frame) with: the largest power of two that keeps particles × lanes within
+/// [`PACKED_TARGET_INVOCATIONS`], between 4 and 64. On the H100 one face of 1 000 particles
+/// weighed fastest with 64–128 lanes, 16 faces with 8–16, 64 faces with 4.
+pub fn packed_lanes_for(particles: usize) -> u32 {
+    let fits = PACKED_TARGET_INVOCATIONS / particles.max(1);
+    let lanes = if fits == 0 { 1 } else { 1 << fits.ilog2() };
+    lanes.clamp(4, 64) as u32
 }
 
 /// Invocations in a workgroup of the face kernels (`WG` in the shader).
@@ -83,7 +95,9 @@ pub struct FaceLikelihoodGpu {
     estimate_kernel: Kernel,
     /// One parameter buffer per dispatch (face offsets 0.. for PerFace, one for Batched).
     params: Vec<wgpu::Buffer>,
-    kernel: Kernel,
+    /// The weighing kernel, built by `prepare` (its lanes a particle may depend on the
+    /// filter's particles).
+    kernel: Option<Kernel>,
     groups: Vec<wgpu::BindGroup>,
     particles: u32,
 }
@@ -123,7 +137,9 @@ impl FaceLikelihoodGpu {
         let frame = GrayTexture::new(ctx, "face frame", width, height)?;
         let points = DeviceStream::zeroed(ctx, "feature points", point_values)?;
         let counts = DeviceStream::zeroed(ctx, "feature point counts", faces)?;
-        let kernel = weighing_kernel(ctx, dispatch)?;
+        if let FaceDispatch::Packed { lanes } = dispatch {
+            check_lanes(lanes)?;
+        }
         let estimate_kernel = Kernel::new(
             ctx,
             "face estimate check",
@@ -158,7 +174,7 @@ impl FaceLikelihoodGpu {
             estimate_check: None,
             estimate_kernel,
             params,
-            kernel,
+            kernel: None,
             groups: Vec::new(),
             particles: 0,
         })
@@ -229,11 +245,12 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             )));
         }
         let errors = DeviceStream::zeroed(ctx, "face errors", shape.particle_len())?;
+        let kernel = weighing_kernel(ctx, self.dispatch, shape.particle_len())?;
         self.groups = self
             .params
             .iter()
             .map(|p| {
-                self.kernel.bind(
+                kernel.bind(
                     ctx,
                     &[
                         (0, inputs.params.as_entire_binding()),
@@ -250,6 +267,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             })
             .collect::<Result<_, _>>()?;
         self.errors = Some(errors);
+        self.kernel = Some(kernel);
         self.particles = shape.particles as u32;
         let estimate_errors = DeviceStream::zeroed(ctx, "face estimate errors", self.faces)?;
         let group = self.estimate_kernel.bind(
@@ -279,16 +297,21 @@ impl GpuLikelihood for FaceLikelihoodGpu {
     fn record(&self, phase: LikelihoodPhase, pass: &mut wgpu::ComputePass<'_>) {
         match phase {
             LikelihoodPhase::Measure { .. } => {
+                let Some(kernel) = &self.kernel else {
+                    return;
+                };
+                let faces = self.faces as u32;
                 let (x, y) = match self.dispatch {
                     FaceDispatch::PerFace => (self.particles, 1),
-                    FaceDispatch::Batched => (self.particles, self.faces as u32),
-                    FaceDispatch::Packed { lanes } => (
-                        self.particles.div_ceil(WORKGROUP / lanes),
-                        self.faces as u32,
-                    ),
+                    FaceDispatch::Batched => (self.particles, faces),
+                    FaceDispatch::Packed { .. } | FaceDispatch::PackedByLoad => {
+                        let lanes =
+                            packed_lanes(self.dispatch, self.particles as usize * self.faces);
+                        (self.particles.div_ceil(WORKGROUP / lanes), faces)
+                    }
                 };
                 for group in &self.groups {
-                    self.kernel.record(pass, group, [x, y, 1]);
+                    kernel.record(pass, group, [x, y, 1]);
                 }
             }
             LikelihoodPhase::AfterEstimate => {
@@ -309,19 +332,35 @@ impl GpuLikelihood for FaceLikelihoodGpu {
     }
 }
 
-/// The weighing kernel of `dispatch`. Its workgroup memory is not zeroed first: every
-/// invocation writes its own sums before the reduction reads any (`reduce_groups`).
-fn weighing_kernel(ctx: &GpuContext, dispatch: FaceDispatch) -> Result<Kernel, GpuError> {
+/// Refuses lanes a particle that do not divide a workgroup.
+fn check_lanes(lanes: u32) -> Result<(), GpuError> {
+    if lanes.is_power_of_two() && lanes <= WORKGROUP {
+        return Ok(());
+    }
+    Err(GpuError::InvalidConfig(format!(
+        "the packed face kernel needs a power of two up to {WORKGROUP} lanes a particle, got {lanes}"
+    )))
+}
+
+/// The lanes a particle of a packed `dispatch` weighing `particles` (every face's).
+fn packed_lanes(dispatch: FaceDispatch, particles: usize) -> u32 {
+    match dispatch {
+        FaceDispatch::Packed { lanes } => lanes,
+        _ => packed_lanes_for(particles),
+    }
+}
+
+/// The weighing kernel of `dispatch` for `particles` a frame (every face's). Its workgroup
+/// memory is not zeroed first: every invocation writes its own sums before the reduction reads
+/// any (`reduce_groups`).
+fn weighing_kernel(
+    ctx: &GpuContext,
+    dispatch: FaceDispatch,
+    particles: usize,
+) -> Result<Kernel, GpuError> {
     let lanes = match dispatch {
-        FaceDispatch::Packed { lanes } => {
-            if !(lanes.is_power_of_two() && lanes <= WORKGROUP) {
-                return Err(GpuError::InvalidConfig(format!(
-                    "the packed face kernel needs a power of two up to {WORKGROUP} lanes a particle, got {lanes}"
-                )));
-            }
-            Some(lanes)
-        }
         FaceDispatch::PerFace | FaceDispatch::Batched => None,
+        packed => Some(packed_lanes(packed, particles)),
     };
     let constants = lanes.map(|l| [("LANES", f64::from(l))]);
     let options = KernelOptions {
@@ -370,7 +409,9 @@ fn params_per_dispatch(
 ) -> Result<Vec<wgpu::Buffer>, GpuError> {
     let offsets: Vec<u32> = match dispatch {
         FaceDispatch::PerFace => (0..faces as u32).collect(),
-        FaceDispatch::Batched | FaceDispatch::Packed { .. } => vec![0],
+        FaceDispatch::Batched | FaceDispatch::Packed { .. } | FaceDispatch::PackedByLoad => {
+            vec![0]
+        }
     };
     offsets
         .into_iter()
@@ -382,6 +423,30 @@ fn params_per_dispatch(
             pf_gpu::stream::uniform_buffer(ctx, "face likelihood params", &value)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod lanes_tests {
+    use super::packed_lanes_for;
+
+    #[test]
+    fn the_lanes_follow_the_frames_particles() {
+        // The H100's fastest (docs/BENCHMARKS.md): one face 64, 16 faces 16, 64 faces 4.
+        assert_eq!(packed_lanes_for(1_000), 64);
+        assert_eq!(packed_lanes_for(4_000), 64);
+        assert_eq!(packed_lanes_for(16_000), 16);
+        assert_eq!(packed_lanes_for(64_000), 4);
+        // The ends: no particles, and more than the target invocations.
+        assert_eq!(packed_lanes_for(0), 64);
+        assert_eq!(packed_lanes_for(1 << 20), 4);
+        for particles in [1, 7, 999, 12_345, 300_000] {
+            let lanes = packed_lanes_for(particles);
+            assert!(
+                lanes.is_power_of_two() && (4..=64).contains(&lanes),
+                "{particles}: {lanes}"
+            );
+        }
+    }
 }
 
 #[cfg(test)]

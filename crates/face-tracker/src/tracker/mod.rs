@@ -127,7 +127,7 @@ impl Default for FaceTrackerConfig {
             failure_error: 0.12,
             failure_frames: 10,
             extraction: ExtractionConfig::default(),
-            gpu_dispatch: FaceDispatch::PACKED,
+            gpu_dispatch: FaceDispatch::PackedByLoad,
             seed: 1,
             // Chosen on the synthetic four-face video (docs/ACCURACY.md): five layers keeping
             // half the particles effective, the noise ×0.6 a layer, took the mean error from
