@@ -14,7 +14,6 @@
 use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
-use super::lineage::Lineage;
 use super::profile::{DispatchProfiler, Passes};
 use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
@@ -237,15 +236,16 @@ impl FusedLayers {
         })
     }
 
-    /// From the next step on, composes `lineage` in each layer's select where the adapter binds
-    /// the storage buffers it takes; elsewhere the lineage keeps its own dispatches.
-    pub(super) fn keep_lineage(
+    /// From the next step on, composes the lineage in each layer's select where the adapter
+    /// binds the storage buffers it takes (`lineage_bindings(layer)`: the lineage's buffers for
+    /// that layer, `Lineage::select_bindings`); elsewhere the lineage keeps its own dispatches.
+    pub(super) fn keep_lineage<'b>(
         &mut self,
         ctx: &GpuContext,
         shape: &BatchShape,
-        streams: &Streams,
-        layers: &LayerParams<'_>,
-        lineage: &Lineage,
+        streams: &'b Streams,
+        layers: &'b LayerParams<'_>,
+        lineage_bindings: &dyn Fn(usize) -> [(u32, wgpu::BindingResource<'b>); 3],
     ) -> Result<(), GpuError> {
         if self.keeping_lineage.is_some() || !lineage_fits_in_select(ctx) {
             return Ok(());
@@ -256,7 +256,7 @@ impl FusedLayers {
         let groups = (0..layers.count)
             .map(|layer| {
                 let mut entries = selecting_entries(streams, layers, layer);
-                entries.extend(lineage.select_bindings(layer));
+                entries.extend(lineage_bindings(layer));
                 kernel.bind(ctx, &entries)
             })
             .collect::<Result<Vec<_>, _>>()?;

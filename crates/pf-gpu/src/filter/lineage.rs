@@ -146,7 +146,8 @@ impl super::GpuFilter {
                 stride: self.layer_stride,
                 count: self.annealing.layers,
             };
-            fused.keep_lineage(ctx, &self.shape, &self.streams, &layers, lineage)?;
+            let bindings = |layer| lineage.select_bindings(layer);
+            fused.keep_lineage(ctx, &self.shape, &self.streams, &layers, &bindings)?;
         }
         Ok(())
     }
