@@ -223,7 +223,7 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
 
 // The packed layout: each workgroup weighs WG / LANES particles, LANES invocations each looping
 // over the points (LANES a power of two up to WG, set by the launcher,
-// face_tracker::likelihood::gpu::FaceDispatch::Packed). Fewer lanes a particle: fewer
+// face_tracker::likelihood::gpu::FaceDispatch). Fewer lanes a particle: fewer
 // workgroups, less of the per-invocation pose set-up and a shorter reduction, against a longer
 // loop.
 override LANES: u32 = 64u;
