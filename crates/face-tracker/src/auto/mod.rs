@@ -30,6 +30,7 @@ mod candidates;
 mod detectors;
 mod drift;
 mod duplicates;
+mod pinned;
 mod shots;
 mod tracked;
 use crate::synth::HEIGHT_RATIO;
@@ -185,6 +186,9 @@ pub struct AutoFrame {
     /// Tracks ended after this frame's step because another track had held the same face
     /// with them for several frames (reported lost by the next step).
     pub duplicates: Vec<usize>,
+    /// Tracks ended after this frame's step, pinned at the turn's limit on what is no longer a
+    /// face (`pinned.rs`).
+    pub pinned: Vec<usize>,
 }
 
 /// A tracker fed by a detector thread.
@@ -213,6 +217,8 @@ pub struct AutoTracker {
     lost: Vec<LostFace>,
     /// How long pairs of tracks have sat on one face (`duplicates.rs`).
     together: duplicates::Together,
+    /// How long each track has been pinned at the turn's limit (`pinned`).
+    pinned: pinned::Pinned,
     /// The first frame of the current shot (0 until a scene cut).
     shot_start: usize,
     ended_at_cuts: usize,
@@ -261,6 +267,7 @@ impl AutoTracker {
             walking: std::collections::BTreeMap::new(),
             lost: Vec::new(),
             together: duplicates::Together::default(),
+            pinned: pinned::Pinned::default(),
             shot_start: 0,
         })
     }
@@ -481,6 +488,7 @@ impl AutoTracker {
             scene_cut: false,
             ended: Vec::new(),
             duplicates: Vec::new(),
+            pinned: Vec::new(),
         };
         out.scene_cut = self.look_for_cut(frame);
         match self.config.detection_delay {
@@ -522,6 +530,7 @@ impl AutoTracker {
             .map(Tracked::from_estimate)
             .collect();
         out.duplicates = self.end_duplicates()?;
+        out.pinned = self.end_pinned()?;
         self.frame_index += 1;
         Ok(out)
     }
