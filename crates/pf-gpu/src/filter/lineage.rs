@@ -3,7 +3,11 @@
 //! into each particle's index among the previous frame's particles, in two buffers used in turn
 //! (a layer reads the one the layer before wrote). A target restarted since the last frame
 //! (`reset_target`) has no ancestors there ([`pf_core::smooth::ancestry::NO_ANCESTOR`]): its
-//! flag is read by the first layer and cleared by a dispatch of its own after it.
+//! flag is read by the first layer and cleared by a dispatch of its own after it. The fused
+//! step composes the same values in each layer's select instead (`layer.wgsl`,
+//! `select_*_keeping_lineage`, the flag cleared by the target's own workgroup) where the adapter
+//! binds the select's storage buffers and the lineage's: no dispatch of its own
+//! ([`super::GpuFilter::set_lineage_in_select`]).
 //!
 //! CPU twin: `pf_core::smooth::ancestry::compose`, as `pf_core::batch::BatchFilter` keeps it.
 
