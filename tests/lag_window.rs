@@ -415,4 +415,52 @@ fn a_lag_window_out_of_range_is_refused() {
     .unwrap();
     let err = cpu.keep_lag_window(2, false).unwrap_err();
     assert!(err.to_string().contains("host"), "{err}");
+    cpu.drop_lag_window().unwrap();
+}
+
+/// A window dropped summarises no more steps and keeps no frames; kept again, it fills anew.
+#[test]
+fn a_dropped_lag_window_summarises_nothing_until_kept_again() {
+    let Some(ctx) = common::gpu_context("lag window dropped") else {
+        return;
+    };
+    let shape = BatchShape::new(2, 16, 2).unwrap();
+    let config = BatchConfig::new(shape, 3, vec![0.1; 2]);
+    let source = ModelSource {
+        name: "Gaussian",
+        wgsl: MODEL,
+    };
+    let mut filter: ModelFilter<Observed, Constants> = ModelFilter::new(
+        &ctx,
+        &config,
+        GpuResampler::Systematic,
+        &start(&shape),
+        source,
+        &CONSTANTS,
+    )
+    .unwrap();
+    let lag = 2;
+    filter.engine_mut().keep_lag_window(lag, false).unwrap();
+    let mut frame = 0;
+    let mut step = |filter: &mut ModelFilter<Observed, Constants>| {
+        frame += 1;
+        filter
+            .step(&observations(2, frame))
+            .unwrap()
+            .lagged
+            .is_some()
+    };
+    let summarised: Vec<bool> = (0..lag + 2).map(|_| step(&mut filter)).collect();
+    assert_eq!(summarised, [false, false, true, true]);
+    filter.engine_mut().drop_lag_window().unwrap();
+    assert!(
+        (0..3).all(|_| !step(&mut filter)),
+        "a dropped window summarised"
+    );
+    let (_, gpu, _) = filter.gpu_parts().unwrap();
+    assert_eq!(gpu.lag_window(), None);
+    assert!(gpu.download_lag_frames(&ctx, 0, 1, 1).is_err());
+    filter.engine_mut().keep_lag_window(lag, false).unwrap();
+    let again: Vec<bool> = (0..lag + 1).map(|_| step(&mut filter)).collect();
+    assert_eq!(again, [false, false, true]);
 }

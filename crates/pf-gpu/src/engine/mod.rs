@@ -250,6 +250,15 @@ impl FilterEngine {
         }
     }
 
+    /// Stops keeping the GPU's lag window ([`GpuFilter::drop_lag_window`]); nothing to drop on
+    /// the CPU engine.
+    pub fn drop_lag_window(&mut self) -> Result<(), GpuError> {
+        match self {
+            Self::Cpu(_) => Ok(()),
+            Self::Gpu(gpu) => gpu.filter.drop_lag_window(&gpu.ctx),
+        }
+    }
+
     /// Target `t`'s frames `first_step ..` (`count` of them) in the GPU's lag window, oldest
     /// first, steps numbered from 1 ([`GpuFilter::download_lag_frames`]); the CPU engine keeps
     /// none.

@@ -203,6 +203,22 @@ impl GpuFilter {
         self.refit_step_backs(ctx)
     }
 
+    /// Stops keeping the lag window from the next step on (its frames are dropped; the lineage
+    /// stays kept). Refused while a step is in flight. A tracker whose later GPU refuses a
+    /// window takes it back from the earlier ones, so that no GPU summarises for nothing.
+    pub fn drop_lag_window(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        if self.in_flight > 0 {
+            return Err(GpuError::InvalidConfig(
+                "dropping the lag window while a filter step is in flight: finish it first".into(),
+            ));
+        }
+        if self.lag_window.take().is_some() {
+            self.lag_sections.clear();
+            self.refit_step_backs(ctx)?;
+        }
+        Ok(())
+    }
+
     /// The lag of the window the filter keeps ([`Self::keep_lag_window`]).
     pub fn lag_window(&self) -> Option<usize> {
         self.lag_window.as_ref().map(|w| w.lag)
