@@ -455,7 +455,8 @@ fn frame_upload(c: &mut Criterion, ctx: &GpuContext) {
 }
 
 /// What smoothing with a lag of 8 adds to the face step on the GPU (1 000 particles a face,
-/// 1024×768): the step alone; with the lineage kept (a dispatch more per layer); with every
+/// 1024×768): the step alone; with the lineage kept (composed in each layer's select where the
+/// adapter allows, else a dispatch more per layer); with every
 /// tracked face's particles and lineage read back each frame (what a host smoother needs); with
 /// the ancestry smoother, or the marginal smoother on the same GPU, writing the frame eight
 /// back; and with the ancestry's lag window kept on the GPU (no particles read back).

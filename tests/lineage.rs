@@ -264,6 +264,12 @@ fn check_gpu(
     filter.engine_mut().keep_lineage().unwrap();
     let (_, gpu, _) = filter.gpu_parts().unwrap();
     gpu.set_step_layout(layout).unwrap();
+    // The select composing the lineage binds 11 storage buffers; an adapter with fewer refuses
+    // it (lavapipe and NVIDIA's allow it, so CI runs it).
+    if in_select && ctx.limits().max_storage_buffers_per_shader_stage < 11 {
+        prop_assert!(gpu.set_lineage_in_select(ctx, true).is_err());
+        return Ok(());
+    }
     gpu.set_lineage_in_select(ctx, in_select).unwrap();
     prop_assert_eq!(
         gpu.lineage_in_select(),

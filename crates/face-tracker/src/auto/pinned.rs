@@ -4,7 +4,7 @@
 //! Measured on the identity scenario at 640×480 (heads 80 px wide, 200 frames, CPU, seeds 1–3):
 //! the walking head's track stayed on the background from frame 32 to the end in two seeds of
 //! three (122–168 frames turned at least 65° with ε at least half the failure level, ε 0.08
-//! against 0.03–0.05 on a face), 139–169 false positives, and the head, back at frame 176, was a
+//! against 0.03–0.05 on a face), 139–170 false positives a run, and the head, back at frame 176, was a
 //! new person. A track on a turned-away face of that scenario holds both for at most 24 frames
 //! in a row (full size, 300 frames), and the real clips' and Megamind.avi's for at most 5.
 //!

@@ -15,16 +15,18 @@ impl FaceTracker {
     /// Smooths every slot `lag` frames behind on its GPU from the next step on, with each
     /// lagged frame's filtered summary too when `compare_filtered` ([`Self::lagged`]). Refused
     /// on the CPU engine (whose particles are on the host: smooth them with
-    /// `pf_core::smooth_tracks::TrackSmoother`) and while frames are in flight; a GPU that
-    /// refuses it leaves none kept on the others.
+    /// `pf_core::smooth_tracks::TrackSmoother`) and while frames are in flight. A GPU that
+    /// refuses it leaves no window on any GPU (one kept before included: the run smooths on the
+    /// host), the refusal's error returned; the lineage stays kept.
     pub fn keep_lag_window(&mut self, lag: usize, compare_filtered: bool) -> Result<(), FaceError> {
         self.check_nothing_in_flight("a lag window is kept")?;
         for k in 0..self.shards.len() {
             let kept = (self.shards[k].filter.engine_mut()).keep_lag_window(lag, compare_filtered);
             if let Err(refused) = kept {
-                // The GPUs before it would summarise every step for a window the run cannot use.
-                for shard in &mut self.shards[..k] {
-                    shard.filter.engine_mut().drop_lag_window()?;
+                // Every other GPU would summarise each step for a window the run cannot join.
+                // A GPU that cannot drop its window is lost: the refusal says more.
+                for shard in &mut self.shards {
+                    let _ = shard.filter.engine_mut().drop_lag_window();
                 }
                 return Err(refused.into());
             }

@@ -248,7 +248,7 @@ pub fn fig7(run: &mut Run) -> anyhow::Result<Figure> {
         title: "Face paper Fig. 7: the whole step against the number of faces".into(),
         description: format!(
             "`FaceTracker::step` on one {}×{} 8-bit frame: frame upload, weighting of every face \
-             (the GPU's packed kernel, four particles per workgroup, all faces in one dispatch), \
+             (the GPU's packed kernel, its lanes a particle chosen by the load, all faces in one dispatch), \
              normalisation, best-M′ estimate (M′ = particles/10), the estimates' ε for failure \
              detection, resampling and diffusion, and the readback. The CPU columns run the same \
              step with `FaceBackend::Cpu` on one thread and on all cores.",
