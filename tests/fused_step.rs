@@ -487,12 +487,7 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
         assert_eq!(got.estimates, expected.estimates);
     }
     let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
-    let labels: Vec<String> = gpu
-        .dispatch_times(ctx_p)
-        .unwrap()
-        .into_iter()
-        .map(|d| d.label)
-        .collect();
+    let labels = dispatch_labels(gpu, ctx_p);
     assert_eq!(
         labels,
         [
@@ -532,12 +527,7 @@ fn a_profiled_step_names_the_dynamics_and_the_lineage() {
     plain.step(&z).unwrap();
     profiled.step(&z).unwrap();
     let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
-    let labels: Vec<String> = gpu
-        .dispatch_times(ctx_p)
-        .unwrap()
-        .into_iter()
-        .map(|d| d.label)
-        .collect();
+    let labels = dispatch_labels(gpu, ctx_p);
     assert_eq!(labels.len(), 9, "{labels:?}");
     assert!(!labels.iter().any(|l| l.contains("lineage")), "{labels:?}");
     let lineage = gpu.download_lineage(ctx_p).unwrap();
@@ -586,4 +576,11 @@ fn a_bisected_survival_beta_is_the_staged_steps_bit_for_bit() {
     for targets in [1, 3, 300] {
         survival_beta_matches_the_staged_step(&ctx, targets);
     }
+}
+
+/// The labels of the last profiled step's dispatches.
+fn dispatch_labels(gpu: &pf_gpu::GpuFilter, ctx: &pf_gpu::GpuContext) -> Vec<String> {
+    (gpu.dispatch_times(ctx).unwrap().into_iter())
+        .map(|d| d.label)
+        .collect()
 }

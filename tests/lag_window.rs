@@ -378,6 +378,27 @@ proptest! {
 }
 
 /// Lags the window cannot keep, and a window on the CPU engine, are refused with the reason.
+/// The Gaussian test model's filter on the GPU, systematic resampling, started at `start`.
+fn gaussian_filter(
+    ctx: &pf_gpu::GpuContext,
+    config: &BatchConfig,
+) -> ModelFilter<Observed, Constants> {
+    let source = ModelSource {
+        name: "Gaussian",
+        wgsl: MODEL,
+    };
+    let start = start(&config.shape);
+    ModelFilter::new(
+        ctx,
+        config,
+        GpuResampler::Systematic,
+        &start,
+        source,
+        &CONSTANTS,
+    )
+    .unwrap()
+}
+
 #[test]
 fn a_lag_window_out_of_range_is_refused() {
     let Some(ctx) = common::gpu_context("lag window refusals") else {
@@ -385,19 +406,7 @@ fn a_lag_window_out_of_range_is_refused() {
     };
     let shape = BatchShape::new(1, 16, 2).unwrap();
     let config = BatchConfig::new(shape, 1, vec![0.1; 2]);
-    let source = ModelSource {
-        name: "Gaussian",
-        wgsl: MODEL,
-    };
-    let mut filter: ModelFilter<Observed, Constants> = ModelFilter::new(
-        &ctx,
-        &config,
-        GpuResampler::Systematic,
-        &start(&shape),
-        source,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut filter = gaussian_filter(&ctx, &config);
     for lag in [0, pf_gpu::MAX_LAG + 1] {
         let err = filter.engine_mut().keep_lag_window(lag, false).unwrap_err();
         assert!(err.to_string().contains("lag"), "{err}");
@@ -426,19 +435,7 @@ fn a_dropped_lag_window_summarises_nothing_until_kept_again() {
     };
     let shape = BatchShape::new(2, 16, 2).unwrap();
     let config = BatchConfig::new(shape, 3, vec![0.1; 2]);
-    let source = ModelSource {
-        name: "Gaussian",
-        wgsl: MODEL,
-    };
-    let mut filter: ModelFilter<Observed, Constants> = ModelFilter::new(
-        &ctx,
-        &config,
-        GpuResampler::Systematic,
-        &start(&shape),
-        source,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut filter = gaussian_filter(&ctx, &config);
     let lag = 2;
     filter.engine_mut().keep_lag_window(lag, false).unwrap();
     let mut frame = 0;

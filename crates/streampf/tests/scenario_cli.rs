@@ -90,38 +90,45 @@ fn a_scenarios_ground_truth_leaves_out_faces_away_and_its_run_prints_identity_sc
 /// three seeds on the CPU and on a GPU).
 #[test]
 fn the_identity_scenario_keeps_who_is_who() {
-    let out = scratch("scenario-identities");
-    let text = ok(&streampf(&[
+    let scores = scenario_scores(&["--frames", "300", "--seed", "2"]);
+    let idf1: f64 = scores.split_whitespace().next().unwrap().parse().unwrap();
+    let switches = score_before(&scores, " identity switches");
+    let face_frames = score_before(&scores, " true face-frames");
+    assert!(idf1 >= 0.95, "{scores}");
+    assert!(switches * 1000.0 <= face_frames, "{scores}");
+}
+
+/// The identity scores `face track --synthetic --scenario exits-and-crossings --backend cpu`
+/// prints with `args` (the text after "identities: IDF1 ").
+fn scenario_scores(args: &[&str]) -> String {
+    let out = scratch(&format!("scenario-{}", args.join("-")));
+    let mut all = vec![
         "face",
         "track",
         "--synthetic",
         "--scenario",
         "exits-and-crossings",
-        "--frames",
-        "300",
         "--backend",
         "cpu",
-        "--seed",
-        "2",
         "--out",
         out.to_str().unwrap(),
-    ]));
+    ];
+    all.extend_from_slice(args);
+    let text = ok(&streampf(&all));
+    std::fs::remove_dir_all(&out).unwrap();
     let scores = text
         .lines()
         .find_map(|l| l.strip_prefix("identities: IDF1 "))
         .unwrap_or_else(|| panic!("no identity scores in {text}"));
-    let number_before = |marker: &str| -> f64 {
-        let head = &scores[..scores.find(marker).unwrap_or_else(|| panic!("{scores}"))];
-        let word = head.split_whitespace().last().unwrap();
-        word.parse()
-            .unwrap_or_else(|_| panic!("{word} in {scores}"))
-    };
-    let idf1: f64 = scores.split_whitespace().next().unwrap().parse().unwrap();
-    let switches = number_before(" identity switches");
-    let face_frames = number_before(" true face-frames");
-    assert!(idf1 >= 0.95, "{scores}");
-    assert!(switches * 1000.0 <= face_frames, "{scores}");
-    std::fs::remove_dir_all(&out).unwrap();
+    scores.to_string()
+}
+
+/// The number just before `marker` in the scores.
+fn score_before(scores: &str, marker: &str) -> f64 {
+    let head = &scores[..scores.find(marker).unwrap_or_else(|| panic!("{scores}"))];
+    let word = head.split_whitespace().last().unwrap();
+    word.parse()
+        .unwrap_or_else(|_| panic!("{word} in {scores}"))
 }
 
 /// At 640×480 (heads 80 px wide) the walking head's track, left on the background turned to the
@@ -129,13 +136,7 @@ fn the_identity_scenario_keeps_who_is_who() {
 /// there to the end: it made 169 false positives on seed 1 before, 46 with the rule.
 #[test]
 fn a_track_left_on_the_background_ends() {
-    let out = scratch("scenario-pinned");
-    let text = ok(&streampf(&[
-        "face",
-        "track",
-        "--synthetic",
-        "--scenario",
-        "exits-and-crossings",
+    let scores = scenario_scores(&[
         "--width",
         "640",
         "--height",
@@ -144,21 +145,11 @@ fn a_track_left_on_the_background_ends() {
         "80",
         "--frames",
         "200",
-        "--backend",
-        "cpu",
         "--seed",
         "1",
-        "--out",
-        out.to_str().unwrap(),
-    ]));
-    let scores = text
-        .lines()
-        .find_map(|l| l.strip_prefix("identities: IDF1 "))
-        .unwrap_or_else(|| panic!("no identity scores in {text}"));
-    let head = &scores[..scores
-        .find(" false positives")
-        .unwrap_or_else(|| panic!("{scores}"))];
-    let false_positives: usize = head.split_whitespace().last().unwrap().parse().unwrap();
-    assert!(false_positives <= 100, "{scores}");
-    std::fs::remove_dir_all(&out).unwrap();
+    ]);
+    assert!(
+        score_before(&scores, " false positives") <= 100.0,
+        "{scores}"
+    );
 }
