@@ -101,6 +101,9 @@ pub struct FaceLikelihoodGpu {
     kernel: Option<Kernel>,
     groups: Vec<wgpu::BindGroup>,
     particles: u32,
+    /// The packed kernel's lanes a particle, chosen by `prepare` (`None`: a workgroup a
+    /// particle).
+    lanes: Option<u32>,
 }
 
 impl FaceLikelihoodGpu {
@@ -178,6 +181,7 @@ impl FaceLikelihoodGpu {
             kernel: None,
             groups: Vec::new(),
             particles: 0,
+            lanes: None,
         })
     }
 
@@ -246,7 +250,12 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             )));
         }
         let errors = DeviceStream::zeroed(ctx, "face errors", shape.particle_len())?;
-        let kernel = weighing_kernel(ctx, self.dispatch, shape.particle_len())?;
+        let lanes = match self.dispatch {
+            FaceDispatch::PerFace | FaceDispatch::Batched => None,
+            FaceDispatch::Packed { lanes } => Some(lanes),
+            FaceDispatch::PackedByLoad => Some(packed_lanes_for(shape.particle_len())),
+        };
+        let kernel = weighing_kernel(ctx, lanes)?;
         self.groups = self
             .params
             .iter()
@@ -270,6 +279,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
         self.errors = Some(errors);
         self.kernel = Some(kernel);
         self.particles = shape.particles as u32;
+        self.lanes = lanes;
         let estimate_errors = DeviceStream::zeroed(ctx, "face estimate errors", self.faces)?;
         let group = self.estimate_kernel.bind(
             ctx,
@@ -302,14 +312,10 @@ impl GpuLikelihood for FaceLikelihoodGpu {
                     return;
                 };
                 let faces = self.faces as u32;
-                let (x, y) = match self.dispatch {
-                    FaceDispatch::PerFace => (self.particles, 1),
-                    FaceDispatch::Batched => (self.particles, faces),
-                    FaceDispatch::Packed { .. } | FaceDispatch::PackedByLoad => {
-                        let lanes =
-                            packed_lanes(self.dispatch, self.particles as usize * self.faces);
-                        (self.particles.div_ceil(WORKGROUP / lanes), faces)
-                    }
+                let (x, y) = match (self.dispatch, self.lanes) {
+                    (FaceDispatch::PerFace, _) => (self.particles, 1),
+                    (_, Some(lanes)) => (self.particles.div_ceil(WORKGROUP / lanes), faces),
+                    (_, None) => (self.particles, faces),
                 };
                 for group in &self.groups {
                     kernel.record(pass, group, [x, y, 1]);
@@ -343,26 +349,10 @@ fn check_lanes(lanes: u32) -> Result<(), GpuError> {
     )))
 }
 
-/// The lanes a particle of a packed `dispatch` weighing `particles` (every face's).
-fn packed_lanes(dispatch: FaceDispatch, particles: usize) -> u32 {
-    match dispatch {
-        FaceDispatch::Packed { lanes } => lanes,
-        _ => packed_lanes_for(particles),
-    }
-}
-
-/// The weighing kernel of `dispatch` for `particles` a frame (every face's). Its workgroup
-/// memory is not zeroed first: every invocation writes its own sums before the reduction reads
-/// any (`reduce_groups`).
-fn weighing_kernel(
-    ctx: &GpuContext,
-    dispatch: FaceDispatch,
-    particles: usize,
-) -> Result<Kernel, GpuError> {
-    let lanes = match dispatch {
-        FaceDispatch::PerFace | FaceDispatch::Batched => None,
-        packed => Some(packed_lanes(packed, particles)),
-    };
+/// The weighing kernel: the packed one with `lanes` a particle, else a workgroup a particle.
+/// Its workgroup memory is not zeroed first: every invocation writes its own sums before the
+/// reduction reads any (`reduce_groups`).
+fn weighing_kernel(ctx: &GpuContext, lanes: Option<u32>) -> Result<Kernel, GpuError> {
     let constants = lanes.map(|l| [("LANES", f64::from(l))]);
     let options = KernelOptions {
         constants: constants.as_ref().map_or(&[], |c| c.as_slice()),
