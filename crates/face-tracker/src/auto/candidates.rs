@@ -2,6 +2,7 @@
 //! again, at its place or, for a face that walks, within reach of it; a track started on a face
 //! that walked starts moving at the two detections' speed.
 
+use super::walking::Walking;
 use super::{AutoTracker, MAX_SIZE_CHANGE, drift, same_face};
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
@@ -142,7 +143,7 @@ impl AutoTracker {
         }
         let gain = self.config.tracker.motion.gain();
         let from = [state[TX], state[TY]];
-        self.walking.insert(
+        self.walks.walking.insert(
             track,
             Walking {
                 at: from,
@@ -152,65 +153,6 @@ impl AutoTracker {
         self.tracker
             .set_track_drift(track, from, [gain * per_frame[0], gain * per_frame[1]])
     }
-
-    /// After a step: each walking track (started on a walking face) that still moves at least
-    /// [`WALK_SPEED`], and about as it moved before ([`WALK_STEADY`]), drifts by its whole last
-    /// motion in the next step; one that has slowed, turned or ended walks no more. The tracker's own drift carries half the last motion, which
-    /// trailed a head walking 30 px a frame by 20–30 px: the track made up for it with a wrong
-    /// yaw and failed at the head's next turn (the identity scenario, docs/ACCURACY.md).
-    pub(super) fn keep_walking(&mut self, estimates: &[FaceEstimate]) -> Result<(), FaceError> {
-        for e in estimates {
-            let Some(&walk) = self.walking.get(&e.track) else {
-                continue;
-            };
-            let now = [e.state[TX], e.state[TY]];
-            match walking_drift(&walk, now) {
-                Some(drift) if e.status == TrackStatus::Tracking => {
-                    let walk = Walking {
-                        at: now,
-                        speed: drift,
-                    };
-                    self.walking.insert(e.track, walk);
-                    self.tracker.set_track_drift(e.track, now, drift)?;
-                }
-                _ => {
-                    self.walking.remove(&e.track);
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-/// A walking track walks no more below this speed (pixels a frame): a face that has stopped.
-/// Measured (CPU): the identity scenario's head that stays put moves a median 1.0 px a frame
-/// between estimates (95th percentile 2.2); the five talking-head clips' faces 0.4–1.6 px
-/// (95th percentiles 1.0–6.5).
-pub const WALK_SPEED: f32 = 5.0;
-
-/// A walking track walks no more when its last motion differs from the one before by more than
-/// this share of it: a face that stops. Measured on the identity scenario: the returning head
-/// moved 29–30 px a frame between estimates while it walked; in the frame it stopped, its track
-/// overshot by the drift of 30 px and moved 18 px, and carrying that on took the track off the
-/// head within ten frames (one run in six at 300 frames lost the head so, and with it its
-/// identity).
-pub const WALK_STEADY: f32 = 1.0 / 3.0;
-
-/// Where a walking track was after its last step, and how far it moved a frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) struct Walking {
-    pub(super) at: [f32; 2],
-    pub(super) speed: [f32; 2],
-}
-
-/// The next drift of walking track `walk` that moved to `now` in the last frame: that whole
-/// motion, or `None` once it is slower than [`WALK_SPEED`] or not as steady as
-/// [`WALK_STEADY`].
-fn walking_drift(walk: &Walking, now: [f32; 2]) -> Option<[f32; 2]> {
-    let motion = [now[0] - walk.at[0], now[1] - walk.at[1]];
-    let change = (motion[0] - walk.speed[0]).hypot(motion[1] - walk.speed[1]);
-    let steady = change <= WALK_STEADY * walk.speed[0].hypot(walk.speed[1]);
-    (motion[0].hypot(motion[1]) >= WALK_SPEED && steady).then_some(motion)
 }
 
 #[cfg(test)]
@@ -292,20 +234,5 @@ mod tests {
         let third = earlier_candidate(&candidates, &detection, &mut used).unwrap();
         assert_eq!(third.rect.x, 150.0, "the one left, within reach");
         assert_eq!(earlier_candidate(&candidates, &detection, &mut used), None);
-    }
-
-    /// A track walks on at its whole last motion while it moves at least WALK_SPEED a frame.
-    #[test]
-    fn a_walking_track_carries_its_last_motion_until_it_slows() {
-        let walk = Walking {
-            at: [100.0, 50.0],
-            speed: [29.0, -3.0],
-        };
-        assert_eq!(walking_drift(&walk, [130.0, 46.0]), Some([30.0, -4.0]));
-        assert_eq!(walking_drift(&walk, [103.0, 53.0]), None, "stopped");
-        assert_eq!(walking_drift(&walk, [f32::NAN, 50.0]), None);
-        // The frame a face stops, its track overshoots and moves less: no longer walking.
-        assert_eq!(walking_drift(&walk, [118.0, 50.0]), None, "slowed by 40 %");
-        assert_eq!(walking_drift(&walk, [70.0, 50.0]), None, "turned back");
     }
 }

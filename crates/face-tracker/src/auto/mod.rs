@@ -33,11 +33,12 @@ mod duplicates;
 mod pinned;
 mod shots;
 mod tracked;
+mod walking;
 use crate::synth::HEIGHT_RATIO;
 use crate::template::Template;
 use crate::tracker::{FaceBackend, FaceEstimate, FaceTracker, FaceTrackerConfig, TrackStatus};
 pub use candidates::within_reach;
-use candidates::{Candidate, LostFace, Walking, earlier_candidate};
+use candidates::{Candidate, LostFace, earlier_candidate};
 use detectors::{DetectionResult, Detectors};
 use tracked::Tracked;
 
@@ -209,9 +210,8 @@ pub struct AutoTracker {
     identities: Option<Identities>,
     /// The frames that started a new shot so far, and how many tracks ended at them.
     cuts_seen: Vec<usize>,
-    /// Tracks started on a walking face, and their last position (Tx, Ty), while they walk
-    /// (`candidates.rs`).
-    walking: std::collections::BTreeMap<usize, Walking>,
+    /// The tracks that walk, and the paths of the others (`walking.rs`).
+    walks: walking::Walks,
     /// Tracks lost lately (not at a scene cut): where they were and the frame they were lost
     /// at (`candidates::LostFace`).
     lost: Vec<LostFace>,
@@ -264,7 +264,7 @@ impl AutoTracker {
             identities,
             cuts_seen: Vec::new(),
             ended_at_cuts: 0,
-            walking: std::collections::BTreeMap::new(),
+            walks: walking::Walks::default(),
             lost: Vec::new(),
             together: duplicates::Together::default(),
             pinned: pinned::Pinned::default(),
