@@ -61,6 +61,9 @@ struct Case {
     lag: usize,
     angular: Vec<bool>,
     staged: bool,
+    /// Systematic and stratified resampling draw ancestors in order; Metropolis does not (its
+    /// lineages cross), and runs staged.
+    resampler: GpuResampler,
     /// (target, the frame it is restarted before).
     restart: (usize, usize),
 }
@@ -74,9 +77,20 @@ fn case() -> impl Strategy<Value = Case> {
         1usize..=6,
         (1usize..=4, 1usize..=3, 0.3f32..0.8),
         (any::<u64>(), any::<u32>(), any::<bool>(), any::<usize>()),
+        prop_oneof![
+            Just(GpuResampler::Systematic),
+            Just(GpuResampler::Stratified),
+            Just(GpuResampler::Metropolis(8)),
+        ],
     )
         .prop_map(
-            |((targets, particles), dims, (lag, layers, rate), (seed, mask, staged, r))| {
+            |(
+                (targets, particles),
+                dims,
+                (lag, layers, rate),
+                (seed, mask, staged, r),
+                resampler,
+            )| {
                 let shape = BatchShape::new(targets, particles, dims).unwrap();
                 let angular: Vec<bool> = (0..dims).map(|d| (mask >> d) & 1 == 1).collect();
                 let mut config = BatchConfig::new(shape, seed, vec![0.15; dims]);
@@ -86,7 +100,8 @@ fn case() -> impl Strategy<Value = Case> {
                     config,
                     lag,
                     angular,
-                    staged,
+                    staged: staged || matches!(resampler, GpuResampler::Metropolis(_)),
+                    resampler,
                     restart: (r % targets, 1 + r % (lag + 2)),
                 }
             },
@@ -278,7 +293,7 @@ fn check_gpu(ctx: &pf_gpu::GpuContext, case: &Case) -> Result<(), TestCaseError>
     let mut filter = ModelFilter::new(
         ctx,
         &case.config,
-        GpuResampler::Systematic,
+        case.resampler,
         &start(&shape),
         source,
         &CONSTANTS,
