@@ -174,7 +174,7 @@ impl AutoTracker {
 
     /// Running track `track`'s own template (taken on a face `width` wide) fitted at `rect`:
     /// its ε (`None` unless finite) and the state found.
-    fn own_fit(
+    pub(super) fn own_fit(
         &self,
         track: usize,
         width: f32,

@@ -529,7 +529,7 @@ impl AutoTracker {
             .filter(|e| e.status == TrackStatus::Tracking)
             .map(Tracked::from_estimate)
             .collect();
-        out.duplicates = self.end_duplicates()?;
+        out.duplicates = self.end_duplicates(frame)?;
         out.pinned = self.end_pinned()?;
         self.frame_index += 1;
         Ok(out)

@@ -36,6 +36,10 @@ pub const WALK_STEADY: f32 = 1.0 / 3.0;
 /// did for a few frames, with the same share of rows on faces.
 pub const WALK_START_FRAMES: u32 = 3;
 
+/// How many frames a broken-off walk is remembered: a pair of tracks on one face ends one after
+/// `duplicates::DUPLICATE_FRAMES` (5) frames together, a few frames after the jump.
+pub const BROKEN_OFF_FRAMES: usize = 12;
+
 /// Where a walking track was after its last step, and how far it moved a frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(super) struct Walking {
@@ -52,11 +56,30 @@ pub(super) struct Path {
     steady_frames: u32,
 }
 
-/// The tracks that walk, and the paths of those that do not.
+/// How a track walked until its motion broke off: its last position while it walked, its speed
+/// then, and that frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct LastWalk {
+    pub(super) walk: Walking,
+    pub(super) frame: usize,
+}
+
+impl LastWalk {
+    /// Where the walk would have taken the track by `frame`.
+    pub(super) fn at_frame(&self, frame: usize) -> [f32; 2] {
+        let frames = frame.saturating_sub(self.frame) as f32;
+        let Walking { at, speed } = self.walk;
+        [at[0] + frames * speed[0], at[1] + frames * speed[1]]
+    }
+}
+
+/// The tracks that walk, the paths of those that do not, and the last walk of each track whose
+/// walk broke off lately (`duplicates`: a track that jumped onto a crossing face).
 #[derive(Debug, Clone, Default)]
 pub(super) struct Walks {
     pub(super) walking: BTreeMap<usize, Walking>,
     paths: BTreeMap<usize, Path>,
+    pub(super) broken_off: BTreeMap<usize, LastWalk>,
 }
 
 /// The next drift of walking track `walk` that moved to `now` in the last frame: that whole
@@ -108,15 +131,29 @@ impl Path {
 }
 
 impl AutoTracker {
+    /// Track `track`, moved to `at`, walks on at `speed` a frame from the next step.
+    pub(super) fn resume_walk(
+        &mut self,
+        track: usize,
+        at: [f32; 2],
+        speed: [f32; 2],
+    ) -> Result<(), FaceError> {
+        self.walks.paths.remove(&track);
+        self.walks.walking.insert(track, Walking { at, speed });
+        self.tracker.set_track_drift(track, at, speed)
+    }
+
     /// After a step: each walking track that still moves at least [`WALK_SPEED`], and about as
     /// it moved before ([`WALK_STEADY`]), drifts by its whole last motion in the next step; one
     /// that has slowed, turned or ended walks no more. A track that does not walk starts to
     /// once it has moved so for [`WALK_START_FRAMES`] frames.
     pub(super) fn keep_walking(&mut self, estimates: &[FaceEstimate]) -> Result<(), FaceError> {
         let walks = &mut self.walks;
+        let frame = self.frame_index;
         walks
             .paths
             .retain(|track, _| estimates.iter().any(|e| e.track == *track));
+        (walks.broken_off).retain(|_, last| last.frame + BROKEN_OFF_FRAMES >= frame);
         for e in estimates {
             let now = [e.state[TX], e.state[TY]];
             if e.status != TrackStatus::Tracking {
@@ -144,10 +181,16 @@ impl AutoTracker {
                     walks.walking.insert(e.track, walk);
                     self.tracker.set_track_drift(e.track, now, drift)?;
                 }
-                None if walks.walking.remove(&e.track).is_some() => {
-                    walks.paths.insert(e.track, Path::starting_at(now));
+                None => {
+                    if let Some(walk) = walks.walking.remove(&e.track) {
+                        let last = LastWalk {
+                            walk,
+                            frame: frame.saturating_sub(1),
+                        };
+                        walks.broken_off.insert(e.track, last);
+                        walks.paths.insert(e.track, Path::starting_at(now));
+                    }
                 }
-                None => {}
             }
         }
         Ok(())
@@ -171,6 +214,21 @@ mod tests {
         // The frame a face stops, its track overshoots and moves less: no longer walking.
         assert_eq!(walking_drift(&walk, [118.0, 50.0]), None, "slowed by 40 %");
         assert_eq!(walking_drift(&walk, [70.0, 50.0]), None, "turned back");
+    }
+
+    /// A broken-off walk leads on at its speed from the frame it was last followed.
+    #[test]
+    fn a_broken_off_walk_leads_on_at_its_speed() {
+        let last = LastWalk {
+            walk: Walking {
+                at: [300.0, 260.0],
+                speed: [11.0, -8.5],
+            },
+            frame: 144,
+        };
+        assert_eq!(last.at_frame(150), [366.0, 209.0]);
+        assert_eq!(last.at_frame(144), [300.0, 260.0]);
+        assert_eq!(last.at_frame(100), [300.0, 260.0], "never backwards");
     }
 
     /// A track that speeds up steadily past WALK_SPEED walks from its third such frame; a
