@@ -286,19 +286,7 @@ fn check_report(
 
 fn check_gpu(ctx: &pf_gpu::GpuContext, case: &Case) -> Result<(), TestCaseError> {
     let shape = case.config.shape;
-    let source = ModelSource {
-        name: "Gaussian",
-        wgsl: MODEL,
-    };
-    let mut filter = ModelFilter::new(
-        ctx,
-        &case.config,
-        case.resampler,
-        &start(&shape),
-        source,
-        &CONSTANTS,
-    )
-    .unwrap();
+    let mut filter = gaussian_filter(ctx, &case.config, case.resampler);
     filter.engine_mut().keep_lag_window(case.lag, true).unwrap();
     let layout = if case.staged {
         StepLayout::Staged
@@ -392,28 +380,21 @@ proptest! {
     }
 }
 
-/// Lags the window cannot keep, and a window on the CPU engine, are refused with the reason.
-/// The Gaussian test model's filter on the GPU, systematic resampling, started at `start`.
+/// The Gaussian test model's filter on the GPU with `resampler`, started at `start`.
 fn gaussian_filter(
     ctx: &pf_gpu::GpuContext,
     config: &BatchConfig,
+    resampler: GpuResampler,
 ) -> ModelFilter<Observed, Constants> {
     let source = ModelSource {
         name: "Gaussian",
         wgsl: MODEL,
     };
     let start = start(&config.shape);
-    ModelFilter::new(
-        ctx,
-        config,
-        GpuResampler::Systematic,
-        &start,
-        source,
-        &CONSTANTS,
-    )
-    .unwrap()
+    ModelFilter::new(ctx, config, resampler, &start, source, &CONSTANTS).unwrap()
 }
 
+/// Lags the window cannot keep, and a window on the CPU engine, are refused with the reason.
 #[test]
 fn a_lag_window_out_of_range_is_refused() {
     let Some(ctx) = common::gpu_context("lag window refusals") else {
@@ -421,7 +402,7 @@ fn a_lag_window_out_of_range_is_refused() {
     };
     let shape = BatchShape::new(1, 16, 2).unwrap();
     let config = BatchConfig::new(shape, 1, vec![0.1; 2]);
-    let mut filter = gaussian_filter(&ctx, &config);
+    let mut filter = gaussian_filter(&ctx, &config, GpuResampler::Systematic);
     for lag in [0, pf_gpu::MAX_LAG + 1] {
         let err = filter.engine_mut().keep_lag_window(lag, false).unwrap_err();
         assert!(err.to_string().contains("lag"), "{err}");
@@ -450,7 +431,7 @@ fn a_dropped_lag_window_summarises_nothing_until_kept_again() {
     };
     let shape = BatchShape::new(2, 16, 2).unwrap();
     let config = BatchConfig::new(shape, 3, vec![0.1; 2]);
-    let mut filter = gaussian_filter(&ctx, &config);
+    let mut filter = gaussian_filter(&ctx, &config, GpuResampler::Systematic);
     let lag = 2;
     filter.engine_mut().keep_lag_window(lag, false).unwrap();
     let mut frame = 0;

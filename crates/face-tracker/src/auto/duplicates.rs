@@ -98,9 +98,9 @@ impl AutoTracker {
     }
 
     /// A duplicate track whose walk broke off lately (it jumped onto the face crossing its own)
-    /// moves to where that walk would have taken it, if its own template fits a face there (as
-    /// well as a drifted track's must: [`super::drift::DRIFT_MATCH_SHARE`] of its ε off its
-    /// face), and walks on from there; whether it did. Measured on the identity scenario at
+    /// moves to where that walk would have taken it, if its own template fits a face there
+    /// (within [`WALK_BACK_FIT_SHARE`] of its ε off its face, and below the failure level), and
+    /// walks on from there; whether it did. Measured on the identity scenario at
     /// 640×480 (CPU, seed 2): a track walking with its head jumped onto the head crossing it at
     /// frame 146 and ended as a duplicate five frames later; its head, untracked, came back as a
     /// new person at frame 191.
