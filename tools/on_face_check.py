@@ -12,7 +12,12 @@ tracker's states.csv (rows with status `tracking`):
   mesh-or-detector a face MediaPipe's face detector finds (the full-range model, for faces
   farther from the camera; score 0.5 or more) counts too where its box's centre lies in no mesh
   box: the mesh misses small, blurred faces that the detector finds (Megamind.avi's background
-  man, about 70 px wide).
+  man, about 70 px wide). With --bridge N a face the judge saw on both sides of a gap of at
+  most N frames, at nearly the same place and size (centres within half its width, widths within
+  a factor 1.5), counts in the frames between too, its box interpolated: both judges miss
+  Megamind.avi's background man in runs of up to seven frames between frames where they find him
+  (he is there in each, blurred, looking down), as MOT ground truth interpolates a box between the
+  frames annotated.
 - faces carrying a track: the share of the mesh's faces at least --min-face pixels wide whose
   middle half holds a tracking row's centre.
 - confidence ROC AUC: how well the rows' `confidence` tells on-face rows from off-face ones (the
@@ -21,7 +26,7 @@ tracker's states.csv (rows with status `tracking`):
 - confidence 0 while tracking: the share of tracking rows whose confidence reads 0.
 
     python3 tools/on_face_check.py VIDEO STATES_CSV [--json OUT.json] [--min-face 40]
-        [--max-frames N] [--faces FACES.json] [--judge mesh|mesh-or-detector]
+        [--max-frames N] [--faces FACES.json] [--judge mesh|mesh-or-detector] [--bridge N]
 
 --faces caches the faces' boxes: read when the file exists, else written after the mesh ran
 (the mesh takes a few seconds a hundred frames; the tracker's runs to compare need it once).
@@ -100,6 +105,37 @@ def judged_faces(found, judge):
         ]
         frames.append(list(mesh) + extra)
     return frames
+
+
+def same_face(a, b):
+    """Whether boxes a and b (x0, y0, x1, y1) are one face seen a few frames apart: centres within
+    half the wider box's width, widths within a factor 1.5."""
+    wa, wb = a[2] - a[0], b[2] - b[0]
+    if wa <= 0 or wb <= 0 or max(wa, wb) > 1.5 * min(wa, wb):
+        return False
+    dx = (a[0] + a[2] - b[0] - b[2]) / 2
+    dy = (a[1] + a[3] - b[1] - b[3]) / 2
+    return (dx * dx + dy * dy) ** 0.5 <= max(wa, wb) / 2
+
+
+def bridged(frames, max_gap):
+    """The faces per frame with each gap of at most `max_gap` frames between two sightings of one
+    face (same_face) filled by the box interpolated linearly between them, where that frame has
+    no box of that face already."""
+    out = [list(faces) for faces in frames]
+    for first, faces in enumerate(frames):
+        for box in faces:
+            for later in range(first + 1, min(first + max_gap + 1, len(frames) - 1) + 1):
+                seen = [other for other in frames[later] if same_face(box, other)]
+                if not seen:
+                    continue
+                for k in range(first + 1, later):
+                    t = (k - first) / (later - first)
+                    between = tuple(a + t * (b - a) for a, b in zip(box, seen[0]))
+                    if not any(same_face(between, other) for other in out[k]):
+                        out[k].append(between)
+                break
+    return out
 
 
 def tracking_rows(states_csv):
@@ -196,6 +232,13 @@ def main():
         default="mesh",
         help="which faces count (default: the mesh's)",
     )
+    parser.add_argument(
+        "--bridge",
+        type=int,
+        default=0,
+        help="count a face the judge saw on both sides of a gap of at most this many frames "
+        "in the frames between (default 0: no bridging)",
+    )
     args = parser.parse_args()
 
     found = {}
@@ -212,12 +255,18 @@ def main():
         with open(args.faces, "w") as f:
             json.dump(found, f)
     boxes = judged_faces(found, args.judge)
+    if args.bridge < 0:
+        parser.error("--bridge: a number of frames, 0 or more")
+    if args.bridge > 0:
+        boxes = bridged(boxes, args.bridge)
     result = scores(boxes, tracking_rows(args.states_csv), args.min_face)
     result["judge"] = args.judge
+    result["bridge"] = args.bridge
     auc = result["confidence_auc"]
     print(
         f"{result['tracking_rows']} tracking rows over {result['frames']} frames "
-        f"({result['frames_with_a_face']} with a face the judge ({args.judge}) finds)\n"
+        f"({result['frames_with_a_face']} with a face the judge ({args.judge}"
+        f"{f', gaps of up to {args.bridge} frames bridged' if args.bridge else ''}) finds)\n"
         f"on face: {percent(result['on_face'])}\n"
         f"faces >= {args.min_face:g} px carrying a track: "
         f"{percent(result['faces_carrying_a_track'])} of {result['faces']}\n"
