@@ -209,11 +209,16 @@ fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) 
 
 /// Where the face step's GPU time goes, dispatch by dispatch (`FaceTracker::profile_dispatches`).
 fn report_face_dispatches(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) {
+    report_dispatches(tracker, frame, &format!("face step, {faces} faces"));
+}
+
+/// [`report_face_dispatches`] under the name `what`.
+fn report_dispatches(tracker: &mut FaceTracker, frame: &GrayImage, what: &str) {
     if let Err(e) = tracker.profile_dispatches(true) {
-        eprintln!("face step dispatch profile: {e}");
+        eprintln!("{what}: dispatch profile: {e}");
         return;
     }
-    common::report_dispatch_profile(&format!("face step, {faces} faces"), || {
+    common::report_dispatch_profile(what, || {
         tracker.step(frame).ok()?;
         tracker.dispatch_times().ok()
     });
@@ -540,6 +545,12 @@ fn lag_smoothing(c: &mut Criterion) {
                     )
                 })
             },
+        );
+        // The summary's own GPU time, apart from the whole step's spread between processes.
+        report_dispatches(
+            &mut on_gpu,
+            &frame,
+            &format!("face step, {faces} faces, lag 8 window on the GPU"),
         );
     }
     group.finish();

@@ -457,3 +457,61 @@ fn a_dropped_lag_window_summarises_nothing_until_kept_again() {
     let again: Vec<bool> = (0..lag + 1).map(|_| step(&mut filter)).collect();
     assert_eq!(again, [false, false, true]);
 }
+
+/// A profiled step (`GpuFilter::profile_dispatches`) times the lag window's summary after the
+/// step's own dispatches once the window is full (what smoothing adds to a frame on the GPU is
+/// then read apart from the benchmark's whole-step spread), and summarises as an unprofiled
+/// step does.
+#[test]
+fn a_profiled_step_times_the_lag_summary_last() {
+    let Some(ctx) = common::gpu_context("lag window profiled") else {
+        return;
+    };
+    let shape = BatchShape::new(2, 40, 3).unwrap();
+    let mut config = BatchConfig::new(shape, 5, vec![0.1; 3]);
+    config.annealing = Annealing::survival(2, 0.5, 0.7);
+    let lag = 2;
+    let mut plain = gaussian_filter(&ctx, &config, GpuResampler::Systematic);
+    let mut profiled = gaussian_filter(&ctx, &config, GpuResampler::Systematic);
+    for filter in [&mut plain, &mut profiled] {
+        let (ctx, gpu, _) = filter.gpu_parts().unwrap();
+        gpu.set_step_layout(StepLayout::Fused).unwrap();
+        gpu.keep_lag_window(ctx, lag, false).unwrap();
+    }
+    let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+    if !ctx_p.has_timestamps() {
+        assert!(gpu.profile_dispatches(ctx_p, true).is_err());
+        return;
+    }
+    gpu.profile_dispatches(ctx_p, true).unwrap();
+    for frame in 1..=lag + 2 {
+        let z = observations(2, frame);
+        let expected = plain.step(&z).unwrap();
+        let got = profiled.step(&z).unwrap();
+        assert_eq!(got.estimates, expected.estimates);
+        assert_eq!(got.lagged, expected.lagged);
+        let (ctx_p, gpu, _) = profiled.gpu_parts().unwrap();
+        let times = gpu.dispatch_times(ctx_p).unwrap();
+        let labels: Vec<&str> = times.iter().map(|d| d.label.as_str()).collect();
+        let summarised = frame > lag;
+        assert_eq!(
+            labels.last() == Some(&"lag summary"),
+            summarised,
+            "{labels:?}"
+        );
+        assert_eq!(
+            labels[labels.len() - 1 - usize::from(summarised)],
+            "estimate"
+        );
+        // In order on the GPU's clock: the summary starts after the estimate has ended.
+        if summarised {
+            let [.., estimate, summary] = times.as_slice() else {
+                unreachable!("at least two dispatches: {labels:?}")
+            };
+            assert!(
+                summary.start >= estimate.start + estimate.duration,
+                "{times:?}"
+            );
+        }
+    }
+}

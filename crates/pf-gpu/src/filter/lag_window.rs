@@ -273,13 +273,18 @@ impl GpuFilter {
         };
         ctx.queue
             .write_buffer(&window.params, 0, bytemuck::bytes_of(&params));
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("lag summary"),
-                timestamp_writes: None,
-            });
-            let grid = [self.shape.dims as u32, self.shape.targets as u32, 1];
-            window.kernel.record(&mut pass, &window.group, grid);
+        let grid = [self.shape.dims as u32, self.shape.targets as u32, 1];
+        let summarise = |pass: &mut wgpu::ComputePass<'_>| {
+            window.kernel.record(pass, &window.group, grid);
+        };
+        match &mut self.profiler {
+            Some(profiler) => profiler.dispatch(encoder, || "lag summary".into(), summarise),
+            None => summarise(
+                &mut encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("lag summary"),
+                    timestamp_writes: None,
+                }),
+            ),
         }
         let back = &self.step_backs[self.next_back];
         back.record_copy(encoder, first_section, window.summaries.buffer());

@@ -1,7 +1,9 @@
 //! Where a fused step's GPU time goes, dispatch by dispatch ([`GpuFilter::profile_dispatches`]):
 //! each dispatch of the step gets a compute pass of its own with a timestamp at its beginning and
 //! its end, so a step reports every dispatch's time and the gaps between them (the barriers and
-//! launches). The particles are the same as without profiling: only the passes' boundaries move.
+//! launches), and the lag window's summary where the filter keeps one ("lag summary", after the
+//! step's ring copies). The particles are the same as without profiling: only the passes'
+//! boundaries move.
 //! For measuring, not for tracking: the profiled step pays a pass per dispatch.
 
 use std::time::Duration;
@@ -66,6 +68,42 @@ impl DispatchProfiler {
         self.labels.clear();
     }
 
+    /// Records `record` in a compute pass of its own, timed and named `label` (untimed past
+    /// [`MAX_TIMED_DISPATCHES`]).
+    pub(super) fn dispatch(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        label: impl FnOnce() -> String,
+        record: impl FnOnce(&mut wgpu::ComputePass<'_>),
+    ) {
+        let index = self.labels.len() as u32;
+        let timed = index < MAX_TIMED_DISPATCHES;
+        let writes = timed.then(|| wgpu::ComputePassTimestampWrites {
+            query_set: &self.query_set,
+            beginning_of_pass_write_index: Some(2 * index),
+            end_of_pass_write_index: Some(2 * index + 1),
+        });
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("profiled dispatch"),
+            timestamp_writes: writes,
+        });
+        record(&mut pass);
+        drop(pass);
+        if timed {
+            self.labels.push(label());
+        }
+    }
+
+    /// Resolves the step's timestamps for reading back, once every timed pass of the step
+    /// (its own and the lag window's summary) is recorded.
+    pub(super) fn resolve(&mut self, encoder: &mut wgpu::CommandEncoder) {
+        let count = 2 * self.labels.len() as u32;
+        if count > 0 {
+            encoder.resolve_query_set(&self.query_set, 0..count, &self.resolved, 0);
+            self.readback.record_raw_copy(encoder, &self.resolved);
+        }
+    }
+
     /// The times of the last profiled step's dispatches (waits for the queue).
     fn times(&self, ctx: &GpuContext) -> Result<Vec<DispatchTime>, GpuError> {
         let ticks = self.readback.read(ctx, None)?;
@@ -126,38 +164,13 @@ impl<'e> Passes<'e> {
     ) {
         match self {
             Passes::One(pass) => record(pass),
-            Passes::Each { encoder, profiler } => {
-                let index = profiler.labels.len() as u32;
-                let timed = index < MAX_TIMED_DISPATCHES;
-                let writes = timed.then(|| wgpu::ComputePassTimestampWrites {
-                    query_set: &profiler.query_set,
-                    beginning_of_pass_write_index: Some(2 * index),
-                    end_of_pass_write_index: Some(2 * index + 1),
-                });
-                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                    label: Some("profiled dispatch"),
-                    timestamp_writes: writes,
-                });
-                record(&mut pass);
-                if timed {
-                    profiler.labels.push(label());
-                }
-            }
+            Passes::Each { encoder, profiler } => profiler.dispatch(encoder, label, record),
         }
     }
 
-    /// Ends the step's passes; a profiled step resolves its timestamps for reading back.
-    pub(super) fn end(self) {
-        if let Passes::Each { encoder, profiler } = self {
-            let count = 2 * profiler.labels.len() as u32;
-            if count > 0 {
-                encoder.resolve_query_set(&profiler.query_set, 0..count, &profiler.resolved, 0);
-                profiler
-                    .readback
-                    .record_raw_copy(encoder, &profiler.resolved);
-            }
-        }
-    }
+    /// Ends the step's passes (a profiled step's timestamps are resolved by
+    /// [`DispatchProfiler::resolve`] once the lag window's summary, timed too, is recorded).
+    pub(super) fn end(self) {}
 }
 
 impl GpuFilter {

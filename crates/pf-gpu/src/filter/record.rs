@@ -22,7 +22,11 @@ impl GpuFilter {
     ) -> bool {
         let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
         self.record_frame(ctx, encoder, stages, likelihood);
-        whole_step && self.record_lag_window(ctx, encoder)
+        let lagged = whole_step && self.record_lag_window(ctx, encoder);
+        if let Some(profiler) = &mut self.profiler {
+            profiler.resolve(encoder);
+        }
+        lagged
     }
 
     /// [`Self::record_stages`] but the lag window.
