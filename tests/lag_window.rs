@@ -421,6 +421,15 @@ fn a_lag_window_out_of_range_is_refused() {
     let err = cpu.keep_lag_window(2, false).unwrap_err();
     assert!(err.to_string().contains("host"), "{err}");
     cpu.drop_lag_window().unwrap();
+    // More particles a target than the kernel's invocations take (16 each, MAX_CHUNK).
+    let kernel = pf_gpu::kernels::sources::LAG_SUMMARY;
+    let chunk = pf_gpu::MAX_LAG_PARTICLES / 256;
+    assert!(kernel.contains(&format!("const MAX_CHUNK: u32 = {chunk}u;")));
+    let many = BatchShape::new(1, pf_gpu::MAX_LAG_PARTICLES + 1, 1).unwrap();
+    let config = BatchConfig::new(many, 1, vec![0.1]);
+    let mut filter = gaussian_filter(&ctx, &config, GpuResampler::Systematic);
+    let err = filter.engine_mut().keep_lag_window(2, false).unwrap_err();
+    assert!(err.to_string().contains("at most"), "{err}");
 }
 
 /// A window dropped summarises no more steps and keeps no frames; kept again, it fills anew.

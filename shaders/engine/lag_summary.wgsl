@@ -9,8 +9,10 @@
 // frame's effective sample size the trace kept. A target whose trace meets a particle without an
 // ancestor (restarted within the window) gets NaN throughout: the host smooths it from a download.
 // One workgroup of 256 invocations per (value, target); workgroup memory holds one target's
-// particles, sorted by a bitonic sort for the quantiles (SORT_SIZE: M rounded up to a power of
-// two, at least 256, set by the driver, pf_gpu::filter::lag_window). Why a sort: counting each
+// particles (SORT_SIZE: M rounded up to a power of two, at least 256, set by the driver,
+// pf_gpu::filter::lag_window). The newest particles that share an ancestor are merged into one
+// entry (compact_by_ancestor: resampling in order keeps them consecutive), and the distinct
+// ancestors sorted by a bitonic sort for the quantiles. Why a sort: counting each
 // particle's cumulative weight over all the others (O(M²) a value) took the four-face step that
 // keeps the lineage from 0.46 to 0.93 ms on an NVIDIA H100, a loop of dependent workgroup-memory
 // loads on one SM. The ring holds lag + 2 frames; this kernel reads the newest lag + 1.
@@ -52,8 +54,18 @@ const FIXED_ONE: f32 = 1073741824.0;
 // and weight; padding at +inf with weight 0.
 var<workgroup> values: array<f32, SORT_SIZE>;
 var<workgroup> cloud_weights: array<f32, SORT_SIZE>;
-// Each lagged particle's traced weight (the sum of its descendants'), in FIXED_ONE units.
+// First each newest particle's ancestor in the lagged frame (the trace); then each run's summed
+// weight (compact_by_ancestor), and where the ancestors do not rise with the index
+// (ancestors_rise) each lagged particle's traced weight (the sum of its descendants'), both in
+// FIXED_ONE units. One array for all three keeps the kernel within 32 KiB of workgroup memory
+// at 2 048 particles a target.
 var<workgroup> ancestor_weight: array<atomic<u32>, SORT_SIZE>;
+// Set when the ancestors do not rise with the newest particles' index (ancestors_rise).
+var<workgroup> unordered: atomic<u32>;
+// `unordered` read once by one invocation, then by all through workgroupUniformLoad.
+var<workgroup> unordered_flag: u32;
+// How many entries compact_by_ancestor made, read uniformly.
+var<workgroup> ancestors: u32;
 var<workgroup> partial: array<f32, 256>;
 var<workgroup> broken: atomic<u32>;
 // `broken` read once by one invocation, then by all through workgroupUniformLoad (a value the
@@ -118,11 +130,12 @@ fn weight_of(log_weight: f32) -> f32 {
     return exp(log_weight);
 }
 
-// Sorts values (with their weights) ascending in workgroup memory.
-fn bitonic_sort(lid: u32) {
-    for (var k = 2u; k <= SORT_SIZE; k = k * 2u) {
+// Sorts the first `len` values (with their weights) ascending in workgroup memory (`len` a
+// power of two, the same in every invocation).
+fn bitonic_sort(lid: u32, len: u32) {
+    for (var k = 2u; k <= len; k = k * 2u) {
         for (var j = k / 2u; j > 0u; j = j / 2u) {
-            for (var i = lid; i < SORT_SIZE; i = i + LAG_WG) {
+            for (var i = lid; i < len; i = i + LAG_WG) {
                 let l = i ^ j;
                 if (l > i) {
                     let a = values[i];
@@ -145,7 +158,11 @@ fn bitonic_sort(lid: u32) {
 // the quantiles are the smallest offsets from the mean (wrapped for an angle) whose cumulative
 // weight in sorted order reaches 2.5 % and 97.5 %, else the largest offset of positive weight.
 // Twin of pf_core::smooth::summary.
+// n is the same in every invocation; the sort takes n rounded up to a power of two, the
+// cumulative weights at least one entry an invocation (the rest padded at +inf, weight 0).
 fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
+    let sort_len = 1u << (32u - countLeadingZeros(max(n, 2u) - 1u));
+    let scan_len = max(sort_len, LAG_WG);
     var a = 0.0;
     var b = 0.0;
     for (var m = lid; m < n; m = m + LAG_WG) {
@@ -163,7 +180,7 @@ fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
         mean = atan2(mean, reduce(lid, b, 0u));
     }
     let none = bitcast<f32>(0x7f800000u);
-    for (var m = lid; m < SORT_SIZE; m = m + LAG_WG) {
+    for (var m = lid; m < scan_len; m = m + LAG_WG) {
         if (m < n) {
             var e = values[m] - mean;
             if (angle) {
@@ -176,9 +193,9 @@ fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
         }
     }
     workgroupBarrier();
-    bitonic_sort(lid);
+    bitonic_sort(lid, sort_len);
     // Each invocation a run of consecutive sorted particles: their cumulative weights.
-    let run = SORT_SIZE / LAG_WG;
+    let run = scan_len / LAG_WG;
     let first = lid * run;
     var own = 0.0;
     for (var c = 0u; c < run; c = c + 1u) {
@@ -240,13 +257,110 @@ fn weights_ess(lid: u32, n: u32) -> f32 {
     return sum * sum / squares;
 }
 
-// The effective sample size of the lagged frame's traced weights (ancestor_weight).
-fn traced_ess(lid: u32, n: u32) -> f32 {
+// Target t's newest particle m's ancestor in the lagged frame (n, past the particles, where
+// the trace meets a particle without an ancestor).
+fn lagged_ancestor(t: u32, m: u32, n: u32) -> u32 {
+    var a = m;
+    for (var k = 0u; k < lag_params.lag; k = k + 1u) {
+        a = window_lineage[particle_at(ring_slot(k), t, a)];
+        if (a >= n) {
+            return n;
+        }
+    }
+    return a;
+}
+
+// The effective sample size of the lagged frame's traced weights, each lagged particle's the
+// sum of its descendants' (in FIXED_ONE units in ancestor_weight, whose ancestors it replaces):
+// where the ancestors do not rise, so that one ancestor's descendants may be several runs.
+fn traced_ess(lid: u32, t: u32, n: u32) -> f32 {
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        atomicStore(&ancestor_weight[m], 0u);
+    }
+    workgroupBarrier();
+    let newest = ring_slot(0u);
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        let w = weight_of(window_log_weights[particle_at(newest, t, m)]);
+        atomicAdd(&ancestor_weight[lagged_ancestor(t, m, n)], u32(round(w * FIXED_ONE)));
+    }
+    workgroupBarrier();
     for (var m = lid; m < n; m = m + LAG_WG) {
         cloud_weights[m] = f32(atomicLoad(&ancestor_weight[m])) / FIXED_ONE;
     }
     workgroupBarrier();
     return weights_ess(lid, n);
+}
+
+// The most particles one invocation takes in compact_by_ancestor: SORT_SIZE / LAG_WG at most.
+const MAX_CHUNK: u32 = 16u;
+
+// Whether the newest particles' ancestors (in ancestor_weight) rise with their index, so that
+// each ancestor's descendants are one run (then the runs' weights are the traced weights).
+fn ancestors_rise(lid: u32, n: u32) -> bool {
+    for (var m = lid + 1u; m < n; m = m + LAG_WG) {
+        if (atomicLoad(&ancestor_weight[m]) < atomicLoad(&ancestor_weight[m - 1u])) {
+            atomicStore(&unordered, 1u);
+        }
+    }
+    workgroupBarrier();
+    if (lid == 0u) {
+        unordered_flag = atomicLoad(&unordered);
+    }
+    return workgroupUniformLoad(&unordered_flag) == 0u;
+}
+
+// The smoothed cloud with the newest particles of one ancestor merged where they are
+// consecutive: each such run becomes one entry (in order of the runs), values[j] the ancestor's
+// value and cloud_weights[j] the run's weights summed in FIXED_ONE units (in parallel: one
+// ancestor's descendants may be all n), within n / 2^31 of their sum. The same weighted cloud,
+// in fewer entries: systematic and stratified resampling draw their offspring in order, so each
+// layer's ancestors rise with the offspring's index, and so do the lineages composed of them; a
+// lag of frames back the particles then have few distinct ancestors (the trace keeps a few per
+// cent of the effective sample size), each one run, and the sort that follows takes those
+// instead of all n. Returns how many entries there are.
+fn compact_by_ancestor(lid: u32, n: u32) -> u32 {
+    // Each invocation a chunk of consecutive particles: which of them start a run, their
+    // weights, and the value of each run starting there.
+    let chunk = (n + LAG_WG - 1u) / LAG_WG;
+    let begin = min(lid * chunk, n);
+    let end = min(begin + chunk, n);
+    var starts = 0u;
+    var starting = 0u;
+    var weight: array<f32, MAX_CHUNK>;
+    var run_value: array<f32, MAX_CHUNK>;
+    for (var m = begin; m < end; m = m + 1u) {
+        weight[m - begin] = cloud_weights[m];
+        if (m == 0u || atomicLoad(&ancestor_weight[m]) != atomicLoad(&ancestor_weight[m - 1u])) {
+            starting = starting | (1u << (m - begin));
+            run_value[starts] = values[m];
+            starts = starts + 1u;
+        }
+    }
+    // The scan's barriers end every read of the ancestors and the cloud before they are
+    // overwritten: ancestor_weight then sums each run's weights in FIXED_ONE units (integer
+    // sums, the same in any order), the run's index its start's rank among the starts.
+    let first = u32(exclusive_scan(lid, f32(starts)));
+    for (var j = lid; j < n; j = j + LAG_WG) {
+        atomicStore(&ancestor_weight[j], 0u);
+    }
+    workgroupBarrier();
+    var run = i32(first) - 1;
+    for (var m = begin; m < end; m = m + 1u) {
+        if ((starting & (1u << (m - begin))) != 0u) {
+            run = run + 1;
+            values[u32(run)] = run_value[u32(run) - first];
+        }
+        atomicAdd(&ancestor_weight[u32(run)], u32(round(weight[m - begin] * FIXED_ONE)));
+    }
+    if (lid == LAG_WG - 1u) {
+        ancestors = first + starts;
+    }
+    let entries = workgroupUniformLoad(&ancestors);
+    for (var j = lid; j < entries; j = j + LAG_WG) {
+        cloud_weights[j] = f32(atomicLoad(&ancestor_weight[j])) / FIXED_ONE;
+    }
+    workgroupBarrier();
+    return entries;
 }
 
 @compute @workgroup_size(256)
@@ -260,31 +374,23 @@ fn summarise_lagged(
     let n = params.particles;
     if (lid == 0u) {
         atomicStore(&broken, 0u);
-    }
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        atomicStore(&ancestor_weight[m], 0u);
+        atomicStore(&unordered, 0u);
     }
     workgroupBarrier();
     let newest = ring_slot(0u);
     let lagged = ring_slot(lag_params.lag);
     // Each newest particle's ancestor lag frames back: the ancestor's value with the newest
-    // particle's weight (and, for value 0, the weight added to the ancestor's).
+    // particle's weight.
     for (var m = lid; m < n; m = m + LAG_WG) {
-        var a = m;
-        for (var k = 0u; k < lag_params.lag; k = k + 1u) {
-            a = window_lineage[particle_at(ring_slot(k), t, a)];
-            if (a >= n) {
-                atomicStore(&broken, 1u);
-                a = 0u;
-                break;
-            }
+        var a = lagged_ancestor(t, m, n);
+        if (a == n) {
+            atomicStore(&broken, 1u);
+            a = 0u;
         }
         let w = weight_of(window_log_weights[particle_at(newest, t, m)]);
         cloud_weights[m] = w;
         values[m] = state_at(lagged, t, d, a);
-        if (d == 0u) {
-            atomicAdd(&ancestor_weight[a], u32(round(w * FIXED_ONE)));
-        }
+        atomicStore(&ancestor_weight[m], a);
     }
     workgroupBarrier();
     if (lid == 0u) {
@@ -303,7 +409,18 @@ fn summarise_lagged(
         }
         return;
     }
-    let smoothed = summarise(lid, n, is_angle(d));
+    // The traced weights' effective sample size (value 0's workgroup): the runs' weights where
+    // each ancestor is one run, else traced again (traced_ess, below).
+    var rise = false;
+    if (d == 0u) {
+        rise = ancestors_rise(lid, n);
+    }
+    let entries = compact_by_ancestor(lid, n);
+    var traced = 0.0;
+    if (rise) {
+        traced = weights_ess(lid, entries);
+    }
+    let smoothed = summarise(lid, entries, is_angle(d));
     var filtered = vec3<f32>(0.0);
     if (lag_params.filtered == 1u) {
         // The lagged frame's own particles under their own weights.
@@ -315,7 +432,9 @@ fn summarise_lagged(
         filtered = summarise(lid, n, is_angle(d));
     }
     if (d == 0u) {
-        let traced = traced_ess(lid, n);
+        if (!rise) {
+            traced = traced_ess(lid, t, n);
+        }
         for (var m = lid; m < n; m = m + LAG_WG) {
             cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
         }

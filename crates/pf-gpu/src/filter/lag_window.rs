@@ -44,10 +44,10 @@ fn sort_size(particles: usize) -> usize {
     particles.next_power_of_two().max(256)
 }
 
-/// Workgroup memory the kernel needs for `particles` a target: values, weights and traced
-/// weights at the sort's size, and the reductions' partial sums.
+/// Workgroup memory the kernel needs for `particles` a target: values, weights and ancestors
+/// (or traced weights) at the sort's size, the reductions' partial sums and five flags.
 fn workgroup_bytes(particles: usize) -> u64 {
-    3 * 4 * sort_size(particles) as u64 + 256 * 4 + 4
+    3 * 4 * sort_size(particles) as u64 + 256 * 4 + 5 * 4
 }
 
 /// Floats the kernel writes per target and value: smoothed and filtered mean, lower, upper.
@@ -154,6 +154,13 @@ fn check_fits(ctx: &GpuContext, shape: &BatchShape, lag: usize) -> Result<(), Gp
             "a lag window of {lag} frames: the lag is 1 to {MAX_LAG}"
         )));
     }
+    if shape.particles > MAX_LAG_PARTICLES {
+        return Err(GpuError::InvalidConfig(format!(
+            "summarising a lag window takes at most {MAX_LAG_PARTICLES} particles a target, not {} \
+             (smooth on the host instead)",
+            shape.particles
+        )));
+    }
     let limits = ctx.limits();
     let bytes = workgroup_bytes(shape.particles);
     if bytes > u64::from(limits.max_compute_workgroup_storage_size) {
@@ -172,6 +179,10 @@ fn check_fits(ctx: &GpuContext, shape: &BatchShape, lag: usize) -> Result<(), Gp
     }
     Ok(())
 }
+
+/// The most particles a target's lag window is summarised for on the device: the kernel's
+/// invocations take at most `MAX_CHUNK` (16) consecutive particles each, 256 a workgroup.
+pub const MAX_LAG_PARTICLES: usize = 16 * 256;
 
 /// The longest lag a window keeps on the device.
 pub const MAX_LAG: usize = 256;

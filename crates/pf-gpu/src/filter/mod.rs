@@ -29,7 +29,7 @@ pub use likelihood::{
 pub use params::{FrameParams, TargetStats};
 pub use profile::DispatchTime;
 
-pub use lag_window::MAX_LAG;
+pub use lag_window::{MAX_LAG, MAX_LAG_PARTICLES};
 pub use lineage::ParticlesBack;
 pub use pf_core::smooth::lag_window::{LagFrame, LaggedSummaries, LaggedTarget};
 pub use setup::FilterStreams;
