@@ -8,7 +8,8 @@
 //! 64, 256 and 1 024 faces on one GPU and split over every GPU (where there are two or more),
 //! one frame at a time and with two frames in flight. `face_step_lag_smoothing`: what smoothing
 //! with a lag of 8 (from the ancestry read back, from the ancestry kept on the GPU, or the
-//! marginal smoother) adds to the step.
+//! marginal smoother) adds to the step. `STREAMPF_BENCH_GROUPS=lag_smoothing,fig7` sets up only
+//! those groups (criterion's filter skips measurements, not a group's minutes of set-up).
 //! GPU times include the submission, the wait and the readback. Fig. 6 also times the plain C
 //! loop of the same arithmetic on one thread (benches/baseline/), the CPU reference's yardstick,
 //! and the one-thread reference built without AVX2.
@@ -204,6 +205,28 @@ fn report_gpu_share(tracker: &mut FaceTracker, frame: &GrayImage, faces: usize) 
         median(&mut gpu),
         median(&mut submit),
         median(&mut finish),
+    );
+}
+
+/// The median GPU time of `tracker`'s whole step over 50 steps, one at a time (timestamps
+/// around the submission where the adapter has them), named `what`: the measure of what a
+/// step's extra work costs the GPU, steadier between processes than the whole step's wall time.
+fn report_step_gpu_time(tracker: &mut FaceTracker, frame: &GrayImage, what: &str) {
+    let mut times: Vec<f64> = (0..50)
+        .filter_map(|_| {
+            tracker.step(frame).ok()?;
+            Some(tracker.last_gpu_time()?.duration().as_secs_f64() * 1e6)
+        })
+        .collect();
+    if times.is_empty() {
+        eprintln!("{what}: no GPU times (the adapter has no timestamps)");
+        return;
+    }
+    times.sort_by(f64::total_cmp);
+    eprintln!(
+        "{what}: the step's GPU time, median of {} steps: {:.1} us",
+        times.len(),
+        times[times.len() / 2]
     );
 }
 
@@ -490,6 +513,7 @@ fn lag_smoothing(c: &mut Criterion) {
         group.bench_function(BenchmarkId::new("step", faces), |b| {
             b.iter(|| std::hint::black_box(plain.step(&frame).unwrap()))
         });
+        report_step_gpu_time(&mut plain, &frame, &format!("face step, {faces} faces"));
         drop(plain);
         let mut kept = tracker(true);
         group.bench_function(BenchmarkId::new("step_keeping_lineage", faces), |b| {
@@ -546,25 +570,47 @@ fn lag_smoothing(c: &mut Criterion) {
                 })
             },
         );
-        // The summary's own GPU time, apart from the whole step's spread between processes.
-        report_dispatches(
-            &mut on_gpu,
-            &frame,
-            &format!("face step, {faces} faces, lag 8 window on the GPU"),
-        );
+        // The window's cost on the GPU, apart from the whole step's spread between processes:
+        // the step's GPU time, and the summary's own.
+        let what = format!("face step, {faces} faces, lag 8 window on the GPU");
+        report_step_gpu_time(&mut on_gpu, &frame, &what);
+        report_dispatches(&mut on_gpu, &frame, &what);
     }
     group.finish();
 }
 
+/// Whether the run sets up group `name`: every group, or those named in
+/// `STREAMPF_BENCH_GROUPS` (comma-separated function names, e.g. `lag_smoothing,fig7`).
+/// Criterion's filter skips a benchmark's measurement but not its group's set-up (scenes,
+/// trackers, reports), which takes minutes at full size.
+fn wanted(name: &str) -> bool {
+    std::env::var("STREAMPF_BENCH_GROUPS")
+        .map_or(true, |groups| groups.split(',').any(|g| g.trim() == name))
+}
+
 fn bench(c: &mut Criterion) {
     let ctx = context();
-    fig6(c, &ctx);
-    face_weighing::weighing_vs_lanes(c, &ctx);
-    frame_upload(c, &ctx);
-    fig7(c);
-    lag_smoothing(c);
-    over_gpus(c);
-    render(c);
+    if wanted("fig6") {
+        fig6(c, &ctx);
+    }
+    if wanted("weighing_vs_lanes") {
+        face_weighing::weighing_vs_lanes(c, &ctx);
+    }
+    if wanted("frame_upload") {
+        frame_upload(c, &ctx);
+    }
+    if wanted("fig7") {
+        fig7(c);
+    }
+    if wanted("lag_smoothing") {
+        lag_smoothing(c);
+    }
+    if wanted("over_gpus") {
+        over_gpus(c);
+    }
+    if wanted("render") {
+        render(c);
+    }
 }
 
 criterion_group!(benches, bench);

@@ -45,6 +45,8 @@ pub mod sources {
     );
     /// Fixed-lag smoothing from the ancestry, summarised on the device.
     pub const LAG_SUMMARY: &str = include_str!("../../../shaders/engine/lag_summary.wgsl");
+    /// A step's particles, log-weights and lineage kept in the lag window's ring.
+    pub const LAG_RING: &str = include_str!("../../../shaders/engine/lag_ring.wgsl");
     /// The particles' lineage through a frame's resamplings.
     pub const LINEAGE: &str = include_str!("../../../shaders/engine/lineage.wgsl");
     /// The gather stage.
@@ -57,7 +59,7 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 9] = [
+    pub const STAGES: [(&str, &str); 10] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
@@ -67,6 +69,7 @@ pub mod sources {
         ("layer.wgsl", LAYER),
         ("lineage.wgsl", LINEAGE),
         ("lag_summary.wgsl", LAG_SUMMARY),
+        ("lag_ring.wgsl", LAG_RING),
     ];
 }
 

@@ -14,6 +14,7 @@
 use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
+use super::lag_window::LagStep;
 use super::profile::{DispatchProfiler, Passes};
 use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
@@ -415,14 +416,16 @@ impl GpuFilter {
     }
 
     /// Records a frame's whole step the fused way, in one compute pass (the layers' parameters
-    /// written by [`GpuFilter::write_layer_params`] first); with `profiler`, each dispatch in a
-    /// timed pass of its own ([`GpuFilter::profile_dispatches`]).
+    /// written by [`GpuFilter::write_layer_params`] first), the lag window's dispatches last
+    /// where the step has them (`lag_step`); with `profiler`, each dispatch in a timed pass of
+    /// its own ([`GpuFilter::profile_dispatches`]).
     pub(super) fn record_fused(
         &self,
         encoder: &mut wgpu::CommandEncoder,
         fused: &FusedLayers,
         likelihood: &dyn GpuLikelihood,
         profiler: Option<&mut DispatchProfiler>,
+        lag_step: Option<LagStep>,
     ) {
         let grids = Grids::of(&self.shape);
         let per_target = grids.per_target;
@@ -442,6 +445,9 @@ impl GpuFilter {
             || "estimate".into(),
             |pass| self.record_estimate_into(pass, likelihood),
         );
+        if let Some(step) = lag_step {
+            self.record_lag_dispatches(&mut passes, step);
+        }
         passes.end();
         self.record_copies_back(encoder, likelihood);
     }

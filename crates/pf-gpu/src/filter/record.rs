@@ -2,6 +2,8 @@
 //! and weighing stages (each layer's parameter block copied into the uniform buffer first), then
 //! the estimate and the copies into the step's staging buffer.
 
+use super::lag_window::LagStep;
+use super::profile::Passes;
 use super::{
     FrameParams, GpuFilter, GpuLikelihood, GpuStage, LikelihoodPhase, STEP_BACK_BEST,
     STEP_BACK_ESTIMATES, STEP_BACK_OWN, STEP_BACK_SPREADS, STEP_BACK_STATS, StepLayout, groups_for,
@@ -21,21 +23,24 @@ impl GpuFilter {
         likelihood: &dyn GpuLikelihood,
     ) -> bool {
         let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
-        self.record_frame(ctx, encoder, stages, likelihood);
-        let lagged = whole_step && self.record_lag_window(ctx, encoder);
+        let lag_step = whole_step.then(|| self.prepare_lag_step(ctx)).flatten();
+        self.record_frame(ctx, encoder, stages, likelihood, lag_step);
+        let lagged = lag_step.is_some_and(|step| self.record_lag_readback(encoder, step));
         if let Some(profiler) = &mut self.profiler {
             profiler.resolve(encoder);
         }
         lagged
     }
 
-    /// [`Self::record_stages`] but the lag window.
+    /// [`Self::record_stages`] but the lag window's readback: the frame, and the lag window's
+    /// dispatches at its end for a whole step (`lag_step`; in the fused step's own pass).
     fn record_frame(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
         stages: &[GpuStage],
         likelihood: &dyn GpuLikelihood,
+        lag_step: Option<LagStep>,
     ) {
         let layers = self.annealing.layers;
         let blocks: Vec<FrameParams> = (0..layers)
@@ -60,7 +65,7 @@ impl GpuFilter {
             ctx.queue
                 .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&blocks[0]));
             let mut profiler = self.profiler.take();
-            self.record_fused(encoder, fused, likelihood, profiler.as_mut());
+            self.record_fused(encoder, fused, likelihood, profiler.as_mut(), lag_step);
             self.profiler = profiler;
             return;
         }
@@ -82,6 +87,11 @@ impl GpuFilter {
 
         if stages.contains(&GpuStage::Estimate) {
             self.record_estimate(encoder, likelihood);
+        }
+        if let Some(step) = lag_step {
+            let mut passes = Passes::begin(encoder, None, "lag window");
+            self.record_lag_dispatches(&mut passes, step);
+            passes.end();
         }
         self.record_copies_back(encoder, likelihood);
     }
