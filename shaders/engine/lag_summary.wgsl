@@ -67,24 +67,23 @@ var<workgroup> unordered_flag: u32;
 // How many entries compact_by_ancestor made, read uniformly.
 var<workgroup> ancestors: u32;
 var<workgroup> partial: array<f32, 256>;
+// Several reductions at once (reduce_pair, reduce_ends): one reduction's barriers for two or
+// three values, the summary's latency being mostly its barriers (one workgroup a value and target).
+var<workgroup> partial4: array<vec4<f32>, 256>;
+// exclusive_scan's second array.
+var<workgroup> scan_other: array<f32, 256>;
 var<workgroup> broken: atomic<u32>;
 // `broken` read once by one invocation, then by all through workgroupUniformLoad (a value the
 // WGSL spec lets the early return below depend on).
 var<workgroup> broken_flag: u32;
 
-fn reduce(lid: u32, value: f32, op: u32) -> f32 {
+// The sum of `value` over the invocations.
+fn reduce_sum(lid: u32, value: f32) -> f32 {
     partial[lid] = value;
     workgroupBarrier();
     for (var stride = LAG_WG / 2u; stride > 0u; stride = stride / 2u) {
         if (lid < stride) {
-            let other = partial[lid + stride];
-            if (op == 0u) {
-                partial[lid] = partial[lid] + other;
-            } else if (op == 1u) {
-                partial[lid] = min(partial[lid], other);
-            } else {
-                partial[lid] = max(partial[lid], other);
-            }
+            partial[lid] = partial[lid] + partial[lid + stride];
         }
         workgroupBarrier();
     }
@@ -93,20 +92,63 @@ fn reduce(lid: u32, value: f32, op: u32) -> f32 {
     return result;
 }
 
-// The sum of `value` over the invocations before this one (Hillis-Steele).
+// The sums of both components of `value` over the invocations (each the sum reduce_sum would give).
+fn reduce_pair(lid: u32, value: vec2<f32>) -> vec2<f32> {
+    partial4[lid] = vec4<f32>(value, 0.0, 0.0);
+    workgroupBarrier();
+    for (var stride = LAG_WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            partial4[lid] = partial4[lid] + partial4[lid + stride];
+        }
+        workgroupBarrier();
+    }
+    let result = partial4[0].xy;
+    workgroupBarrier();
+    return result;
+}
+
+// The min of x and y and the max of z over the invocations, in one reduction: an interval's two
+// ends and the last weighed entry.
+fn reduce_ends(lid: u32, value: vec3<f32>) -> vec3<f32> {
+    partial4[lid] = vec4<f32>(value, 0.0);
+    workgroupBarrier();
+    for (var stride = LAG_WG / 2u; stride > 0u; stride = stride / 2u) {
+        if (lid < stride) {
+            let a = partial4[lid];
+            let b = partial4[lid + stride];
+            partial4[lid] = vec4<f32>(min(a.xy, b.xy), max(a.z, b.z), 0.0);
+        }
+        workgroupBarrier();
+    }
+    let result = partial4[0].xyz;
+    workgroupBarrier();
+    return result;
+}
+
+// The sum of `value` over the invocations before this one (Hillis-Steele, each step reading one
+// array and writing the other: one barrier a step).
 fn exclusive_scan(lid: u32, value: f32) -> f32 {
     partial[lid] = value;
     workgroupBarrier();
+    var in_partial = true;
     for (var stride = 1u; stride < LAG_WG; stride = stride * 2u) {
-        var add = 0.0;
-        if (lid >= stride) {
-            add = partial[lid - stride];
+        if (in_partial) {
+            var sum = partial[lid];
+            if (lid >= stride) {
+                sum = sum + partial[lid - stride];
+            }
+            scan_other[lid] = sum;
+        } else {
+            var sum = scan_other[lid];
+            if (lid >= stride) {
+                sum = sum + scan_other[lid - stride];
+            }
+            partial[lid] = sum;
         }
-        workgroupBarrier();
-        partial[lid] = partial[lid] + add;
+        in_partial = !in_partial;
         workgroupBarrier();
     }
-    let inclusive = partial[lid];
+    let inclusive = select(scan_other[lid], partial[lid], in_partial);
     workgroupBarrier();
     return inclusive - value;
 }
@@ -175,9 +217,12 @@ fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
             a = a + w * x;
         }
     }
-    var mean = reduce(lid, a, 0u);
+    var mean = 0.0;
     if (angle) {
-        mean = atan2(mean, reduce(lid, b, 0u));
+        let sums = reduce_pair(lid, vec2<f32>(a, b));
+        mean = atan2(sums.x, sums.y);
+    } else {
+        mean = reduce_sum(lid, a);
     }
     let none = bitcast<f32>(0x7f800000u);
     for (var m = lid; m < scan_len; m = m + LAG_WG) {
@@ -219,9 +264,10 @@ fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
             upper_at = min(upper_at, at);
         }
     }
-    lower_at = reduce(lid, lower_at, 1u);
-    upper_at = reduce(lid, upper_at, 1u);
-    last_weighed = reduce(lid, last_weighed, 2u);
+    let ends = reduce_ends(lid, vec3<f32>(lower_at, upper_at, last_weighed));
+    lower_at = ends.x;
+    upper_at = ends.y;
+    last_weighed = ends.z;
     // Rounding can leave the total just under a quantile: the largest offset then, as on the CPU.
     if (lower_at == none) {
         lower_at = last_weighed;
@@ -249,8 +295,9 @@ fn weights_ess(lid: u32, n: u32) -> f32 {
         s1 = s1 + w;
         s2 = s2 + w * w;
     }
-    let sum = reduce(lid, s1, 0u);
-    let squares = reduce(lid, s2, 0u);
+    let sums = reduce_pair(lid, vec2<f32>(s1, s2));
+    let sum = sums.x;
+    let squares = sums.y;
     if (squares == 0.0) {
         return 0.0;
     }

@@ -52,9 +52,10 @@ fn sort_size(particles: usize) -> usize {
 }
 
 /// Workgroup memory the kernel needs for `particles` a target: values, weights and ancestors
-/// (or traced weights) at the sort's size, the reductions' partial sums and five flags.
+/// (or traced weights) at the sort's size, the reductions' and the scan's partial sums (two
+/// floats and a vec4 an invocation) and five flags.
 fn workgroup_bytes(particles: usize) -> u64 {
-    3 * 4 * sort_size(particles) as u64 + 256 * 4 + 5 * 4
+    3 * 4 * sort_size(particles) as u64 + 256 * (2 * 4 + 16) + 5 * 4
 }
 
 /// Floats the kernel writes per target and value: smoothed and filtered mean, lower, upper.
