@@ -8,9 +8,9 @@
 // lagged frame's own (filtered) weights where asked, and per target the share of the lagged
 // frame's effective sample size the trace kept. A target whose trace meets a particle without an
 // ancestor (restarted within the window) gets NaN throughout: the host smooths it from a download.
-// One workgroup of 256 invocations per (value, target); workgroup memory holds one target's
-// particles (SORT_SIZE: M rounded up to a power of two, at least 256, set by the driver,
-// pf_gpu::filter::lag_window). The newest particles that share an ancestor are merged into one
+// One workgroup of 256 invocations per (value, target), and one per target for the kept share
+// (summarise_lagged); workgroup memory holds one target's particles (SORT_SIZE: M rounded up
+// to a power of two, at least 256, set by the driver, pf_gpu::filter::lag_window). The newest particles that share an ancestor are merged into one
 // entry (compact_by_ancestor: resampling in order keeps them consecutive), and the distinct
 // ancestors sorted by a bitonic sort for the quantiles. Why a sort: counting each
 // particle's cumulative weight over all the others (O(M²) a value) took the four-face step that
@@ -410,6 +410,31 @@ fn compact_by_ancestor(lid: u32, n: u32) -> u32 {
     return entries;
 }
 
+// The share of the lagged frame's effective sample size that the trace kept, for target t
+// (after the trace, with the ancestors in ancestor_weight): the runs' weights where each
+// ancestor is one run, else the traced weights summed per ancestor (traced_ess), against the
+// lagged frame's own weights.
+fn kept_share(lid: u32, t: u32, n: u32, lagged: u32) -> f32 {
+    var traced = 0.0;
+    if (ancestors_rise(lid, n)) {
+        traced = weights_ess(lid, compact_by_ancestor(lid, n));
+    } else {
+        traced = traced_ess(lid, t, n);
+    }
+    for (var m = lid; m < n; m = m + LAG_WG) {
+        cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
+    }
+    workgroupBarrier();
+    let own = weights_ess(lid, n);
+    if (own > 0.0) {
+        return traced / own;
+    }
+    return 0.0;
+}
+
+// Workgroup (d, t) for d < D summarises value d of target t; workgroup (D, t) gives target t's
+// kept share alone (kept_share), so that no workgroup does both (the kernel takes as long as
+// its slowest workgroup).
 @compute @workgroup_size(256)
 fn summarise_lagged(
     @builtin(workgroup_id) group: vec3<u32>,
@@ -419,6 +444,7 @@ fn summarise_lagged(
     let t = group.y;
     let lid = local.x;
     let n = params.particles;
+    let sharing = d == params.dims;
     if (lid == 0u) {
         atomicStore(&broken, 0u);
         atomicStore(&unordered, 0u);
@@ -436,7 +462,11 @@ fn summarise_lagged(
         }
         let w = weight_of(window_log_weights[particle_at(newest, t, m)]);
         cloud_weights[m] = w;
-        values[m] = state_at(lagged, t, d, a);
+        var value = 0.0;
+        if (!sharing) {
+            value = state_at(lagged, t, d, a);
+        }
+        values[m] = value;
         atomicStore(&ancestor_weight[m], a);
     }
     workgroupBarrier();
@@ -447,26 +477,24 @@ fn summarise_lagged(
     if (workgroupUniformLoad(&broken_flag) != 0u) {
         if (lid == 0u) {
             let nan = bitcast<f32>(0x7fc00000u);
-            for (var k = 0u; k < 6u; k = k + 1u) {
-                summaries[out + k] = nan;
-            }
-            if (d == 0u) {
+            if (sharing) {
                 kept[t] = nan;
+            } else {
+                for (var k = 0u; k < 6u; k = k + 1u) {
+                    summaries[out + k] = nan;
+                }
             }
         }
         return;
     }
-    // The traced weights' effective sample size (value 0's workgroup): the runs' weights where
-    // each ancestor is one run, else traced again (traced_ess, below).
-    var rise = false;
-    if (d == 0u) {
-        rise = ancestors_rise(lid, n);
+    if (sharing) {
+        let share = kept_share(lid, t, n, lagged);
+        if (lid == 0u) {
+            kept[t] = share;
+        }
+        return;
     }
     let entries = compact_by_ancestor(lid, n);
-    var traced = 0.0;
-    if (rise) {
-        traced = weights_ess(lid, entries);
-    }
     let smoothed = summarise(lid, entries, is_angle(d));
     var filtered = vec3<f32>(0.0);
     if (lag_params.filtered == 1u) {
@@ -477,23 +505,6 @@ fn summarise_lagged(
         }
         workgroupBarrier();
         filtered = summarise(lid, n, is_angle(d));
-    }
-    if (d == 0u) {
-        if (!rise) {
-            traced = traced_ess(lid, t, n);
-        }
-        for (var m = lid; m < n; m = m + LAG_WG) {
-            cloud_weights[m] = weight_of(window_log_weights[particle_at(lagged, t, m)]);
-        }
-        workgroupBarrier();
-        let own = weights_ess(lid, n);
-        if (lid == 0u) {
-            var share = 0.0;
-            if (own > 0.0) {
-                share = traced / own;
-            }
-            kept[t] = share;
-        }
     }
     if (lid == 0u) {
         summaries[out] = smoothed.x;

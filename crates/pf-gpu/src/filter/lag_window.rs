@@ -343,10 +343,11 @@ impl GpuFilter {
         if step.summarises {
             passes.dispatch(
                 || "lag summary".into(),
+                // A workgroup a value and target, and one more a target for its kept share.
                 |pass| {
                     window
                         .kernel
-                        .record(pass, &window.group, [dims, targets, 1])
+                        .record(pass, &window.group, [dims + 1, targets, 1])
                 },
             );
         }
