@@ -135,7 +135,8 @@ fn score_before(scores: &str, marker: &str) -> f64 {
 
 /// At 640×480 (heads 80 px wide) the walking head's track, left on the background turned to the
 /// turn's bound when its head walked out, ends (`face_tracker::auto::pinned`) instead of staying
-/// there to the end: it made 169 false positives on seed 1 before, 46 with the rule. And where
+/// there to the end: it made 169 false positives on seed 1 before, 46 with the rule at 45
+/// frames, 34 at 30 (`PINNED_FRAMES`; the bound below tells the two apart). And where
 /// two walking heads cross, the track that jumps onto the other head goes back to its own
 /// (`auto::duplicates`, walking back): two identity switches before, none with it.
 #[test]
@@ -153,7 +154,7 @@ fn a_track_left_on_the_background_ends_and_crossing_heads_keep_their_tracks() {
         "1",
     ]);
     assert!(
-        score_before(&scores, " false positives") <= 100.0,
+        score_before(&scores, " false positives") <= 45.0,
         "{scores}"
     );
     assert_eq!(score_before(&scores, " identity switches"), 0.0, "{scores}");
