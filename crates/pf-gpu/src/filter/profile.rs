@@ -1,8 +1,8 @@
 //! Where a fused step's GPU time goes, dispatch by dispatch ([`GpuFilter::profile_dispatches`]):
 //! each dispatch of the step gets a compute pass of its own with a timestamp at its beginning and
 //! its end, so a step reports every dispatch's time and the gaps between them (the barriers and
-//! launches), and the lag window's summary where the filter keeps one ("lag summary", after the
-//! step's ring copies). The particles are the same as without profiling: only the passes'
+//! launches), the lag window's dispatches last where the filter keeps one ("lag window: keep
+//! the step", "lag summary"). The particles are the same as without profiling: only the passes'
 //! boundaries move.
 //! For measuring, not for tracking: the profiled step pays a pass per dispatch.
 
@@ -94,8 +94,8 @@ impl DispatchProfiler {
         }
     }
 
-    /// Resolves the step's timestamps for reading back, once every timed pass of the step
-    /// (its own and the lag window's summary) is recorded.
+    /// Resolves the step's timestamps for reading back, once every timed pass of the step is
+    /// recorded.
     pub(super) fn resolve(&mut self, encoder: &mut wgpu::CommandEncoder) {
         let count = 2 * self.labels.len() as u32;
         if count > 0 {
@@ -169,7 +169,7 @@ impl<'e> Passes<'e> {
     }
 
     /// Ends the step's passes (a profiled step's timestamps are resolved by
-    /// [`DispatchProfiler::resolve`] once the lag window's summary, timed too, is recorded).
+    /// [`DispatchProfiler::resolve`] once the whole step is recorded).
     pub(super) fn end(self) {}
 }
 
