@@ -8,13 +8,6 @@
 // [(t * D + d) * M + m], the ring's [((slot * T + t) * D + d) * M + m]; log-weights and
 // lineage [t * M + m], the ring's [(slot * T + t) * M + m] (as lag_summary.wgsl reads them).
 
-struct LagParams {
-    slots: u32,
-    newest: u32,
-    lag: u32,
-    filtered: u32,
-}
-
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> lag_params: LagParams;
 @group(0) @binding(2) var<storage, read> states: array<f32>;

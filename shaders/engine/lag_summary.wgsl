@@ -10,25 +10,15 @@
 // ancestor (restarted within the window) gets NaN throughout: the host smooths it from a download.
 // One workgroup of 256 invocations per (value, target), and one per target for the kept share
 // (summarise_lagged); workgroup memory holds one target's particles (SORT_SIZE: M rounded up
-// to a power of two, at least 256, set by the driver, pf_gpu::filter::lag_window). The newest particles that share an ancestor are merged into one
-// entry (compact_by_ancestor: resampling in order keeps them consecutive), and the distinct
-// ancestors sorted by a bitonic sort for the quantiles. Why a sort: counting each
+// to a power of two, at least 256, set by the driver, pf_gpu::filter::lag_window). The newest
+// particles that share an ancestor are merged into one entry (compact_by_ancestor: resampling
+// in order keeps them consecutive), and the distinct ancestors sorted by a bitonic sort for the
+// quantiles. Why a sort: counting each
 // particle's cumulative weight over all the others (O(M²) a value) took the four-face step that
 // keeps the lineage from 0.46 to 0.93 ms on an NVIDIA H100, a loop of dependent workgroup-memory
 // loads on one SM. The ring holds lag + 2 frames; this kernel reads the newest lag + 1.
 // CPU twins: pf_core::smooth::ancestry::trace_back, pf_core::smooth::summarise (summary.rs) and
 // pf_core::smooth_tracks::AncestryHealth.
-
-struct LagParams {
-    // Frames the ring holds.
-    slots: u32,
-    // The ring slot this step wrote.
-    newest: u32,
-    // How many frames back the summarised frame lies (1 or more).
-    lag: u32,
-    // 1: also summarise the lagged frame under its own weights.
-    filtered: u32,
-}
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> lag_params: LagParams;
@@ -68,7 +58,7 @@ var<workgroup> unordered_flag: u32;
 var<workgroup> ancestors: u32;
 var<workgroup> partial: array<f32, 256>;
 // Several reductions at once (reduce_pair, reduce_ends): one reduction's barriers for two or
-// three values, the summary's latency being mostly its barriers (one workgroup a value and target).
+// three values.
 var<workgroup> partial4: array<vec4<f32>, 256>;
 // exclusive_scan's second array.
 var<workgroup> scan_other: array<f32, 256>;
@@ -92,7 +82,7 @@ fn reduce_sum(lid: u32, value: f32) -> f32 {
     return result;
 }
 
-// The sums of both components of `value` over the invocations (each the sum reduce_sum would give).
+// The sums of both components of `value` over the invocations (each what reduce_sum gives).
 fn reduce_pair(lid: u32, value: vec2<f32>) -> vec2<f32> {
     partial4[lid] = vec4<f32>(value, 0.0, 0.0);
     workgroupBarrier();

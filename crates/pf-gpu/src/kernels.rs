@@ -43,10 +43,19 @@ pub mod sources {
         "\n",
         include_str!("../../../shaders/engine/layer.wgsl")
     );
-    /// Fixed-lag smoothing from the ancestry, summarised on the device.
-    pub const LAG_SUMMARY: &str = include_str!("../../../shaders/engine/lag_summary.wgsl");
+    /// Fixed-lag smoothing from the ancestry, summarised on the device (with the lag window's
+    /// parameters it shares with the ring).
+    pub const LAG_SUMMARY: &str = concat!(
+        include_str!("../../../shaders/engine/lag_params.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/lag_summary.wgsl")
+    );
     /// A step's particles, log-weights and lineage kept in the lag window's ring.
-    pub const LAG_RING: &str = include_str!("../../../shaders/engine/lag_ring.wgsl");
+    pub const LAG_RING: &str = concat!(
+        include_str!("../../../shaders/engine/lag_params.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/lag_ring.wgsl")
+    );
     /// The particles' lineage through a frame's resamplings.
     pub const LINEAGE: &str = include_str!("../../../shaders/engine/lineage.wgsl");
     /// The gather stage.

@@ -33,7 +33,7 @@ use crate::error::GpuError;
 use crate::kernels::{Kernel, sources, stage_source};
 use crate::stream::DeviceStream;
 
-/// `LagParams` of `lag_summary.wgsl`.
+/// `LagParams` of `lag_params.wgsl` (read by the ring kernel and the summary).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct LagParams {
