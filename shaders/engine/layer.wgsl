@@ -46,8 +46,11 @@ var<workgroup> scratch: array<f32, STAGE_CAPACITY>;
 // The layer's log-weights while it settles; then its normalised weights.
 var<workgroup> local_weights: array<f32, STAGE_CAPACITY>;
 
-// Where normalise_target's bisection reads a layer's log-weights and log-likelihoods: the
-// copies settle puts in workgroup memory (scratch and local_weights).
+// Where normalise_target reads and keeps its values: the copies settle puts in workgroup memory.
+// The log-likelihoods stay in `scratch`; `local_weights` holds each particle's log-weight, then
+// its tempered log-weight, then its normalised weight (each invocation reads a particle's value
+// before it writes the next, and only its own particles', between two reductions' barriers), which
+// select_target resamples from without reading `weights` back.
 fn prior_at(base: u32, i: u32) -> f32 {
     return local_weights[i];
 }
@@ -56,17 +59,26 @@ fn likelihood_at(base: u32, i: u32) -> f32 {
     return scratch[i];
 }
 
+fn set_tempered(base: u32, i: u32, value: f32) {
+    local_weights[i] = value;
+}
+
+fn tempered_at(base: u32, i: u32) -> f32 {
+    return local_weights[i];
+}
+
+fn keep_weight(base: u32, i: u32, w: f32) {
+    local_weights[i] = w;
+}
+
 // Normalises target t's weights after the layer `p` weighed (its log-weights and log-likelihoods
-// first copied into workgroup memory for the survival rule's passes).
+// first copied into workgroup memory, where every pass reads them).
 fn settle(lid: u32, t: u32, p: Params) {
     let n = p.particles;
     let base = t * n;
-    // Only the survival rule's bisection reads the copies.
-    if (p.survival_rate > 0.0) {
-        for (var k = lid; k < n; k = k + LAYER_WG) {
-            local_weights[k] = log_weights[base + k];
-            scratch[k] = log_likelihood[base + k];
-        }
+    for (var k = lid; k < n; k = k + LAYER_WG) {
+        local_weights[k] = log_weights[base + k];
+        scratch[k] = log_likelihood[base + k];
     }
     workgroupBarrier();
     normalise_target(lid, t, p);
@@ -94,16 +106,17 @@ fn set_ancestor(base: u32, k: u32, ancestor: u32) {
 // Normalise (after the first layer), resample, then gather every dimension of target t's
 // ancestors into `selected`.
 fn select_target(lid: u32, t: u32, stratified: bool) {
-    if (params.layer > 0u) {
-        settle(lid, t, settle_params);
-        storageBarrier();
-        workgroupBarrier();
-    }
     let n = params.particles;
     let base = t * n;
-    // Each invocation reads back the weights it normalised itself (or the last frame's).
-    for (var k = lid; k < n; k = k + LAYER_WG) {
-        local_weights[k] = weights[base + k];
+    if (params.layer > 0u) {
+        // Leaves the normalised weights in local_weights (keep_weight).
+        settle(lid, t, settle_params);
+        storageBarrier();
+    } else {
+        // The last frame's weights.
+        for (var k = lid; k < n; k = k + LAYER_WG) {
+            local_weights[k] = weights[base + k];
+        }
     }
     workgroupBarrier();
     prefix_sum_and_search(lid, t, stratified);

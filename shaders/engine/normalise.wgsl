@@ -9,8 +9,8 @@
 @group(0) @binding(3) var<storage, read_write> weights: array<f32>;
 @group(0) @binding(4) var<storage, read_write> stats: array<TargetStats>;
 
-// Where normalise_target's survival-rule bisection reads the log-weights and log-likelihoods:
-// this stage's storage buffers (any M; the fused layer's kernel reads copies in workgroup memory).
+// Where normalise_target reads and keeps its values: this stage's storage buffers (any M; the
+// fused layer's kernel keeps copies in workgroup memory).
 fn prior_at(base: u32, i: u32) -> f32 {
     return log_weights[base + i];
 }
@@ -18,6 +18,18 @@ fn prior_at(base: u32, i: u32) -> f32 {
 fn likelihood_at(base: u32, i: u32) -> f32 {
     return log_likelihood[base + i];
 }
+
+// The tempered log-weights in place of the log-weights (pass 3 overwrites them normalised).
+fn set_tempered(base: u32, i: u32, value: f32) {
+    log_weights[base + i] = value;
+}
+
+fn tempered_at(base: u32, i: u32) -> f32 {
+    return log_weights[base + i];
+}
+
+// The weights are in `weights` already.
+fn keep_weight(base: u32, i: u32, w: f32) {}
 
 @compute @workgroup_size(256)
 fn normalise(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {

@@ -7,15 +7,25 @@
 // log sum exp(lw + ll) at beta = 1 (CPU twin: pf_core::batch::frame_log_evidence).
 // A library, parameterised by the layer's Params p: the including kernel declares log_weights,
 // log_likelihood, weights and stats (normalise.wgsl for the stage, layer.wgsl for the fused layer),
-// and prior_at(base, i) / likelihood_at(base, i), where the survival rule's bisection reads the
-// log-weights and log-likelihoods of each pass (the storage buffers in normalise.wgsl; the
-// fused layer's copies in workgroup memory, which it loads before calling normalise_target).
+// and where the passes read and keep their values: prior_at(base, i) / likelihood_at(base, i),
+// the log-weights and log-likelihoods (read by every pass before the tempering, the survival
+// rule's eleven among them); set_tempered / tempered_at, the tempered log-weights (read by the
+// two passes after it); keep_weight, each normalised weight once it is written to `weights`.
+// normalise.wgsl keeps them all in the storage buffers; the fused layer in workgroup memory
+// (copies it loads before calling normalise_target), whose round trip is a fraction of a storage
+// buffer's when one target's workgroup is alone on its SM, and keeps the weights there for its
+// resampling.
 // CPU twin: pf_core::batch::normalise_target.
 
 const NORMALISE_WG: u32 = 256u;
 // The survival rule's bisection steps: pf_core::anneal::SURVIVAL_BISECTION_STEPS (a pf-gpu test
 // holds the two equal).
 const SURVIVAL_BISECTION_STEPS: u32 = 10u;
+// Each reduction is a tree of four-way steps (strides 64, 16, 4, 1: four barriers and a
+// closing one, where halving steps take nine): one target's select runs alone on its SM when a
+// frame has few targets, and there the reduction's time is its chain of dependent steps, each
+// a barrier and a round trip to workgroup memory; a four-way step's four loads are in flight
+// together. (Folding 16 values a step in a loop was twice as slow: its loads were serial.)
 var<workgroup> partial: array<f32, 256>;
 // (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
 var<workgroup> partial_ess: array<vec3<f32>, 256>;
@@ -25,9 +35,12 @@ var<workgroup> first_inf: atomic<u32>;
 fn reduce_max(lid: u32, value: f32) -> f32 {
     partial[lid] = value;
     workgroupBarrier();
-    for (var stride = NORMALISE_WG / 2u; stride > 0u; stride = stride / 2u) {
+    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
         if (lid < stride) {
-            partial[lid] = max(partial[lid], partial[lid + stride]);
+            partial[lid] = max(
+                max(partial[lid], partial[lid + stride]),
+                max(partial[lid + 2u * stride], partial[lid + 3u * stride]),
+            );
         }
         workgroupBarrier();
     }
@@ -39,9 +52,10 @@ fn reduce_max(lid: u32, value: f32) -> f32 {
 fn reduce_sum(lid: u32, value: f32) -> f32 {
     partial[lid] = value;
     workgroupBarrier();
-    for (var stride = NORMALISE_WG / 2u; stride > 0u; stride = stride / 2u) {
+    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
         if (lid < stride) {
-            partial[lid] = partial[lid] + partial[lid + stride];
+            partial[lid] = (partial[lid] + partial[lid + stride])
+                + (partial[lid + 2u * stride] + partial[lid + 3u * stride]);
         }
         workgroupBarrier();
     }
@@ -56,35 +70,56 @@ fn tempered(prior: f32, ll: f32, beta: f32) -> f32 {
     return prior + beta * ll;
 }
 
-// Merges two (max, s1, s2) triples of shifted sums into one at the larger max.
-fn merge_ess(a: vec3<f32>, b: vec3<f32>) -> vec3<f32> {
-    if (is_neg_inf(a.x)) {
-        return b;
+// A (max, s1, s2) triple's two sums shifted to a max `m` at least its own (finite); a triple
+// whose max is -inf (no weight) adds nothing.
+fn shifted_to(triple: vec3<f32>, m: f32) -> vec2<f32> {
+    if (is_neg_inf(triple.x)) {
+        return vec2<f32>(0.0, 0.0);
     }
-    if (is_neg_inf(b.x)) {
-        return a;
+    let e = exp(triple.x - m);
+    return vec2<f32>(triple.y * e, triple.z * e * e);
+}
+
+// Four triples of shifted sums merged into one at their largest max: the max first, then the
+// four exponentials independent of each other (merging pairwise would chain them).
+fn merge_four(a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
+    let m = max(max(a.x, b.x), max(c.x, d.x));
+    if (is_neg_inf(m)) {
+        return vec3<f32>(m, 0.0, 0.0);
     }
-    let m = max(a.x, b.x);
-    let ea = exp(a.x - m);
-    let eb = exp(b.x - m);
-    return vec3<f32>(m, a.y * ea + b.y * eb, a.z * ea * ea + b.z * eb * eb);
+    let sums = (shifted_to(a, m) + shifted_to(b, m)) + (shifted_to(c, m) + shifted_to(d, m));
+    return vec3<f32>(m, sums);
 }
 
 // The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
-// weight is zero): one pass, one reduction of (max, s1, s2). Twin of pf_core::anneal::tempered_ess.
+// weight is zero): each invocation's particles' (max, s1, s2), the max first and then the
+// sums, then a tree of four-way merges (reduce_sum's shape). Twin of
+// pf_core::anneal::tempered_ess.
 fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
-    var acc = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
+    var m = bitcast<f32>(0xff800000u);
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let x = tempered(prior_at(base, i), likelihood_at(base, i), beta);
-        if (!is_neg_inf(x)) {
-            acc = merge_ess(acc, vec3<f32>(x, 1.0, 1.0));
+        m = max(m, tempered(prior_at(base, i), likelihood_at(base, i), beta));
+    }
+    var sums = vec2<f32>(0.0, 0.0);
+    if (!is_neg_inf(m)) {
+        for (var i = lid; i < n; i = i + NORMALISE_WG) {
+            let x = tempered(prior_at(base, i), likelihood_at(base, i), beta);
+            if (!is_neg_inf(x)) {
+                let e = exp(x - m);
+                sums = sums + vec2<f32>(e, e * e);
+            }
         }
     }
-    partial_ess[lid] = acc;
+    partial_ess[lid] = vec3<f32>(m, sums);
     workgroupBarrier();
-    for (var stride = NORMALISE_WG / 2u; stride > 0u; stride = stride / 2u) {
+    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
         if (lid < stride) {
-            partial_ess[lid] = merge_ess(partial_ess[lid], partial_ess[lid + stride]);
+            partial_ess[lid] = merge_four(
+                partial_ess[lid],
+                partial_ess[lid + stride],
+                partial_ess[lid + 2u * stride],
+                partial_ess[lid + 3u * stride],
+            );
         }
         workgroupBarrier();
     }
@@ -100,7 +135,7 @@ fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
 fn sum_exp_at_one(lid: u32, base: u32, n: u32, max_at_one: f32) -> f32 {
     var acc = 0.0;
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let x = log_weights[base + i] + log_likelihood[base + i];
+        let x = prior_at(base, i) + likelihood_at(base, i);
         if (!is_neg_inf(x)) {
             acc = acc + exp(x - max_at_one);
         }
@@ -143,7 +178,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     // so judged at beta = 1), and the max at beta = 1.
     var local_max = bitcast<f32>(0xff800000u);
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let lw = log_weights[base + i] + log_likelihood[base + i];
+        let lw = prior_at(base, i) + likelihood_at(base, i);
         if (is_nan(lw)) {
             atomicMin(&first_nan, i);
         } else if (is_pos_inf(lw)) {
@@ -183,6 +218,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
         for (var i = lid; i < n; i = i + NORMALISE_WG) {
             weights[base + i] = uniform_w;
             log_weights[base + i] = uniform_lw;
+            keep_weight(base, i, uniform_w);
         }
         if (lid == 0u) {
             stats[t].max_log_weight = max_at_one;
@@ -210,8 +246,8 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     }
     var local_tempered_max = bitcast<f32>(0xff800000u);
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let lw = tempered(log_weights[base + i], log_likelihood[base + i], beta);
-        log_weights[base + i] = lw;
+        let lw = tempered(prior_at(base, i), likelihood_at(base, i), beta);
+        set_tempered(base, i, lw);
         local_tempered_max = max(local_tempered_max, lw);
     }
     var max_lw = max_at_one;
@@ -222,7 +258,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     // Pass 2: sum of exp(lw - max); every term is in [0, 1] and the max contributes 1.
     var local_sum = 0.0;
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let lw = log_weights[base + i];
+        let lw = tempered_at(base, i);
         if (!is_neg_inf(lw)) {
             local_sum = local_sum + exp(lw - max_lw);
         }
@@ -236,7 +272,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     // Pass 3: normalised weights and log-weights, and sum w^2 for the ESS.
     var local_sq = 0.0;
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let lw = log_weights[base + i];
+        let lw = tempered_at(base, i);
         var w = 0.0;
         var normalised = lw;
         if (!is_neg_inf(lw)) {
@@ -245,6 +281,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
         }
         weights[base + i] = w;
         log_weights[base + i] = normalised;
+        keep_weight(base, i, w);
         local_sq = local_sq + w * w;
     }
     let sum_sq = reduce_sum(lid, local_sq);

@@ -10,7 +10,10 @@
 // resampling key.
 
 const SCAN_WG: u32 = 256u;
-var<workgroup> chunk_sums: array<f32, 256>;
+// The invocations' chunk sums, scanned Hillis-Steele reading one half while writing the other:
+// one barrier a step, where an in-place scan needs two (its barriers are most of its time when
+// one target's workgroup runs alone on its SM).
+var<workgroup> chunk_scan: array<array<f32, 256>, 2>;
 var<workgroup> due: u32;
 
 fn resampling_due(t: u32) -> bool {
@@ -72,7 +75,7 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
         }
         return;
     }
-    // Chunk sums, then an inclusive Hillis-Steele scan over the 256 chunks.
+    // Chunk sums, then an inclusive scan over the 256 chunks.
     let chunk = (n + SCAN_WG - 1u) / SCAN_WG;
     let begin = min(lid * chunk, n);
     let end = min(begin + chunk, n);
@@ -80,26 +83,27 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
     for (var i = begin; i < end; i = i + 1u) {
         sum = sum + weight_at(base, i);
     }
-    chunk_sums[lid] = sum;
+    chunk_scan[0][lid] = sum;
     workgroupBarrier();
+    var source = 0u;
     for (var offset = 1u; offset < SCAN_WG; offset = offset * 2u) {
-        var add = 0.0;
+        var scanned = chunk_scan[source][lid];
         if (lid >= offset) {
-            add = chunk_sums[lid - offset];
+            scanned = scanned + chunk_scan[source][lid - offset];
         }
+        chunk_scan[1u - source][lid] = scanned;
         workgroupBarrier();
-        chunk_sums[lid] = chunk_sums[lid] + add;
-        workgroupBarrier();
+        source = 1u - source;
     }
     var running = 0.0;
     if (lid > 0u) {
-        running = chunk_sums[lid - 1u];
+        running = chunk_scan[source][lid - 1u];
     }
+    let total = chunk_scan[source][SCAN_WG - 1u];
     for (var i = begin; i < end; i = i + 1u) {
         running = running + weight_at(base, i);
         set_cdf(base, i, running);
     }
-    let total = chunk_sums[SCAN_WG - 1u];
     storageBarrier();
     workgroupBarrier();
 
