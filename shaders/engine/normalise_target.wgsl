@@ -18,6 +18,9 @@
 // CPU twin: pf_core::batch::normalise_target.
 
 const NORMALISE_WG: u32 = 256u;
+// The reductions' four-way steps (strides NORMALISE_WG / 4, / 16, ... 1) cover every invocation
+// only when NORMALISE_WG is a power of four.
+const_assert ((NORMALISE_WG & (NORMALISE_WG - 1u)) == 0u && (NORMALISE_WG & 0x55555555u) != 0u);
 // The survival rule's bisection steps: pf_core::anneal::SURVIVAL_BISECTION_STEPS (a pf-gpu test
 // holds the two equal).
 const SURVIVAL_BISECTION_STEPS: u32 = 10u;
