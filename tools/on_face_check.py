@@ -240,6 +240,8 @@ def main():
         "in the frames between (default 0: no bridging)",
     )
     args = parser.parse_args()
+    if args.bridge < 0:
+        parser.error("--bridge: a number of frames, 0 or more")
 
     found = {}
     if args.faces and os.path.exists(args.faces):
@@ -255,8 +257,6 @@ def main():
         with open(args.faces, "w") as f:
             json.dump(found, f)
     boxes = judged_faces(found, args.judge)
-    if args.bridge < 0:
-        parser.error("--bridge: a number of frames, 0 or more")
     if args.bridge > 0:
         boxes = bridged(boxes, args.bridge)
     result = scores(boxes, tracking_rows(args.states_csv), args.min_face)

@@ -28,7 +28,7 @@ const SURVIVAL_BISECTION_STEPS: u32 = 10u;
 // closing one, where halving steps take nine): one target's select runs alone on its SM when a
 // frame has few targets, and there the reduction's time is its chain of dependent steps, each
 // a barrier and a round trip to workgroup memory; a four-way step's four loads are in flight
-// together. (Folding 16 values a step in a loop was twice as slow: its loads were serial.)
+// together. (Folding 16 values a step in a loop measured twice as slow.)
 var<workgroup> partial: array<f32, 256>;
 // (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
 var<workgroup> partial_ess: array<vec3<f32>, 256>;

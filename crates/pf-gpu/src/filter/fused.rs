@@ -448,7 +448,9 @@ impl GpuFilter {
         if let Some(step) = lag_step {
             self.record_lag_dispatches(&mut passes, step);
         }
-        passes.end();
+        // The pass ends here (a profiled step's timestamps are resolved once the whole step is
+        // recorded: `DispatchProfiler::resolve`).
+        drop(passes);
         self.record_copies_back(encoder, likelihood);
     }
 

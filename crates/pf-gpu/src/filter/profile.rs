@@ -167,10 +167,6 @@ impl<'e> Passes<'e> {
             Passes::Each { encoder, profiler } => profiler.dispatch(encoder, label, record),
         }
     }
-
-    /// Ends the step's passes (a profiled step's timestamps are resolved by
-    /// [`DispatchProfiler::resolve`] once the whole step is recorded).
-    pub(super) fn end(self) {}
 }
 
 impl GpuFilter {

@@ -91,7 +91,7 @@ impl GpuFilter {
         if let Some(step) = lag_step {
             let mut passes = Passes::begin(encoder, None, "lag window");
             self.record_lag_dispatches(&mut passes, step);
-            passes.end();
+            drop(passes);
         }
         self.record_copies_back(encoder, likelihood);
     }
