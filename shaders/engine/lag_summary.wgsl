@@ -1,37 +1,48 @@
 // Fixed-lag smoothing from the ancestry, summarised on the GPU: the filter keeps its last frames'
-// particles, normalised log-weights and lineages in a ring of `slots` frames (copied there at the
-// end of each step), and after each step this kernel summarises the frame `lag` steps back by the
-// newest frame's weights traced back through the lineages (the path smoother of Kitagawa 1996):
-// each newest particle m carries its weight w_m to its ancestor A(m) in the lagged frame, so the
-// lagged frame's smoothed cloud is {(x_A(m), w_m)}. Only the summaries leave the GPU: per target
-// and value the mean (on the circle for an angle) and the 95 % interval's ends, the same for the
-// lagged frame's own (filtered) weights where asked, and per target the share of the lagged
-// frame's effective sample size the trace kept. A target whose trace meets a particle without an
-// ancestor (restarted within the window) gets NaN throughout: the host smooths it from a download.
+// particles, normalised log-weights and lineages in a ring of `slots` frames, and after each step
+// this kernel summarises the frame `lag` steps back by the newest frame's weights traced back
+// through the lineages (the path smoother of Kitagawa 1996): each newest particle m carries its
+// weight w_m to its ancestor A(m) in the lagged frame, so the lagged frame's smoothed cloud is
+// {(x_A(m), w_m)}. Only the summaries leave the GPU: per target and value the mean (on the circle
+// for an angle) and the 95 % interval's ends, the same for the lagged frame's own (filtered)
+// weights where asked, and per target the share of the lagged frame's effective sample size the
+// trace kept. A target whose trace meets a particle without an ancestor (restarted within the
+// window) gets NaN throughout: the host smooths it from a download.
+// The same dispatch keeps the step in the ring (keep_step): the newest frame is read from the
+// step's own buffers and copied into ring slot `newest`, which no summary reads (the ring holds
+// lag + 2 frames; the summary reads the lag frames before the newest). A dispatch of its own
+// for the copy cost a face step 6 us and a barrier's wait before the summary on an NVIDIA H200.
 // One workgroup of 256 invocations per (value, target), and one per target for the kept share
 // (summarise_lagged); workgroup memory holds one target's particles (SORT_SIZE: M rounded up
 // to a power of two, at least 256, set by the driver, pf_gpu::filter::lag_window). The newest
 // particles that share an ancestor are merged into one entry (compact_by_ancestor: resampling
-// in order keeps them consecutive), and the distinct ancestors sorted by a bitonic sort for the
-// quantiles. Why a sort: counting each
-// particle's cumulative weight over all the others (O(M²) a value) took the four-face step that
-// keeps the lineage from 0.46 to 0.93 ms on an NVIDIA H100, a loop of dependent workgroup-memory
-// loads on one SM. The ring holds lag + 2 frames; this kernel reads the newest lag + 1.
+// in order keeps them consecutive), and the distinct ancestors ranked (ranked_ends) or, past
+// 256, sorted by a bitonic sort for the quantiles. Why not count each particle's cumulative
+// weight over all the others: O(M^2) a value took the four-face step that keeps the lineage from
+// 0.46 to 0.93 ms on an NVIDIA H100, a loop of dependent workgroup-memory loads on one SM.
 // CPU twins: pf_core::smooth::ancestry::trace_back, pf_core::smooth::summarise (summary.rs) and
-// pf_core::smooth_tracks::AncestryHealth.
+// pf_core::smooth_tracks::AncestryHealth; the ring is the frames pf_core::smooth::lag_window::
+// LagWindow keeps.
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> lag_params: LagParams;
 // [((slot * T + t) * D + d) * M + m]
-@group(0) @binding(2) var<storage, read> window_states: array<f32>;
+// The ring, [((slot * T + t) * D + d) * M + m]: the frames before the newest, and slot `newest`
+// written by keep_step.
+@group(0) @binding(2) var<storage, read_write> window_states: array<f32>;
 // [(slot * T + t) * M + m], normalised.
-@group(0) @binding(3) var<storage, read> window_log_weights: array<f32>;
+@group(0) @binding(3) var<storage, read_write> window_log_weights: array<f32>;
 // [(slot * T + t) * M + m]: the particle's ancestor among the frame before's.
-@group(0) @binding(4) var<storage, read> window_lineage: array<u32>;
+@group(0) @binding(4) var<storage, read_write> window_lineage: array<u32>;
 // [(t * D + d) * 6 + k]: smoothed mean, lower, upper; filtered mean, lower, upper.
 @group(0) @binding(5) var<storage, read_write> summaries: array<f32>;
 // [t]: traced over filtered effective sample size of the lagged frame.
 @group(0) @binding(6) var<storage, read_write> kept: array<f32>;
+// The step's own particles [(t * D + d) * M + m], normalised log-weights and lineage [t * M + m]:
+// the newest frame.
+@group(0) @binding(7) var<storage, read> states: array<f32>;
+@group(0) @binding(8) var<storage, read> log_weights: array<f32>;
+@group(0) @binding(9) var<storage, read> lineage: array<u32>;
 
 const SORT_SIZE: u32 = 4096u;
 const LAG_WG: u32 = 256u;
@@ -366,14 +377,11 @@ fn weights_ess(lid: u32, n: u32) -> f32 {
 // Target t's newest particle m's ancestor in the lagged frame (n, past the particles, where
 // the trace meets a particle without an ancestor).
 fn lagged_ancestor(t: u32, m: u32, n: u32) -> u32 {
-    var a = m;
-    for (var k = 0u; k < lag_params.lag; k = k + 1u) {
+    var a = lineage[t * params.particles + m];
+    for (var k = 1u; k < lag_params.lag && a < n; k = k + 1u) {
         a = window_lineage[particle_at(ring_slot(k), t, a)];
-        if (a >= n) {
-            return n;
-        }
     }
-    return a;
+    return min(a, n);
 }
 
 // The effective sample size of the lagged frame's traced weights, each lagged particle's the
@@ -384,9 +392,8 @@ fn traced_ess(lid: u32, t: u32, n: u32) -> f32 {
         atomicStore(&ancestor_weight[m], 0u);
     }
     workgroupBarrier();
-    let newest = ring_slot(0u);
     for (var m = lid; m < n; m = m + LAG_WG) {
-        let w = weight_of(window_log_weights[particle_at(newest, t, m)]);
+        let w = newest_weight(t, m);
         atomicAdd(&ancestor_weight[lagged_ancestor(t, m, n)], u32(round(w * FIXED_ONE)));
     }
     workgroupBarrier();
@@ -491,17 +498,14 @@ fn kept_share(lid: u32, t: u32, n: u32, lagged: u32) -> f32 {
     return 0.0;
 }
 
-// Workgroup (d, t) for d < D summarises value d of target t; workgroup (D, t) gives target t's
-// kept share alone (kept_share), so that no workgroup does both (the kernel takes as long as
-// its slowest workgroup).
-@compute @workgroup_size(256)
-fn summarise_lagged(
-    @builtin(workgroup_id) group: vec3<u32>,
-    @builtin(local_invocation_id) local: vec3<u32>,
-) {
-    let d = group.x;
-    let t = group.y;
-    let lid = local.x;
+// The newest frame's normalised weight of target t's particle m (the step's own buffer).
+fn newest_weight(t: u32, m: u32) -> f32 {
+    return weight_of(log_weights[t * params.particles + m]);
+}
+
+// Summarises value d of target t (d < D), or gives target t's kept share (d == D), into
+// `summaries` or `kept`.
+fn summarise_target(lid: u32, d: u32, t: u32) {
     let n = params.particles;
     let sharing = d == params.dims;
     if (lid == 0u) {
@@ -509,7 +513,6 @@ fn summarise_lagged(
         atomicStore(&unordered, 0u);
     }
     workgroupBarrier();
-    let newest = ring_slot(0u);
     let lagged = ring_slot(lag_params.lag);
     // Each newest particle's ancestor lag frames back: the ancestor's value with the newest
     // particle's weight.
@@ -519,8 +522,7 @@ fn summarise_lagged(
             atomicStore(&broken, 1u);
             a = 0u;
         }
-        let w = weight_of(window_log_weights[particle_at(newest, t, m)]);
-        cloud_weights[m] = w;
+        cloud_weights[m] = newest_weight(t, m);
         var value = 0.0;
         if (!sharing) {
             value = state_at(lagged, t, d, a);
@@ -573,4 +575,41 @@ fn summarise_lagged(
         summaries[out + 4u] = filtered.y;
         summaries[out + 5u] = filtered.z;
     }
+}
+
+// The step kept in ring slot `newest`: workgroup (d, t) copies value d of target t's particles,
+// workgroup (D, t) the target's normalised log-weights and lineage. Slot `newest` is not one
+// the summaries read, so no workgroup waits for another.
+fn keep_step(lid: u32, d: u32, t: u32) {
+    let n = params.particles;
+    let into = lag_params.newest * params.targets + t;
+    if (d < params.dims) {
+        let from_value = (t * params.dims + d) * n;
+        let into_value = (into * params.dims + d) * n;
+        for (var m = lid; m < n; m = m + LAG_WG) {
+            window_states[into_value + m] = states[from_value + m];
+        }
+    } else {
+        for (var m = lid; m < n; m = m + LAG_WG) {
+            window_log_weights[into * n + m] = log_weights[t * n + m];
+            window_lineage[into * n + m] = lineage[t * n + m];
+        }
+    }
+}
+
+// Workgroup (d, t) for d < D summarises value d of target t; workgroup (D, t) gives target t's
+// kept share alone (kept_share), so that no workgroup does both (the kernel takes as long as
+// its slowest workgroup). Every workgroup then keeps its part of the step in the ring.
+@compute @workgroup_size(256)
+fn summarise_lagged(
+    @builtin(workgroup_id) group: vec3<u32>,
+    @builtin(local_invocation_id) local: vec3<u32>,
+) {
+    let d = group.x;
+    let t = group.y;
+    let lid = local.x;
+    if (lag_params.summarise == 1u) {
+        summarise_target(lid, d, t);
+    }
+    keep_step(lid, d, t);
 }

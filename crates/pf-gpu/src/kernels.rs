@@ -43,18 +43,12 @@ pub mod sources {
         "\n",
         include_str!("../../../shaders/engine/layer.wgsl")
     );
-    /// Fixed-lag smoothing from the ancestry, summarised on the device (with the lag window's
-    /// parameters it shares with the ring).
+    /// Fixed-lag smoothing from the ancestry, summarised on the device, and the step kept in
+    /// the lag window's ring (with the window's parameters).
     pub const LAG_SUMMARY: &str = concat!(
         include_str!("../../../shaders/engine/lag_params.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/lag_summary.wgsl")
-    );
-    /// A step's particles, log-weights and lineage kept in the lag window's ring.
-    pub const LAG_RING: &str = concat!(
-        include_str!("../../../shaders/engine/lag_params.wgsl"),
-        "\n",
-        include_str!("../../../shaders/engine/lag_ring.wgsl")
     );
     /// The particles' lineage through a frame's resamplings.
     pub const LINEAGE: &str = include_str!("../../../shaders/engine/lineage.wgsl");
@@ -68,7 +62,7 @@ pub mod sources {
     pub const RANDOM: &str = include_str!("../../../shaders/engine/random.wgsl");
 
     /// Every stage file, by name, for the validation tests.
-    pub const STAGES: [(&str, &str); 10] = [
+    pub const STAGES: [(&str, &str); 9] = [
         ("toy_likelihood.wgsl", TOY_LIKELIHOOD),
         ("diffuse.wgsl", DIFFUSE),
         ("normalise.wgsl", NORMALISE),
@@ -78,7 +72,6 @@ pub mod sources {
         ("layer.wgsl", LAYER),
         ("lineage.wgsl", LINEAGE),
         ("lag_summary.wgsl", LAG_SUMMARY),
-        ("lag_ring.wgsl", LAG_RING),
     ];
 }
 

@@ -6,11 +6,12 @@
 //! every particle back each frame for the host to trace added 40 % (4 faces) to 146 % (64 faces)
 //! to a step that keeps the lineage (docs/POSTERIOR.md).
 //!
-//! A whole step ends with the window's dispatches, in the step's own compute pass where the step
-//! is fused: `shaders/engine/lag_ring.wgsl` keeps the step's particles, log-weights and lineage
-//! in the ring (three buffer copies before, each a transfer between the step's pass and the
-//! summary's: the four-face step's GPU time with the window fell from 326 to 312 µs on an NVIDIA
-//! H200, against 281 µs without it), then the summary.
+//! A whole step ends with the window's one dispatch, in the step's own compute pass where the
+//! step is fused: it summarises the lagged frame (once the window is full), reading the newest
+//! frame from the step's own buffers, and keeps the step's particles, log-weights and lineage in
+//! the ring. (Three buffer copies before, each a transfer between the step's pass and the
+//! summary's, then a dispatch of their own before the summary's, which cost 6 µs and a barrier's
+//! wait on an NVIDIA H200.)
 //!
 //! The ring holds `lag + 2` frames: the lag window, and one more, so that a host one step behind
 //! the device (a step whose results it never took, a failure between the two) can still read
@@ -41,6 +42,8 @@ struct LagParams {
     newest: u32,
     lag: u32,
     filtered: u32,
+    summarise: u32,
+    pad: [u32; 3],
 }
 
 /// The line of `lag_summary.wgsl` the driver sizes to the filter's particles.
@@ -58,6 +61,12 @@ fn workgroup_bytes(particles: usize) -> u64 {
     3 * 4 * sort_size(particles) as u64 + 256 * (2 * 4 + 16) + 5 * 4
 }
 
+/// The lag window's dispatch as a profiled step names it: summarising (once the window is full)
+/// and keeping the step, or only keeping it.
+const LAG_SUMMARY_LABEL: &str = "lag window: summary and the step kept";
+/// See [`LAG_SUMMARY_LABEL`].
+const LAG_KEEP_LABEL: &str = "lag window: the step kept";
+
 /// Floats the kernel writes per target and value: smoothed and filtered mean, lower, upper.
 const SUMMARY_FLOATS: usize = 6;
 
@@ -73,22 +82,19 @@ pub(super) struct LagWindow {
     kept: DeviceStream<f32>,
     params: wgpu::Buffer,
     kernel: Kernel,
-    group: wgpu::BindGroup,
-    /// `lag_ring.wgsl`: a step's particles, log-weights and lineage into the ring.
-    ring: Kernel,
-    /// The ring kernel's bindings for each of the lineage's two buffers (which holds a frame's
+    /// The kernel's bindings for each of the lineage's two buffers (which holds a frame's
     /// lineage depends on the layers' parity: `Lineage::result`); set by
     /// [`GpuFilter::keep_lag_window`] once the lineage is kept.
-    ring_groups: Vec<wgpu::BindGroup>,
+    groups: Vec<wgpu::BindGroup>,
     /// Frames copied into the ring so far.
     recorded: u64,
 }
 
 /// What a whole step records for the lag window ([`GpuFilter::prepare_lag_step`]): which of
-/// the ring kernel's bindings reads its lineage, and whether it summarises a lagged frame.
+/// the kernel's bindings reads its lineage, and whether it summarises a lagged frame.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct LagStep {
-    ring_group: usize,
+    group: usize,
     summarises: bool,
 }
 
@@ -98,7 +104,6 @@ impl LagWindow {
         shape: &BatchShape,
         lag: usize,
         compare_filtered: bool,
-        frame_params: &wgpu::Buffer,
     ) -> Result<Self, GpuError> {
         check_fits(ctx, shape, lag)?;
         let slots = lag + 2;
@@ -114,12 +119,6 @@ impl LagWindow {
             &format!("const SORT_SIZE: u32 = {}u;", sort_size(shape.particles)),
         );
         let kernel = Kernel::new(ctx, "lag summary", &source, "summarise_lagged")?;
-        let ring = Kernel::new(
-            ctx,
-            "lag ring",
-            &stage_source(sources::LAG_RING),
-            "keep_newest",
-        )?;
         let states = DeviceStream::zeroed(ctx, "lag window states", slots * shape.state_len())?;
         let log_weights =
             DeviceStream::zeroed(ctx, "lag window log-weights", slots * shape.particle_len())?;
@@ -139,19 +138,9 @@ impl LagWindow {
                 newest: 0,
                 lag: lag as u32,
                 filtered: u32::from(compare_filtered),
+                summarise: 0,
+                pad: [0; 3],
             },
-        )?;
-        let group = kernel.bind(
-            ctx,
-            &[
-                (0, frame_params.as_entire_binding()),
-                (1, params.as_entire_binding()),
-                (2, states.binding()),
-                (3, log_weights.binding()),
-                (4, lineage.binding()),
-                (5, summaries.binding()),
-                (6, kept.binding()),
-            ],
         )?;
         Ok(Self {
             lag,
@@ -164,36 +153,36 @@ impl LagWindow {
             kept,
             params,
             kernel,
-            group,
-            ring,
-            ring_groups: Vec::new(),
+            groups: Vec::new(),
             recorded: 0,
         })
     }
 
-    /// The ring kernel's bindings: the frame's parameters, the step's particles and log-weights,
-    /// each of `lineage_buffers`, and the ring.
-    fn bind_ring(
+    /// The kernel's bindings: the frame's parameters, the ring, the summaries, and the step's
+    /// particles, log-weights and each of `lineage_buffers`.
+    fn bind(
         &mut self,
         ctx: &GpuContext,
         frame_params: &wgpu::Buffer,
         streams: &super::Streams,
         lineage_buffers: [&DeviceStream<u32>; 2],
     ) -> Result<(), GpuError> {
-        self.ring_groups = lineage_buffers
+        self.groups = lineage_buffers
             .iter()
             .map(|lineage| {
-                self.ring.bind(
+                self.kernel.bind(
                     ctx,
                     &[
                         (0, frame_params.as_entire_binding()),
                         (1, self.params.as_entire_binding()),
-                        (2, streams.states.binding()),
-                        (3, streams.log_weights.binding()),
-                        (4, lineage.binding()),
-                        (5, self.states.binding()),
-                        (6, self.log_weights.binding()),
-                        (7, self.lineage.binding()),
+                        (2, self.states.binding()),
+                        (3, self.log_weights.binding()),
+                        (4, self.lineage.binding()),
+                        (5, self.summaries.binding()),
+                        (6, self.kept.binding()),
+                        (7, streams.states.binding()),
+                        (8, streams.log_weights.binding()),
+                        (9, lineage.binding()),
                     ],
                 )
             })
@@ -267,14 +256,13 @@ impl GpuFilter {
             ));
         }
         // Built before the lineage is kept, so that a window the adapter refuses leaves none.
-        let mut window =
-            LagWindow::new(ctx, &self.shape, lag, compare_filtered, &self.params_buffer)?;
+        let mut window = LagWindow::new(ctx, &self.shape, lag, compare_filtered)?;
         self.keep_lineage(ctx)?;
         let lineage = self.lineage.as_ref().ok_or_else(|| {
             GpuError::InvalidConfig("the lag window needs the lineage, which is not kept".into())
         })?;
         let buffers = [lineage.result(1), lineage.result(2)];
-        window.bind_ring(ctx, &self.params_buffer, &self.streams, buffers)?;
+        window.bind(ctx, &self.params_buffer, &self.streams, buffers)?;
         self.lag_sections = window.readback_sections().to_vec();
         self.lag_window = Some(window);
         self.refit_step_backs(ctx)
@@ -309,48 +297,45 @@ impl GpuFilter {
         let window = self.lag_window.as_mut()?;
         let slot = (window.recorded % window.slots as u64) as u32;
         window.recorded += 1;
+        let summarises = window.recorded > window.lag as u64;
         let params = LagParams {
             slots: window.slots as u32,
             newest: slot,
             lag: window.lag as u32,
             filtered: u32::from(window.compare_filtered),
+            summarise: u32::from(summarises),
+            pad: [0; 3],
         };
         ctx.queue
             .write_buffer(&window.params, 0, bytemuck::bytes_of(&params));
         Some(LagStep {
-            ring_group: (layers.max(1) - 1) % 2,
-            summarises: window.recorded > window.lag as u64,
+            group: (layers.max(1) - 1) % 2,
+            summarises,
         })
     }
 
-    /// Records the lag window's dispatches at the end of a whole step, into the step's passes:
-    /// the step kept in the ring, then (once the window is full) the summary of its first frame.
+    /// Records the lag window's dispatch at the end of a whole step, into the step's passes:
+    /// (once the window is full) the summary of its first frame, and the step kept in the ring.
     pub(super) fn record_lag_dispatches(&self, passes: &mut Passes<'_>, step: LagStep) {
         let Some(window) = &self.lag_window else {
             return;
         };
         let (targets, dims) = (self.shape.targets as u32, self.shape.dims as u32);
-        let block = self.shape.dims * self.shape.particles;
-        let ring_grid = [super::groups_for(block, 256), targets, 1];
+        let label = if step.summarises {
+            LAG_SUMMARY_LABEL
+        } else {
+            LAG_KEEP_LABEL
+        };
         passes.dispatch(
-            || "lag window: keep the step".into(),
+            || label.into(),
+            // A workgroup a value and target, and one more a target for its kept share (and its
+            // log-weights and lineage kept).
             |pass| {
                 window
-                    .ring
-                    .record(pass, &window.ring_groups[step.ring_group], ring_grid)
+                    .kernel
+                    .record(pass, &window.groups[step.group], [dims + 1, targets, 1])
             },
         );
-        if step.summarises {
-            passes.dispatch(
-                || "lag summary".into(),
-                // A workgroup a value and target, and one more a target for its kept share.
-                |pass| {
-                    window
-                        .kernel
-                        .record(pass, &window.group, [dims + 1, targets, 1])
-                },
-            );
-        }
     }
 
     /// Copies a summarising step's summaries into its staging buffer; whether it summarises.

@@ -1,8 +1,8 @@
 //! Where a fused step's GPU time goes, dispatch by dispatch ([`GpuFilter::profile_dispatches`]):
 //! each dispatch of the step gets a compute pass of its own with a timestamp at its beginning and
 //! its end, so a step reports every dispatch's time and the gaps between them (the barriers and
-//! launches), the lag window's dispatches last where the filter keeps one ("lag window: keep
-//! the step", "lag summary"). The particles are the same as without profiling: only the passes'
+//! launches), the lag window's dispatch last where the filter keeps one ("lag window: the step
+//! kept", or "lag window: summary and the step kept" once the window is full). The particles are the same as without profiling: only the passes'
 //! boundaries move.
 //! For measuring, not for tracking: the profiled step pays a pass per dispatch.
 
