@@ -18,9 +18,10 @@ fn root() -> &'static Path {
 
 /// The libraries prepended to other files (`stage_source`, and the stages' own in
 /// `pf_gpu::kernels::sources`), checked as part of those.
-const LIBRARIES: [&str; 6] = [
+const LIBRARIES: [&str; 7] = [
     "engine/philox.wgsl",
     "engine/common.wgsl",
+    "engine/lag_cloud.wgsl",
     "engine/lag_params.wgsl",
     "engine/move_particle.wgsl",
     "engine/normalise_target.wgsl",

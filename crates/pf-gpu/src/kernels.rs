@@ -44,9 +44,11 @@ pub mod sources {
         include_str!("../../../shaders/engine/layer.wgsl")
     );
     /// Fixed-lag smoothing from the ancestry, summarised on the device, and the step kept in
-    /// the lag window's ring (with the window's parameters).
+    /// the lag window's ring (with the window's parameters and the weighted cloud's statistics).
     pub const LAG_SUMMARY: &str = concat!(
         include_str!("../../../shaders/engine/lag_params.wgsl"),
+        "\n",
+        include_str!("../../../shaders/engine/lag_cloud.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/lag_summary.wgsl")
     );
