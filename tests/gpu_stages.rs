@@ -32,24 +32,6 @@ fn property<S>(
     common::property::check_cases(name, cases, strategy, |value| check(&ctx, value));
 }
 
-/// `property` on each of `common::gpu_contexts`: for the stages whose kernels reduce over a
-/// workgroup (through subgroups where the adapter has them, and without).
-fn property_on_both<S>(
-    name: &str,
-    cases: u32,
-    strategy: S,
-    check: impl Fn(&GpuContext, S::Value) -> Result<(), TestCaseError>,
-) where
-    S: Strategy + 'static,
-    S::Value: std::fmt::Debug,
-{
-    let strategy = strategy.boxed();
-    for ctx in common::gpu_contexts(name) {
-        let what = format!("{name} (subgroups: {})", ctx.has_subgroups());
-        common::property::check_cases(&what, cases, strategy.clone(), |value| check(&ctx, value));
-    }
-}
-
 fn shapes() -> impl Strategy<Value = BatchShape> {
     (
         1usize..=16,
@@ -234,7 +216,7 @@ fn normalisation_matches_cpu_within_tolerance() {
             prop::collection::vec(log_value(), n),
         )
     });
-    property_on_both(
+    property(
         "normalisation_matches_cpu_within_tolerance",
         24,
         strategy,
@@ -401,7 +383,7 @@ fn check_ordered(stratified: bool, large: bool) {
     };
     let strategy = shape_strategy
         .prop_flat_map(|shape| (Just(shape), weight_sets(shape), any::<u64>(), any::<bool>()));
-    property_on_both(
+    property(
         "ordered resampling",
         if large { 6 } else { 16 },
         strategy,

@@ -18,15 +18,13 @@ fn root() -> &'static Path {
 
 /// The libraries prepended to other files (`stage_source`, and the stages' own in
 /// `pf_gpu::kernels::sources`), checked as part of those.
-const LIBRARIES: [&str; 9] = [
+const LIBRARIES: [&str; 7] = [
     "engine/philox.wgsl",
     "engine/common.wgsl",
     "engine/lag_cloud.wgsl",
     "engine/lag_params.wgsl",
     "engine/move_particle.wgsl",
     "engine/normalise_target.wgsl",
-    "engine/reduce.wgsl",
-    "engine/reduce_subgroup.wgsl",
     "engine/resample_target.wgsl",
 ];
 
@@ -91,10 +89,6 @@ fn every_shader_parses_and_validates() {
     for (file, source) in every_module() {
         if let Err(message) = validate_wgsl(&source) {
             panic!("shaders/{file}:\n{message}");
-        }
-        // As a device with subgroups builds it (reduce_subgroup.wgsl for reduce.wgsl).
-        if let Err(message) = validate_wgsl(&pf_gpu::kernels::adapted_source(&source, true)) {
-            panic!("shaders/{file} with subgroups:\n{message}");
         }
     }
 }

@@ -80,14 +80,3 @@ fn state_index(t: u32, d: u32, m: u32) -> u32 {
 // A particle that descends from no particle of the frame before (its target restarted): the
 // lineage's mark, pf_core::smooth::ancestry::NO_ANCESTOR (lineage.wgsl, layer.wgsl).
 const NO_ANCESTOR: u32 = 0xffffffffu;
-
-// A (max, s1, s2) triple's two sums (of exp(x - max) and exp(2 (x - max))) shifted to a max `m`
-// at least its own (finite); a triple whose max is -inf (no weight) adds nothing. The ESS
-// merges of reduce.wgsl and its subgroup twin.
-fn shifted_to(triple: vec3<f32>, m: f32) -> vec2<f32> {
-    if (is_neg_inf(triple.x)) {
-        return vec2<f32>(0.0, 0.0);
-    }
-    let e = exp(triple.x - m);
-    return vec2<f32>(triple.y * e, triple.z * e * e);
-}

@@ -172,44 +172,24 @@ fn compose_lineage(lid: u32, t: u32) {
 }
 
 @compute @workgroup_size(256)
-fn select_systematic_keeping_lineage(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn select_systematic_keeping_lineage(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     select_target(lid.x, wid.y, false);
     compose_lineage(lid.x, wid.y);
 }
 
 @compute @workgroup_size(256)
-fn select_stratified_keeping_lineage(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn select_stratified_keeping_lineage(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     select_target(lid.x, wid.y, true);
     compose_lineage(lid.x, wid.y);
 }
 
 @compute @workgroup_size(256)
-fn select_systematic(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn select_systematic(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     select_target(lid.x, wid.y, false);
 }
 
 @compute @workgroup_size(256)
-fn select_stratified(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn select_stratified(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     select_target(lid.x, wid.y, true);
 }
 
@@ -254,11 +234,6 @@ fn copy_selected(@builtin(global_invocation_id) gid: vec3<u32>) {
 // The frame's last layer normalised (`params`: that layer's), after its likelihood: the step's
 // final weights, before the estimate.
 @compute @workgroup_size(256)
-fn settle_last_layer(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn settle_last_layer(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     settle(lid.x, wid.y, params);
 }

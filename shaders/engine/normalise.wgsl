@@ -32,11 +32,6 @@ fn tempered_at(base: u32, i: u32) -> f32 {
 fn keep_weight(base: u32, i: u32, w: f32) {}
 
 @compute @workgroup_size(256)
-fn normalise(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn normalise(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     normalise_target(lid.x, wid.y, params);
 }

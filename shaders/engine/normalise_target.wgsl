@@ -17,13 +17,55 @@
 // resampling.
 // CPU twin: pf_core::batch::normalise_target.
 
-// The workgroup's reductions: reduce.wgsl (or its subgroup twin), prepended.
-const NORMALISE_WG: u32 = REDUCE_WG;
+const NORMALISE_WG: u32 = 256u;
+// The reductions' four-way steps (strides NORMALISE_WG / 4, / 16, ... 1) cover every invocation
+// only when NORMALISE_WG is a power of four.
+const_assert ((NORMALISE_WG & (NORMALISE_WG - 1u)) == 0u && (NORMALISE_WG & 0x55555555u) != 0u);
 // The survival rule's bisection steps: pf_core::anneal::SURVIVAL_BISECTION_STEPS (a pf-gpu test
 // holds the two equal).
 const SURVIVAL_BISECTION_STEPS: u32 = 10u;
+// Each reduction is a tree of four-way steps (strides 64, 16, 4, 1: four barriers and a
+// closing one, where halving steps take nine): one target's select runs alone on its SM when a
+// frame has few targets, and there the reduction's time is its chain of dependent steps, each
+// a barrier and a round trip to workgroup memory; a four-way step's four loads are in flight
+// together. (Folding 16 values a step in a loop measured twice as slow.)
+var<workgroup> partial: array<f32, 256>;
+// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
+var<workgroup> partial_ess: array<vec3<f32>, 256>;
 var<workgroup> first_nan: atomic<u32>;
 var<workgroup> first_inf: atomic<u32>;
+
+fn reduce_max(lid: u32, value: f32) -> f32 {
+    partial[lid] = value;
+    workgroupBarrier();
+    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
+        if (lid < stride) {
+            partial[lid] = max(
+                max(partial[lid], partial[lid + stride]),
+                max(partial[lid + 2u * stride], partial[lid + 3u * stride]),
+            );
+        }
+        workgroupBarrier();
+    }
+    let result = partial[0];
+    workgroupBarrier();
+    return result;
+}
+
+fn reduce_sum(lid: u32, value: f32) -> f32 {
+    partial[lid] = value;
+    workgroupBarrier();
+    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
+        if (lid < stride) {
+            partial[lid] = (partial[lid] + partial[lid + stride])
+                + (partial[lid + 2u * stride] + partial[lid + 3u * stride]);
+        }
+        workgroupBarrier();
+    }
+    let result = partial[0];
+    workgroupBarrier();
+    return result;
+}
 
 // prior + beta * ll (beta > 0 always, so NaN, +inf and zero weights stay so). Twin of
 // pf_core::anneal::tempered.
@@ -31,9 +73,30 @@ fn tempered(prior: f32, ll: f32, beta: f32) -> f32 {
     return prior + beta * ll;
 }
 
+// A (max, s1, s2) triple's two sums shifted to a max `m` at least its own (finite); a triple
+// whose max is -inf (no weight) adds nothing.
+fn shifted_to(triple: vec3<f32>, m: f32) -> vec2<f32> {
+    if (is_neg_inf(triple.x)) {
+        return vec2<f32>(0.0, 0.0);
+    }
+    let e = exp(triple.x - m);
+    return vec2<f32>(triple.y * e, triple.z * e * e);
+}
+
+// Four triples of shifted sums merged into one at their largest max: the max first, then the
+// four exponentials independent of each other (merging pairwise would chain them).
+fn merge_four(a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, d: vec3<f32>) -> vec3<f32> {
+    let m = max(max(a.x, b.x), max(c.x, d.x));
+    if (is_neg_inf(m)) {
+        return vec3<f32>(m, 0.0, 0.0);
+    }
+    let sums = (shifted_to(a, m) + shifted_to(b, m)) + (shifted_to(c, m) + shifted_to(d, m));
+    return vec3<f32>(m, sums);
+}
+
 // The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
 // weight is zero): each invocation's particles' (max, s1, s2), the max first and then the
-// sums, merged over the workgroup (workgroup_shifted_sums). Twin of
+// sums, then a tree of four-way merges (reduce_sum's shape). Twin of
 // pf_core::anneal::tempered_ess.
 fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
     var m = bitcast<f32>(0xff800000u);
@@ -50,7 +113,21 @@ fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
             }
         }
     }
-    let total = workgroup_shifted_sums(lid, vec3<f32>(m, sums));
+    partial_ess[lid] = vec3<f32>(m, sums);
+    workgroupBarrier();
+    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
+        if (lid < stride) {
+            partial_ess[lid] = merge_four(
+                partial_ess[lid],
+                partial_ess[lid + stride],
+                partial_ess[lid + 2u * stride],
+                partial_ess[lid + 3u * stride],
+            );
+        }
+        workgroupBarrier();
+    }
+    let total = partial_ess[0];
+    workgroupBarrier();
     if (is_neg_inf(total.x)) {
         return 0.0;
     }
@@ -113,7 +190,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
             local_max = max(local_max, lw);
         }
     }
-    let max_at_one = workgroup_max(lid, local_max);
+    let max_at_one = reduce_max(lid, local_max);
     let nan_at = atomicLoad(&first_nan);
     let inf_at = atomicLoad(&first_inf);
     var status = 0u;
@@ -165,7 +242,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     }
     // Layer 0's evidence at beta = 1, before tempering (at beta = 1 it is pass 2's sum).
     if (p.layer == 0u && beta != 1.0) {
-        let sum_at_one = workgroup_sum(lid, sum_exp_at_one(lid, base, n, max_at_one));
+        let sum_at_one = reduce_sum(lid, sum_exp_at_one(lid, base, n, max_at_one));
         if (lid == 0u) {
             stats[t].log_evidence = max_at_one + log(sum_at_one);
         }
@@ -178,7 +255,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
     }
     var max_lw = max_at_one;
     if (beta != 1.0) {
-        max_lw = workgroup_max(lid, local_tempered_max);
+        max_lw = reduce_max(lid, local_tempered_max);
     }
 
     // Pass 2: sum of exp(lw - max); every term is in [0, 1] and the max contributes 1.
@@ -189,7 +266,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
             local_sum = local_sum + exp(lw - max_lw);
         }
     }
-    let sum = workgroup_sum(lid, local_sum);
+    let sum = reduce_sum(lid, local_sum);
     let log_sum_shifted = log(sum);
     if (p.layer == 0u && beta == 1.0 && lid == 0u) {
         stats[t].log_evidence = max_lw + log_sum_shifted;
@@ -210,7 +287,7 @@ fn normalise_target(lid: u32, t: u32, p: Params) {
         keep_weight(base, i, w);
         local_sq = local_sq + w * w;
     }
-    let sum_sq = workgroup_sum(lid, local_sq);
+    let sum_sq = reduce_sum(lid, local_sq);
     if (lid == 0u) {
         stats[t].max_log_weight = max_lw;
         stats[t].log_sum_shifted = log_sum_shifted;

@@ -42,22 +42,12 @@ fn set_ancestor(base: u32, k: u32, ancestor: u32) {
 }
 
 @compute @workgroup_size(256)
-fn systematic(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn systematic(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     prefix_sum_and_search(lid.x, wid.y, false);
 }
 
 @compute @workgroup_size(256)
-fn stratified(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-    lanes: Lanes,
-) {
-    begin_lanes(lanes);
+fn stratified(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     prefix_sum_and_search(lid.x, wid.y, true);
 }
 

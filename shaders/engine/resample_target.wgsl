@@ -9,8 +9,11 @@
 // CPU twins: pf_core::resample::{Systematic, Stratified} fed CounterUniforms with the target's
 // resampling key.
 
-// The chunk sums' scan: workgroup_scan of reduce.wgsl (or its subgroup twin), prepended.
-const SCAN_WG: u32 = REDUCE_WG;
+const SCAN_WG: u32 = 256u;
+// The invocations' chunk sums, scanned Hillis-Steele reading one half while writing the other:
+// one barrier a step, where an in-place scan needs two (its barriers are most of its time when
+// one target's workgroup runs alone on its SM).
+var<workgroup> chunk_scan: array<array<f32, 256>, 2>;
 var<workgroup> due: u32;
 
 fn resampling_due(t: u32) -> bool {
@@ -72,18 +75,31 @@ fn prefix_sum_and_search(lid: u32, t: u32, stratified: bool) {
         }
         return;
     }
-    // Chunk sums, then an inclusive scan over the 256 chunks (each invocation the chunk at its
-    // place in the scan's order).
+    // Chunk sums, then an inclusive scan over the 256 chunks.
     let chunk = (n + SCAN_WG - 1u) / SCAN_WG;
-    let begin = min(scan_place(lid) * chunk, n);
+    let begin = min(lid * chunk, n);
     let end = min(begin + chunk, n);
     var sum = 0.0;
     for (var i = begin; i < end; i = i + 1u) {
         sum = sum + weight_at(base, i);
     }
-    let scanned = workgroup_scan(lid, sum);
-    var running = scanned.x;
-    let total = scanned.y;
+    chunk_scan[0][lid] = sum;
+    workgroupBarrier();
+    var source = 0u;
+    for (var offset = 1u; offset < SCAN_WG; offset = offset * 2u) {
+        var scanned = chunk_scan[source][lid];
+        if (lid >= offset) {
+            scanned = scanned + chunk_scan[source][lid - offset];
+        }
+        chunk_scan[1u - source][lid] = scanned;
+        workgroupBarrier();
+        source = 1u - source;
+    }
+    var running = 0.0;
+    if (lid > 0u) {
+        running = chunk_scan[source][lid - 1u];
+    }
+    let total = chunk_scan[source][SCAN_WG - 1u];
     for (var i = begin; i < end; i = i + 1u) {
         running = running + weight_at(base, i);
         set_cdf(base, i, running);

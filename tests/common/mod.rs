@@ -27,27 +27,6 @@ pub fn require_gpu(test: &str) -> Option<Vec<pf_gpu::AdapterSummary>> {
     }
 }
 
-/// The GPU contexts a test of the engine's reductions runs on: [`gpu_context`]'s, and where its
-/// adapter has subgroup operations (which the engine's kernels then use, `reduce_subgroup.wgsl`)
-/// one more without them (`reduce.wgsl`), so that both kernels' twins are checked on one
-/// machine. Empty only when the run opted out and there is no adapter.
-pub fn gpu_contexts(test: &str) -> Vec<pf_gpu::GpuContext> {
-    let Some(ctx) = gpu_context(test) else {
-        return Vec::new();
-    };
-    if !ctx.has_subgroups() {
-        return vec![ctx];
-    }
-    let options = pf_gpu::ContextOptions {
-        subgroups: false,
-        ..pf_gpu::ContextOptions::for_tests()
-    };
-    match pf_gpu::GpuContext::new(&options) {
-        Ok(without) => vec![ctx, without],
-        Err(err) => panic!("{test}: opening the GPU without subgroups failed: {err}"),
-    }
-}
-
 /// A GPU context for tests: the software adapter first, validation on, a generous timeout.
 /// `None` only when the run opted out and there is no adapter.
 pub fn gpu_context(test: &str) -> Option<pf_gpu::GpuContext> {

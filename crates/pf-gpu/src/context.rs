@@ -20,10 +20,6 @@ pub struct ContextOptions {
     pub poll_timeout: Duration,
     /// Only adapters whose name contains this (case-insensitive); `WGPU_ADAPTER_NAME` by default.
     pub adapter_name: Option<String>,
-    /// Let the engine's kernels use the adapter's subgroup operations where it has them
-    /// ([`GpuContext::has_subgroups`]); on by default. Off: every kernel reduces in workgroup
-    /// memory with barriers (the tests run both).
-    pub subgroups: bool,
 }
 
 impl Default for ContextOptions {
@@ -34,7 +30,6 @@ impl Default for ContextOptions {
             prefer_software: false,
             poll_timeout: Duration::from_secs(60),
             adapter_name: std::env::var("WGPU_ADAPTER_NAME").ok(),
-            subgroups: true,
         }
     }
 }
@@ -63,7 +58,6 @@ pub struct GpuContext {
     summary: AdapterSummary,
     limits: wgpu::Limits,
     timestamps: bool,
-    subgroups: bool,
     lost: Arc<Mutex<Option<String>>>,
     poll_timeout: Duration,
 }
@@ -126,18 +120,6 @@ fn ranked_adapters(options: &ContextOptions) -> Result<Vec<wgpu::Adapter>, GpuEr
     Ok(adapters)
 }
 
-/// Whether `adapter`'s subgroup operations serve the engine's reductions: it has them, and its
-/// subgroups hold 4 to 256 invocations, so that a workgroup of 256 is whole subgroups, at most 64
-/// of them (`reduce_subgroup.wgsl` keeps a result for each).
-fn subgroups_fit(adapter: &wgpu::Adapter) -> bool {
-    let info = adapter.get_info();
-    let (smallest, largest) = (info.subgroup_min_size, info.subgroup_max_size);
-    adapter.features().contains(wgpu::Features::SUBGROUP)
-        && smallest >= 4
-        && largest <= 256
-        && largest.is_power_of_two()
-}
-
 impl GpuContext {
     /// Opens the best adapter for `options`.
     pub fn new(options: &ContextOptions) -> Result<Self, GpuError> {
@@ -164,11 +146,7 @@ impl GpuContext {
         let limits = adapter.limits();
         let wanted =
             wgpu::Features::TIMESTAMP_QUERY | wgpu::Features::TIMESTAMP_QUERY_INSIDE_ENCODERS;
-        let subgroups = options.subgroups && subgroups_fit(&adapter);
-        let mut features = adapter.features() & wanted;
-        if subgroups {
-            features |= wgpu::Features::SUBGROUP;
-        }
+        let features = adapter.features() & wanted;
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("streampf"),
             required_features: features,
@@ -194,7 +172,6 @@ impl GpuContext {
             summary,
             limits,
             timestamps: features.contains(wanted),
-            subgroups,
             lost,
             poll_timeout: options.poll_timeout,
         })
@@ -208,14 +185,6 @@ impl GpuContext {
     /// The limits the device was opened with (the adapter's own).
     pub fn limits(&self) -> &wgpu::Limits {
         &self.limits
-    }
-
-    /// Whether the engine's kernels reduce through subgroup operations
-    /// (`shaders/engine/reduce_subgroup.wgsl`), else in workgroup memory with barriers
-    /// (`reduce.wgsl`): the adapter has them, with subgroups of 4 to 256 invocations, and
-    /// [`ContextOptions::subgroups`] allowed them.
-    pub fn has_subgroups(&self) -> bool {
-        self.subgroups
     }
 
     /// Whether GPU timings come from timestamp queries (else: wall clock).

@@ -18,18 +18,9 @@ pub mod sources {
         "\n",
         include_str!("../../../shaders/engine/diffuse.wgsl")
     );
-    /// The workgroup's reductions and scan for the one-workgroup-a-target kernels, with
-    /// barriers in workgroup memory (a library; [`REDUCE_SUBGROUP`] takes its place where the
-    /// device has subgroups: [`adapted_source`]).
-    pub const REDUCE: &str = include_str!("../../../shaders/engine/reduce.wgsl");
-    /// [`REDUCE`]'s twin through subgroup operations (naga takes them without an `enable`
-    /// directive, which it does not parse yet; the device must have `Features::SUBGROUP`).
-    pub const REDUCE_SUBGROUP: &str = include_str!("../../../shaders/engine/reduce_subgroup.wgsl");
     /// The normalisation stage (with the normalisation of one target it shares with the fused
     /// layer).
     pub const NORMALISE: &str = concat!(
-        include_str!("../../../shaders/engine/reduce.wgsl"),
-        "\n",
         include_str!("../../../shaders/engine/normalise_target.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/normalise.wgsl")
@@ -37,8 +28,6 @@ pub mod sources {
     /// The resamplers (with the one-workgroup resampling of a target it shares with the fused
     /// layer).
     pub const RESAMPLE: &str = concat!(
-        include_str!("../../../shaders/engine/reduce.wgsl"),
-        "\n",
         include_str!("../../../shaders/engine/resample_target.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/resample.wgsl")
@@ -46,8 +35,6 @@ pub mod sources {
     /// The fused annealing layer: normalise the previous layer, resample, gather and move, one
     /// workgroup per target (`STAGE_CAPACITY` set to M by `filter::fused`).
     pub const LAYER: &str = concat!(
-        include_str!("../../../shaders/engine/reduce.wgsl"),
-        "\n",
         include_str!("../../../shaders/engine/normalise_target.wgsl"),
         "\n",
         include_str!("../../../shaders/engine/resample_target.wgsl"),
@@ -93,17 +80,6 @@ pub mod sources {
 /// A stage file with the libraries it uses prepended.
 pub fn stage_source(stage: &str) -> String {
     [sources::PHILOX, sources::COMMON, stage].join("\n")
-}
-
-/// `source` as a device with (`subgroups`) or without subgroup operations builds it: where it
-/// holds the workgroup reductions of [`sources::REDUCE`] and the device has subgroups, their
-/// subgroup twin ([`sources::REDUCE_SUBGROUP`]) in their place; else `source` unchanged.
-pub fn adapted_source(source: &str, subgroups: bool) -> std::borrow::Cow<'_, str> {
-    if subgroups && source.contains(sources::REDUCE) {
-        std::borrow::Cow::Owned(source.replacen(sources::REDUCE, sources::REDUCE_SUBGROUP, 1))
-    } else {
-        std::borrow::Cow::Borrowed(source)
-    }
 }
 
 /// Parses and validates WGSL with naga (the one wgpu uses); the error names line and column.
@@ -211,7 +187,6 @@ impl Kernel {
         entry: &str,
         options: KernelOptions<'_>,
     ) -> Result<Self, GpuError> {
-        let source = &*adapted_source(source, ctx.has_subgroups());
         validate_wgsl(source).map_err(|message| GpuError::Shader {
             kernel: name.to_string(),
             message,
