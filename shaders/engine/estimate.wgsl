@@ -17,21 +17,23 @@
 @group(0) @binding(7) var<storage, read_write> previous_estimates: array<f32>;
 
 const WG: u32 = 256u;
-var<workgroup> partial_a: array<f32, 256>;
-var<workgroup> partial_b: array<f32, 256>;
+// The reductions take four-way steps (strides 64, 16, 4, 1), as the normalisation's do: a
+// target's estimate runs alone on its SM when a frame has few targets, and there its time is
+// its chain of barriers and workgroup-memory round trips.
+const_assert ((WG & (WG - 1u)) == 0u && (WG & 0x55555555u) != 0u);
+var<workgroup> partial_pair: array<vec2<f32>, 256>;
 
 fn reduce_pair(lid: u32, a: f32, b: f32) -> vec2<f32> {
-    partial_a[lid] = a;
-    partial_b[lid] = b;
+    partial_pair[lid] = vec2<f32>(a, b);
     workgroupBarrier();
-    for (var stride = WG / 2u; stride > 0u; stride = stride / 2u) {
+    for (var stride = WG / 4u; stride > 0u; stride = stride / 4u) {
         if (lid < stride) {
-            partial_a[lid] = partial_a[lid] + partial_a[lid + stride];
-            partial_b[lid] = partial_b[lid] + partial_b[lid + stride];
+            partial_pair[lid] = (partial_pair[lid] + partial_pair[lid + stride])
+                + (partial_pair[lid + 2u * stride] + partial_pair[lid + 3u * stride]);
         }
         workgroupBarrier();
     }
-    let result = vec2<f32>(partial_a[0], partial_b[0]);
+    let result = partial_pair[0];
     workgroupBarrier();
     return result;
 }
@@ -124,6 +126,9 @@ fn circular_spread(r: f32) -> f32 {
 // in, and the first (M' - count above) particles equal to tau in index order. One workgroup per
 // (dimension, target), each finding tau for itself (the same tau) and summing its dimension; each
 // invocation owns a contiguous chunk so that index order is chunk order.
+// A radix select on the bits in its place (three bits a pass, eleven passes of a four-way
+// reduction of eight counts, no atomics) took the estimate from 23.6 to 26.7 us of a one-face
+// step on an NVIDIA H200: not kept (BENCHMARKS.md, "Four-way reductions").
 // CPU twin: pf_core::batch::best_weighted_means (pf_core::estimate::best_weighted_mean).
 
 @group(0) @binding(4) var<storage, read_write> best_estimates: array<f32>;
