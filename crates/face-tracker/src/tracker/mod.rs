@@ -30,6 +30,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicUsize;
 
 mod clouds;
+pub mod confidence;
 pub mod in_flight;
 mod lag_window;
 mod model;
@@ -177,11 +178,13 @@ pub struct FaceEstimate {
     /// Summed over a track's frames it compares models (a field of view, a template) on the
     /// same frames; −∞ when no particle fitted.
     pub log_evidence: f64,
-    /// Whether the track is on its face, in [0, 1]: 1 − ε / ε_off, clamped, where ε_off is the
-    /// template's fit a quarter of a face to the side of its face in the frame it was taken
-    /// from (four sides, mean). 1 is a perfect fit; 0 a fit no better than the template's off
-    /// its face. Unlike ε it compares across faces: a small or blurred face's smooth template
-    /// fits background with a small ε too.
+    /// Whether the track is on its face, in [0, 1]: (1 − ε / ε_off, clamped) × the likelihood's
+    /// sharpness ([`confidence::likelihood_sharpness`]), where ε_off is the template's fit a
+    /// quarter of a face to the side of its face in the frame it was taken from (four sides,
+    /// mean). 1 is a perfect fit under a likelihood sharp enough for the survival rule; 0 a fit
+    /// no better than the template's off its face, or a likelihood equal for every particle.
+    /// Unlike ε it compares across faces: a small or blurred face's smooth template fits
+    /// background with a small ε too.
     pub confidence: f32,
     pub status: TrackStatus,
     /// The face's rectangle at this estimate: the starting rectangle scaled by S about the
@@ -212,13 +215,10 @@ struct Track {
 }
 
 impl Track {
-    /// [`FaceEstimate::confidence`] of a fit with ε `error`.
-    fn confidence(&self, error: f64) -> f32 {
-        if self.off_face_error > 0.0 {
-            (1.0 - error / self.off_face_error).clamp(0.0, 1.0) as f32
-        } else {
-            0.0
-        }
+    /// [`FaceEstimate::confidence`] of a fit with ε `error` under a likelihood of
+    /// [`confidence::likelihood_sharpness`] `sharpness`.
+    fn confidence(&self, error: f64, sharpness: f64) -> f32 {
+        confidence::confidence(error, self.off_face_error, sharpness)
     }
 }
 
@@ -536,7 +536,12 @@ impl FaceTracker {
                 track.start.width * state[SCALE],
                 track.start.height * state[SCALE],
             );
-            let confidence = track.confidence(error);
+            let sharpness = confidence::likelihood_sharpness(
+                ess[slot],
+                self.config.particles,
+                &self.config.annealing,
+            );
+            let confidence = track.confidence(error, sharpness);
             out.push(FaceEstimate {
                 track: track.id,
                 identity: track.id,
