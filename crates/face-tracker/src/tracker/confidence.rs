@@ -24,7 +24,8 @@ pub fn likelihood_sharpness(ess: f64, particles: usize, annealing: &Annealing) -
         return 1.0;
     };
     let rate = f64::from(rate);
-    if particles == 0 || !(rate < 1.0) || !ess.is_finite() {
+    // A rate of 1 or more (or NaN) sets no target below M.
+    if particles == 0 || rate.is_nan() || rate >= 1.0 || !ess.is_finite() {
         return 1.0;
     }
     let flat = ess / particles as f64;
