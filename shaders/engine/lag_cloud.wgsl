@@ -205,8 +205,8 @@ fn summarise(lid: u32, n: u32, angle: bool) -> vec3<f32> {
 // n entries in one loop of broadcast reads; the 2.5 % end is the smallest offset of positive
 // weight whose cumulative weight reaches 2.5 %, the 97.5 % end likewise. Returns (lower end,
 // upper end, +inf where none reaches it; the largest offset of positive weight; 1 where any
-// entry is weighed, else 0), as sorted_ends does. One loop and one reduction where a sort
-// of 64 entries took 21 barriers and the scan of their weights five more.
+// entry is weighed, else 0), as sorted_ends does. One loop and one reduction where a
+// bitonic sort of 64 entries takes 21 barriers and the scan of their weights six more.
 fn ranked_ends(lid: u32, n: u32) -> vec4<f32> {
     let none = bitcast<f32>(0x7f800000u);
     var ends = vec4<f32>(none, none, -none, 0.0);

@@ -27,7 +27,6 @@
 
 @group(0) @binding(0) var<uniform> params: Params;
 @group(0) @binding(1) var<uniform> lag_params: LagParams;
-// [((slot * T + t) * D + d) * M + m]
 // The ring, [((slot * T + t) * D + d) * M + m]: the frames before the newest, and slot `newest`
 // written by keep_step.
 @group(0) @binding(2) var<storage, read_write> window_states: array<f32>;

@@ -8,7 +8,8 @@
 //! survival rule tempers each annealing layer so that its effective sample size is `rate`·M;
 //! where even the full likelihood (β at its cap) leaves more than that, the likelihood is too
 //! flat for the rule to bite. On Megamind.avi (CPU defaults, 344 tracking rows judged against
-//! MediaPipe's face mesh, docs/ACCURACY.md "Tracks on faces") the rows on a face had a last
+//! MediaPipe's face mesh or face detector, gaps of up to 8 frames bridged: docs/ACCURACY.md
+//! "Tracks on faces") the rows on a face had a last
 //! layer's ESS of 500 of 1 000 (the rule's target) up to the 75th percentile and 764 at the
 //! 95th, the rows off a face 613–951 (5th–95th).
 

@@ -34,7 +34,7 @@ use crate::error::GpuError;
 use crate::kernels::{Kernel, sources, stage_source};
 use crate::stream::DeviceStream;
 
-/// `LagParams` of `lag_params.wgsl` (read by the ring kernel and the summary).
+/// `LagParams` of `lag_params.wgsl` (read by the summary kernel).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct LagParams {
@@ -66,6 +66,10 @@ fn workgroup_bytes(particles: usize) -> u64 {
 const LAG_SUMMARY_LABEL: &str = "lag window: summary and the step kept";
 /// See [`LAG_SUMMARY_LABEL`].
 const LAG_KEEP_LABEL: &str = "lag window: the step kept";
+
+/// The storage buffers `lag_summary.wgsl` binds: the ring's three, the summaries, the kept
+/// shares, and the step's particles, log-weights and lineage.
+const LAG_STORAGE_BUFFERS: u32 = 8;
 
 /// Floats the kernel writes per target and value: smoothed and filtered mean, lower, upper.
 const SUMMARY_FLOATS: usize = 6;
@@ -211,6 +215,13 @@ fn check_fits(ctx: &GpuContext, shape: &BatchShape, lag: usize) -> Result<(), Gp
         )));
     }
     let limits = ctx.limits();
+    if limits.max_storage_buffers_per_shader_stage < LAG_STORAGE_BUFFERS {
+        return Err(GpuError::InvalidConfig(format!(
+            "summarising a lag window binds {LAG_STORAGE_BUFFERS} storage buffers; the adapter \
+             binds at most {} a stage (smooth on the host instead)",
+            limits.max_storage_buffers_per_shader_stage
+        )));
+    }
     let bytes = workgroup_bytes(shape.particles);
     if bytes > u64::from(limits.max_compute_workgroup_storage_size) {
         return Err(GpuError::InvalidConfig(format!(

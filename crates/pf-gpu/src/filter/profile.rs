@@ -2,8 +2,8 @@
 //! each dispatch of the step gets a compute pass of its own with a timestamp at its beginning and
 //! its end, so a step reports every dispatch's time and the gaps between them (the barriers and
 //! launches), the lag window's dispatch last where the filter keeps one ("lag window: the step
-//! kept", or "lag window: summary and the step kept" once the window is full). The particles are the same as without profiling: only the passes'
-//! boundaries move.
+//! kept", or "lag window: summary and the step kept" once the window is full). The particles
+//! are the same as without profiling: only the passes' boundaries move.
 //! For measuring, not for tracking: the profiled step pays a pass per dispatch.
 
 use std::time::Duration;
