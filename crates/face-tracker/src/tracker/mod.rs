@@ -483,6 +483,11 @@ impl FaceTracker {
         Ok(self.conclude(steps, frame.size()))
     }
 
+    /// [`confidence::likelihood_sharpness`] of a track whose last layer's ESS is `ess`.
+    fn sharpness(&self, ess: f64) -> f64 {
+        confidence::likelihood_sharpness(ess, self.config.particles, &self.config.annealing)
+    }
+
     /// The tracks' results from the shards' steps of the next frame (`frame_size`): each
     /// running track's estimate, its failure test, and the slots of lost tracks freed.
     pub(crate) fn conclude(
@@ -510,6 +515,7 @@ impl FaceTracker {
             .collect();
         let mut out = Vec::new();
         for (slot, (state, error)) in checked.into_iter().enumerate() {
+            let sharpness = self.sharpness(ess[slot]);
             let Some(track) = &mut self.slots[slot] else {
                 continue;
             };
@@ -535,11 +541,6 @@ impl FaceTracker {
             let (w, h) = (
                 track.start.width * state[SCALE],
                 track.start.height * state[SCALE],
-            );
-            let sharpness = confidence::likelihood_sharpness(
-                ess[slot],
-                self.config.particles,
-                &self.config.annealing,
             );
             let confidence = track.confidence(error, sharpness);
             out.push(FaceEstimate {
