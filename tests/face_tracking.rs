@@ -179,8 +179,9 @@ fn a_face_leaving_the_frame_ends_its_track() {
 /// sharpness, 0.59–1.00 from the fit alone; the lowest as the light changes; the test runs the
 /// same particles every time, on the CPU); the same tracks on a frame of uniform gray (a flat
 /// wall), where α can match the template's mean level but not its pattern, read at most
-/// CONFIDENCE_OFF_FACE: their fit alone read 0.05–0.08 there, and the likelihood is nearly flat (the last layer's ESS 255 of
-/// 256 particles at full β, a sharpness of about 0.01), so the confidence reads 0.0004–0.0005.
+/// CONFIDENCE_OFF_FACE: their fit alone read 0.05–0.08 there, and the likelihood is nearly
+/// flat (the last layer's ESS 255 of 256 particles at full β, a sharpness of about 0.01), so
+/// the confidence reads 0.0004–0.0005.
 #[test]
 fn the_confidence_tells_a_face_from_a_flat_wall() {
     const CONFIDENCE_ON_FACE: f32 = 0.4;

@@ -301,8 +301,9 @@ fn keep_step(lid: u32, d: u32, t: u32) {
         }
     } else {
         for (var m = lid; m < n; m = m + LAG_WG) {
-            window_log_weights[into * n + m] = log_weights[t * n + m];
-            window_lineage[into * n + m] = lineage[t * n + m];
+            let kept_at = particle_at(lag_params.newest, t, m);
+            window_log_weights[kept_at] = log_weights[t * n + m];
+            window_lineage[kept_at] = lineage[t * n + m];
         }
     }
 }
