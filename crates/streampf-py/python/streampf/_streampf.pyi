@@ -104,7 +104,8 @@ class FaceTracker:
           w ≥ 0): the rotation in other forms;
         - ``rect`` (n, 4) float32: the face's rectangle at the estimate;
         - ``ess`` (n,) float64, ``error`` (n,) float64 (ε, the template's robust residual),
-          ``confidence`` (n,) float32 in [0, 1] (1 − ε / the template's ε off its face);
+          ``confidence`` (n,) float32 in [0, 1] ((1 − ε / the template's ε off its face) × the
+          likelihood's sharpness, docs/OUTPUT.md);
         - ``log_evidence`` (n,) float64: log p̂(frame | earlier frames) per track, up to the
           likelihood's constant (summed over frames: the track's log-likelihood);
         - ``lost`` (n,) bool: the track ended at this frame;
