@@ -14,14 +14,11 @@ mod common;
 
 use bytemuck::{Pod, Zeroable};
 use pf_core::anneal::Annealing;
-use pf_core::batch::{
-    BatchConfig, BatchFilter, BatchShape, LayerBeta, Motion, gaussian_clouds, normalise_target,
-};
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, Motion, gaussian_clouds};
 use pf_core::plugin::CpuModel;
 use pf_core::resample::Systematic;
+use pf_gpu::GpuResampler;
 use pf_gpu::model::{ModelFilter, ModelSource};
-use pf_gpu::{GpuFilter, GpuResampler, GpuStage, NoLikelihood};
-use proptest::prelude::*;
 
 const DIMS: usize = 12;
 const TARGETS: usize = 4;
@@ -223,69 +220,6 @@ fn a_fixed_schedule_runs_its_betas() {
     let report = gpu.step(&observed(1)).unwrap();
     assert_eq!(report.beta, vec![0.5; TARGETS]);
     assert_eq!(report.resampled, vec![true; TARGETS]);
-}
-
-/// Log-likelihood values: ordinary, sharp, flat, and −∞ (a zero likelihood).
-fn log_likelihood_value() -> impl Strategy<Value = f32> {
-    prop_oneof![
-        8 => -200.0f32..0.0,
-        2 => -5e4f32..-1e3,
-        1 => Just(0.0f32),
-        1 => Just(f32::NEG_INFINITY),
-    ]
-}
-
-proptest! {
-    #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
-
-    /// The survival rule's β on the GPU (f32 sums, one reduction per bisection step) against the
-    /// CPU's (f64): the same β within 1e-3 relative and the same weights within the policy.
-    #[test]
-    fn survival_beta_matches_cpu(
-        (targets, particles, lls) in (1usize..5, 1usize..700).prop_flat_map(|(t, m)| {
-            (Just(t), Just(m), prop::collection::vec(log_likelihood_value(), t * m))
-        }),
-        rate in 0.05f32..0.95,
-        max_beta in prop_oneof![Just(1.0f32), 0.1f32..3.0],
-    ) {
-        let Some(ctx) = common::gpu_context("survival beta matches the CPU") else {
-            return Ok(());
-        };
-        let shape = BatchShape::new(targets, particles, 1).unwrap();
-        let mut config = BatchConfig::new(shape, 1, vec![0.0]);
-        config.annealing = Annealing {
-            layers: 1,
-            tempering: pf_core::anneal::Tempering::Survival { rate, max_beta },
-            sigma_decay: 1.0,
-            diffused: Vec::new(),
-        };
-        let mut gpu = GpuFilter::new(&ctx, &config, GpuResampler::Systematic, &vec![0.0; particles * targets]).unwrap();
-        gpu.streams().log_likelihood.upload(&ctx, &lls).unwrap();
-        let report = gpu.run_stages(&ctx, &[GpuStage::Normalise], &NoLikelihood).unwrap();
-        let weights = gpu.download_weights(&ctx).unwrap();
-        for t in 0..targets {
-            let range = t * particles..(t + 1) * particles;
-            let mut lw = vec![-(particles as f32).ln(); particles];
-            let mut w = vec![0.0; particles];
-            let rule = LayerBeta::Survival { rate, max_beta };
-            let cpu = normalise_target(&mut lw, &lls[range.clone()], &mut w, rule);
-            let stats = report.stats[t];
-            match cpu {
-                Ok(n) => {
-                    prop_assert_eq!(stats.status, 0);
-                    prop_assert!((stats.beta - n.beta).abs() <= 1e-3 * n.beta,
-                        "target {}: beta GPU {} vs CPU {}", t, stats.beta, n.beta);
-                    prop_assert!((f64::from(stats.ess) - n.ess).abs() <= 1e-2 * n.ess.max(1.0),
-                        "target {}: ESS GPU {} vs CPU {}", t, stats.ess, n.ess);
-                    for (g, c) in weights[range].iter().zip(&w) {
-                        prop_assert!((f64::from(*g) - c).abs() <= 1e-3 * c.max(1e-4),
-                            "target {}: weight GPU {} vs CPU {}", t, g, c);
-                    }
-                }
-                Err(e) => prop_assert_eq!(stats.result(particles).unwrap_err(), e),
-            }
-        }
-    }
 }
 
 /// A whole annealed step (four layers) on both engines from the same particles: the same β per

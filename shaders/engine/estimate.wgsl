@@ -128,7 +128,9 @@ fn circular_spread(r: f32) -> f32 {
 // invocation owns a contiguous chunk so that index order is chunk order.
 // A radix select on the bits in its place (three bits a pass, eleven passes of a four-way
 // reduction of eight counts, no atomics) took the estimate from 23.6 to 26.7 us of a one-face
-// step on an NVIDIA H200: not kept (BENCHMARKS.md, "Four-way reductions").
+// step on an NVIDIA H200: not kept (BENCHMARKS.md, "Four-way reductions"); nor the bisection's
+// subtrees counted a pass (as the survival rule's search does, normalise_target.wgsl): 28.3-39.2
+// us against 23.2 (BENCHMARKS.md, "The survival rule's search").
 // CPU twin: pf_core::batch::best_weighted_means (pf_core::estimate::best_weighted_mean).
 
 @group(0) @binding(4) var<storage, read_write> best_estimates: array<f32>;

@@ -9,7 +9,7 @@
 // log_likelihood, weights and stats (normalise.wgsl for the stage, layer.wgsl for the fused layer),
 // and where the passes read and keep their values: prior_at(base, i) / likelihood_at(base, i),
 // the log-weights and log-likelihoods (read by every pass before the tempering, the survival
-// rule's eleven among them); set_tempered / tempered_at, the tempered log-weights (read by the
+// rule's search among them); set_tempered / tempered_at, the tempered log-weights (read by the
 // two passes after it); keep_weight, each normalised weight once it is written to `weights`.
 // normalise.wgsl keeps them all in the storage buffers; the fused layer in workgroup memory
 // (copies it loads before calling normalise_target), whose round trip is a fraction of a storage
@@ -30,7 +30,8 @@ const SURVIVAL_BISECTION_STEPS: u32 = 10u;
 // a barrier and a round trip to workgroup memory; a four-way step's four loads are in flight
 // together. (Folding 16 values a step in a loop measured twice as slow.)
 var<workgroup> partial: array<f32, 256>;
-// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS.
+// (max, sum exp(x - max), sum exp(2 (x - max))) per invocation, for the survival rule's ESS
+// (a slot's group's, then the slot's: survival_beta).
 var<workgroup> partial_ess: array<vec3<f32>, 256>;
 var<workgroup> first_nan: atomic<u32>;
 var<workgroup> first_inf: atomic<u32>;
@@ -94,10 +95,40 @@ fn merge_four(a: vec3<f32>, b: vec3<f32>, c: vec3<f32>, d: vec3<f32>) -> vec3<f3
     return vec3<f32>(m, sums);
 }
 
+// This invocation's share of sum exp(lw + ll - max_at_one) over target t's particles (beta = 1).
+fn sum_exp_at_one(lid: u32, base: u32, n: u32, max_at_one: f32) -> f32 {
+    var acc = 0.0;
+    for (var i = lid; i < n; i = i + NORMALISE_WG) {
+        let x = prior_at(base, i) + likelihood_at(base, i);
+        if (!is_neg_inf(x)) {
+            acc = acc + exp(x - max_at_one);
+        }
+    }
+    return acc;
+}
+
+// The survival rule's search. The bisection's ten steps are a tree of midpoints, each step's
+// midpoint chosen by the step before; a pass here weighs a whole subtree of SEARCH_LEVELS levels
+// at once (its 2^SEARCH_LEVELS - 1 midpoints, a slot of invocations each), then walks it as the
+// bisection would, reading the slots' answers: five passes of three midpoints take the place of
+// ten dependent reductions. The midpoints are computed by the bisection's own arithmetic from
+// the same interval and the walk takes its decisions, so the β is the CPU twin's bisection's
+// (pf_core::anneal::survival_beta) whenever each ESS falls on the same side of the target.
+// Slot c of SEARCH_SLOTS is invocations c, c + SEARCH_SLOTS, ...: the SEARCH_GROUPS invocations
+// that share its particles (the particles i = g mod SEARCH_GROUPS to group g), neighbouring
+// invocations weighing one particle at different β (one broadcast load). Wider subtrees (three
+// and five levels a pass) measured slower on an NVIDIA H200: each slot's invocations loop over
+// more particles (BENCHMARKS.md, "The survival rule's search").
+const SEARCH_LEVELS: u32 = 2u;
+const SEARCH_SLOTS: u32 = 1u << SEARCH_LEVELS;
+const SEARCH_GROUPS: u32 = NORMALISE_WG / SEARCH_SLOTS;
+const_assert SEARCH_SLOTS <= NORMALISE_WG;
+
 // The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
 // weight is zero): each invocation's particles' (max, s1, s2), the max first and then the
-// sums, then a tree of four-way merges (reduce_sum's shape). Twin of
-// pf_core::anneal::tempered_ess.
+// sums, then a tree of four-way merges (reduce_sum's shape). The survival rule's first check,
+// whether max_beta itself keeps enough (where it does, as for most layers of a smooth
+// likelihood, it is the rule's only pass). Twin of pf_core::anneal::tempered_ess.
 fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
     var m = bitcast<f32>(0xff800000u);
     for (var i = lid; i < n; i = i + NORMALISE_WG) {
@@ -128,40 +159,156 @@ fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
     }
     let total = partial_ess[0];
     workgroupBarrier();
+    return ess_of(total);
+}
+
+// Particle i's tempered log-weight at beta (-inf past the target's last particle).
+fn tempered_or_none(base: u32, n: u32, i: u32, beta: f32) -> f32 {
+    if (i >= n) {
+        return bitcast<f32>(0xff800000u);
+    }
+    return tempered(prior_at(base, i), likelihood_at(base, i), beta);
+}
+
+// exp(x - m), 0 for a zero weight (x = -inf).
+fn shifted_exp(x: f32, m: f32) -> f32 {
+    if (is_neg_inf(x)) {
+        return 0.0;
+    }
+    return exp(x - m);
+}
+
+// The (max, sum exp(x - max), sum exp(2 (x - max))) of exp(prior + beta * ll) over the
+// particles of one group (i = group, group + SEARCH_GROUPS, ...): the max first, then the sums,
+// each in four chains (four particles a step) so that neighbouring particles' loads and
+// exponentials overlap: one invocation's loop is a long dependent chain otherwise, and there
+// is little else on its SM to hide it.
+fn tempered_triple(base: u32, n: u32, group: u32, beta: f32) -> vec3<f32> {
+    let stride = SEARCH_GROUPS;
+    var maxima = vec4<f32>(bitcast<f32>(0xff800000u));
+    for (var i = group; i < n; i = i + 4u * stride) {
+        maxima = max(maxima, vec4<f32>(
+            tempered_or_none(base, n, i, beta),
+            tempered_or_none(base, n, i + stride, beta),
+            tempered_or_none(base, n, i + 2u * stride, beta),
+            tempered_or_none(base, n, i + 3u * stride, beta),
+        ));
+    }
+    let m = max(max(maxima.x, maxima.y), max(maxima.z, maxima.w));
+    if (is_neg_inf(m)) {
+        return vec3<f32>(m, 0.0, 0.0);
+    }
+    var s1 = vec4<f32>(0.0);
+    var s2 = vec4<f32>(0.0);
+    for (var i = group; i < n; i = i + 4u * stride) {
+        let e = vec4<f32>(
+            shifted_exp(tempered_or_none(base, n, i, beta), m),
+            shifted_exp(tempered_or_none(base, n, i + stride, beta), m),
+            shifted_exp(tempered_or_none(base, n, i + 2u * stride, beta), m),
+            shifted_exp(tempered_or_none(base, n, i + 3u * stride, beta), m),
+        );
+        s1 = s1 + e;
+        s2 = s2 + e * e;
+    }
+    return vec3<f32>(m, (s1.x + s1.y) + (s1.z + s1.w), (s2.x + s2.y) + (s2.z + s2.w));
+}
+
+// The ESS of a merged triple (0 when every weight is zero). Twin of pf_core::anneal::tempered_ess.
+fn ess_of(total: vec3<f32>) -> f32 {
     if (is_neg_inf(total.x)) {
         return 0.0;
     }
     return total.y * total.y / total.z;
 }
 
-// This invocation's share of sum exp(lw + ll - max_at_one) over target t's particles (beta = 1).
-fn sum_exp_at_one(lid: u32, base: u32, n: u32, max_at_one: f32) -> f32 {
-    var acc = 0.0;
-    for (var i = lid; i < n; i = i + NORMALISE_WG) {
-        let x = prior_at(base, i) + likelihood_at(base, i);
-        if (!is_neg_inf(x)) {
-            acc = acc + exp(x - max_at_one);
+// Each slot's triple merged over its groups into partial_ess[slot]: a tree of four-way merges
+// (two-way where the groups left are not a multiple of four).
+fn merge_slots(lid: u32, triple: vec3<f32>) {
+    partial_ess[lid] = triple;
+    workgroupBarrier();
+    var groups = SEARCH_GROUPS;
+    while (groups > 1u) {
+        let empty = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
+        if (groups % 4u == 0u) {
+            let stride = (groups / 4u) * SEARCH_SLOTS;
+            if (lid < stride) {
+                partial_ess[lid] = merge_four(
+                    partial_ess[lid],
+                    partial_ess[lid + stride],
+                    partial_ess[lid + 2u * stride],
+                    partial_ess[lid + 3u * stride],
+                );
+            }
+            groups = groups / 4u;
+        } else {
+            let stride = (groups / 2u) * SEARCH_SLOTS;
+            if (lid < stride) {
+                partial_ess[lid] = merge_four(partial_ess[lid], partial_ess[lid + stride], empty, empty);
+            }
+            groups = groups / 2u;
         }
+        workgroupBarrier();
     }
-    return acc;
+}
+
+// The midpoint at in-order position `slot` (1 .. 2^levels - 1) of the bisection's subtree of
+// `levels` levels below the interval (lo, hi): the bisection's steps down to it, by its arithmetic.
+fn subtree_midpoint(slot: u32, levels: u32, lo: f32, hi: f32) -> f32 {
+    var a = lo;
+    var b = hi;
+    var position = 0u;
+    var bit = 1u << (levels - 1u);
+    var mid = 0.5 * (a + b);
+    while (bit > 0u) {
+        mid = 0.5 * (a + b);
+        if (slot == position + bit) {
+            break;
+        }
+        if (slot > position + bit) {
+            a = mid;
+            position = position + bit;
+        } else {
+            b = mid;
+        }
+        bit = bit >> 1u;
+    }
+    return mid;
 }
 
 // The survival rule: max_beta when it keeps rate * M effective particles, else the midpoint of
-// a SURVIVAL_BISECTION_STEPS-step bisection on (0, max_beta]. Twin of pf_core::anneal::survival_beta.
+// a SURVIVAL_BISECTION_STEPS-step bisection on (0, max_beta], taken SEARCH_LEVELS steps a pass
+// (above). Twin of pf_core::anneal::survival_beta.
 fn survival_beta(lid: u32, base: u32, n: u32, p: Params) -> f32 {
     let wanted = p.survival_rate * f32(n);
     if (tempered_ess(lid, base, n, p.max_beta) >= wanted) {
         return p.max_beta;
     }
+    let slot = lid % SEARCH_SLOTS;
+    let group = lid / SEARCH_SLOTS;
     var lo = 0.0;
     var hi = p.max_beta;
-    for (var k = 0u; k < SURVIVAL_BISECTION_STEPS; k = k + 1u) {
-        let mid = 0.5 * (lo + hi);
-        if (tempered_ess(lid, base, n, mid) >= wanted) {
-            lo = mid;
-        } else {
-            hi = mid;
+    var done = 0u;
+    while (done < SURVIVAL_BISECTION_STEPS) {
+        let levels = min(SEARCH_LEVELS, SURVIVAL_BISECTION_STEPS - done);
+        var triple = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
+        if (slot > 0u && slot < (1u << levels)) {
+            triple = tempered_triple(base, n, group, subtree_midpoint(slot, levels, lo, hi));
         }
+        merge_slots(lid, triple);
+        // The bisection's walk down the subtree, every invocation alike.
+        var position = 0u;
+        for (var bit = 1u << (levels - 1u); bit > 0u; bit = bit >> 1u) {
+            let mid = 0.5 * (lo + hi);
+            if (ess_of(partial_ess[position + bit]) >= wanted) {
+                lo = mid;
+                position = position + bit;
+            } else {
+                hi = mid;
+            }
+        }
+        // The next pass writes partial_ess.
+        workgroupBarrier();
+        done = done + levels;
     }
     return 0.5 * (lo + hi);
 }

@@ -54,11 +54,11 @@ pub struct Annealing {
 pub const MAX_LAYERS: usize = 64;
 
 /// Bisection steps of the survival rule: β to within `max_beta`·2⁻¹¹. Each step is a pass of
-/// the ESS over a target's particles, serial in the GPU's one workgroup per target (most of an
-/// annealed face step's selection). Ten put β within 0.7 % of the smallest β a face layer took
-/// on the synthetic video (0.07 of its cap); twenty bought precision that changed no error
-/// (docs/BENCHMARKS.md, "Fewer bisection steps"). `shaders/engine/normalise_target.wgsl`
-/// declares the same number.
+/// the ESS over a target's particles (the GPU weighs two steps' three midpoints in one pass of
+/// its one workgroup per target and walks them as this bisection does). Ten put β within 0.7 %
+/// of the smallest β a face layer took on the synthetic video (0.07 of its cap); twenty bought
+/// precision that changed no error (docs/BENCHMARKS.md, "Fewer bisection steps").
+/// `shaders/engine/normalise_target.wgsl` declares the same number.
 pub const SURVIVAL_BISECTION_STEPS: u32 = 10;
 
 impl Default for Annealing {
