@@ -76,9 +76,21 @@ fn keep_weight(base: u32, i: u32, w: f32) {
 fn settle(lid: u32, t: u32, p: Params) {
     let n = p.particles;
     let base = t * n;
-    for (var k = lid; k < n; k = k + LAYER_WG) {
-        local_weights[k] = log_weights[base + k];
-        scratch[k] = log_likelihood[base + k];
+    // Four particles a step, their loads issued before any store (as gather_selected's).
+    for (var k = lid; k < n; k = k + 4u * LAYER_WG) {
+        let last = n - 1u;
+        let ks = min(vec4<u32>(k, k + LAYER_WG, k + 2u * LAYER_WG, k + 3u * LAYER_WG), vec4<u32>(last));
+        let lw = vec4<f32>(log_weights[base + ks.x], log_weights[base + ks.y], log_weights[base + ks.z], log_weights[base + ks.w]);
+        let ll = vec4<f32>(log_likelihood[base + ks.x], log_likelihood[base + ks.y], log_likelihood[base + ks.z], log_likelihood[base + ks.w]);
+        // A step past the last particle rewrites the last with its own values.
+        local_weights[ks.x] = lw.x;
+        local_weights[ks.y] = lw.y;
+        local_weights[ks.z] = lw.z;
+        local_weights[ks.w] = lw.w;
+        scratch[ks.x] = ll.x;
+        scratch[ks.y] = ll.y;
+        scratch[ks.z] = ll.z;
+        scratch[ks.w] = ll.w;
     }
     workgroupBarrier();
     normalise_target(lid, t, p);
@@ -130,12 +142,46 @@ fn select_target(lid: u32, t: u32, stratified: bool) {
             log_weights[base + k] = equal;
         }
     }
-    // Each invocation gathers the offspring it searched for (their ancestors are its own writes).
+    gather_selected(lid, t);
+}
+
+// Every dimension of target t's ancestors into `selected`. The ancestors go to workgroup memory
+// first (`local_weights`: the weights are not read after the search; each invocation copies the
+// ancestors it searched for, its own writes), then the (offspring, dimension) pairs are spread
+// over the workgroup four at a time, their four loads issued before any store: one target's
+// workgroup is alone on its SM, and a load that waits for the one before is the gather's time.
+fn gather_selected(lid: u32, t: u32) {
+    let n = params.particles;
+    let base = t * n;
     for (var k = lid; k < n; k = k + LAYER_WG) {
-        let a = ancestors[base + k];
-        for (var d = 0u; d < params.dims; d = d + 1u) {
-            selected[state_index(t, d, k)] = states[state_index(t, d, a)];
-        }
+        local_weights[k] = bitcast<f32>(ancestors[base + k]);
+    }
+    workgroupBarrier();
+    let pairs = n * params.dims;
+    for (var j = lid; j < pairs; j = j + 4u * LAYER_WG) {
+        let v0 = ancestor_value(t, n, pairs, j);
+        let v1 = ancestor_value(t, n, pairs, j + LAYER_WG);
+        let v2 = ancestor_value(t, n, pairs, j + 2u * LAYER_WG);
+        let v3 = ancestor_value(t, n, pairs, j + 3u * LAYER_WG);
+        put_selected(t, n, pairs, j, v0);
+        put_selected(t, n, pairs, j + LAYER_WG, v1);
+        put_selected(t, n, pairs, j + 2u * LAYER_WG, v2);
+        put_selected(t, n, pairs, j + 3u * LAYER_WG, v3);
+    }
+}
+
+// Pair j's (offspring j mod n, dimension j / n) value at its ancestor; 0 past the last pair.
+fn ancestor_value(t: u32, n: u32, pairs: u32, j: u32) -> f32 {
+    if (j >= pairs) {
+        return 0.0;
+    }
+    let a = bitcast<u32>(local_weights[j % n]);
+    return states[state_index(t, j / n, a)];
+}
+
+fn put_selected(t: u32, n: u32, pairs: u32, j: u32, value: f32) {
+    if (j < pairs) {
+        selected[state_index(t, j / n, j % n)] = value;
     }
 }
 
