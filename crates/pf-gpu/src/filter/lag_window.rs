@@ -109,7 +109,7 @@ impl LagWindow {
         lag: usize,
         compare_filtered: bool,
     ) -> Result<Self, GpuError> {
-        check_fits(ctx, shape, lag)?;
+        check_fits(ctx.limits(), shape, lag)?;
         let slots = lag + 2;
         let source = stage_source(sources::LAG_SUMMARY);
         if !source.contains(SORT_SIZE_LINE) {
@@ -200,8 +200,8 @@ impl LagWindow {
     }
 }
 
-/// Why a lag window of `lag` frames cannot run on this adapter for `shape`.
-fn check_fits(ctx: &GpuContext, shape: &BatchShape, lag: usize) -> Result<(), GpuError> {
+/// Why a lag window of `lag` frames cannot run on an adapter of these limits for `shape`.
+fn check_fits(limits: &wgpu::Limits, shape: &BatchShape, lag: usize) -> Result<(), GpuError> {
     if lag == 0 || lag > MAX_LAG {
         return Err(GpuError::InvalidConfig(format!(
             "a lag window of {lag} frames: the lag is 1 to {MAX_LAG}"
@@ -214,7 +214,6 @@ fn check_fits(ctx: &GpuContext, shape: &BatchShape, lag: usize) -> Result<(), Gp
             shape.particles
         )));
     }
-    let limits = ctx.limits();
     if limits.max_storage_buffers_per_shader_stage < LAG_STORAGE_BUFFERS {
         return Err(GpuError::InvalidConfig(format!(
             "summarising a lag window binds {LAG_STORAGE_BUFFERS} storage buffers; the adapter \
@@ -488,5 +487,71 @@ impl GpuFilter {
                 lineage: bytemuck::pod_collect_to_vec(&frame[2]),
             })
             .collect())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shape(particles: usize) -> BatchShape {
+        BatchShape::new(4, particles, 7).unwrap()
+    }
+
+    fn refusal(limits: &wgpu::Limits, particles: usize, lag: usize) -> String {
+        match check_fits(limits, &shape(particles), lag) {
+            Err(GpuError::InvalidConfig(why)) => why,
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    /// A desktop adapter's limits: WebGPU's defaults with 32 KiB of workgroup memory (WebGPU's
+    /// default of 16 KiB holds the summary of fewer than 1 000 particles).
+    fn desktop() -> wgpu::Limits {
+        wgpu::Limits {
+            max_compute_workgroup_storage_size: 32 * 1024,
+            ..wgpu::Limits::default()
+        }
+    }
+
+    #[test]
+    fn a_window_fits_a_desktop_adapter() {
+        assert!(check_fits(&desktop(), &shape(1000), 8).is_ok());
+        assert!(check_fits(&desktop(), &shape(2048), MAX_LAG).is_ok());
+    }
+
+    #[test]
+    fn an_adapter_of_too_few_storage_buffers_is_refused_by_name() {
+        // The downlevel limits bind four storage buffers a stage; the summary binds eight.
+        let limits = wgpu::Limits {
+            max_storage_buffers_per_shader_stage: wgpu::Limits::downlevel_defaults()
+                .max_storage_buffers_per_shader_stage,
+            ..desktop()
+        };
+        assert!(limits.max_storage_buffers_per_shader_stage < LAG_STORAGE_BUFFERS);
+        let why = refusal(&limits, 1000, 8);
+        assert!(why.contains("storage buffers"), "{why}");
+        assert!(
+            why.contains(&limits.max_storage_buffers_per_shader_stage.to_string()),
+            "{why}"
+        );
+    }
+
+    #[test]
+    fn every_other_limit_is_refused_with_its_reason() {
+        let limits = desktop();
+        assert!(refusal(&limits, 1000, 0).contains("the lag is 1 to"));
+        assert!(refusal(&limits, 1000, MAX_LAG + 1).contains("the lag is 1 to"));
+        assert!(refusal(&limits, MAX_LAG_PARTICLES + 1, 8).contains("at most"));
+        let small_memory = wgpu::Limits {
+            max_compute_workgroup_storage_size: 1024,
+            ..desktop()
+        };
+        assert!(refusal(&small_memory, 1000, 8).contains("workgroup memory"));
+        let small_binding = wgpu::Limits {
+            max_storage_buffer_binding_size: 1 << 16,
+            ..desktop()
+        };
+        assert!(refusal(&small_binding, 1000, 8).contains("bytes of states"));
     }
 }
