@@ -76,21 +76,19 @@ fn keep_weight(base: u32, i: u32, w: f32) {
 fn settle(lid: u32, t: u32, p: Params) {
     let n = p.particles;
     let base = t * n;
-    // Four particles a step, their loads issued before any store (as gather_selected's).
+    // Four particles a step, their loads issued before any store (as gather_selected's): the
+    // loads at indices held within the target, the stores only for particles that exist.
     for (var k = lid; k < n; k = k + 4u * LAYER_WG) {
-        let last = n - 1u;
-        let ks = min(vec4<u32>(k, k + LAYER_WG, k + 2u * LAYER_WG, k + 3u * LAYER_WG), vec4<u32>(last));
-        let lw = vec4<f32>(log_weights[base + ks.x], log_weights[base + ks.y], log_weights[base + ks.z], log_weights[base + ks.w]);
-        let ll = vec4<f32>(log_likelihood[base + ks.x], log_likelihood[base + ks.y], log_likelihood[base + ks.z], log_likelihood[base + ks.w]);
-        // A step past the last particle rewrites the last with its own values.
-        local_weights[ks.x] = lw.x;
-        local_weights[ks.y] = lw.y;
-        local_weights[ks.z] = lw.z;
-        local_weights[ks.w] = lw.w;
-        scratch[ks.x] = ll.x;
-        scratch[ks.y] = ll.y;
-        scratch[ks.z] = ll.z;
-        scratch[ks.w] = ll.w;
+        let ks = vec4<u32>(k, k + LAYER_WG, k + 2u * LAYER_WG, k + 3u * LAYER_WG);
+        let at = min(ks, vec4<u32>(n - 1u));
+        let lw = vec4<f32>(log_weights[base + at.x], log_weights[base + at.y], log_weights[base + at.z], log_weights[base + at.w]);
+        let ll = vec4<f32>(log_likelihood[base + at.x], log_likelihood[base + at.y], log_likelihood[base + at.z], log_likelihood[base + at.w]);
+        for (var c = 0u; c < 4u; c = c + 1u) {
+            if (ks[c] < n) {
+                local_weights[ks[c]] = lw[c];
+                scratch[ks[c]] = ll[c];
+            }
+        }
     }
     workgroupBarrier();
     normalise_target(lid, t, p);

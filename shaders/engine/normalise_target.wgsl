@@ -126,7 +126,7 @@ const_assert SEARCH_SLOTS <= NORMALISE_WG;
 
 // The effective sample size of exp(prior + beta * ll) over target t's particles (0 when every
 // weight is zero): each invocation's particles' (max, s1, s2), the max first and then the
-// sums, then a tree of four-way merges (reduce_sum's shape). The survival rule's first check,
+// sums, then merge_triples over the whole workgroup. The survival rule's first check,
 // whether max_beta itself keeps enough (where it does, as for most layers of a smooth
 // likelihood, it is the rule's only pass). Twin of pf_core::anneal::tempered_ess.
 fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
@@ -144,19 +144,7 @@ fn tempered_ess(lid: u32, base: u32, n: u32, beta: f32) -> f32 {
             }
         }
     }
-    partial_ess[lid] = vec3<f32>(m, sums);
-    workgroupBarrier();
-    for (var stride = NORMALISE_WG / 4u; stride > 0u; stride = stride / 4u) {
-        if (lid < stride) {
-            partial_ess[lid] = merge_four(
-                partial_ess[lid],
-                partial_ess[lid + stride],
-                partial_ess[lid + 2u * stride],
-                partial_ess[lid + 3u * stride],
-            );
-        }
-        workgroupBarrier();
-    }
+    merge_triples(lid, vec3<f32>(m, sums), 1u);
     let total = partial_ess[0];
     workgroupBarrier();
     return ess_of(total);
@@ -221,16 +209,19 @@ fn ess_of(total: vec3<f32>) -> f32 {
     return total.y * total.y / total.z;
 }
 
-// Each slot's triple merged over its groups into partial_ess[slot]: a tree of four-way merges
-// (two-way where the groups left are not a multiple of four).
-fn merge_slots(lid: u32, triple: vec3<f32>) {
+// Each invocation's triple merged with those of the other invocations of its slot (lid mod
+// `slots`) into partial_ess[slot]: a tree of four-way merges over the NORMALISE_WG / slots
+// groups (two-way where the groups left are not a multiple of four). One slot is the whole
+// workgroup (tempered_ess: strides 64, 16, 4, 1, reduce_sum's shape); the survival rule's
+// search has SEARCH_SLOTS.
+fn merge_triples(lid: u32, triple: vec3<f32>, slots: u32) {
     partial_ess[lid] = triple;
     workgroupBarrier();
-    var groups = SEARCH_GROUPS;
+    var groups = NORMALISE_WG / slots;
     while (groups > 1u) {
         let empty = vec3<f32>(bitcast<f32>(0xff800000u), 0.0, 0.0);
         if (groups % 4u == 0u) {
-            let stride = (groups / 4u) * SEARCH_SLOTS;
+            let stride = (groups / 4u) * slots;
             if (lid < stride) {
                 partial_ess[lid] = merge_four(
                     partial_ess[lid],
@@ -241,7 +232,7 @@ fn merge_slots(lid: u32, triple: vec3<f32>) {
             }
             groups = groups / 4u;
         } else {
-            let stride = (groups / 2u) * SEARCH_SLOTS;
+            let stride = (groups / 2u) * slots;
             if (lid < stride) {
                 partial_ess[lid] = merge_four(partial_ess[lid], partial_ess[lid + stride], empty, empty);
             }
@@ -294,7 +285,7 @@ fn survival_beta(lid: u32, base: u32, n: u32, p: Params) -> f32 {
         if (slot > 0u && slot < (1u << levels)) {
             triple = tempered_triple(base, n, group, subtree_midpoint(slot, levels, lo, hi));
         }
-        merge_slots(lid, triple);
+        merge_triples(lid, triple, SEARCH_SLOTS);
         // The bisection's walk down the subtree, every invocation alike.
         var position = 0u;
         for (var bit = 1u << (levels - 1u); bit > 0u; bit = bit >> 1u) {

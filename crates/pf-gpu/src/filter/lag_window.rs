@@ -542,7 +542,7 @@ mod tests {
         let limits = desktop();
         assert!(refusal(&limits, 1000, 0).contains("the lag is 1 to"));
         assert!(refusal(&limits, 1000, MAX_LAG + 1).contains("the lag is 1 to"));
-        assert!(refusal(&limits, MAX_LAG_PARTICLES + 1, 8).contains("at most"));
+        assert!(refusal(&limits, MAX_LAG_PARTICLES + 1, 8).contains("particles a target"));
         let small_memory = wgpu::Limits {
             max_compute_workgroup_storage_size: 1024,
             ..desktop()
