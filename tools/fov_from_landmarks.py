@@ -14,7 +14,7 @@ signals, both from dlib's 68 landmarks on the first frames of a clip (its larges
   least_squares), through a pinhole of each angle: the shape is the person's, not the model's,
   so only the frames' perspective against each other can prefer an angle.
 
-Each prints the root-mean-square residual (pixels) per angle; `weak` is a pinhole of 50 frame
+Each prints the root-mean-square residual per coordinate (pixels) per angle; `weak` is a pinhole of 50 frame
 widths, which is weak perspective within the landmarks' precision.
 
     cargo run --release -p face-tracker --example landmarks_3d > target/landmarks_3d.txt
