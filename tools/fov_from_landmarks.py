@@ -45,6 +45,8 @@ def landmarks_of(video, max_frames):
     detector = dlib.get_frontal_face_detector()
     predictor = dlib.shape_predictor(PREDICTOR)
     capture = cv2.VideoCapture(video)
+    if not capture.isOpened():
+        raise SystemExit(f"cannot read the video {video}")
     found, size = [], None
     for _ in range(max_frames):
         ok, image = capture.read()
@@ -147,15 +149,48 @@ def rigid_fit(frames, size, model, fov):
     return math.sqrt(float((fit.fun[:-1] ** 2).mean()))
 
 
+def angles(text):
+    """--fovs: angles in degrees, each strictly between 0 and 180."""
+    try:
+        fovs = [float(f) for f in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of degrees")
+    if not all(0.0 < f < 180.0 for f in fovs):
+        raise argparse.ArgumentTypeError(f"every angle lies strictly between 0 and 180: {text}")
+    return fovs
+
+
+def positive(text):
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"at least 1, not {text}")
+    return value
+
+
+def read_model(path):
+    """The 68 rows of (u, v, photographed height, generic height) the landmarks_3d example
+    writes, or an exit naming what is wrong."""
+    try:
+        model = np.loadtxt(path, ndmin=2)
+    except (OSError, ValueError) as error:
+        raise SystemExit(f"cannot read the 3D landmarks {path}: {error}")
+    if model.shape[0] != 68 or model.shape[1] < 3 or not np.isfinite(model).all():
+        raise SystemExit(
+            f"{path}: expected 68 rows of finite u, v, height (the landmarks_3d example's), "
+            f"got {model.shape[0]} rows of {model.shape[1]}"
+        )
+    return model
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("video")
     parser.add_argument("landmarks_3d", help="the face model's 3D landmarks (landmarks_3d example)")
-    parser.add_argument("--max-frames", type=int, default=300)
-    parser.add_argument("--fovs", default="20,30,40,50,60,70,90")
+    parser.add_argument("--max-frames", type=positive, default=300)
+    parser.add_argument("--fovs", type=angles, default=angles("20,30,40,50,60,70,90"))
     args = parser.parse_args()
-    model = np.loadtxt(args.landmarks_3d)
-    fovs = [None] + [float(f) for f in args.fovs.split(",")]
+    model = read_model(args.landmarks_3d)
+    fovs = [None] + args.fovs
     frames, size = landmarks_of(args.video, args.max_frames)
     print(f"{args.video}: {len(frames)} frames with a face, {size[0]}x{size[1]}")
     print("fit    " + " ".join(f"{'weak' if f is None else f'{f:g}°':>7}" for f in fovs) + "  best")

@@ -2,6 +2,7 @@
 `cargo xtask test --no-gpu` set STREAMPF_ALLOW_NO_GPU=1, as for the Rust GPU tests): CI installs
 Mesa's lavapipe, which they use with allow_software=True."""
 
+import importlib.util
 import os
 from pathlib import Path
 
@@ -10,6 +11,16 @@ import pytest
 import streampf
 
 REPO = Path(__file__).resolve().parents[3]
+
+
+def load_script(relative_path):
+    """A script of the repository (a tool, an example) loaded as a module, by its path from the
+    repository's root."""
+    path = REPO / relative_path
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture(scope="session")

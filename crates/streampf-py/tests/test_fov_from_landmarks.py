@@ -3,24 +3,13 @@ face turned through random poses, seen through a lens of a random angle, with a 
 such landmarks both fits must choose the lens's angle from the grid (the real clips' failure to,
 docs/ACCURACY.md, is then the landmarks' and the face model's, not the fits')."""
 
-import importlib.util
 import math
-import pathlib
 
 import numpy as np
 import pytest
+from conftest import load_script
 
-TOOL = pathlib.Path(__file__).resolve().parents[3] / "tools" / "fov_from_landmarks.py"
-
-
-def load_tool():
-    spec = importlib.util.spec_from_file_location("fov_from_landmarks", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-fov_tool = load_tool()
+fov_tool = load_script("tools/fov_from_landmarks.py")
 SIZE = (400, 300)
 FOVS = [None, 30.0, 40.0, 50.0, 60.0, 70.0]
 

@@ -2,23 +2,12 @@
 face are bridged (`--bridge`), drawn at random: a face the judge sees on both sides of a short
 gap counts in between at the interpolated place, a longer gap or a different face does not."""
 
-import importlib.util
-import pathlib
 import random
 
 import pytest
+from conftest import load_script
 
-TOOL = pathlib.Path(__file__).resolve().parents[3] / "tools" / "on_face_check.py"
-
-
-def load_tool():
-    spec = importlib.util.spec_from_file_location("on_face_check", TOOL)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-judge = load_tool()
+judge = load_script("tools/on_face_check.py")
 
 
 def box(cx, cy, width):

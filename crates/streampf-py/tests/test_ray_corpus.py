@@ -2,7 +2,6 @@
 parallel, each video's results the command line's own."""
 
 import csv
-import importlib.util
 import subprocess
 
 import numpy as np
@@ -10,15 +9,7 @@ import pytest
 import ray
 
 import streampf
-from conftest import REPO, rect_args, write_video
-
-
-def load_example():
-    path = REPO / "examples" / "python" / "track_corpus.py"
-    spec = importlib.util.spec_from_file_location("track_corpus", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from conftest import load_script, rect_args, write_video
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +35,7 @@ def test_four_videos_tracked_as_ray_tasks_match_the_command_line(tmp_path, local
     # Not a video: listed as failed, the others kept.
     (corpus / "broken.mp4").write_bytes(b"not a video")
 
-    example = load_example()
+    example = load_script("examples/python/track_corpus.py")
     out = tmp_path / "results"
     rows = example.track_corpus(corpus, out, options={"backend": "cpu", "particles": 64})
 
