@@ -17,7 +17,8 @@
 //! density is the first layer's (the model's dynamics); the later layers are a search.
 //! [`fixed_lag`] smooths frame t − L once frame t is filtered: online, with a delay of L frames.
 //! [`ancestry`] does it from the particles' lineage instead, O(M·L) where this is O(M²·L): what
-//! the trackers' `--smooth-lag` runs.
+//! the trackers' `--smooth-lag` runs. [`motion`] lets the evidence choose how far each value
+//! moves between frames (`--smooth-motion auto`).
 
 use rayon::prelude::*;
 
@@ -25,7 +26,9 @@ use crate::batch::wrap_angle_floor;
 use crate::error::PfError;
 
 pub mod ancestry;
+mod gauss;
 pub mod lag_window;
+pub mod motion;
 mod summary;
 use summary::value_summary;
 pub use summary::{Summary, summarise, summarise_value};

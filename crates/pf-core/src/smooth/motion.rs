@@ -1,0 +1,314 @@
+//! The smoother's motion chosen by the evidence (`--smooth-motion auto`, `smooth_motion="auto"`).
+//!
+//! A tracker's diffusion is a search's reach: wide enough to find a head that turns fast, far
+//! wider than a head that sits still moves. Smoothing with it leaves a still head's jitter;
+//! smoothing with less lags a head that turns. Which is right is a question about the dynamics,
+//! and the filter's particles answer it: for each value and each candidate motion scale s (the
+//! tracker's σ × 1, ½, ¼ … 1/64), the filter is re-weighted as if it had run with motion s
+//! (the marginal particle filter's weights, Klaas, de Freitas & Doucet 2005):
+//!
+//! w_s,t^i ∝ w_t^i · p_s(x_t^i | z_1:t−1) / p_1(x_t^i | z_1:t−1),
+//! p_s(x | z_1:t−1) = Σ_k w_s,t−1^k N(x; x_t−1^k + drift, (s σ)²),
+//!
+//! and Σ_t log Σ_i w_t^i · p_s(x_t^i) / p_1(x_t^i) is log p_s(z_1:T) − log p_1(z_1:T), the
+//! evidence of motion s against the tracker's own. The motion with the most evidence smooths the
+//! value (the marginal smoother of [`super`], with the re-weighted filter's weights, which are
+//! the filter's own at s = 1). Each value is its own block, as in [`super::smooth_values`], and
+//! both passes are one-dimensional Gauss transforms ([`super::gauss`]): O(M) a frame, value and
+//! candidate, on the CPU's cores wherever the tracker ran.
+//!
+//! A frame the tracker's own motion cannot reach from the one before (a restart elsewhere: every
+//! predictive density 0) starts the chain afresh: its filtered weights, no evidence either way.
+
+use rayon::prelude::*;
+
+use super::gauss::gauss_transform;
+use super::summary::value_summary;
+use super::{Cloud, GaussianTransition, Summary, ValueSmoother};
+use crate::batch::wrap_angle_floor;
+use crate::error::PfError;
+
+/// The motion scales the evidence chooses among: the tracker's σ times 1, ½, ¼ … 1/64.
+pub const CANDIDATE_SCALES: [f32; 7] = [1.0, 0.5, 0.25, 0.125, 0.0625, 0.031_25, 0.015_625];
+
+/// One value's motion as the evidence chose it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionChoice {
+    /// The chosen scale of the tracker's σ (1 for a value that does not move).
+    pub scale: f32,
+    /// log p(z_1:T | scale) − log p(z_1:T | the tracker's motion): 0 at scale 1.
+    pub log_evidence_gain: f64,
+}
+
+/// One value of one track's frames, laid out for the transforms: each frame's particles'
+/// values (unwrapped about a reference for an angle), their filtered weights and the drift.
+struct ValueFrames {
+    values: Vec<Vec<f64>>,
+    weights: Vec<Vec<f64>>,
+    drift: Vec<f64>,
+    angular: bool,
+}
+
+impl ValueFrames {
+    fn new(frames: &[Cloud], d: usize, angular: bool) -> Self {
+        let values = (frames.iter())
+            .map(|c| {
+                let m = c.particles();
+                c.states[d * m..(d + 1) * m]
+                    .iter()
+                    .map(|&x| f64::from(x))
+                    .collect()
+            })
+            .collect();
+        Self {
+            values,
+            weights: frames.iter().map(|c| c.weights.clone()).collect(),
+            drift: frames.iter().map(|c| f64::from(c.drift[d])).collect(),
+            angular,
+        }
+    }
+
+    /// Frame t's particles moved by the drift into frame t + 1 (the transforms' sources) and
+    /// frame t + 1's particles (their targets), an angle's both taken within π of the sources'
+    /// first value, so that a difference across ±π is the short way round.
+    fn pair(&self, t: usize) -> (Vec<f64>, Vec<f64>) {
+        let from: Vec<f64> = self.values[t].iter().map(|x| x + self.drift[t]).collect();
+        let to = self.values[t + 1].clone();
+        if !self.angular {
+            return (from, to);
+        }
+        let reference = from.first().copied().unwrap_or(0.0);
+        let near = |x: f64| reference + f64::from(wrap_angle_floor((x - reference) as f32));
+        (
+            from.into_iter().map(near).collect(),
+            to.into_iter().map(near).collect(),
+        )
+    }
+}
+
+/// Divides `values` by their sum; `None` when the sum is not positive and finite.
+fn normalised(mut values: Vec<f64>) -> Option<(Vec<f64>, f64)> {
+    let total: f64 = values.iter().sum();
+    if !(total.is_finite() && total > 0.0) {
+        return None;
+    }
+    for v in &mut values {
+        *v /= total;
+    }
+    Some((values, total))
+}
+
+/// The filter re-weighted as if its motion were `sigma` (σ_tracker · scale): every frame's
+/// weights and the log-evidence gain against the tracker's motion; `None` when the motion cannot
+/// explain some frame the tracker's can (its evidence −∞).
+fn reweighted(
+    frames: &ValueFrames,
+    tracker_sigma: f64,
+    sigma: f64,
+) -> Option<(Vec<Vec<f64>>, f64)> {
+    let mut weights = vec![frames.weights[0].clone()];
+    let mut gain = 0.0;
+    for t in 0..frames.values.len() - 1 {
+        let (from, to) = frames.pair(t);
+        let filtered = &frames.weights[t + 1];
+        let tracker = gauss_transform(&from, &frames.weights[t], &to, tracker_sigma);
+        if tracker.iter().all(|p| *p == 0.0) {
+            weights.push(filtered.clone());
+            continue;
+        }
+        let ours = gauss_transform(&from, &weights[t], &to, sigma);
+        // Each density's 1/σ: the ratio of N(·; ·, sigma²) to N(·; ·, tracker_sigma²).
+        let scale = tracker_sigma / sigma;
+        let moved: Vec<f64> = (filtered.iter().zip(&ours).zip(&tracker))
+            .map(|((w, p), q)| if *q > 0.0 { w * scale * p / q } else { 0.0 })
+            .collect();
+        let (next, total) = normalised(moved)?;
+        gain += total.ln();
+        weights.push(next);
+    }
+    Some((weights, gain))
+}
+
+/// The marginal smoother's backward pass over one value under `sigma`, from the filter's
+/// `weights` (re-weighted to that motion): every frame's smoothed weights.
+fn smoothed(frames: &ValueFrames, weights: &[Vec<f64>], sigma: f64) -> Vec<Vec<f64>> {
+    let last = weights.len() - 1;
+    let mut out = vec![Vec::new(); weights.len()];
+    out[last] = weights[last].clone();
+    for t in (0..last).rev() {
+        let (from, to) = frames.pair(t);
+        let predictive = gauss_transform(&from, &weights[t], &to, sigma);
+        let share: Vec<f64> = (out[t + 1].iter().zip(&predictive))
+            .map(|(s, p)| if *p > 0.0 { s / p } else { 0.0 })
+            .collect();
+        let back = gauss_transform(&to, &share, &from, sigma);
+        let mine: Vec<f64> = weights[t].iter().zip(&back).map(|(w, b)| w * b).collect();
+        // Nothing after reaches this frame (a restart): the future says nothing about it.
+        out[t] = normalised(mine).map_or_else(|| weights[t].clone(), |(w, _)| w);
+    }
+    out
+}
+
+/// A candidate motion's re-weighted filter: its scale, every frame's weights and its evidence
+/// gain.
+struct Reweighted {
+    scale: f32,
+    weights: Vec<Vec<f64>>,
+    gain: f64,
+}
+
+/// The motion with the most evidence for one value's `frames` (ties to the larger: the
+/// candidates come largest first) and the filter's weights re-weighted to it. Scale 1 always
+/// has an outcome, the filter's own weights.
+fn choose(frames: &ValueFrames, tracker_sigma: f64) -> (MotionChoice, Vec<Vec<f64>>) {
+    let tried: Vec<Reweighted> = (CANDIDATE_SCALES.par_iter())
+        .filter_map(|&scale| {
+            let (weights, gain) = if scale == 1.0 {
+                (frames.weights.clone(), 0.0)
+            } else {
+                reweighted(frames, tracker_sigma, tracker_sigma * f64::from(scale))?
+            };
+            Some(Reweighted {
+                scale,
+                weights,
+                gain,
+            })
+        })
+        .collect();
+    let best =
+        (tried.into_iter()).reduce(|best, next| if next.gain > best.gain { next } else { best });
+    match best {
+        Some(Reweighted {
+            scale,
+            weights,
+            gain,
+        }) => (
+            MotionChoice {
+                scale,
+                log_evidence_gain: gain,
+            },
+            weights,
+        ),
+        None => (
+            MotionChoice {
+                scale: 1.0,
+                log_evidence_gain: 0.0,
+            },
+            frames.weights.clone(),
+        ),
+    }
+}
+
+/// Every frame's smoothed summary (`[frame][value]`) with each value's motion chosen by the
+/// evidence among [`CANDIDATE_SCALES`] of `transition`'s σ, and the choices (`[value]`).
+pub fn smooth_values_by_evidence(
+    frames: &[Cloud],
+    transition: &GaussianTransition,
+) -> Result<(Vec<Vec<Summary>>, Vec<MotionChoice>), PfError> {
+    for cloud in frames {
+        transition.validate(cloud)?;
+    }
+    if frames.is_empty() {
+        return Ok((Vec::new(), Vec::new()));
+    }
+    let dims = transition.sigma.len();
+    let per_value: Vec<(MotionChoice, Vec<Summary>)> = (0..dims)
+        .into_par_iter()
+        .map(|d| {
+            let sigma = f64::from(transition.sigma[d]);
+            let angular = transition.angular[d];
+            let values = ValueFrames::new(frames, d, angular);
+            let (choice, weights) = if sigma > 0.0 {
+                let (choice, forward) = choose(&values, sigma);
+                let back = smoothed(&values, &forward, sigma * f64::from(choice.scale));
+                (choice, back)
+            } else {
+                let still = MotionChoice {
+                    scale: 1.0,
+                    log_evidence_gain: 0.0,
+                };
+                (still, values.weights.clone())
+            };
+            let summaries = (frames.iter().zip(&weights))
+                .map(|(cloud, w)| value_summary(cloud, w, &transition.angular, d))
+                .collect();
+            (choice, summaries)
+        })
+        .collect();
+    let mut rows: Vec<Vec<Summary>> = vec![Vec::with_capacity(dims); frames.len()];
+    let mut choices = Vec::with_capacity(dims);
+    for (choice, summaries) in per_value {
+        choices.push(choice);
+        for (row, s) in rows.iter_mut().zip(summaries) {
+            row.push(s);
+        }
+    }
+    Ok((rows, choices))
+}
+
+/// A [`ValueSmoother`] whose motion the evidence chooses, value by value and track by track
+/// ([`smooth_values_by_evidence`], on the CPU's cores), keeping every choice it made for the
+/// run's report ([`EvidenceMotion::choices`]).
+#[derive(Debug, Default)]
+pub struct EvidenceMotion {
+    choices: std::sync::Mutex<Vec<Vec<MotionChoice>>>,
+}
+
+impl EvidenceMotion {
+    /// Every track's choices so far (`[track smoothed][value]`, in the order they were smoothed).
+    pub fn choices(&self) -> Vec<Vec<MotionChoice>> {
+        self.choices.lock().map(|c| c.clone()).unwrap_or_default()
+    }
+
+    /// The median chosen scale of each of `dims` values over the tracks smoothed (`None` before
+    /// any): the run's one-line report.
+    pub fn median_scales(&self, dims: usize) -> Option<Vec<f32>> {
+        let all = self.choices();
+        if all.is_empty() {
+            return None;
+        }
+        Some(
+            (0..dims)
+                .map(|d| {
+                    let mut s: Vec<f32> = all
+                        .iter()
+                        .filter_map(|c| c.get(d))
+                        .map(|c| c.scale)
+                        .collect();
+                    s.sort_by(f32::total_cmp);
+                    s.get(s.len() / 2).copied().unwrap_or(1.0)
+                })
+                .collect(),
+        )
+    }
+}
+
+impl ValueSmoother for EvidenceMotion {
+    fn smooth_values(
+        &self,
+        frames: &[Cloud],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError> {
+        let (rows, choices) = smooth_values_by_evidence(frames, transition)?;
+        if let Ok(mut all) = self.choices.lock() {
+            all.push(choices);
+        }
+        Ok(rows)
+    }
+
+    fn smooth_first_many(
+        &self,
+        tracks: &[&[Cloud]],
+        transition: &GaussianTransition,
+    ) -> Result<Vec<Vec<Summary>>, PfError> {
+        (tracks.iter())
+            .map(|frames| {
+                let (mut rows, _) = smooth_values_by_evidence(frames, transition)?;
+                if rows.is_empty() {
+                    return Err(PfError::InvalidConfig("smoothing an empty window".into()));
+                }
+                Ok(rows.swap_remove(0))
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,191 @@
+//! The smoother's motion chosen by the evidence (`pf_core::smooth::motion`) against the exact
+//! answers on a linear-Gaussian model: a random walk x_t = x_{t−1} + q·n observed as
+//! y_t = x_t + r·n, filtered by the engine with a diffusion σ far wider than q (as a tracker's
+//! search is), by K filters with their own random numbers.
+//!
+//! - The evidence gain of each candidate scale s (the filter re-weighted to motion s·σ) must
+//!   match the Kalman filter's exact log p(y | s·σ) − log p(y | σ) (frames 1 on, both from the
+//!   σ filter's posterior at frame 0): the filters' average within four standard errors plus
+//!   2 % of the gain, for the candidates whose re-weighted filter keeps enough particles.
+//! - Each filter's chosen scale lies within one candidate of the exact evidence's best.
+//! - The smoothed means lie nearer the truth than the tracker's motion's smoother's, and within
+//!   10 % (in RMS error) of the exact RTS smoother's at the chosen scale.
+//! - A walk that does move at the filter's own σ keeps a scale of at least ½.
+
+use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
+use pf_core::kalman::RandomWalk;
+use pf_core::resample::Systematic;
+use pf_core::smooth::motion::{CANDIDATE_SCALES, smooth_values_by_evidence};
+use pf_core::smooth::{Cloud, GaussianTransition};
+use pf_core::{RandomStreams, Stage};
+
+const NOISE: f64 = 0.5;
+const FILTER_SIGMA: f64 = 0.8;
+const FRAMES: usize = 150;
+const FILTERS: usize = 8;
+const PARTICLES: usize = 1000;
+
+/// The true walk and its observations.
+fn simulate(step: f64, seed: u64) -> (Vec<f64>, Vec<f64>) {
+    let mut rng = RandomStreams::new(seed).stream(0, Stage::Model(0));
+    let mut x = 0.0;
+    (0..FRAMES)
+        .map(|_| {
+            x += step * rng.gaussian();
+            (x, x + NOISE * rng.gaussian())
+        })
+        .unzip()
+}
+
+/// `[filter][frame]` clouds of K engine filters with diffusion FILTER_SIGMA.
+fn filtered(ys: &[f64], seed: u64) -> Vec<Vec<Cloud>> {
+    let shape = BatchShape::new(FILTERS, PARTICLES, 1).unwrap();
+    let config = BatchConfig::new(shape, seed, vec![FILTER_SIGMA as f32]);
+    let start = gaussian_clouds(&shape, seed, &[0.0; FILTERS], &[1.0]);
+    let mut filter = BatchFilter::new(&config, Systematic, start).unwrap();
+    let mut out = vec![Vec::new(); FILTERS];
+    for &y in ys {
+        filter
+            .step(|_, _, x| -0.5 * ((x[0] - y as f32) / NOISE as f32).powi(2))
+            .unwrap();
+        for (k, run) in out.iter_mut().enumerate() {
+            run.push(
+                Cloud::of_target(
+                    1,
+                    PARTICLES,
+                    k,
+                    &filter.states,
+                    &filter.log_weights,
+                    vec![0.0],
+                )
+                .unwrap(),
+            );
+        }
+    }
+    out
+}
+
+fn transition() -> GaussianTransition {
+    GaussianTransition {
+        sigma: vec![FILTER_SIGMA as f32],
+        angular: vec![false],
+    }
+}
+
+/// The exact log p(y_1: | step) from the σ filter's posterior at frame 0.
+fn exact_log_evidence(ys: &[f64], step: f64) -> f64 {
+    let first = RandomWalk {
+        step: FILTER_SIGMA,
+        noise: NOISE,
+        prior: (0.0, 1.0),
+    }
+    .filter(&ys[..1])[0]
+        .filtered;
+    let walk = RandomWalk {
+        step,
+        noise: NOISE,
+        prior: first,
+    };
+    walk.filter(&ys[1..]).iter().map(|f| f.log_likelihood).sum()
+}
+
+fn rms(a: &[f64], b: &[f64]) -> f64 {
+    (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
+}
+
+#[test]
+fn the_evidence_chooses_the_walks_own_motion_and_smooths_as_rts_does() {
+    let step = 0.1;
+    let (truth, ys) = simulate(step, 3);
+    let runs = filtered(&ys, 29);
+    let exact_gain =
+        |s: f64| exact_log_evidence(&ys, FILTER_SIGMA * s) - exact_log_evidence(&ys, FILTER_SIGMA);
+    let exact_best = (CANDIDATE_SCALES.iter().copied())
+        .max_by(|a, b| exact_gain(f64::from(*a)).total_cmp(&exact_gain(f64::from(*b))))
+        .unwrap();
+    let best_index = CANDIDATE_SCALES
+        .iter()
+        .position(|s| *s == exact_best)
+        .unwrap();
+    let tracker_rts: Vec<f64> = RandomWalk {
+        step: FILTER_SIGMA,
+        noise: NOISE,
+        prior: (0.0, 1.0),
+    }
+    .smooth(&ys)
+    .iter()
+    .map(|s| s.0)
+    .collect();
+    let mut gains = Vec::new();
+    for run in &runs {
+        let (rows, choices) = smooth_values_by_evidence(run, &transition()).unwrap();
+        let chosen = choices[0].scale;
+        let at = CANDIDATE_SCALES.iter().position(|s| *s == chosen).unwrap();
+        assert!(
+            at.abs_diff(best_index) <= 1,
+            "chose {chosen}, the exact evidence's best is {exact_best}"
+        );
+        let means: Vec<f64> = rows.iter().map(|r| f64::from(r[0].mean)).collect();
+        let rts_at_choice: Vec<f64> = RandomWalk {
+            step: FILTER_SIGMA * f64::from(chosen),
+            noise: NOISE,
+            prior: (0.0, 1.0),
+        }
+        .smooth(&ys)
+        .iter()
+        .map(|s| s.0)
+        .collect();
+        let (ours, exact, wide) = (
+            rms(&means, &truth),
+            rms(&rts_at_choice, &truth),
+            rms(&tracker_rts, &truth),
+        );
+        eprintln!(
+            "chose {chosen} (exact best {exact_best}): rms {ours:.4}, rts at choice {exact:.4}, tracker motion rts {wide:.4}"
+        );
+        assert!(
+            ours < 0.9 * wide,
+            "smoothed RMS error {ours:.3}, the tracker's motion's RTS {wide:.3}"
+        );
+        assert!(
+            ours < 1.1 * exact,
+            "smoothed RMS error {ours:.3}, RTS at scale {chosen}: {exact:.3}"
+        );
+        gains.push(choices[0].log_evidence_gain);
+    }
+    // Each filter's gain against the exact gain of the scale it chose.
+    let mut chosen_exact = Vec::new();
+    for (run, gain) in runs.iter().zip(&gains) {
+        let (_, choices) = smooth_values_by_evidence(run, &transition()).unwrap();
+        assert!(gain.is_finite() && *gain > 0.0, "gain {gain}");
+        chosen_exact.push(exact_gain(f64::from(choices[0].scale)));
+    }
+    let n = FILTERS as f64;
+    let differences: Vec<f64> = gains
+        .iter()
+        .zip(&chosen_exact)
+        .map(|(g, e)| g - e)
+        .collect();
+    let average = differences.iter().sum::<f64>() / n;
+    let spread = (differences
+        .iter()
+        .map(|d| (d - average).powi(2))
+        .sum::<f64>()
+        / (n - 1.0))
+        .sqrt();
+    let scale = chosen_exact.iter().sum::<f64>() / n;
+    eprintln!("evidence gains: particles {gains:?}, exact {chosen_exact:?}");
+    assert!(
+        average.abs() < 4.0 * spread / n.sqrt() + 0.02 * scale.abs(),
+        "the gains differ from the exact ones by {average:.2} on average (spread {spread:.2})"
+    );
+}
+
+#[test]
+fn a_walk_at_the_filters_own_motion_keeps_it() {
+    let (_, ys) = simulate(FILTER_SIGMA, 5);
+    for run in filtered(&ys, 31) {
+        let (_, choices) = smooth_values_by_evidence(&run, &transition()).unwrap();
+        assert!(choices[0].scale >= 0.5, "chose {:?}", choices[0]);
+    }
+}
