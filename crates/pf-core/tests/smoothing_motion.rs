@@ -10,6 +10,8 @@
 //! - Each filter's chosen scale lies within one candidate of the exact evidence's best.
 //! - The smoothed means lie nearer the truth than the tracker's motion's smoother's, and within
 //!   10 % (in RMS error) of the exact RTS smoother's at the chosen scale.
+//! - The 95 % intervals (the chosen motion's widened to take in the tracker's motion's) hold the
+//!   truth at least 95 % of the time: never narrower than honest.
 //! - A walk that does move at the filter's own σ keeps a scale of at least ½.
 
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
@@ -117,6 +119,7 @@ fn the_evidence_chooses_the_walks_own_motion_and_smooths_as_rts_does() {
     .map(|s| s.0)
     .collect();
     let mut gains = Vec::new();
+    let (mut covered, mut scored) = (0usize, 0usize);
     for run in &runs {
         let (rows, choices) = smooth_values_by_evidence(run, &transition()).unwrap();
         let chosen = choices[0].scale;
@@ -126,6 +129,10 @@ fn the_evidence_chooses_the_walks_own_motion_and_smooths_as_rts_does() {
             "chose {chosen}, the exact evidence's best is {exact_best}"
         );
         let means: Vec<f64> = rows.iter().map(|r| f64::from(r[0].mean)).collect();
+        for (row, x) in rows.iter().zip(&truth) {
+            covered += usize::from(f64::from(row[0].lower) <= *x && *x <= f64::from(row[0].upper));
+            scored += 1;
+        }
         let rts_at_choice: Vec<f64> = RandomWalk {
             step: FILTER_SIGMA * f64::from(chosen),
             noise: NOISE,
@@ -153,6 +160,16 @@ fn the_evidence_chooses_the_walks_own_motion_and_smooths_as_rts_does() {
         );
         gains.push(choices[0].log_evidence_gain);
     }
+    let coverage = covered as f64 / scored as f64;
+    eprintln!(
+        "the smoothed 95 % intervals held the truth {:.1} % of the time",
+        100.0 * coverage
+    );
+    assert!(
+        coverage >= 0.95,
+        "the smoothed 95 % intervals held the truth {:.1} % of the time",
+        100.0 * coverage
+    );
     // Each filter's gain against the exact gain of the scale it chose.
     let mut chosen_exact = Vec::new();
     for (run, gain) in runs.iter().zip(&gains) {

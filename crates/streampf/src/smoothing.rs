@@ -13,6 +13,7 @@ use std::path::Path;
 
 use clap::Args;
 use pf_core::smooth::GaussianTransition;
+use pf_core::smooth::motion::{EvidenceMotion, SmoothMotion};
 pub use pf_core::smooth_tracks::{
     Coverage, LagSmoother, LaggedTracks, ReadFrames, SlotTrack, SmoothedRow, TrackCloud,
     TrackSmoother,
@@ -52,23 +53,22 @@ pub struct SmoothArgs {
     /// of the tracker's own diffusion over a frame (its annealing layers' random walks composed,
     /// the default 1): below 1 it holds the track to slower motion, steadier and with narrower
     /// intervals, and lags a head that turns (docs/ACCURACY.md, "Smoothing against the mesh's
-    /// jitter"). From 0.001 to 1000. The ancestry smoother has no motion to scale.
+    /// jitter"). From 0.001 to 1000. `auto`: each track's values each get the share the
+    /// evidence favours among 1, 1/2 ... 1/64 (the filter re-weighted to each; on the CPU's
+    /// cores, wherever the tracker runs). The ancestry smoother has no motion to scale.
     #[arg(
         long,
-        value_name = "SCALE",
-        value_parser = motion_scale,
+        value_name = "SCALE|auto",
+        value_parser = smooth_motion,
         allow_negative_numbers = true,
         requires = "smoother"
     )]
-    pub smooth_motion: Option<f32>,
+    pub smooth_motion: Option<SmoothMotion>,
 }
 
-/// `--smooth-motion`: a number in `pf_core::smooth::MOTION_SCALES`.
-fn motion_scale(text: &str) -> Result<f32, String> {
-    let scale: f32 = text
-        .parse()
-        .map_err(|_| format!("`{text}` is not a number"))?;
-    pf_core::smooth::checked_motion_scale(scale).map_err(|e| e.to_string())
+/// `--smooth-motion`: `auto` or a number in `pf_core::smooth::MOTION_SCALES`.
+fn smooth_motion(text: &str) -> Result<SmoothMotion, String> {
+    SmoothMotion::parse(text).map_err(|e| e.to_string())
 }
 
 /// `--lag-smoother`.
@@ -114,12 +114,17 @@ impl SmoothArgs {
     }
 
     /// The tracker's transition with `--smooth-motion`'s scale applied to every σ (the parser
-    /// kept the scale in range).
+    /// kept the scale in range; `auto` chooses per value as the tracks are smoothed).
     pub fn transition(&self, tracker: GaussianTransition) -> anyhow::Result<GaussianTransition> {
         match self.smooth_motion {
-            Some(scale) => Ok(tracker.with_motion(scale)?),
+            Some(motion) => Ok(motion.apply(tracker)?),
             None => Ok(tracker),
         }
+    }
+
+    /// Whether `--smooth-motion auto` asks the evidence to choose each value's motion.
+    pub fn by_evidence(&self) -> bool {
+        self.smooth_motion == Some(SmoothMotion::ByEvidence)
     }
 
     /// `None`: no smoothing; `Some(None)`: the whole run; `Some(Some(L))`: a lag of L frames.
@@ -165,6 +170,10 @@ pub struct Smoother {
     how: LagSmoother,
     /// The GPU smoother, when the backward passes run on a GPU (for its fallback report).
     on_gpu: Option<std::sync::Arc<pf_gpu::smooth::OnGpu>>,
+    /// The evidence's choices of motion, when it chooses them (`--smooth-motion auto`).
+    by_evidence: Option<std::sync::Arc<EvidenceMotion>>,
+    /// The values' names, for the report of the motion chosen.
+    names: Vec<String>,
     file: CsvStream,
     with_track: bool,
 }
@@ -205,9 +214,41 @@ impl Smoother {
             lag,
             how: LagSmoother::default(),
             on_gpu,
+            by_evidence: None,
+            names: names.to_vec(),
             file: CsvStream::create(&out.join(SMOOTHED_FILE), &header)?,
             with_track,
         })
+    }
+
+    /// The same smoother with each track's values' motion chosen by the evidence
+    /// (`--smooth-motion auto`: `pf_core::smooth::motion::EvidenceMotion`, on the CPU's cores in
+    /// place of a GPU smoother).
+    pub fn choosing_motion_by_evidence(mut self) -> Self {
+        let chooser = std::sync::Arc::new(EvidenceMotion::default());
+        self.tracks = self.tracks.on(chooser.clone());
+        self.by_evidence = Some(chooser);
+        self.on_gpu = None;
+        self
+    }
+
+    /// The motion the evidence chose (`--smooth-motion auto`), on stdout: each value's median
+    /// share of the tracker's motion over the tracks smoothed.
+    pub fn report_motion(&self) {
+        let Some(chooser) = &self.by_evidence else {
+            return;
+        };
+        let Some(medians) = chooser.median_scales(self.names.len()) else {
+            return;
+        };
+        let values: Vec<String> = (self.names.iter().zip(medians))
+            .map(|(name, scale)| format!("{name} {scale}"))
+            .collect();
+        outln!(
+            "the evidence chose the smoother's motion, as a share of the tracker's (median over {} tracks): {}",
+            chooser.choices().len(),
+            values.join(", ")
+        );
     }
 
     /// The same smoother giving each row the filtered summary too (to score both against a

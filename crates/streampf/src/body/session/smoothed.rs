@@ -46,7 +46,10 @@ impl BodySmoothing {
         let on_device = crate::smoothing::keep_lag_on_device((lag, how), on_gpu, "samples", |l| {
             Ok(tracker.keep_lag_window(l, with_truth)?)
         });
-        let smoothing = Self::create(out, (lag, how), tracker, transition, with_truth)?;
+        let mut smoothing = Self::create(out, (lag, how), tracker, transition, with_truth)?;
+        if asked.by_evidence() {
+            smoothing.smoother = smoothing.smoother.choosing_motion_by_evidence();
+        }
         Ok(Some(if on_device {
             let angular = smoothing.angular.clone();
             Self {
@@ -161,6 +164,7 @@ impl BodySmoothing {
     pub(in crate::body) fn print(&self) {
         self.smoother.report_fallback();
         self.smoother.report_ancestry();
+        self.smoother.report_motion();
         let how = self.smoother.how();
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");

@@ -43,7 +43,11 @@ impl FaceSmoothing {
             crate::smoothing::keep_lag_on_device((lag, how), on_gpu, "particles", |l| {
                 runner.keep_lag_window(l, with_truth)
             });
-        let smoothing = Self::create(out, (lag, how), runner.tracker(), transition, with_truth)?;
+        let mut smoothing =
+            Self::create(out, (lag, how), runner.tracker(), transition, with_truth)?;
+        if asked.by_evidence() {
+            smoothing.smoother = smoothing.smoother.choosing_motion_by_evidence();
+        }
         Ok(Some(if on_device {
             Self {
                 smoother: smoothing
@@ -148,6 +152,7 @@ impl FaceSmoothing {
     pub(super) fn print(&self) {
         self.smoother.report_fallback();
         self.smoother.report_ancestry();
+        self.smoother.report_motion();
         let how = self.smoother.how();
         if self.compared == 0 {
             outln!("smoothed {how}: wrote smoothed.csv");
