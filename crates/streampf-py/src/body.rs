@@ -83,9 +83,9 @@ impl BodyTracker {
         coarse_points: i128,
         coarse_layers: i128,
         smooth: bool,
-        smooth_motion: Option<f64>,
+        smooth_motion: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
-        let motion = crate::smoothing::motion_scale(smooth, smooth_motion)?;
+        let motion = crate::smoothing::smooth_motion(smooth, smooth_motion)?;
         let coarse = match whole::<usize>("coarse_layers", coarse_layers)? {
             0 => None,
             layers => Some(CoarseLayers {

@@ -46,8 +46,8 @@ struct Inner {
 impl Inner {
     /// A tracker with no frame stepped, smoothing when `smooth` (its motion scaled by `motion`,
     /// `smooth_motion=`).
-    fn new(engine: Engine, smooth: bool, motion: Option<f64>) -> PyResult<Self> {
-        let motion = crate::smoothing::motion_scale(smooth, motion)?;
+    fn new(engine: Engine, smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
+        let motion = crate::smoothing::smooth_motion(smooth, motion)?;
         let smoothing = match smooth {
             true => {
                 let tracker = engine.tracker();
@@ -286,7 +286,7 @@ impl FaceTracker {
         smooth: bool,
         camera: Option<&Bound<'_, PyAny>>,
         scene_cut: Option<f32>,
-        smooth_motion: Option<f64>,
+        smooth_motion: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;

@@ -4,6 +4,7 @@
 //! arrays.
 
 use pf_core::smooth::GaussianTransition;
+use pf_core::smooth::motion::{EvidenceMotion, SmoothMotion};
 use pf_core::smooth_tracks::{SmoothedRow, TrackCloud, TrackSmoother};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -18,37 +19,50 @@ pub struct Smoothing {
     frames: usize,
 }
 
-/// `smooth_motion=`: the smoother's motion scale (`pf_core::smooth::MOTION_SCALES`), only
-/// with `smooth=True` (it would scale nothing).
-pub fn motion_scale(smooth: bool, motion: Option<f64>) -> PyResult<f32> {
-    let Some(motion) = motion else {
-        return Ok(1.0);
+/// `smooth_motion=`: a scale of the smoother's motion (`pf_core::smooth::MOTION_SCALES`) or
+/// `"auto"` (each value's chosen by the evidence), only with `smooth=True` (it would scale
+/// nothing); `None` is the tracker's own motion.
+pub fn smooth_motion(smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResult<SmoothMotion> {
+    let Some(motion) = motion.filter(|m| !m.is_none()) else {
+        return Ok(SmoothMotion::Scale(1.0));
     };
     if !smooth {
         return Err(pyo3::exceptions::PyValueError::new_err(
             "smooth_motion scales the smoother's motion: pass smooth=True too",
         ));
     }
-    // Out of f32's range becomes ±inf or 0, and NaN stays NaN: all outside the range.
-    pf_core::smooth::checked_motion_scale(motion as f32)
+    let text = if let Ok(text) = motion.extract::<String>() {
+        text
+    } else if let Ok(scale) = motion.extract::<f64>() {
+        // Out of f32's range becomes ±inf or 0, and NaN stays NaN: all outside the range.
+        (scale as f32).to_string()
+    } else {
+        return Err(pyo3::exceptions::PyTypeError::new_err(
+            "smooth_motion is a number or \"auto\"",
+        ));
+    };
+    SmoothMotion::parse(&text)
         .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("smooth_motion: {e}")))
 }
 
 impl Smoothing {
     /// Whole-track smoothing under the tracker's dynamics, on `gpu` (the tracker's GPU) when it
     /// has one (`pf_gpu::smooth::OnGpu`), else on the CPU's cores.
-    /// `motion` scales the transition's σ (`smooth_motion=`; 1: the tracker's own diffusion).
+    /// `motion` scales the transition's σ (`smooth_motion=`; 1: the tracker's own diffusion) or
+    /// lets the evidence choose it per value (`"auto"`: on the CPU's cores).
     pub fn new(
         transition: GaussianTransition,
-        motion: f32,
+        motion: SmoothMotion,
         gain: f32,
         gpu: Option<&pf_gpu::GpuContext>,
     ) -> PyResult<Self> {
-        let transition = transition
-            .with_motion(motion)
+        let transition = motion
+            .apply(transition)
             .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
         let mut smoother = TrackSmoother::new(None, transition, gain);
-        if let Some(ctx) = gpu {
+        if motion == SmoothMotion::ByEvidence {
+            smoother = smoother.on(std::sync::Arc::new(EvidenceMotion::default()));
+        } else if let Some(ctx) = gpu {
             let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)
                 .map_err(|e| runtime_error(format!("building the GPU smoother: {e}")))?;
             smoother = smoother.on(std::sync::Arc::new(on_gpu));

@@ -259,6 +259,36 @@ def test_smoothing_gives_every_tracked_face_frame_with_an_interval(two_face_vide
         streampf.FaceTracker(width, height, backend="cpu").smoothed()
 
 
+def test_the_evidence_chooses_the_smoothing_motion(two_face_video):
+    video = two_face_video
+    frames = video["frames"][:8]
+    height, width = frames.shape[1:3]
+
+    def run(motion):
+        tracker = streampf.FaceTracker(
+            width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
+            smooth=True, smooth_motion=motion,
+        )
+        for rect in video["rects"]:
+            tracker.add_face(frames[0], tuple(float(v) for v in rect))
+        states = [tracker.step(frame)["state"] for frame in frames]
+        return tracker.smoothed(), np.stack(states).reshape(-1, 7)
+
+    (own, _), (auto, filtered) = run(None), run("auto")
+    assert np.array_equal(own["frame"], auto["frame"])
+    assert np.array_equal(own["track"], auto["track"])
+    # The chosen motion's means, each inside its interval, and that interval takes in the
+    # tracker's motion's (the evidence cannot see errors that persist from frame to frame).
+    assert np.all(auto["lower"] <= auto["mean"]) and np.all(auto["mean"] <= auto["upper"])
+    # (Up to a twentieth of its width: the two smoothers' weights differ by the Gauss
+    # transform's rounding, which can move a quantile by a particle.)
+    slack = 0.05 * (own["upper"] - own["lower"])
+    assert np.all(auto["lower"] <= own["lower"] + slack)
+    assert np.all(auto["upper"] >= own["upper"] - slack)
+    # Near the filtered faces, not a different face.
+    assert np.abs(auto["mean"][:, :2] - filtered[:, :2]).max() < 10.0
+
+
 def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
     video = two_face_video
     frames = video["frames"][:8]
@@ -286,8 +316,15 @@ def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
     for bad in [0.0, -1.0, 1e-50, 1e9, float("nan"), float("inf")]:
         with pytest.raises(ValueError, match="smooth_motion"):
             streampf.FaceTracker(width, height, backend="cpu", smooth=True, smooth_motion=bad)
+    for bad in ["fast", "", "0.0"]:
+        with pytest.raises(ValueError, match="smooth_motion"):
+            streampf.FaceTracker(width, height, backend="cpu", smooth=True, smooth_motion=bad)
+    with pytest.raises(TypeError, match="smooth_motion"):
+        streampf.FaceTracker(width, height, backend="cpu", smooth=True, smooth_motion=[1.0])
     # Nothing to scale without a smoother.
     with pytest.raises(ValueError, match="smooth=True"):
         streampf.FaceTracker(width, height, backend="cpu", smooth_motion=0.5)
+    with pytest.raises(ValueError, match="smooth=True"):
+        streampf.FaceTracker(width, height, backend="cpu", smooth_motion="auto")
     with pytest.raises(ValueError, match="smooth=True"):
         streampf.BodyTracker(backend="cpu", smooth_motion=0.5)

@@ -347,6 +347,10 @@ fn bad_smoothing_options_are_refused() {
         &["--smooth", "full", "--smooth-motion", "NaN"],
         &["--smooth", "full", "--smooth-motion", "inf"],
         &["--smooth-lag", "2", "--smooth-motion", "slow"],
+        &["--smooth", "full", "--smooth-motion", "automatic"],
+        // The evidence chooses a motion from a whole track, not from a lag's window.
+        &["--smooth-lag", "2", "--smooth-motion", "auto"],
+        &["--smooth-motion", "auto"],
         // Too small a scale leaves σ 0 (a value left out), too large one overflows.
         &["--smooth", "full", "--smooth-motion", "1e-44"],
         &["--smooth", "full", "--smooth-motion", "1e9"],
@@ -424,5 +428,74 @@ fn a_slower_smoothing_motion_narrows_the_intervals_and_keeps_the_last_frame() {
         width(&slow),
         width(&own)
     );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--smooth-motion auto`: the same rows as the tracker's own motion, each mean within its
+/// interval, each interval taking in the tracker's motion's (up to a twentieth of its width: the
+/// two smoothers' weights differ by the Gauss transform's rounding), the run naming the motion
+/// the evidence chose for every value; the body's too.
+#[test]
+fn the_evidence_chooses_the_smoothing_motion_face_and_body() {
+    let dir = scratch("face-smoothing-auto");
+    face_run(&dir.join("own"), &["--smooth", "full"]);
+    let text = face_run(
+        &dir.join("auto"),
+        &["--smooth", "full", "--smooth-motion", "auto"],
+    );
+    let line = (text.lines())
+        .find(|l| l.starts_with("the evidence chose the smoother's motion"))
+        .unwrap_or_else(|| panic!("{text}"));
+    for name in ["tx", "ty", "scale", "rx", "ry", "rz", "alpha"] {
+        assert!(line.contains(&format!(" {name} ")), "{line}");
+    }
+    let (header, own) = rows(&dir.join("own/smoothed.csv"));
+    let (_, auto) = rows(&dir.join("auto/smoothed.csv"));
+    check_intervals(&header, &auto, 2);
+    let keys = |rows: &[Vec<String>]| -> Vec<(String, String)> {
+        rows.iter().map(|r| (r[0].clone(), r[1].clone())).collect()
+    };
+    assert_eq!(keys(&own), keys(&auto));
+    let number = |r: &[String], k: usize| -> f64 { r[k].parse().unwrap() };
+    for (o, a) in own.iter().zip(&auto) {
+        for k in (2..header.len()).step_by(3) {
+            let slack = 0.05 * (number(o, k + 2) - number(o, k + 1));
+            assert!(
+                number(a, k + 1) <= number(o, k + 1) + slack,
+                "{}: {a:?} against {o:?}",
+                header[k]
+            );
+            assert!(
+                number(a, k + 2) >= number(o, k + 2) - slack,
+                "{}: {a:?} against {o:?}",
+                header[k]
+            );
+        }
+    }
+    let body = dir.join("body");
+    let text = ok(&streampf(&[
+        "body",
+        "track",
+        "--synthetic",
+        "--max-frames",
+        "4",
+        "--particles",
+        "200",
+        "--backend",
+        "cpu",
+        "--smooth",
+        "full",
+        "--smooth-motion",
+        "auto",
+        "--out",
+        body.to_str().unwrap(),
+    ]));
+    assert!(
+        text.contains("the evidence chose the smoother's motion"),
+        "{text}"
+    );
+    let (header, rows_body) = rows(&body.join("smoothed.csv"));
+    assert_eq!(rows_body.len(), 4);
+    check_intervals(&header, &rows_body, 1);
     std::fs::remove_dir_all(&dir).unwrap();
 }

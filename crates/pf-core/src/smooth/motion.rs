@@ -240,7 +240,7 @@ pub fn smooth_values_by_evidence(
             let sigma = f64::from(transition.sigma[d]);
             let angular = transition.angular[d];
             let values = ValueFrames::new(frames, d, angular);
-            if !(sigma > 0.0) {
+            if sigma <= 0.0 {
                 let still = MotionChoice {
                     scale: 1.0,
                     log_evidence_gain: 0.0,

@@ -70,13 +70,15 @@ class FaceTracker:
         smooth: bool = False,
         camera: Union[Tuple[float, float, float, float], str, PathLike, None] = None,
         scene_cut: Optional[float] = 0.25,
-        smooth_motion: Optional[float] = None,
+        smooth_motion: Union[float, str, None] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it
         (each track whole, a running one over the frames it has): ``frame`` and ``track`` (n,)
         int64, the state's ``mean``, ``lower`` and ``upper`` (a 95 % interval), (n, 7) float32,
-        in frame and track order. Reads the clouds back every frame on a GPU."""
+        in frame and track order. Reads the clouds back every frame on a GPU. ``smooth_motion``
+        scales the smoother's motion (1: the tracker's own), or ``"auto"`` lets the evidence
+        choose each track's values' motion (on the CPU's cores), as ``--smooth-motion``."""
     @property
     def device(self) -> str:
         """"CPU", or the GPUs' names."""
@@ -146,7 +148,7 @@ class BodyTracker:
         coarse_points: int = 5000,
         coarse_layers: int = 7,
         smooth: bool = False,
-        smooth_motion: Optional[float] = None,
+        smooth_motion: Union[float, str, None] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every frame so far smoothed by the frames after it: ``frame``
