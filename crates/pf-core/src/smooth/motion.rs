@@ -110,15 +110,14 @@ fn normalised(mut values: Vec<f64>) -> Option<(Vec<f64>, f64)> {
 /// explain some frame the tracker's can (its evidence −∞).
 fn reweighted(
     frames: &ValueFrames,
-    tracker_sigma: f64,
+    (tracker_sigma, tracker_predictive): (f64, &[Vec<f64>]),
     sigma: f64,
 ) -> Option<(Vec<Vec<f64>>, f64)> {
     let mut weights = vec![frames.weights[0].clone()];
     let mut gain = 0.0;
-    for t in 0..frames.values.len() - 1 {
+    for (t, tracker) in tracker_predictive.iter().enumerate() {
         let (from, to) = frames.pair(t);
         let filtered = &frames.weights[t + 1];
-        let tracker = gauss_transform(&from, &frames.weights[t], &to, tracker_sigma);
         if tracker.iter().all(|p| *p == 0.0) {
             weights.push(filtered.clone());
             continue;
@@ -126,7 +125,7 @@ fn reweighted(
         let ours = gauss_transform(&from, &weights[t], &to, sigma);
         // Each density's 1/σ: the ratio of N(·; ·, sigma²) to N(·; ·, tracker_sigma²).
         let scale = tracker_sigma / sigma;
-        let moved: Vec<f64> = (filtered.iter().zip(&ours).zip(&tracker))
+        let moved: Vec<f64> = (filtered.iter().zip(&ours).zip(tracker))
             .map(|((w, p), q)| if *q > 0.0 { w * scale * p / q } else { 0.0 })
             .collect();
         let (next, total) = normalised(moved)?;
@@ -180,13 +179,23 @@ fn kept_sample_size(weights: &[Vec<f64>], filtered: &[Vec<f64>]) -> f64 {
 /// candidates come largest first) and the filter's weights re-weighted to it. Scale 1 always
 /// has an outcome, the filter's own weights.
 fn choose(frames: &ValueFrames, tracker_sigma: f64) -> (MotionChoice, Vec<Vec<f64>>) {
+    // The filter's own predictive density at each frame's particles, which every candidate
+    // divides by.
+    let tracker_predictive: Vec<Vec<f64>> = (0..frames.values.len() - 1)
+        .into_par_iter()
+        .map(|t| {
+            let (from, to) = frames.pair(t);
+            gauss_transform(&from, &frames.weights[t], &to, tracker_sigma)
+        })
+        .collect();
+    let tracker = (tracker_sigma, tracker_predictive.as_slice());
     let tried: Vec<Reweighted> = (CANDIDATE_SCALES.par_iter())
         .filter_map(|&scale| {
             let (weights, gain) = if scale == 1.0 {
                 (frames.weights.clone(), 0.0)
             } else {
                 let (weights, gain) =
-                    reweighted(frames, tracker_sigma, tracker_sigma * f64::from(scale))?;
+                    reweighted(frames, tracker, tracker_sigma * f64::from(scale))?;
                 if kept_sample_size(&weights, &frames.weights) < MIN_KEPT_SAMPLE_SIZE {
                     return None;
                 }
