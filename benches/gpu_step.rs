@@ -28,6 +28,7 @@ use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_m
 use pf_core::anneal::{Annealing, Tempering};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::resample::{Metropolis, Systematic};
+use pf_core::smooth::motion::smooth_values_by_evidence;
 use pf_core::smooth::{Cloud, GaussianTransition, smooth_values};
 use pf_core::{RandomStreams, Resampler, ResamplerKind, Stage};
 use pf_gpu::engine::Filter;
@@ -494,6 +495,11 @@ fn bench_smoother(c: &mut Criterion) {
     let views: Vec<&[Cloud]> = run.iter().map(Vec::as_slice).collect();
     group.bench_function("gpu_full_run_1000_frames_64_targets", |b| {
         b.iter(|| std::hint::black_box(smoother.smooth(&ctx, &views, &transition).unwrap()))
+    });
+    // The motion chosen by the evidence (`--smooth-motion auto`, on the CPU's cores whatever
+    // the tracker ran on): one target's whole run; 64 targets cost 64 times it.
+    group.bench_function("cpu_by_evidence_full_run_1000_frames_1_target", |b| {
+        b.iter(|| std::hint::black_box(smooth_values_by_evidence(&run[0], &transition).unwrap()))
     });
     group.finish();
 }

@@ -11,9 +11,11 @@
 //! p_s(x | z_1:t−1) = Σ_k w_s,t−1^k N(x; x_t−1^k + drift, (s σ)²),
 //!
 //! and Σ_t log Σ_i w_t^i · p_s(x_t^i) / p_1(x_t^i) is log p_s(z_1:T) − log p_1(z_1:T), the
-//! evidence of motion s against the tracker's own. The motion with the most evidence smooths the
-//! value (the marginal smoother of [`super`], with the re-weighted filter's weights, which are
-//! the filter's own at s = 1). Each value is its own block, as in [`super::smooth_values`], and
+//! evidence of motion s against the tracker's own. The motion with the most evidence, among
+//! those whose re-weighted filter keeps enough of the filter's effective sample size
+//! ([`MIN_KEPT_SAMPLE_SIZE`]), smooths the value (the marginal smoother of [`super`], with the
+//! re-weighted filter's weights, which are the filter's own at s = 1); its 95 % intervals are
+//! widened to take in the tracker's motion's ([`smooth_values_by_evidence`] says why). Each value is its own block, as in [`super::smooth_values`], and
 //! both passes are one-dimensional Gauss transforms ([`super::gauss`]): O(M) a frame, value and
 //! candidate, on the CPU's cores wherever the tracker ran.
 //!
