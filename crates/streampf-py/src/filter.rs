@@ -7,7 +7,8 @@ use std::sync::{Mutex, TryLockError};
 use numpy::PyUntypedArrayMethods;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
-use pf_core::smooth::{Cloud, GaussianTransition, smooth_values};
+use pf_core::smooth::motion::{SmoothMotion, smooth_values_by_evidence};
+use pf_core::smooth::{Cloud, GaussianTransition, Summary, smooth_values};
 use pf_core::{PfError, Resampler, ResamplerKind};
 use pf_gpu::GpuResampler;
 use pf_gpu::model::{ModelSource, RawModelFilter};
@@ -287,12 +288,26 @@ impl ParticleFilter {
 
     /// Every step's values smoothed by the steps after it (needs `smooth=True`): a dict of
     /// `mean`, `lower`, `upper` (the 95 % credible interval), each (steps, T, D) float32.
-    fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+    /// `motion` scales the random walk's σ the smoother reweighs by, or `"auto"` lets the
+    /// evidence choose each target's values' scale (`pf_core::smooth::motion`; the dict then
+    /// has `motion`, (T, D) float32, the scales chosen).
+    #[pyo3(signature = (*, motion = None))]
+    fn smoothed<'py>(
+        &self,
+        py: Python<'py>,
+        motion: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
         let Some(History { steps, transition }) = &self.history else {
             return Err(value_error(
                 "smoothed() needs ParticleFilter(..., smooth=True)",
             ));
         };
+        let motion = match motion.filter(|m| !m.is_none()) {
+            Some(m) => crate::smoothing::motion_argument("motion", m)?,
+            None => SmoothMotion::Scale(1.0),
+        };
+        let transition = &motion.apply(transition.clone()).map_err(pf)?;
+        let by_evidence = motion == SmoothMotion::ByEvidence;
         let kept = steps.lock().map_err(|_| poisoned())?.clone();
         let shape = self.shape;
         let (t, d) = (shape.targets, shape.dims);
@@ -310,11 +325,22 @@ impl ParticleFilter {
                             Cloud::of_target(d, shape.particles, target, states, lw, vec![0.0; d])
                         })
                         .collect::<Result<Vec<_>, _>>()?;
-                    smooth_values(&clouds, transition)
+                    if by_evidence {
+                        let (rows, choices) = smooth_values_by_evidence(&clouds, transition)?;
+                        // No step yet: nothing chosen, the tracker's own motion.
+                        let scales = match choices.is_empty() {
+                            true => vec![1.0; d],
+                            false => choices.iter().map(|c| c.scale).collect(),
+                        };
+                        Ok((rows, scales))
+                    } else {
+                        Ok((smooth_values(&clouds, transition)?, Vec::new()))
+                    }
                 })
-                .collect::<Result<Vec<_>, PfError>>()
+                .collect::<Result<Vec<(Vec<Vec<Summary>>, Vec<f32>)>, PfError>>()
         });
-        for (target, frames) in per_target.map_err(pf)?.into_iter().enumerate() {
+        let (per_target, chosen): (Vec<_>, Vec<_>) = per_target.map_err(pf)?.into_iter().unzip();
+        for (target, frames) in per_target.into_iter().enumerate() {
             for (step, values) in frames.into_iter().enumerate() {
                 for (dim, s) in values.into_iter().enumerate() {
                     let at = (step * t + target) * d + dim;
@@ -325,6 +351,9 @@ impl ParticleFilter {
         let out = PyDict::new(py);
         for (name, values) in ["mean", "lower", "upper"].into_iter().zip(columns) {
             out.set_item(name, to_numpy(py, values, &[steps, t, d])?)?;
+        }
+        if by_evidence {
+            out.set_item("motion", to_numpy(py, chosen.concat(), &[t, d])?)?;
         }
         Ok(out)
     }

@@ -31,18 +31,23 @@ pub fn smooth_motion(smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResul
             "smooth_motion scales the smoother's motion: pass smooth=True too",
         ));
     }
+    motion_argument("smooth_motion", motion)
+}
+
+/// A motion argument named `name` (a number or `"auto"`): `SmoothMotion`, or an error naming it.
+pub fn motion_argument(name: &str, motion: &Bound<'_, PyAny>) -> PyResult<SmoothMotion> {
     let text = if let Ok(text) = motion.extract::<String>() {
         text
     } else if let Ok(scale) = motion.extract::<f64>() {
         // Out of f32's range becomes ±inf or 0, and NaN stays NaN: all outside the range.
         (scale as f32).to_string()
     } else {
-        return Err(pyo3::exceptions::PyTypeError::new_err(
-            "smooth_motion is a number or \"auto\"",
-        ));
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "{name} is a number or \"auto\""
+        )));
     };
     SmoothMotion::parse(&text)
-        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("smooth_motion: {e}")))
+        .map_err(|e| pyo3::exceptions::PyValueError::new_err(format!("{name}: {e}")))
 }
 
 impl Smoothing {

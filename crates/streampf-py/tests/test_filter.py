@@ -238,6 +238,41 @@ def test_smoothed_means_match_rauch_tung_striebel_on_cpu_and_gpu(gpu_backend):
         streampf.ParticleFilter(initial, sigma=[WALK], likelihood=walk_likelihood, backend="cpu").smoothed()
 
 
+def test_the_evidence_chooses_the_smoothers_motion():
+    """A walk filtered with eight times its own step (as a tracker's search is): ``motion="auto"``
+    chooses about the walk's own step for every filter (within one candidate of 1/8), and its
+    smoothed means lie nearer the truth than those at the filter's motion, near the exact RTS
+    smoother's at the walk's own step."""
+    filters, particles, steps, wide = 6, 1000, 120, 8 * WALK
+    rng = np.random.default_rng(21)
+    walk = np.cumsum(rng.normal(0, WALK, steps))
+    ys = (walk + rng.normal(0, SEEN, steps)).astype(np.float32)
+    initial = rng.normal(0, 1, (filters, particles, 1)).astype(np.float32)
+    pf = streampf.ParticleFilter(
+        initial, sigma=[wide], likelihood=walk_likelihood, seed=4, backend="cpu", smooth=True
+    )
+    for y in ys:
+        pf.step(np.full((filters, 1), y, np.float32))
+    own, auto = pf.smoothed(), pf.smoothed(motion="auto")
+    assert auto["motion"].shape == (filters, 1) and auto["motion"].dtype == np.float32
+    assert np.all((auto["motion"] >= 1 / 16) & (auto["motion"] <= 1 / 4)), auto["motion"]
+    assert "motion" not in own
+    assert np.all(auto["lower"] <= auto["mean"]) and np.all(auto["mean"] <= auto["upper"])
+    rms = lambda s: np.sqrt(np.mean((s["mean"][..., 0] - walk[:, None]) ** 2))
+    exact = np.array([kalman_smoother(ys, c.mean(), c.var())[:, 0] for c in initial[..., 0]]).T
+    exact_rms = np.sqrt(np.mean((exact - walk[:, None]) ** 2))
+    assert rms(auto) < 0.8 * rms(own), (rms(auto), rms(own))
+    assert rms(auto) < 1.15 * exact_rms, (rms(auto), exact_rms)
+    # A fixed scale is the same smoother with the walk's σ scaled; bad ones are refused.
+    slow = pf.smoothed(motion=0.125)
+    assert np.all(np.isfinite(slow["mean"])) and "motion" not in slow
+    for bad in ["fast", 0.0, float("nan"), 1e9]:
+        with pytest.raises(ValueError, match="motion"):
+            pf.smoothed(motion=bad)
+    with pytest.raises(TypeError, match="motion"):
+        pf.smoothed(motion=[1.0])
+
+
 def test_smoothing_a_wgsl_propagate_is_refused(gpu_backend):
     own_dynamics = WALK_WGSL + """
 fn propagate(x: State, n: State, c: Constants) -> State {

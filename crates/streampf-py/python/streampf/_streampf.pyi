@@ -248,11 +248,14 @@ class ParticleFilter:
         ``lag``, ``lagged`` is ``None``."""
     def particles(self) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32]]:
         """``(states, log_weights)``: (T, M, D) and (T, M), normalised log-weights."""
-    def smoothed(self) -> Dict[str, np.ndarray]:
+    def smoothed(self, *, motion: Union[float, str, None] = None) -> Dict[str, np.ndarray]:
         """Every step so far smoothed by the steps after it (needs ``smooth=True``): ``mean``,
         ``lower`` and ``upper`` (a 95 % credible interval), each (steps, T, D) float32. The
         marginal particle smoother, each value its own block, the random walk's density (all
-        annealing layers' together)."""
+        annealing layers' together). ``motion`` scales that random walk's σ (0.001 to 1000), or
+        ``"auto"`` lets the evidence choose each target's values' scale among 1, 1/2 … 1/64
+        (the filter re-weighted to each; its intervals take in those at the filter's own
+        motion); the dict then has ``motion`` too, (T, D) float32, the scales chosen."""
 
 def synthetic_faces(
     frames: int = 30,
