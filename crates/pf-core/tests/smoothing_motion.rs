@@ -91,6 +91,16 @@ fn exact_log_evidence(ys: &[f64], step: f64) -> f64 {
     walk.filter(&ys[1..]).iter().map(|f| f.log_likelihood).sum()
 }
 
+/// The exact RTS smoother's means for a walk of `step`, from the prior N(0, 1).
+fn rts_means(ys: &[f64], step: f64) -> Vec<f64> {
+    let walk = RandomWalk {
+        step,
+        noise: NOISE,
+        prior: (0.0, 1.0),
+    };
+    walk.smooth(ys).iter().map(|s| s.0).collect()
+}
+
 fn rms(a: &[f64], b: &[f64]) -> f64 {
     (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
 }
@@ -109,15 +119,7 @@ fn the_evidence_chooses_the_walks_own_motion_and_smooths_as_rts_does() {
         .iter()
         .position(|s| *s == exact_best)
         .unwrap();
-    let tracker_rts: Vec<f64> = RandomWalk {
-        step: FILTER_SIGMA,
-        noise: NOISE,
-        prior: (0.0, 1.0),
-    }
-    .smooth(&ys)
-    .iter()
-    .map(|s| s.0)
-    .collect();
+    let tracker_rts = rts_means(&ys, FILTER_SIGMA);
     let mut gains = Vec::new();
     let (mut covered, mut scored) = (0usize, 0usize);
     for run in &runs {
@@ -133,15 +135,7 @@ fn the_evidence_chooses_the_walks_own_motion_and_smooths_as_rts_does() {
             covered += usize::from(f64::from(row[0].lower) <= *x && *x <= f64::from(row[0].upper));
             scored += 1;
         }
-        let rts_at_choice: Vec<f64> = RandomWalk {
-            step: FILTER_SIGMA * f64::from(chosen),
-            noise: NOISE,
-            prior: (0.0, 1.0),
-        }
-        .smooth(&ys)
-        .iter()
-        .map(|s| s.0)
-        .collect();
+        let rts_at_choice = rts_means(&ys, FILTER_SIGMA * f64::from(chosen));
         let (ours, exact, wide) = (
             rms(&means, &truth),
             rms(&rts_at_choice, &truth),

@@ -259,22 +259,23 @@ def test_smoothing_gives_every_tracked_face_frame_with_an_interval(two_face_vide
         streampf.FaceTracker(width, height, backend="cpu").smoothed()
 
 
-def test_the_evidence_chooses_the_smoothing_motion(two_face_video):
-    video = two_face_video
+def smoothed_two_faces(video, motion):
+    """Two faces of ``video`` tracked over its first 8 frames and smoothed with ``motion``: the
+    smoothed rows and the filtered states, (16, 7)."""
     frames = video["frames"][:8]
     height, width = frames.shape[1:3]
+    tracker = streampf.FaceTracker(
+        width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
+        smooth=True, smooth_motion=motion,
+    )
+    for rect in video["rects"]:
+        tracker.add_face(frames[0], tuple(float(v) for v in rect))
+    states = [tracker.step(frame)["state"] for frame in frames]
+    return tracker.smoothed(), np.stack(states).reshape(-1, 7)
 
-    def run(motion):
-        tracker = streampf.FaceTracker(
-            width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
-            smooth=True, smooth_motion=motion,
-        )
-        for rect in video["rects"]:
-            tracker.add_face(frames[0], tuple(float(v) for v in rect))
-        states = [tracker.step(frame)["state"] for frame in frames]
-        return tracker.smoothed(), np.stack(states).reshape(-1, 7)
 
-    (own, _), (auto, filtered) = run(None), run("auto")
+def test_the_evidence_chooses_the_smoothing_motion(two_face_video):
+    (own, _), (auto, filtered) = [smoothed_two_faces(two_face_video, m) for m in (None, "auto")]
     assert np.array_equal(own["frame"], auto["frame"])
     assert np.array_equal(own["track"], auto["track"])
     # The chosen motion's means, each inside its interval, and that interval takes in the
@@ -291,21 +292,8 @@ def test_the_evidence_chooses_the_smoothing_motion(two_face_video):
 
 def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
     video = two_face_video
-    frames = video["frames"][:8]
-    height, width = frames.shape[1:3]
-
-    def smoothed(motion):
-        tracker = streampf.FaceTracker(
-            width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
-            smooth=True, smooth_motion=motion,
-        )
-        for rect in video["rects"]:
-            tracker.add_face(frames[0], tuple(float(v) for v in rect))
-        for frame in frames:
-            tracker.step(frame)
-        return tracker.smoothed()
-
-    own, slow = smoothed(1.0), smoothed(0.25)
+    height, width = video["frames"].shape[1:3]
+    own, slow = [smoothed_two_faces(video, m)[0] for m in (1.0, 0.25)]
     assert np.array_equal(own["frame"], slow["frame"])
     # A track's last frame is its filtered cloud whatever the motion.
     last = own["frame"] == 7
