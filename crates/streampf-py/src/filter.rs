@@ -7,8 +7,8 @@ use std::sync::{Mutex, TryLockError};
 use numpy::PyUntypedArrayMethods;
 use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape};
-use pf_core::smooth::motion::{SmoothMotion, smooth_values_by_evidence};
-use pf_core::smooth::{Cloud, GaussianTransition, Summary, smooth_values};
+use pf_core::smooth::motion::SmoothMotion;
+use pf_core::smooth::{GaussianTransition, Summary};
 use pf_core::{PfError, Resampler, ResamplerKind};
 use pf_gpu::GpuResampler;
 use pf_gpu::model::{ModelSource, RawModelFilter};
@@ -320,22 +320,7 @@ impl ParticleFilter {
         let per_target = py.detach(|| {
             (0..t)
                 .map(|target| {
-                    let clouds = (kept.iter())
-                        .map(|(states, lw)| {
-                            Cloud::of_target(d, shape.particles, target, states, lw, vec![0.0; d])
-                        })
-                        .collect::<Result<Vec<_>, _>>()?;
-                    if by_evidence {
-                        let (rows, choices) = smooth_values_by_evidence(&clouds, transition)?;
-                        // No step yet: nothing chosen, the tracker's own motion.
-                        let scales = match choices.is_empty() {
-                            true => vec![1.0; d],
-                            false => choices.iter().map(|c| c.scale).collect(),
-                        };
-                        Ok((rows, scales))
-                    } else {
-                        Ok((smooth_values(&clouds, transition)?, Vec::new()))
-                    }
+                    crate::smoothing::smooth_steps(&kept, (shape, target), transition, by_evidence)
                 })
                 .collect::<Result<Vec<(Vec<Vec<Summary>>, Vec<f32>)>, PfError>>()
         });

@@ -120,3 +120,33 @@ pub fn rows_dict<'py>(
     out.set_item("upper", to_numpy(py, column(|s| s.upper), &[n, dims])?)?;
     Ok(out)
 }
+
+/// `ParticleFilter.smoothed()`'s work for one target: every kept step (its states in the batch
+/// layout and normalised log-weights) smoothed, at the transition's motion or, `by_evidence`,
+/// at each value's motion chosen by the evidence (with those scales; none otherwise).
+pub fn smooth_steps(
+    kept: &[(Vec<f32>, Vec<f32>)],
+    (shape, target): (pf_core::batch::BatchShape, usize),
+    transition: &GaussianTransition,
+    by_evidence: bool,
+) -> Result<(Vec<Vec<pf_core::smooth::Summary>>, Vec<f32>), pf_core::PfError> {
+    let d = shape.dims;
+    let clouds = (kept.iter())
+        .map(|(states, lw)| {
+            pf_core::smooth::Cloud::of_target(d, shape.particles, target, states, lw, vec![0.0; d])
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    if !by_evidence {
+        return Ok((
+            pf_core::smooth::smooth_values(&clouds, transition)?,
+            Vec::new(),
+        ));
+    }
+    let (rows, choices) = pf_core::smooth::motion::smooth_values_by_evidence(&clouds, transition)?;
+    // No step yet: nothing chosen, the filter's own motion.
+    let scales = match choices.is_empty() {
+        true => vec![1.0; d],
+        false => choices.iter().map(|c| c.scale).collect(),
+    };
+    Ok((rows, scales))
+}
