@@ -230,13 +230,12 @@ impl Smoother {
     }
 
     /// The same smoother with each track's values' motion chosen by the evidence
-    /// (`--smooth-motion auto`: `pf_core::smooth::motion::EvidenceMotion`, on the CPU's cores in
-    /// place of a GPU smoother).
+    /// (`--smooth-motion auto`: `pf_core::smooth::motion::EvidenceMotion`, on the CPU's cores;
+    /// create it without a GPU).
     pub fn choosing_motion_by_evidence(mut self) -> Self {
         let chooser = std::sync::Arc::new(EvidenceMotion::default());
         self.tracks = self.tracks.on(chooser.clone());
         self.by_evidence = Some(chooser);
-        self.on_gpu = None;
         self
     }
 

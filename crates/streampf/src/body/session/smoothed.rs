@@ -46,10 +46,13 @@ impl BodySmoothing {
         let on_device = crate::smoothing::keep_lag_on_device((lag, how), on_gpu, "samples", |l| {
             Ok(tracker.keep_lag_window(l, with_truth)?)
         });
-        let mut smoothing = Self::create(out, (lag, how), tracker, transition, with_truth)?;
-        if asked.by_evidence() {
-            smoothing.smoother = smoothing.smoother.choosing_motion_by_evidence();
-        }
+        let smoothing = Self::create(
+            out,
+            (lag, how),
+            tracker,
+            (transition, asked.by_evidence()),
+            with_truth,
+        )?;
         Ok(Some(if on_device {
             let angular = smoothing.angular.clone();
             Self {
@@ -61,12 +64,14 @@ impl BodySmoothing {
         }))
     }
 
-    /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
+    /// smoothed.csv in `out`, with `lag` (`None`: the whole run), under `transition`, or at the
+    /// motion the evidence chooses when `by_evidence` (`--smooth-motion auto`: on the CPU, so no
+    /// GPU smoother is built).
     fn create(
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &BodyTracker,
-        transition: pf_core::smooth::GaussianTransition,
+        (transition, by_evidence): (pf_core::smooth::GaussianTransition, bool),
         with_truth: bool,
     ) -> anyhow::Result<Self> {
         let names = tracker.skeleton().pose_names();
@@ -78,9 +83,14 @@ impl BodySmoothing {
             tracker.motion_gain(),
             &names,
             false,
-            tracker.gpu_context(),
+            tracker.gpu_context().filter(|_| !by_evidence),
         )?
         .lagging_by(how);
+        let smoother = if by_evidence {
+            smoother.choosing_motion_by_evidence()
+        } else {
+            smoother
+        };
         // The filtered summaries are scored beside the smoothed ones only against a truth.
         let smoother = if with_truth {
             smoother.comparing_filtered()

@@ -43,11 +43,13 @@ impl FaceSmoothing {
             crate::smoothing::keep_lag_on_device((lag, how), on_gpu, "particles", |l| {
                 runner.keep_lag_window(l, with_truth)
             });
-        let mut smoothing =
-            Self::create(out, (lag, how), runner.tracker(), transition, with_truth)?;
-        if asked.by_evidence() {
-            smoothing.smoother = smoothing.smoother.choosing_motion_by_evidence();
-        }
+        let smoothing = Self::create(
+            out,
+            (lag, how),
+            runner.tracker(),
+            (transition, asked.by_evidence()),
+            with_truth,
+        )?;
         Ok(Some(if on_device {
             Self {
                 smoother: smoothing
@@ -60,12 +62,14 @@ impl FaceSmoothing {
         }))
     }
 
-    /// smoothed.csv in `out`, with `lag` (`None`: the whole run).
+    /// smoothed.csv in `out`, with `lag` (`None`: the whole run), under `transition`, or at the
+    /// motion the evidence chooses when `by_evidence` (`--smooth-motion auto`: on the CPU, so no
+    /// GPU smoother is built).
     fn create(
         out: &Path,
         (lag, how): (Option<usize>, crate::smoothing::LagSmoother),
         tracker: &FaceTracker,
-        transition: pf_core::smooth::GaussianTransition,
+        (transition, by_evidence): (pf_core::smooth::GaussianTransition, bool),
         with_truth: bool,
     ) -> anyhow::Result<Self> {
         let names: Vec<String> = STATE_NAMES.iter().map(|n| n.to_string()).collect();
@@ -76,9 +80,14 @@ impl FaceSmoothing {
             tracker.motion_gain(),
             &names,
             true,
-            tracker.gpu_context(),
+            tracker.gpu_context().filter(|_| !by_evidence),
         )?
         .lagging_by(how);
+        let smoother = if by_evidence {
+            smoother.choosing_motion_by_evidence()
+        } else {
+            smoother
+        };
         // The filtered summaries are scored beside the smoothed ones only against a truth.
         let smoother = if with_truth {
             smoother.comparing_filtered()
