@@ -36,7 +36,12 @@ pub fn smooth_motion(smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResul
 
 /// A motion argument named `name` (a number or `"auto"`): `SmoothMotion`, or an error naming it.
 pub fn motion_argument(name: &str, motion: &Bound<'_, PyAny>) -> PyResult<SmoothMotion> {
-    let text = if let Ok(text) = motion.extract::<String>() {
+    // A bool is a Python int, so it would read as 0 or 1: refused as the mistake it likely is.
+    let text = if motion.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(pyo3::exceptions::PyTypeError::new_err(format!(
+            "{name} is a number or \"auto\", not a bool"
+        )));
+    } else if let Ok(text) = motion.extract::<String>() {
         text
     } else if let Ok(scale) = motion.extract::<f64>() {
         // Out of f32's range becomes ±inf or 0, and NaN stays NaN: all outside the range.

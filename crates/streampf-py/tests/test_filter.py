@@ -269,8 +269,9 @@ def test_the_evidence_chooses_the_smoothers_motion():
     for bad in ["fast", 0.0, float("nan"), 1e9]:
         with pytest.raises(ValueError, match="motion"):
             pf.smoothed(motion=bad)
-    with pytest.raises(TypeError, match="motion"):
-        pf.smoothed(motion=[1.0])
+    for wrong_type in [[1.0], True]:
+        with pytest.raises(TypeError, match="motion"):
+            pf.smoothed(motion=wrong_type)
 
 
 def test_smoothing_a_wgsl_propagate_is_refused(gpu_backend):

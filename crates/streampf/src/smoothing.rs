@@ -53,9 +53,9 @@ pub struct SmoothArgs {
     /// of the tracker's own diffusion over a frame (its annealing layers' random walks composed,
     /// the default 1): below 1 it holds the track to slower motion, steadier and with narrower
     /// intervals, and lags a head that turns (docs/ACCURACY.md, "Smoothing against the mesh's
-    /// jitter"). From 0.001 to 1000. `auto` (with --smooth full): each track's values each get the share the
-    /// evidence favours among 1, 1/2 ... 1/64 (the filter re-weighted to each; on the CPU's
-    /// cores, wherever the tracker runs). The ancestry smoother has no motion to scale.
+    /// jitter"). From 0.001 to 1000. `auto` (with --smooth full): each track's values each get
+    /// the share the evidence favours among 1, 1/2 ... 1/64 (the filter re-weighted to each; on
+    /// the CPU's cores, wherever the tracker runs). The ancestry smoother has no motion to scale.
     #[arg(
         long,
         value_name = "SCALE|auto",
