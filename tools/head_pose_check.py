@@ -36,12 +36,16 @@ A talking head turns far only now and then, so a whole clip's spread is mostly s
 there about its own mean, and the comparison over them. The stretch is chosen by the
 reference's motion alone, never by the tracker's agreement with it.
 
+`--tracked-video SMALL` pairs a run on a resized copy of VIDEO (a face made small, say) with
+the reference found on VIDEO itself: the track's centre is scaled by the ratio of the frame sizes.
+
 Per axis it also reports the jitter, the median |change| from one paired frame to the next, of
 the tracker and of the reference. STATES_CSV may be a smoothed.csv (`face track --smooth full`
 or `--smooth-lag L`) to check the smoothed trajectory.
 
     python3 tools/head_pose_check.py VIDEO STATES_CSV [--reference mesh|six-point]
         [--json OUT.json] [--min-frames 30] [--max-frames N] [--smooth 5] [--widest 300]
+        [--tracked-video SMALL.mp4]
 
 The mesh needs mediapipe==0.10.14 and the six-point reference dlib and its model at
 /usr/share/dlib/shape_predictor_68_face_landmarks.dat (Debian's libdlib-data); both need numpy and
@@ -178,6 +182,19 @@ def six_point_reference(video, max_frames=None):
     return frames
 
 
+def frame_size(video):
+    """(width, height) of a video's first frame; exits with a message when it cannot be read."""
+    for image in frames_of(video, 1):
+        return image.shape[1], image.shape[0]
+    sys.exit(f"could not read a frame of {video}")
+
+
+def resize_factors(video, tracked_video):
+    """How much larger VIDEO's frames are than TRACKED_VIDEO's, in x and in y."""
+    (width, height), (small_width, small_height) = frame_size(video), frame_size(tracked_video)
+    return width / small_width, height / small_height
+
+
 def tracker_rows(states_csv):
     """{track: [(frame, tx, ty, (pitch, yaw, roll))]} of the rows being tracked: from states.csv,
     or from smoothed.csv (`face track --smooth full` or `--smooth-lag L`: every row is a tracked
@@ -269,6 +286,11 @@ def main():
         metavar="N",
         help="also compare, per axis, over the N paired frames where the reference moves furthest",
     )
+    parser.add_argument(
+        "--tracked-video",
+        metavar="SMALL",
+        help="the video the tracker ran on, a resized copy of VIDEO (the reference runs on VIDEO)",
+    )
     args = parser.parse_args()
     for name in ("min_frames", "max_frames", "smooth", "widest"):
         value = getattr(args, name)
@@ -276,12 +298,16 @@ def main():
             parser.error(f"--{name.replace('_', '-')} must be at least 1, not {value}")
     poses = mesh_reference if args.reference == "mesh" else six_point_reference
     reference = poses(args.video, args.max_frames)
+    scale_x, scale_y = (
+        resize_factors(args.video, args.tracked_video) if args.tracked_video else (1.0, 1.0)
+    )
     results = {}
     for track, rows in sorted(tracker_rows(args.states_csv).items()):
         pairs = []
         for frame, tx, ty, angles in rows:
             if frame >= len(reference):
                 continue
+            tx, ty = tx * scale_x, ty * scale_y
             near = [
                 f
                 for f in reference[frame]
