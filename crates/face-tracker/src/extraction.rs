@@ -94,6 +94,12 @@ pub struct ExtractionConfig {
     /// changes as moves of the head. Needs the face's landmarks, so it applies to personalised
     /// templates only.
     pub eye_outline_growth: Option<f32>,
+    /// A face rectangle narrower than this many pixels has its landmarks fitted and its template
+    /// extracted in its region enlarged by a whole factor (at least 2, at most 4) that brings it
+    /// to this width, and the template scaled back to the frame (`enlarge::Enlarged`): the
+    /// extraction's pixel scale and the landmark fit then see a small face as they see a larger
+    /// one. `None`: every face is taken at its own size.
+    pub enlarge_below: Option<f32>,
 }
 
 /// A closed polygon in frame pixels, its vertices in order.
@@ -112,6 +118,11 @@ impl Default for ExtractionConfig {
             // Chosen on real clips against MediaPipe's face mesh (docs/ACCURACY.md, "The eyes"):
             // 1.3 clears the iris and the white without reaching the brows.
             eye_outline_growth: Some(1.3),
+            // Chosen on real clips made small (docs/ACCURACY.md, "Small faces"): a face
+            // narrower than about 57 px of detector box gets its pitch and yaw back enlarged
+            // to 70-90 px; carphone's 48 px face enlarged lost some of its pitch, so a face
+            // that wide is taken as it is.
+            enlarge_below: Some(46.0),
         }
     }
 }
@@ -382,6 +393,9 @@ pub fn extract_template_seen(
         || config
             .eye_outline_growth
             .is_some_and(|g| !(g.is_finite() && g >= 1.0))
+        || config
+            .enlarge_below
+            .is_some_and(|w| !(w.is_finite() && w >= 0.0))
     {
         return Err(FaceError::InvalidInput(format!(
             "invalid extraction settings: {config:?}"

@@ -6,8 +6,9 @@
 //! - [`projection`]: the 7-D state (Tx, Ty, S, Rx, Ry, Rz, α) and the weak-perspective projection
 //!   with self-occlusion by rotated normals;
 //! - [`template`]: feature points (P, N, J); [`extraction`]: the sparse template from the face
-//!   sub-image at t0 (gray-level extrema and LoG boundary dipoles); [`model`]: the face model
-//!   (heightmap + normalmap) that gives each point its depth and normal;
+//!   sub-image at t0 (gray-level extrema and LoG boundary dipoles), a small face's taken in its
+//!   region [`enlarge`]d; [`model`]: the face model (heightmap + normalmap) that gives each
+//!   point its depth and normal;
 //! - [`likelihood`]: the robust relative residual ε and π ∝ 1/ε on the CPU (one thread: the
 //!   Fig. 6 baseline; and rayon) and beside it its GPU launcher, [`likelihood::gpu`]
 //!   (`shaders/face/likelihood.wgsl`);
@@ -24,6 +25,7 @@
 pub mod auto;
 pub mod camera;
 pub mod detect;
+pub mod enlarge;
 pub mod error;
 pub mod extraction;
 pub mod identity;

@@ -10,10 +10,12 @@ use std::sync::atomic::Ordering;
 use pf_core::batch::{BatchShape, gaussian_clouds};
 
 use super::{FaceTracker, Track};
+use crate::enlarge::Enlarged;
 use crate::error::FaceError;
 use crate::extraction::{FaceRect, extract_template_seen, eye_outlines};
 use crate::image::GrayImage;
 use crate::landmarks::Landmarks;
+use crate::lens::Lens;
 use crate::likelihood::residual_error_through;
 use crate::personal::Personaliser;
 use crate::projection::{DIMS, RX, RY, RZ, SCALE, TX, TY, rotation};
@@ -276,7 +278,9 @@ impl FaceTracker {
         self.extract_seen(frame, rect, &View::frontal())
     }
 
-    /// [`Self::extract_with_landmarks`] for a face seen with `view`.
+    /// [`Self::extract_with_landmarks`] for a face seen with `view`. A face narrower than
+    /// `ExtractionConfig::enlarge_below` is fitted and extracted in its region enlarged
+    /// ([`Enlarged`]), and its template and landmarks scaled back to the frame.
     fn extract_seen(
         &self,
         frame: &GrayImage,
@@ -285,8 +289,32 @@ impl FaceTracker {
     ) -> Result<(Template, Option<Landmarks>), FaceError> {
         self.check_size((frame.width, frame.height))?;
         rect.validate(frame)?;
+        let enlarged = match self.config.extraction.enlarge_below {
+            Some(width) => Enlarged::around(frame, rect, width)?,
+            None => None,
+        };
+        let Some(enlarged) = enlarged else {
+            return self.extract_through(frame, rect, view, &self.lens);
+        };
+        let lens = enlarged.lens(&self.lens);
+        let (template, landmarks) =
+            self.extract_through(&enlarged.frame, &enlarged.rect, view, &lens)?;
+        let landmarks =
+            landmarks.map(|fitted| fitted.into_iter().map(|l| enlarged.to_frame(l)).collect());
+        Ok((enlarged.shrink(template), landmarks))
+    }
+
+    /// The template of the face at `rect` in `frame` seen with `view` through `lens` (the
+    /// tracker's frame and lens, or a face's enlarged region and the lens as it sees it).
+    fn extract_through(
+        &self,
+        frame: &GrayImage,
+        rect: &FaceRect,
+        view: &View,
+        lens: &Lens,
+    ) -> Result<(Template, Option<Landmarks>), FaceError> {
         let personal = self.personaliser.as_ref().and_then(|p| {
-            let fitted = (p.personalise_seen(frame, rect, &self.model, view, &self.lens)).ok();
+            let fitted = (p.personalise_seen(frame, rect, &self.model, view, lens)).ok();
             let counter = if fitted.is_some() {
                 &self.personalised
             } else {
@@ -307,7 +335,7 @@ impl FaceTracker {
             model,
             &self.config.extraction,
             view,
-            &self.lens,
+            lens,
             &avoid,
         )?;
         // The landmarks on the model's surface: the fitted ones, else the generic head's.
@@ -320,10 +348,10 @@ impl FaceTracker {
         let fitted_on_surface = |l: &[f32; 2]| {
             let offset = [l[0] - cx, l[1] - cy];
             let frontal = || on_surface(offset[0] / hw, offset[1] / hh);
-            if view.is_frontal() && self.lens.is_weak() {
+            if view.is_frontal() && lens.is_weak() {
                 return frontal();
             }
-            (view.cast_through(&self.lens, [cx, cy], model, (hw, hh), offset))
+            (view.cast_through(lens, [cx, cy], model, (hw, hh), offset))
                 .map_or_else(frontal, |(point, _)| point)
         };
         template.landmarks = match (&personal, &self.personaliser) {

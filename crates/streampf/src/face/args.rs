@@ -400,6 +400,12 @@ pub struct TrackArgs {
     /// Applies where the landmarks are fitted (not with --generic-model or --synthetic).
     #[arg(long, default_value_t = FaceTrackerConfig::default().extraction.eye_outline_growth.unwrap_or(0.0), value_parser = eye_outline_growth)]
     pub eye_outline_growth: f32,
+    /// A face narrower than this many pixels (its template's rectangle, about four fifths of
+    /// the detector's box) has its landmarks fitted and its template taken in its region
+    /// enlarged 2-4 times, so that a small face gets a template at a larger face's pixel scale
+    /// (docs/ACCURACY.md, "Small faces"). 0: every face at its own size.
+    #[arg(long, default_value_t = FaceTrackerConfig::default().extraction.enlarge_below.unwrap_or(0.0), value_parser = enlarge_below)]
+    pub enlarge_below: f32,
     /// Stop at the first frame that cannot be read (after writing every frame before it)
     /// instead of skipping it with a warning.
     #[arg(long)]
@@ -464,6 +470,18 @@ pub(super) fn eye_outline_growth(text: &str) -> Result<f32, String> {
     } else {
         Err(format!(
             "{value}: give 0 (take the eyes) or a factor of at least 1"
+        ))
+    }
+}
+
+/// `--enlarge-below`: a finite width in pixels, 0 or more (0: no face is enlarged).
+pub(super) fn enlarge_below(text: &str) -> Result<f32, String> {
+    let value: f32 = text.parse().map_err(|e| format!("{e}"))?;
+    if value.is_finite() && value >= 0.0 {
+        Ok(value)
+    } else {
+        Err(format!(
+            "{value}: give a width in pixels, 0 or more (0: off)"
         ))
     }
 }

@@ -255,6 +255,7 @@ fn settings_of(args: &TrackArgs, size: (u32, u32)) -> anyhow::Result<FaceTracker
         motion: args.filter.motion(defaults.motion)?,
         extraction: ExtractionConfig {
             eye_outline_growth: (args.eye_outline_growth > 0.0).then_some(args.eye_outline_growth),
+            enlarge_below: (args.enlarge_below > 0.0).then_some(args.enlarge_below),
             ..defaults.extraction
         },
         focal_length: (args.video.fov)
