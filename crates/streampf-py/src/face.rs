@@ -106,14 +106,25 @@ pub struct FaceTracker {
     photographed: bool,
 }
 
-fn config(particles: usize, seed: u64, layers: Option<usize>) -> PyResult<FaceTrackerConfig> {
+fn config(
+    particles: usize,
+    seed: u64,
+    layers: Option<usize>,
+    enlarge_below: Option<&Bound<'_, PyAny>>,
+) -> PyResult<FaceTrackerConfig> {
     let defaults = FaceTrackerConfig::default();
     let annealing = crate::settings::annealing(particles, layers, &defaults.annealing)?;
+    let enlarge_below =
+        crate::settings::enlarge_below(enlarge_below, defaults.extraction.enlarge_below)?;
     Ok(FaceTrackerConfig {
         particles,
         best: (particles / 10).max(1),
         seed,
         annealing,
+        extraction: face_tracker::extraction::ExtractionConfig {
+            enlarge_below,
+            ..defaults.extraction
+        },
         ..defaults
     })
 }
@@ -262,7 +273,7 @@ impl FaceTracker {
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
         layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto",
         smooth = false, camera = None, scene_cut = Some(face_tracker::scene_cut::DEFAULT_SCENE_CUT),
-        smooth_motion = None
+        smooth_motion = None, enlarge_below = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -287,6 +298,7 @@ impl FaceTracker {
         camera: Option<&Bound<'_, PyAny>>,
         scene_cut: Option<f32>,
         smooth_motion: Option<&Bound<'_, PyAny>>,
+        enlarge_below: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
         let (width, height) = frame_size(width, height)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
@@ -306,7 +318,7 @@ impl FaceTracker {
             .map_err(|e: face_tracker::FaceError| value_error(format!("face_model: {e}")))?;
         // Frames from arrays are real frames (a synthetic video is asked for by name).
         let photographed = built_in.is_photographed(false);
-        let config = config(particles, seed, layers)?;
+        let config = config(particles, seed, layers, enlarge_below)?;
         let config = crate::camera::with_lens(config, fov, camera, (width, height))?;
         let cascade = load_cascade(detect, cascade)?;
         let contexts = open(py, choice, allow_software)?;

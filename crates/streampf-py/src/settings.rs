@@ -25,3 +25,31 @@ pub fn annealing(
         },
     })
 }
+
+/// `enlarge_below`: `None` for the tracker's default width (`ExtractionConfig::enlarge_below`),
+/// 0 for none, else a finite width in pixels; a bool (a Python int that would read as 0 or 1
+/// pixel) or a negative or non-finite width is refused.
+pub fn enlarge_below(
+    value: Option<&Bound<'_, PyAny>>,
+    default: Option<f32>,
+) -> PyResult<Option<f32>> {
+    let Some(value) = value else {
+        return Ok(default);
+    };
+    if value.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(pyo3::exceptions::PyTypeError::new_err(
+            "enlarge_below is a width in pixels (0: no face enlarged), not a bool",
+        ));
+    }
+    let width: f64 = value.extract().map_err(|_| {
+        pyo3::exceptions::PyTypeError::new_err(format!(
+            "enlarge_below is a width in pixels, got {value}"
+        ))
+    })?;
+    if !(width.is_finite() && width >= 0.0) {
+        return Err(value_error(format!(
+            "enlarge_below must be a finite width of 0 pixels or more (0: no face enlarged), got {width}"
+        )));
+    }
+    Ok((width > 0.0).then_some(width as f32))
+}

@@ -316,3 +316,24 @@ def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
         streampf.FaceTracker(width, height, backend="cpu", smooth_motion="auto")
     with pytest.raises(ValueError, match="smooth=True"):
         streampf.BodyTracker(backend="cpu", smooth_motion=0.5)
+
+
+def test_small_faces_are_enlarged_as_the_command_line_does():
+    """Heads 40 px wide (under the default 46): the default enlarges them (the same states as
+    ``enlarge_below=46``), ``enlarge_below=0`` takes them at their own size (other templates,
+    so other states), and a bad width is refused before anything runs."""
+    video = streampf.synthetic_faces(20, width=320, height=240, faces=2, half_width=20.0)
+    assert np.all(video["rects"][:, 2] < 46)
+    default, _ = track(video, particles=128, backend="cpu")
+    explicit, _ = track(video, particles=128, backend="cpu", enlarge_below=46)
+    own_size, _ = track(video, particles=128, backend="cpu", enlarge_below=0)
+    np.testing.assert_array_equal(default, explicit)
+    assert not np.array_equal(default, own_size)
+    translation = np.linalg.norm(default[..., :2] - video["truth"][..., :2], axis=-1).mean()
+    assert translation <= MAX_TRANSLATION_PX, translation
+    for bad in [-1.0, float("nan"), float("inf")]:
+        with pytest.raises(ValueError, match="enlarge_below"):
+            streampf.FaceTracker(320, 240, enlarge_below=bad)
+    for bad in [True, "wide"]:
+        with pytest.raises(TypeError, match="enlarge_below"):
+            streampf.FaceTracker(320, 240, enlarge_below=bad)

@@ -43,7 +43,10 @@ class FaceTracker:
     video's heads: track ``synthetic_faces`` frames with it). ``scene_cut`` (with ``detect``): a
     frame whose gray-level histogram moved by more than this (L1, 0 to 2) since the frame before
     starts a new shot; the detector looks at it, and the tracks it does not find again end there
-    (``lost``), as ``face track --scene-cut``; ``None`` turns it off.
+    (``lost``), as ``face track --scene-cut``; ``None`` turns it off. ``enlarge_below``: a face
+    narrower than this many pixels (its template's rectangle) has its landmarks fitted and its
+    template taken in its region enlarged 2–4 times, as ``face track --enlarge-below``; ``None``
+    for the default (46), 0 for none (docs/ACCURACY.md, "Small faces").
 
     Thread-safe; ``step`` releases the GIL, so trackers in different threads run at once.
     """
@@ -71,6 +74,7 @@ class FaceTracker:
         camera: Union[Tuple[float, float, float, float], str, PathLike, None] = None,
         scene_cut: Optional[float] = 0.25,
         smooth_motion: Union[float, str, None] = None,
+        enlarge_below: Optional[float] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it
