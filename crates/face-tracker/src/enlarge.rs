@@ -8,8 +8,9 @@
 //! extraction and of the fit is what changes), the landmarks are fitted and the template is
 //! extracted there, and the template is scaled back to the frame. The likelihood still samples
 //! the frame itself: at whole factors the enlarged region's bilinear samples are the frame's
-//! (a bilinear patch is reproduced exactly by bilinear interpolation of its own samples), so the
-//! template's gray levels agree with what the tracker will see.
+//! (a bilinear patch is reproduced exactly by bilinear interpolation of its own samples) to
+//! within the 8-bit rounding of the region's levels (half a gray level), so the template's gray
+//! levels agree with what the tracker will see.
 
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
@@ -51,25 +52,27 @@ impl Enlarged {
             return Ok(None);
         }
         let factor = ((min_width / rect.width).ceil() as u32).clamp(2, MAX_FACTOR) as f32;
+        // Room around the face on every side (the landmark fit looks at a square of the
+        // rectangle's height about its centre, within half a width of it; the blur and the
+        // dipoles need a few pixels past the face's ellipse).
         let margin = 0.5 * rect.width;
         let (last_x, last_y) = ((frame.width - 1) as f32, (frame.height - 1) as f32);
         let x0 = (rect.x - margin).max(0.0).floor();
         let y0 = (rect.y - margin).max(0.0).floor();
+        // Up to the frame's far edge, not its last pixel: a rectangle may end at the edge, and
+        // the region must hold it; samples past the last pixel repeat it.
         let x1 = (rect.x + rect.width + margin)
-            .min(last_x)
             .ceil()
-            .min(last_x);
+            .min(frame.width as f32);
         let y1 = (rect.y + rect.height + margin)
-            .min(last_y)
             .ceil()
-            .min(last_y);
+            .min(frame.height as f32);
         let width = ((x1 - x0) * factor) as u32 + 1;
         let height = ((y1 - y0) * factor) as u32 + 1;
         let mut data = Vec::with_capacity(width as usize * height as usize);
         for j in 0..height {
             for i in 0..width {
                 let (x, y) = (x0 + i as f32 / factor, y0 + j as f32 / factor);
-                // Inside [x0, x1] × [y0, y1] ⊂ the frame by construction; clamp for rounding.
                 let level = frame
                     .bilinear(x.min(last_x), y.min(last_y))
                     .unwrap_or_default();

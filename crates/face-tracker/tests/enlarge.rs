@@ -41,26 +41,28 @@ proptest! {
     #![proptest_config(ProptestConfig::with_cases(48))]
 
     /// The factor is the smallest whole one (2 to 4) that makes the face `min_width` wide; the
-    /// region's pixels are the frame's bilinear samples where `to_frame` puts them; the face's
-    /// rectangle maps back onto itself; a face already that wide is not enlarged.
+    /// face's rectangle lies inside the region (a rectangle ending at the frame's edge too); the
+    /// region's pixels are the frame's bilinear samples where `to_frame` puts them (past the
+    /// frame's last pixel, that pixel repeated); a face already that wide is not enlarged.
     #[test]
-    fn the_region_maps_back_onto_the_frame(
+    fn the_region_holds_the_face_and_maps_back_onto_the_frame(
         width in 10u32..90,
         height in 10u32..70,
         levels in prop::collection::vec(any::<u8>(), 1..64),
-        fx in 0.0f32..1.0, fy in 0.0f32..1.0, fw in 0.0f32..=1.0, fh in 0.0f32..=1.0,
+        fx in 0.0f32..=1.0, fy in 0.0f32..=1.0, fw in 0.0f32..=1.0, fh in 0.0f32..=1.0,
         min_width in 0.0f32..200.0,
     ) {
         let frame = noise_frame(width, height, &levels);
-        // A face rectangle is at least 8x8 and within the frame.
-        let rect_width = 8.0 + fw * (width - 9) as f32;
-        let rect_height = 8.0 + fh * (height - 9) as f32;
+        // A face rectangle is at least 8x8 and within the frame, up to its far edges.
+        let rect_width = 8.0 + fw * (width - 8) as f32;
+        let rect_height = 8.0 + fh * (height - 8) as f32;
         let rect = FaceRect {
-            x: fx * ((width - 1) as f32 - rect_width),
-            y: fy * ((height - 1) as f32 - rect_height),
+            x: fx * (width as f32 - rect_width),
+            y: fy * (height as f32 - rect_height),
             width: rect_width,
             height: rect_height,
         };
+        prop_assert!(rect.validate(&frame).is_ok());
         let enlarged = Enlarged::around(&frame, &rect, min_width).unwrap();
         let Some(enlarged) = enlarged else {
             prop_assert!(rect.width >= min_width);
@@ -71,21 +73,20 @@ proptest! {
         prop_assert!((2.0..=MAX_FACTOR as f32).contains(&factor));
         prop_assert!(factor == 2.0 || rect.width * (factor - 1.0) < min_width);
         prop_assert!(factor == MAX_FACTOR as f32 || rect.width * factor >= min_width);
-        for (corner, enlarged_corner) in [
-            ([rect.x, rect.y], [enlarged.rect.x, enlarged.rect.y]),
-            (
-                [rect.x + rect.width, rect.y + rect.height],
-                [enlarged.rect.x + enlarged.rect.width, enlarged.rect.y + enlarged.rect.height],
-            ),
-        ] {
-            let back = enlarged.to_frame(enlarged_corner);
-            prop_assert!((back[0] - corner[0]).abs() < 1e-3 && (back[1] - corner[1]).abs() < 1e-3);
-        }
         let region = &enlarged.frame;
+        prop_assert!(
+            enlarged.rect.validate(region).is_ok(),
+            "{:?} in a {}x{} region",
+            enlarged.rect,
+            region.width,
+            region.height
+        );
+        let (last_x, last_y) = ((width - 1) as f32, (height - 1) as f32);
         for j in (0..region.height).step_by(3) {
             for i in (0..region.width).step_by(3) {
                 let [x, y] = enlarged.to_frame([i as f32, j as f32]);
-                let expected = frame.bilinear(x, y).unwrap();
+                prop_assert!(x <= width as f32 && y <= height as f32);
+                let expected = frame.bilinear(x.min(last_x), y.min(last_y)).unwrap();
                 prop_assert!((region.at(i, j) - expected).abs() <= 0.5 + 1e-3);
             }
         }
@@ -233,4 +234,51 @@ fn a_face_wide_enough_is_taken_as_it_is_and_bad_widths_are_refused() {
             "{bad}"
         );
     }
+}
+
+/// A small face whose rectangle ends at the frame's right and bottom edges (where the detector
+/// may put one) is enlarged and gets its template, as it does at its own size.
+#[test]
+fn a_small_face_at_the_frame_s_edge_gets_its_template() {
+    let (frame, rect, model) = small_head(18.0);
+    let at_edge = FaceRect {
+        x: frame.width as f32 - rect.width,
+        y: frame.height as f32 - rect.height,
+        ..rect
+    };
+    let as_is = (tracker_for(&frame, &model, None, None).extract(&frame, &at_edge)).unwrap();
+    let enlarged = tracker_for(&frame, &model, Some(rect.width * 2.0), None)
+        .extract(&frame, &at_edge)
+        .unwrap();
+    assert!(!as_is.points.is_empty() && !enlarged.points.is_empty());
+}
+
+/// With `points_per_width`, an enlarged face takes the points its own width allows, not its
+/// enlarged width's.
+#[test]
+fn an_enlarged_face_takes_the_points_of_its_own_width() {
+    let (frame, rect, model) = small_head(18.0);
+    let per_pixel = |enlarge_below| {
+        let config = FaceTrackerConfig {
+            extraction: ExtractionConfig {
+                points_per_width: Some(0.5),
+                enlarge_below,
+                ..ExtractionConfig::default()
+            },
+            ..FaceTrackerConfig::default()
+        };
+        FaceTracker::with_capacity(
+            (frame.width, frame.height),
+            1,
+            &model,
+            config,
+            FaceBackend::Cpu,
+        )
+        .unwrap()
+        .extract(&frame, &rect)
+        .unwrap()
+    };
+    let allowed = (0.5 * rect.width).round() as usize;
+    assert_eq!(per_pixel(Some(rect.width * 2.0)).points.len(), allowed);
+    assert_eq!(per_pixel(None).points.len(), allowed);
 }

@@ -46,10 +46,12 @@ pub fn enlarge_below(
             "enlarge_below is a width in pixels, got {value}"
         ))
     })?;
-    if !(width.is_finite() && width >= 0.0) {
+    // Checked as f32, the tracker's type: 1e300 is finite as f64 and infinite as f32.
+    let narrow = width as f32;
+    if !(narrow.is_finite() && narrow >= 0.0) {
         return Err(value_error(format!(
             "enlarge_below must be a finite width of 0 pixels or more (0: no face enlarged), got {width}"
         )));
     }
-    Ok((width > 0.0).then_some(width as f32))
+    Ok((narrow > 0.0).then_some(narrow))
 }

@@ -318,7 +318,7 @@ def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
         streampf.BodyTracker(backend="cpu", smooth_motion=0.5)
 
 
-def test_small_faces_are_enlarged_as_the_command_line_does():
+def test_small_faces_are_enlarged_by_default():
     """Heads 40 px wide (under the default 46): the default enlarges them (the same states as
     ``enlarge_below=46``), ``enlarge_below=0`` takes them at their own size (other templates,
     so other states), and a bad width is refused before anything runs."""
@@ -331,7 +331,7 @@ def test_small_faces_are_enlarged_as_the_command_line_does():
     assert not np.array_equal(default, own_size)
     translation = np.linalg.norm(default[..., :2] - video["truth"][..., :2], axis=-1).mean()
     assert translation <= MAX_TRANSLATION_PX, translation
-    for bad in [-1.0, float("nan"), float("inf")]:
+    for bad in [-1.0, float("nan"), float("inf"), 1e300]:
         with pytest.raises(ValueError, match="enlarge_below"):
             streampf.FaceTracker(320, 240, enlarge_below=bad)
     for bad in [True, "wide"]:

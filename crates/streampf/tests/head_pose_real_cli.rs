@@ -241,7 +241,7 @@ fn through_the_camera_s_lens_the_head_turns_and_nods_as_far_as_the_mesh_says() {
     );
 }
 
-/// Carphone at 0.65 of its size (114x92, the face about 35 px wide where the mesh's box is 46):
+/// Carphone at about 0.65 of its size (114x92, the template's rectangle about 35 px wide):
 /// a small face, made by FFmpeg's area filter as a camera farther away would see it. Taken at
 /// its own size the template has 52-59 coarse points, and the track read the mesh's yaw 2.5
 /// times as far and its pitch with r 0.2-0.3; enlarged (the default, `--enlarge-below 46`) the
@@ -279,8 +279,10 @@ fn a_small_real_face_keeps_its_pitch_and_yaw() {
     let out = track_clip(&small, "carphone-small-run", &[]).expect("not skipped");
     let track = against_the_mesh_of(&out, Some(&small));
     let slow = &track["smoothed"];
+    // Measured enlarged: yaw r 0.96, spread 1.09, pitch r 0.82; at its own size (the same
+    // options and `--enlarge-below 0`) 0.91, 2.65 and 0.28.
     let (yaw_r, yaw_ratio) = axis(slow, "yaw");
-    assert!(yaw_r >= 0.9, "yaw r {yaw_r}");
+    assert!(yaw_r >= 0.93, "yaw r {yaw_r}");
     assert!((0.85..=1.3).contains(&yaw_ratio), "yaw spread {yaw_ratio}");
     let (pitch_r, _) = axis(slow, "pitch");
     assert!(pitch_r >= 0.7, "pitch r {pitch_r}");

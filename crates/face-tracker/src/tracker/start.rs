@@ -12,7 +12,7 @@ use pf_core::batch::{BatchShape, gaussian_clouds};
 use super::{FaceTracker, Track};
 use crate::enlarge::Enlarged;
 use crate::error::FaceError;
-use crate::extraction::{FaceRect, extract_template_seen, eye_outlines};
+use crate::extraction::{ExtractionConfig, FaceRect, extract_template_seen, eye_outlines};
 use crate::image::GrayImage;
 use crate::landmarks::Landmarks;
 use crate::lens::Lens;
@@ -293,25 +293,33 @@ impl FaceTracker {
             Some(width) => Enlarged::around(frame, rect, width)?,
             None => None,
         };
+        let extraction = &self.config.extraction;
         let Some(enlarged) = enlarged else {
-            return self.extract_through(frame, rect, view, &self.lens);
+            return self.extract_through(frame, rect, view, &self.lens, extraction);
         };
         let lens = enlarged.lens(&self.lens);
+        // A face takes as many points as its own width allows, not its enlarged width.
+        let extraction = ExtractionConfig {
+            points_per_width: (extraction.points_per_width).map(|p| p / enlarged.factor()),
+            ..*extraction
+        };
         let (template, landmarks) =
-            self.extract_through(&enlarged.frame, &enlarged.rect, view, &lens)?;
+            self.extract_through(&enlarged.frame, &enlarged.rect, view, &lens, &extraction)?;
         let landmarks =
             landmarks.map(|fitted| fitted.into_iter().map(|l| enlarged.to_frame(l)).collect());
         Ok((enlarged.shrink(template), landmarks))
     }
 
-    /// The template of the face at `rect` in `frame` seen with `view` through `lens` (the
-    /// tracker's frame and lens, or a face's enlarged region and the lens as it sees it).
+    /// The template of the face at `rect` in `frame` seen with `view` through `lens`, extracted
+    /// as `extraction` says (the tracker's frame, lens and settings, or a face's enlarged region,
+    /// the lens as it sees it and the points its own width allows).
     fn extract_through(
         &self,
         frame: &GrayImage,
         rect: &FaceRect,
         view: &View,
         lens: &Lens,
+        extraction: &ExtractionConfig,
     ) -> Result<(Template, Option<Landmarks>), FaceError> {
         let personal = self.personaliser.as_ref().and_then(|p| {
             let fitted = (p.personalise_seen(frame, rect, &self.model, view, lens)).ok();
@@ -325,19 +333,12 @@ impl FaceTracker {
         });
         let model = personal.as_ref().map_or(&self.model, |p| &p.model);
         // The eyes are left out where the fit found them (they blink and turn on their own).
-        let avoid = match (&personal, self.config.extraction.eye_outline_growth) {
+        let avoid = match (&personal, extraction.eye_outline_growth) {
             (Some(p), Some(growth)) => eye_outlines(&p.landmarks, growth),
             _ => Vec::new(),
         };
-        let mut template = extract_template_seen(
-            frame,
-            rect,
-            model,
-            &self.config.extraction,
-            view,
-            lens,
-            &avoid,
-        )?;
+        let mut template =
+            extract_template_seen(frame, rect, model, extraction, view, lens, &avoid)?;
         // The landmarks on the model's surface: the fitted ones, else the generic head's.
         let (cx, cy) = rect.centre();
         let (hw, hh) = (rect.width / 2.0, rect.height / 2.0);
