@@ -264,6 +264,18 @@ fn build_engine(
     })
 }
 
+/// `detector=` and `face_model=` parsed: where the detector runs and the built-in head.
+fn placement_and_model(
+    detector: &str,
+    face_model: &str,
+) -> PyResult<(DetectorPlacement, BuiltInModel)> {
+    let placement =
+        (detector.parse()).map_err(|e: face_tracker::FaceError| value_error(e.to_string()))?;
+    let model = (face_model.parse())
+        .map_err(|e: face_tracker::FaceError| value_error(format!("face_model: {e}")))?;
+    Ok((placement, model))
+}
+
 #[pymethods]
 impl FaceTracker {
     /// See the Python stub (`streampf/__init__.pyi`) for the arguments.
@@ -310,12 +322,7 @@ impl FaceTracker {
         let layers: Option<usize> = whole_opt("layers", layers)?;
         let order = ChannelOrder::parse(channel_order)?;
         let choice = Choice::parse(backend)?;
-        let detector_on: DetectorPlacement = detector
-            .parse()
-            .map_err(|e: face_tracker::FaceError| value_error(e.to_string()))?;
-        let built_in: BuiltInModel = face_model
-            .parse()
-            .map_err(|e: face_tracker::FaceError| value_error(format!("face_model: {e}")))?;
+        let (detector_on, built_in) = placement_and_model(detector, face_model)?;
         // Frames from arrays are real frames (a synthetic video is asked for by name).
         let photographed = built_in.is_photographed(false);
         let config = config(particles, seed, layers, enlarge_below)?;
