@@ -9,30 +9,9 @@ mod common;
 use std::path::Path;
 use std::process::Command;
 
-use common::{failure, number_after, ok, scratch, streampf};
+use common::{failure, ffmpeg, number_after, ok, opted_out, scratch, streampf};
 
 const HELP: &str = "run `cargo xtask fetch-media` (it installs FFmpeg, opencv-data, opencv-doc and libdlib-data), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
-
-fn opted_out(test: &str) -> bool {
-    let out = std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1");
-    if out {
-        eprintln!("{test}: skipped by request (STREAMPF_NO_MEDIA=1)");
-    }
-    out
-}
-
-fn ffmpeg(args: &[&str]) {
-    let out = Command::new("ffmpeg")
-        .args(["-nostdin", "-v", "error", "-y"])
-        .args(args)
-        .output()
-        .unwrap_or_else(|e| panic!("ffmpeg: {e}; {HELP}"));
-    assert!(
-        out.status.success(),
-        "ffmpeg {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
 
 /// Frames in a video, counted by decoding it.
 fn frames_in(video: &Path) -> usize {
@@ -71,17 +50,20 @@ fn tracks_the_faces_of_encoded_videos_and_writes_an_annotated_one() {
     for (container, codec) in [("mp4", "libx264"), ("avi", "mpeg4"), ("webm", "libvpx-vp9")] {
         let video = data.join(format!("faces.{container}"));
         let pattern = data.join("frame_%05d.png");
-        ffmpeg(&[
-            "-framerate",
-            "25",
-            "-i",
-            pattern.to_str().unwrap(),
-            "-c:v",
-            codec,
-            "-pix_fmt",
-            "yuv420p",
-            video.to_str().unwrap(),
-        ]);
+        ffmpeg(
+            &[
+                "-framerate",
+                "25",
+                "-i",
+                pattern.to_str().unwrap(),
+                "-c:v",
+                codec,
+                "-pix_fmt",
+                "yuv420p",
+                video.to_str().unwrap(),
+            ],
+            HELP,
+        );
         let out = data.join(format!("out-{container}"));
         let annotated = data.join(format!("annotated-{container}.mp4"));
         let text = ok(&streampf(&[
@@ -522,19 +504,22 @@ fn a_colour_video_is_drawn_in_colour_and_tracked_as_without_the_overlay() {
     // A blue tint: FFmpeg's gray of it is what the tracker reads, with or without the overlay.
     let video = data.join("blue.mp4");
     let pattern = data.join("frame_%05d.png");
-    ffmpeg(&[
-        "-framerate",
-        "25",
-        "-i",
-        pattern.to_str().unwrap(),
-        "-vf",
-        "colorchannelmixer=rr=0.5:gg=0.7:bb=1.0",
-        "-c:v",
-        "libx264",
-        "-pix_fmt",
-        "yuv420p",
-        video.to_str().unwrap(),
-    ]);
+    ffmpeg(
+        &[
+            "-framerate",
+            "25",
+            "-i",
+            pattern.to_str().unwrap(),
+            "-vf",
+            "colorchannelmixer=rr=0.5:gg=0.7:bb=1.0",
+            "-c:v",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            video.to_str().unwrap(),
+        ],
+        HELP,
+    );
     let rects = std::fs::read_to_string(data.join("faces.csv")).unwrap();
     let rect = rects.lines().nth(1).unwrap().to_string();
     let track = |out: &str, extra: &[&str]| {

@@ -17,7 +17,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok, scratch, streampf};
+use common::{ffmpeg, ok, opted_out, scratch, streampf};
 
 const HELP: &str = "run `cargo xtask fetch-media` (it fetches the talking-face clips and puts MediaPipe's Face Mesh into target/media/pose-venv), or set STREAMPF_NO_MEDIA=1 to skip the tests on real media explicitly";
 
@@ -44,8 +44,7 @@ fn track_carphone(name: &str, model_args: &[&str]) -> Option<PathBuf> {
 
 /// Tracks `clip` (carphone, or a copy made from it) as [`track_carphone`] does.
 fn track_clip(clip: &Path, name: &str, model_args: &[&str]) -> Option<PathBuf> {
-    if std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1") {
-        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+    if opted_out(name) {
         return None;
     }
     assert!(clip.is_file(), "{} is missing; {HELP}", clip.display());
@@ -249,32 +248,28 @@ fn through_the_camera_s_lens_the_head_turns_and_nods_as_far_as_the_mesh_says() {
 /// faces").
 #[test]
 fn a_small_real_face_keeps_its_pitch_and_yaw() {
-    if std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1") {
-        eprintln!("skipped by request (STREAMPF_NO_MEDIA=1)");
+    if opted_out("a small real face") {
         return;
     }
     let dir = scratch("carphone-small");
     std::fs::create_dir_all(&dir).unwrap();
     let small = dir.join("carphone-small.mp4");
-    let made = Command::new("ffmpeg")
-        .args(["-v", "error", "-y", "-i"])
-        .arg(carphone())
-        .args([
+    let (source, target) = (carphone(), small.to_str().unwrap().to_owned());
+    ffmpeg(
+        &[
+            "-i",
+            source.to_str().unwrap(),
             "-vf",
             "scale=114:92:flags=area",
             "-c:v",
             "libx264",
             "-crf",
             "16",
-        ])
-        .args(["-pix_fmt", "yuv420p"])
-        .arg(&small)
-        .output()
-        .unwrap_or_else(|e| panic!("ffmpeg: {e}; {HELP}"));
-    assert!(
-        made.status.success(),
-        "ffmpeg failed: {}",
-        String::from_utf8_lossy(&made.stderr)
+            "-pix_fmt",
+            "yuv420p",
+            &target,
+        ],
+        HELP,
     );
     let out = track_clip(&small, "carphone-small-run", &[]).expect("not skipped");
     let track = against_the_mesh_of(&out, Some(&small));

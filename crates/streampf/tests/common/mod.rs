@@ -45,6 +45,31 @@ pub fn scratch(name: &str) -> PathBuf {
     dir
 }
 
+/// Whether the tests on real media are skipped by request (STREAMPF_NO_MEDIA=1), said on stderr
+/// for `test`.
+pub fn opted_out(test: &str) -> bool {
+    let out = std::env::var_os("STREAMPF_NO_MEDIA").is_some_and(|v| v == "1");
+    if out {
+        eprintln!("{test}: skipped by request (STREAMPF_NO_MEDIA=1)");
+    }
+    out
+}
+
+/// Runs FFmpeg with `args` (quiet, overwriting); fails the test with its message, or with
+/// `help` (how to install it) when it cannot run.
+pub fn ffmpeg(args: &[&str], help: &str) {
+    let out = Command::new("ffmpeg")
+        .args(["-nostdin", "-v", "error", "-y"])
+        .args(args)
+        .output()
+        .unwrap_or_else(|e| panic!("ffmpeg: {e}; {help}"));
+    assert!(
+        out.status.success(),
+        "ffmpeg {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 /// Whether a run's error `stderr` says it found no GPU adapter: allowed (said on stderr) only
 /// when the run opted out with STREAMPF_ALLOW_NO_GPU=1; without it the test fails, saying how to
 /// get one. A GPU test never passes silently for lack of an adapter.
