@@ -157,6 +157,7 @@ mod tests {
             error,
             width,
             turn: 0.0,
+            confidence: 1.0,
         }
     }
 

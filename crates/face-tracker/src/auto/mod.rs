@@ -30,6 +30,7 @@ mod candidates;
 mod detectors;
 mod drift;
 mod duplicates;
+mod faint;
 mod pinned;
 mod shots;
 mod tracked;
@@ -190,6 +191,8 @@ pub struct AutoFrame {
     /// Tracks ended after this frame's step, pinned at the turn's limit on what is no longer a
     /// face (`pinned.rs`).
     pub pinned: Vec<usize>,
+    /// Tracks ended after this frame's step, faint on what is no longer a face (`faint.rs`).
+    pub faint: Vec<usize>,
 }
 
 /// A tracker fed by a detector thread.
@@ -219,6 +222,8 @@ pub struct AutoTracker {
     together: duplicates::Together,
     /// How long each track has been pinned at the turn's limit (`pinned`).
     pinned: pinned::Pinned,
+    /// How long each track has been faint (`faint`).
+    faint: faint::Faint,
     /// The first frame of the current shot (0 until a scene cut).
     shot_start: usize,
     ended_at_cuts: usize,
@@ -268,6 +273,7 @@ impl AutoTracker {
             lost: Vec::new(),
             together: duplicates::Together::default(),
             pinned: pinned::Pinned::default(),
+            faint: faint::Faint::default(),
             shot_start: 0,
         })
     }
@@ -489,6 +495,7 @@ impl AutoTracker {
             ended: Vec::new(),
             duplicates: Vec::new(),
             pinned: Vec::new(),
+            faint: Vec::new(),
         };
         out.scene_cut = self.look_for_cut(frame);
         match self.config.detection_delay {
@@ -531,6 +538,7 @@ impl AutoTracker {
             .collect();
         out.duplicates = self.end_duplicates(frame)?;
         out.pinned = self.end_pinned()?;
+        out.faint = self.end_faint()?;
         self.frame_index += 1;
         Ok(out)
     }

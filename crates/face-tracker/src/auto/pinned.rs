@@ -85,6 +85,7 @@ mod tests {
             error,
             width: 80.0,
             turn,
+            confidence: 1.0,
         }
     }
 

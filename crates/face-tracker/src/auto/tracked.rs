@@ -17,6 +17,8 @@ pub(super) struct Tracked {
     /// How far it has turned from the pose its template was taken at: the larger of |pitch|
     /// and |yaw| (radians; 0 until its first step).
     pub turn: f32,
+    /// Its confidence (`FaceEstimate::confidence`; 1 until its first step).
+    pub confidence: f32,
 }
 
 impl Tracked {
@@ -28,6 +30,7 @@ impl Tracked {
             error: 0.0,
             width: rect.width,
             turn: 0.0,
+            confidence: 1.0,
         }
     }
 
@@ -39,6 +42,7 @@ impl Tracked {
             error: e.error,
             width: e.rect.width / e.state[SCALE],
             turn: e.state[RX].abs().max(e.state[RY].abs()),
+            confidence: e.confidence,
         }
     }
 
@@ -48,5 +52,6 @@ impl Tracked {
         self.rect = *rect;
         self.error = 0.0;
         self.turn = 0.0;
+        self.confidence = 1.0;
     }
 }
