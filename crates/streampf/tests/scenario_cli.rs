@@ -84,16 +84,51 @@ fn a_scenarios_ground_truth_leaves_out_faces_away_and_its_run_prints_identity_sc
     std::fs::remove_dir_all(&data).unwrap();
 }
 
-/// The identity scenario at its full size (four faces, 1024×768, 300 frames, 1000 particles a
-/// face, the detector finding them) on the CPU: the goal of an IDF1 of at least 0.95 and at
-/// most one identity switch per 1 000 true face-frames (docs/ACCURACY.md, "Identities", gives
-/// three seeds on the CPU and on a GPU). Without `--frames` the scenario runs at that size.
+/// The identity scenario made smaller (four people over 300 frames at 640×480, heads 75 px wide,
+/// the walking head at 19 px a frame: the full-size video shrunk) on the CPU, 1000 particles a
+/// face, the detector finding them: the goal of an IDF1 of at least 0.95 and at most one
+/// identity switch per 1 000 true face-frames. docs/ACCURACY.md ("Identities") gives the full
+/// size, 1024×768, on the CPU and on a GPU. The walked-out head's track left on the background
+/// ends (`face_tracker::auto::faint`, `auto::pinned`): on seed 2, 23 false positives with the
+/// rules (33 with the pinned rule alone), 231 and an identity switch without them (IDF1 0.84;
+/// the bound below tells them apart).
 #[test]
 fn the_identity_scenario_keeps_who_is_who() {
-    let scores = scenario_scores(&["--seed", "2"]);
+    let scores = scenario_scores(&SMALLER, &["--seed", "2"]);
+    assert_meets_the_identity_goal(&scores);
+    assert!(
+        score_before(&scores, " false positives") <= 60.0,
+        "{scores}"
+    );
+}
+
+/// The same on a GPU (Mesa's lavapipe in CI): the tracker's steps on the GPU, the detector on
+/// the CPU (the GPU detector has its own tests, and on lavapipe it would add a third to the
+/// run's time).
+#[test]
+fn the_identity_scenario_keeps_who_is_who_on_a_gpu() {
+    let out = scratch("scenario-gpu");
+    let mut args = scenario_args(&out, &SMALLER, &["--seed", "3"]);
+    args.splice(6..7, ["gpu", "--allow-software", "--detector", "cpu"]);
+    let run = streampf(&args);
+    let err = String::from_utf8_lossy(&run.stderr);
+    if !run.status.success() && common::skipped_for_no_gpu(&err) {
+        return;
+    }
+    let text = ok(&run);
+    std::fs::remove_dir_all(&out).unwrap();
+    assert!(text.contains("on GPU: "), "{text}");
+    assert_meets_the_identity_goal(&identity_scores(&text));
+}
+
+/// The scenario's size in the tests: 640×480 (its heads and their walk scale with the frame).
+const SMALLER: [&str; 4] = ["--width", "640", "--height", "480"];
+
+/// An IDF1 of at least 0.95 and at most one identity switch per 1 000 true face-frames.
+fn assert_meets_the_identity_goal(scores: &str) {
     let idf1: f64 = scores.split_whitespace().next().unwrap().parse().unwrap();
-    let switches = score_before(&scores, " identity switches");
-    let face_frames = score_before(&scores, " true face-frames");
+    let switches = score_before(scores, " identity switches");
+    let face_frames = score_before(scores, " true face-frames");
     // Four faces over 300 frames, the walking one away for a third of them.
     assert!(face_frames > 1000.0, "{scores}");
     assert!(idf1 >= 0.95, "{scores}");
@@ -101,9 +136,16 @@ fn the_identity_scenario_keeps_who_is_who() {
 }
 
 /// The identity scores `face track --synthetic --scenario exits-and-crossings --backend cpu`
-/// prints with `args` (the text after "identities: IDF1 ").
-fn scenario_scores(args: &[&str]) -> String {
+/// prints with `size` and `args` (the text after "identities: IDF1 ").
+fn scenario_scores(size: &[&str], args: &[&str]) -> String {
     let out = scratch(&format!("scenario-{}", args.join("-")));
+    let text = ok(&streampf(&scenario_args(&out, size, args)));
+    std::fs::remove_dir_all(&out).unwrap();
+    identity_scores(&text)
+}
+
+/// The command line of a scenario run on the CPU writing into `out` (`--backend` the 7th word).
+fn scenario_args<'a>(out: &'a std::path::Path, size: &[&'a str], args: &[&'a str]) -> Vec<&'a str> {
     let mut all = vec![
         "face",
         "track",
@@ -115,14 +157,17 @@ fn scenario_scores(args: &[&str]) -> String {
         "--out",
         out.to_str().unwrap(),
     ];
+    all.extend_from_slice(size);
     all.extend_from_slice(args);
-    let text = ok(&streampf(&all));
-    std::fs::remove_dir_all(&out).unwrap();
-    let scores = text
-        .lines()
+    all
+}
+
+/// The identity scores a run printed (the text after "identities: IDF1 ").
+fn identity_scores(text: &str) -> String {
+    text.lines()
         .find_map(|l| l.strip_prefix("identities: IDF1 "))
-        .unwrap_or_else(|| panic!("no identity scores in {text}"));
-    scores.to_string()
+        .unwrap_or_else(|| panic!("no identity scores in {text}"))
+        .to_string()
 }
 
 /// The number just before `marker` in the scores.
@@ -133,28 +178,19 @@ fn score_before(scores: &str, marker: &str) -> f64 {
         .unwrap_or_else(|_| panic!("{word} in {scores}"))
 }
 
-/// At 640×480 (heads 80 px wide) the walking head's track, left on the background turned to the
-/// turn's bound when its head walked out, ends (`face_tracker::auto::pinned`) instead of staying
-/// there to the end: it made 169 false positives on seed 1 before, 46 with the rule at 45
-/// frames, 34 at 30 (`PINNED_FRAMES`; the bound below tells the two apart). And where
-/// two walking heads cross, the track that jumps onto the other head goes back to its own
-/// (`auto::duplicates`, walking back): two identity switches before, none with it.
+/// At 640×480 with heads 80 px wide over 200 frames (the scenario squeezed: its walking head
+/// back while the heads are turned away from the detector) the walking head's track, left on
+/// the background when its head walked out, ends (`face_tracker::auto::faint`, `auto::pinned`)
+/// instead of staying there: on seed 1, 24 false positives with the rules, 149 and an identity
+/// switch without them (the bound below tells the two apart). And where two walking heads
+/// cross, the track that jumps onto the other head goes back to its own (`auto::duplicates`,
+/// walking back): two identity switches without it, none with it.
 #[test]
 fn a_track_left_on_the_background_ends_and_crossing_heads_keep_their_tracks() {
-    let scores = scenario_scores(&[
-        "--width",
-        "640",
-        "--height",
-        "480",
-        "--face-width",
-        "80",
-        "--frames",
-        "200",
-        "--seed",
-        "1",
-    ]);
+    let size = ["--width", "640", "--height", "480", "--face-width", "80"];
+    let scores = scenario_scores(&size, &["--frames", "200", "--seed", "1"]);
     assert!(
-        score_before(&scores, " false positives") <= 45.0,
+        score_before(&scores, " false positives") <= 60.0,
         "{scores}"
     );
     assert_eq!(score_before(&scores, " identity switches"), 0.0, "{scores}");

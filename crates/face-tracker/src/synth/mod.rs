@@ -39,10 +39,11 @@ pub struct FaceSynthConfig {
     pub max_yaw: f32,
     /// Draw an occluder over the first face in the middle third of the video.
     pub occlusion: bool,
-    /// From this frame on, the first face walks out of the frame to the right (30 px a frame).
+    /// From this frame on, the first face walks out of the frame to the right
+    /// ([`FaceSynthConfig::walk_speed`]: 30 px a frame at the paper's 1024 px width).
     pub exit_after: Option<usize>,
-    /// With `exit_after`: from this frame on, the first face walks back the way it went (30 px
-    /// a frame) to its place, re-entering the frame on the way.
+    /// With `exit_after`: from this frame on, the first face walks back the way it went (at the
+    /// same speed) to its place, re-entering the frame on the way.
     pub return_at: Option<usize>,
     /// From this frame on, faces 1 and 2 walk across each other to each other's place (over a
     /// fifth of the video, at least 10 frames), passing in front of one another half way.
@@ -58,6 +59,15 @@ pub struct FaceSynthConfig {
     /// are seen through that pinhole. `None`: weak perspective, as the paper's videos.
     pub focal_length: Option<f32>,
 }
+
+/// The walking face's speed (pixels a frame) in a video of the paper's width, [`PAPER_WIDTH`].
+pub const WALK_SPEED_AT_PAPER_WIDTH: f32 = 30.0;
+
+/// The paper's frame width in pixels.
+pub const PAPER_WIDTH: f32 = 1024.0;
+
+/// How far a head wobbles either way across the frame (pixels).
+const WOBBLE_X: f32 = 40.0;
 
 /// The shortest focal length a synthetic video takes, in head half-widths.
 pub const MIN_FOCAL_HALF_WIDTHS: f32 = 4.0;
@@ -128,6 +138,31 @@ impl FaceSynthConfig {
     }
 
     /// Where face `k` sits at t = 0: a grid of cells over the frame.
+    /// How far the walking face of `exit_after` moves a frame: 30 px at the paper's 1024 px
+    /// width, in proportion at other widths, so that a smaller video is the same scenario made
+    /// smaller (its heads, whose default width follows the frame's, and their places scale
+    /// with the frame too); faster in a video too short for that speed to take its centre out
+    /// of the picture ([`Self::leave_speed`]), so that the face always leaves.
+    pub fn walk_speed(&self) -> f32 {
+        let scaled = WALK_SPEED_AT_PAPER_WIDTH * self.width as f32 / PAPER_WIDTH;
+        scaled.max(self.leave_speed())
+    }
+
+    /// The speed that takes the walking face's centre past the frame's right edge (and its
+    /// wobble) in nine tenths of its time away, `exit_after` to `return_at`; 0 when it does not
+    /// return.
+    fn leave_speed(&self) -> f32 {
+        let (Some(exit), Some(back)) = (self.exit_after, self.return_at) else {
+            return 0.0;
+        };
+        let away = back.saturating_sub(exit);
+        if away == 0 {
+            return 0.0;
+        }
+        let distance = self.width as f32 - self.home(0).0 + WOBBLE_X;
+        distance / (0.9 * away as f32)
+    }
+
     fn home(&self, k: usize) -> (f32, f32) {
         let cols = (self.faces as f32).sqrt().ceil() as usize;
         let rows = self.faces.div_ceil(cols);
@@ -160,8 +195,8 @@ impl FaceSynthConfig {
     }
 
     /// A named ground-truth scenario for identities (`face synth --scenario`): four faces over
-    /// `frames` frames; the first walks out to the right at 15 % of the video (30 px a frame:
-    /// out of the picture when the video has at least a tenth of the frame's width in frames)
+    /// `frames` frames; the first walks out to the right at 15 % of the video (30 px a frame at
+    /// 1024 px wide, in proportion at other widths, faster in a short video: [`Self::walk_speed`])
     /// and turns back at 40 %, faces 1 and 2 cross each other's path from 65 %.
     pub fn exits_and_crossings(mut self, frames: usize) -> Self {
         self.frames = frames;
@@ -190,7 +225,7 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
     let (hx, hy) = config.home(k);
     let wobble = |f: f32, p: f32| (f * t + p).sin();
     let mut s = [0.0; DIMS];
-    s[TX] = hx + 40.0 * wobble(0.03, phase) - 40.0 * phase.sin();
+    s[TX] = hx + WOBBLE_X * wobble(0.03, phase) - WOBBLE_X * phase.sin();
     s[TY] = hy + 25.0 * wobble(0.025, 2.0 * phase) - 25.0 * (2.0 * phase).sin();
     s[SCALE] = 1.0 + 0.1 * (0.02 * t).sin();
     s[RX] = 0.2 * (0.04 * t).sin();
@@ -210,7 +245,7 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
             }
             _ => out,
         };
-        s[TX] += 30.0 * walked;
+        s[TX] += config.walk_speed() * walked;
     }
     if let Some(at) = config.crossing_at
         && (k == 1 || k == 2)
