@@ -27,7 +27,9 @@ def motmetrics_scores(out):
     tracks = defaultdict(list)
     for r in rows(out / "states.csv"):
         if r["success"] == "1":
-            tracks[int(r["frame"])].append((int(r["track"]), float(r["tx"]), float(r["ty"])))
+            # Scored by the person each track is (`identity`), as streampf scores them: a face
+            # found again after its track ended keeps its identity under a new track number.
+            tracks[int(r["frame"])].append((int(r["identity"]), float(r["tx"]), float(r["ty"])))
     frames = sorted(set(truth) | set(tracks))
     accumulator = motmetrics.MOTAccumulator(auto_id=True)
     for frame in frames:
