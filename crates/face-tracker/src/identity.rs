@@ -19,7 +19,7 @@ use crate::extraction::FaceRect;
 use crate::image::GrayImage;
 use crate::lens::Lens;
 use crate::likelihood::{least_squares_gain, residual_error_through};
-use crate::projection::{ALPHA, DIMS};
+use crate::projection::{ALPHA, DIMS, SCALE};
 use crate::template::Template;
 
 /// How identities are matched.
@@ -240,6 +240,29 @@ pub(crate) fn fit_template_at(
         .map(|&(_, state)| refine(state, steps, &fit))
         .min_by(|a, b| a.0.total_cmp(&b.0))
         .unwrap_or((f64::INFINITY, [cx, cy, scale, 0.0, 0.0, 0.0, 1.0]))
+}
+
+/// The least ε of `template` on `frame` by [`refine`]'s local search from `state`, where the
+/// face is `face_width` pixels wide (the steps of [`fit_template_at`]'s search), and the state
+/// it is reached at: for a track whose pose is known, where it may be (`crate::auto`).
+pub(crate) fn refine_template_at(
+    template: &Template,
+    frame: &GrayImage,
+    lens: &Lens,
+    state: [f32; DIMS],
+    face_width: f32,
+) -> (f64, [f32; DIMS]) {
+    let fit = |s: &[f32; DIMS]| residual_error_through(s, template, frame, lens);
+    let steps = [
+        face_width / 10.0,
+        face_width / 10.0,
+        0.08 * state[SCALE],
+        0.1,
+        0.1,
+        0.1,
+        0.15,
+    ];
+    refine(state, steps, &fit)
 }
 
 /// The starting α stays within what the tracker's state allows.

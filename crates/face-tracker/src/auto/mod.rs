@@ -27,6 +27,7 @@ use crate::model::FaceModel;
 use crate::scene_cut::{PendingCut, SceneCuts};
 
 mod candidates;
+mod carried;
 mod detectors;
 mod drift;
 mod duplicates;
@@ -224,6 +225,8 @@ pub struct AutoTracker {
     pinned: pinned::Pinned,
     /// How long each track has been faint (`faint`).
     faint: faint::Faint,
+    /// Where the tracks stand, and those carried off their places lately (`carried`).
+    places: carried::Places,
     /// The first frame of the current shot (0 until a scene cut).
     shot_start: usize,
     ended_at_cuts: usize,
@@ -274,6 +277,7 @@ impl AutoTracker {
             together: duplicates::Together::default(),
             pinned: pinned::Pinned::default(),
             faint: faint::Faint::default(),
+            places: carried::Places::default(),
             shot_start: 0,
         })
     }
@@ -539,6 +543,7 @@ impl AutoTracker {
         out.duplicates = self.end_duplicates(frame)?;
         out.pinned = self.end_pinned()?;
         out.faint = self.end_faint()?;
+        self.bring_back_carried(frame, &out.estimates)?;
         self.frame_index += 1;
         Ok(out)
     }

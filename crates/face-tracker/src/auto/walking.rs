@@ -98,6 +98,16 @@ fn steady_walk(motion: [f32; 2], before: [f32; 2]) -> bool {
     motion[0].hypot(motion[1]) >= WALK_SPEED && steady
 }
 
+impl Walks {
+    /// Track `track` was moved: it walks no more, its path starts again and its broken-off
+    /// walk is forgotten.
+    pub(super) fn forget(&mut self, track: usize) {
+        self.walking.remove(&track);
+        self.paths.remove(&track);
+        self.broken_off.remove(&track);
+    }
+}
+
 impl Path {
     fn starting_at(at: [f32; 2]) -> Self {
         Self {
