@@ -11,7 +11,15 @@ use face_tracker::{FaceBackend, FaceTracker, FaceTrackerConfig};
 
 #[test]
 fn the_first_face_leaves_and_returns_and_two_faces_cross() {
-    for (frames, width, height) in [(90, 640, 480), (300, 1024, 768), (400, 1920, 1080)] {
+    let sizes = [
+        (90, 640, 480),
+        (300, 1024, 768),
+        (400, 1920, 1080),
+        (300, 640, 480),
+        (60, 320, 240),
+        (40, 160, 120),
+    ];
+    for (frames, width, height) in sizes {
         let config = FaceSynthConfig {
             width,
             height,
@@ -49,6 +57,43 @@ fn the_first_face_leaves_and_returns_and_two_faces_cross() {
             );
         }
         assert!((0..frames).all(|f| config.visible(3, f)));
+    }
+}
+
+/// The scenario made smaller is the same scenario: its walking face moves 30 px a frame at
+/// 1024 px wide and in proportion at other widths, as its heads and places scale, so that it
+/// crosses the frame in as many frames; only a video too short for that walks it faster (the
+/// test above: it still leaves). A speed that is no number of pixels is refused.
+#[test]
+fn the_walking_face_keeps_pace_with_the_frame() {
+    for (width, height, speed) in [(1024, 768, 30.0), (640, 480, 18.75), (1920, 1080, 56.25)] {
+        let config = FaceSynthConfig {
+            width,
+            height,
+            ..FaceSynthConfig::paper(1)
+        }
+        .exits_and_crossings(300);
+        assert_eq!(config.walk_speed, speed, "{width}");
+        let stepped = face_state(&config, 0, 100)[TX] - face_state(&config, 0, 99)[TX];
+        assert!(
+            (stepped - speed).abs() < 2.0,
+            "{width}: {stepped} px a frame"
+        );
+    }
+    let short = FaceSynthConfig::paper(1).exits_and_crossings(100);
+    assert!(short.walk_speed > 30.0, "{}", short.walk_speed);
+    assert_eq!(
+        FaceSynthConfig::paper(100).walk_speed,
+        30.0,
+        "the paper's setting"
+    );
+    for bad in [f32::NAN, -1.0, f32::INFINITY] {
+        let config = FaceSynthConfig {
+            walk_speed: bad,
+            ..FaceSynthConfig::paper(300).exits_and_crossings(300)
+        };
+        let err = config.validate().unwrap_err().to_string();
+        assert!(err.contains("walking speed"), "{err}");
     }
 }
 

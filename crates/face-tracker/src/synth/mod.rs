@@ -39,12 +39,14 @@ pub struct FaceSynthConfig {
     pub max_yaw: f32,
     /// Draw an occluder over the first face in the middle third of the video.
     pub occlusion: bool,
-    /// From this frame on, the first face walks out of the frame to the right
-    /// ([`FaceSynthConfig::walk_speed`]: 30 px a frame at the paper's 1024 px width).
+    /// From this frame on, the first face walks out of the frame to the right at `walk_speed`.
     pub exit_after: Option<usize>,
     /// With `exit_after`: from this frame on, the first face walks back the way it went (at the
     /// same speed) to its place, re-entering the frame on the way.
     pub return_at: Option<usize>,
+    /// How far the walking face of `exit_after` moves a frame (pixels): 30 in the paper's
+    /// setting; the identity scenario's in proportion to the frame ([`Self::exits_and_crossings`]).
+    pub walk_speed: f32,
     /// From this frame on, faces 1 and 2 walk across each other to each other's place (over a
     /// fifth of the video, at least 10 frames), passing in front of one another half way.
     pub crossing_at: Option<usize>,
@@ -85,6 +87,7 @@ impl FaceSynthConfig {
             occlusion: true,
             exit_after: None,
             return_at: None,
+            walk_speed: WALK_SPEED_AT_PAPER_WIDTH,
             crossing_at: None,
             enter_every: 0,
             distinct_people: false,
@@ -121,6 +124,12 @@ impl FaceSynthConfig {
                 self.half_width
             ));
         }
+        if !(self.walk_speed.is_finite() && self.walk_speed >= 0.0) {
+            return bad(format!(
+                "the walking speed must be a finite number of pixels a frame, at least 0, got {}",
+                self.walk_speed
+            ));
+        }
         if !(self.max_yaw.is_finite() && self.max_yaw.abs() <= PI / 2.0) {
             return bad(format!("the yaw must be within ±90°, got {}", self.max_yaw));
         }
@@ -138,12 +147,12 @@ impl FaceSynthConfig {
     }
 
     /// Where face `k` sits at t = 0: a grid of cells over the frame.
-    /// How far the walking face of `exit_after` moves a frame: 30 px at the paper's 1024 px
-    /// width, in proportion at other widths, so that a smaller video is the same scenario made
-    /// smaller (its heads, whose default width follows the frame's, and their places scale
-    /// with the frame too); faster in a video too short for that speed to take its centre out
-    /// of the picture ([`Self::leave_speed`]), so that the face always leaves.
-    pub fn walk_speed(&self) -> f32 {
+    /// The identity scenario's walking speed: 30 px a frame at the paper's 1024 px width, in
+    /// proportion at other widths, so that a smaller video is the same scenario made smaller
+    /// (its heads, whose default width follows the frame's, and their places scale with the
+    /// frame too); faster in a video too short for that speed to take the face's centre out of
+    /// the picture ([`Self::leave_speed`]), so that the face always leaves.
+    fn scenario_walk_speed(&self) -> f32 {
         let scaled = WALK_SPEED_AT_PAPER_WIDTH * self.width as f32 / PAPER_WIDTH;
         scaled.max(self.leave_speed())
     }
@@ -196,7 +205,8 @@ impl FaceSynthConfig {
 
     /// A named ground-truth scenario for identities (`face synth --scenario`): four faces over
     /// `frames` frames; the first walks out to the right at 15 % of the video (30 px a frame at
-    /// 1024 px wide, in proportion at other widths, faster in a short video: [`Self::walk_speed`])
+    /// 1024 px wide, in proportion at other widths, faster in a short video:
+    /// [`Self::scenario_walk_speed`])
     /// and turns back at 40 %, faces 1 and 2 cross each other's path from 65 %.
     pub fn exits_and_crossings(mut self, frames: usize) -> Self {
         self.frames = frames;
@@ -207,6 +217,7 @@ impl FaceSynthConfig {
         self.return_at = Some(frames * 40 / 100);
         self.crossing_at = Some(frames * 65 / 100);
         self.distinct_people = true;
+        self.walk_speed = self.scenario_walk_speed();
         self
     }
 }
@@ -245,7 +256,7 @@ pub fn face_state(config: &FaceSynthConfig, k: usize, frame: usize) -> [f32; DIM
             }
             _ => out,
         };
-        s[TX] += config.walk_speed() * walked;
+        s[TX] += config.walk_speed * walked;
     }
     if let Some(at) = config.crossing_at
         && (k == 1 || k == 2)

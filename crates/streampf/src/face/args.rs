@@ -96,6 +96,7 @@ impl VideoArgs {
             occlusion: true,
             exit_after: None,
             return_at: None,
+            walk_speed: face_tracker::synth::WALK_SPEED_AT_PAPER_WIDTH,
             crossing_at: None,
             enter_every: 0,
             distinct_people: false,
