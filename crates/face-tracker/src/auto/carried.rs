@@ -20,7 +20,7 @@
 
 use std::collections::BTreeMap;
 
-use super::AutoTracker;
+use super::{AutoTracker, same_face};
 use crate::error::FaceError;
 use crate::extraction::FaceRect;
 use crate::identity::refine_template_at;
@@ -36,7 +36,8 @@ pub const STILL_FRAMES: usize = 10;
 
 /// A track that stood still leaves its place when it moves more than this share of its width
 /// in one frame: a face starting to walk speeds up over several frames (the scenario's crossing
-/// heads by about 1.5 px a frame each frame, its faces at rest moving at most 2.2 px a frame),
+/// heads by about 1.5 px a frame each frame in its 200-frame version at 640×480, 0.8 at full
+/// size; its faces at rest move at most 2.2 px a frame),
 /// where a track taken by a face passing in front moved 15 px (a fifth of the face's width)
 /// the first frame.
 pub const LEAVING_SHARE: f32 = 0.12;
@@ -46,11 +47,11 @@ pub const LEAVING_SHARE: f32 = 0.12;
 pub const CARRIED_SHARE: f32 = 0.5;
 
 /// ... within this many frames of leaving it (a face that starts to walk speeds up: the
-/// scenario's crossing heads gain about 0.8 px a frame each frame).
+/// scenario's crossing heads gain about 0.8 px a frame each frame at full size).
 pub const CARRIED_FRAMES: usize = 4;
 
-/// A carried track's old place is checked for this many frames after it was carried off (the
-/// face that carried it has to pass first).
+/// A carried track's old place is checked in the frame it was found carried off and this many
+/// frames after (the face that carried it has to pass first).
 pub const LOOK_BACK_FRAMES: usize = 15;
 
 /// A carried track goes back when its template fits its old place within this share of its ε
@@ -181,6 +182,12 @@ impl Places {
         self.carried.iter().map(|(&t, &c)| (t, c)).collect()
     }
 
+    /// Track `track` was moved or restarted on a detection: where it stood means nothing now.
+    pub(super) fn forget(&mut self, track: usize) {
+        self.places.remove(&track);
+        self.carried.remove(&track);
+    }
+
     /// Track `track` is back at its place, standing in `state` at ε `error`.
     fn back(&mut self, track: usize, state: [f32; DIMS], error: f64) {
         self.carried.remove(&track);
@@ -194,8 +201,9 @@ impl Places {
 
 impl AutoTracker {
     /// After a step on `frame`: each track carried off its place ([`Places`]) goes back where
-    /// its own template fits its old place better than where it is ([`BACK_FIT_SHARE`]); the
-    /// tracks moved back.
+    /// its own template fits its old place better than where it is ([`BACK_FIT_SHARE`]), about
+    /// as well as it fitted the face standing there ([`BACK_REST_SHARE`]) and below the failure
+    /// level, unless another track holds a face there; the tracks moved back.
     pub(super) fn bring_back_carried(
         &mut self,
         frame: &GrayImage,
@@ -218,18 +226,20 @@ impl AutoTracker {
                 refine_template_at(template, frame, &lens, carried.stood, face_width);
             let better = fit <= BACK_FIT_SHARE * tracked.error;
             let like_its_face = fit <= BACK_REST_SHARE * carried.stood_error;
-            if !(better && like_its_face && fit < failing) {
+            let rect = FaceRect {
+                x: state[TX] - tracked.rect.width / 2.0,
+                y: state[TY] - tracked.rect.height / 2.0,
+                ..tracked.rect
+            };
+            // A face found again there may have a track of its own by now (the detector's).
+            let held = (self.tracked.iter()).any(|t| t.track != track && same_face(&t.rect, &rect));
+            if !(better && like_its_face && fit < failing) || held {
                 continue;
             }
             self.tracker.move_track(track, state)?;
             self.walks.forget(track);
             self.places.back(track, state, fit);
             if let Some(t) = self.tracked.iter_mut().find(|t| t.track == track) {
-                let rect = FaceRect {
-                    x: state[TX] - t.rect.width / 2.0,
-                    y: state[TY] - t.rect.height / 2.0,
-                    ..t.rect
-                };
                 t.restarted_at(&rect);
             }
             moved.push(track);

@@ -49,7 +49,21 @@ impl Faint {
     }
 }
 
+impl Faint {
+    /// Track `track` was moved or restarted on a detection: its count starts again.
+    pub(super) fn forget(&mut self, track: usize) {
+        self.frames.remove(&track);
+    }
+}
+
 impl AutoTracker {
+    /// Track `track` was moved or restarted on a detection: how long it has been faint, and
+    /// where it stood (`carried`), start again.
+    pub(super) fn placed_anew(&mut self, track: usize) {
+        self.faint.forget(track);
+        self.places.forget(track);
+    }
+
     /// After a step: ends the tracks faint for [`FAINT_FRAMES`] ([`Faint`]); the tracks ended.
     pub(super) fn end_faint(&mut self) -> Result<Vec<usize>, FaceError> {
         let faint = self.faint.update(&self.tracked);
@@ -106,5 +120,12 @@ mod tests {
             );
         }
         assert_eq!(faint.update(&[track(3, f32::NAN)]), vec![3]);
+        // A track the detector moved or restarted starts its count again.
+        let mut faint = Faint::default();
+        for _ in 1..FAINT_FRAMES {
+            assert!(faint.update(&[faded]).is_empty());
+        }
+        faint.forget(3);
+        assert!(faint.update(&[faded]).is_empty(), "the count starts again");
     }
 }

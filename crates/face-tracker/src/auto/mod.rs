@@ -194,6 +194,9 @@ pub struct AutoFrame {
     pub pinned: Vec<usize>,
     /// Tracks ended after this frame's step, faint on what is no longer a face (`faint.rs`).
     pub faint: Vec<usize>,
+    /// Tracks moved back after this frame's step to the place a passing face had carried them
+    /// off (`carried.rs`).
+    pub carried_back: Vec<usize>,
 }
 
 /// A tracker fed by a detector thread.
@@ -436,6 +439,7 @@ impl AutoTracker {
             let track = self.tracked[i].track;
             self.tracker.move_track(track, state)?;
             self.tracked[i].restarted_at(rect);
+            self.placed_anew(track);
             out.restarted.push((track, *rect, frame_index));
             return Ok(true);
         }
@@ -463,6 +467,7 @@ impl AutoTracker {
             };
             self.tracker.restart_template(track, restart)?;
             self.tracked[i].restarted_at(rect);
+            self.placed_anew(track);
             out.restarted.push((track, *rect, frame_index));
             return Ok(true);
         }
@@ -500,6 +505,7 @@ impl AutoTracker {
             duplicates: Vec::new(),
             pinned: Vec::new(),
             faint: Vec::new(),
+            carried_back: Vec::new(),
         };
         out.scene_cut = self.look_for_cut(frame);
         match self.config.detection_delay {
@@ -543,7 +549,7 @@ impl AutoTracker {
         out.duplicates = self.end_duplicates(frame)?;
         out.pinned = self.end_pinned()?;
         out.faint = self.end_faint()?;
-        self.bring_back_carried(frame, &out.estimates)?;
+        out.carried_back = self.bring_back_carried(frame, &out.estimates)?;
         self.frame_index += 1;
         Ok(out)
     }

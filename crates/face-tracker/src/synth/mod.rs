@@ -146,7 +146,6 @@ impl FaceSynthConfig {
         Ok(())
     }
 
-    /// Where face `k` sits at t = 0: a grid of cells over the frame.
     /// The identity scenario's walking speed: 30 px a frame at the paper's 1024 px width, in
     /// proportion at other widths, so that a smaller video is the same scenario made smaller
     /// (its heads, whose default width follows the frame's, and their places scale with the
@@ -172,6 +171,7 @@ impl FaceSynthConfig {
         distance / (0.9 * away as f32)
     }
 
+    /// Where face `k` sits at t = 0: a grid of cells over the frame.
     fn home(&self, k: usize) -> (f32, f32) {
         let cols = (self.faces as f32).sqrt().ceil() as usize;
         let rows = self.faces.div_ceil(cols);
