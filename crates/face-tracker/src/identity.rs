@@ -227,15 +227,7 @@ pub(crate) fn fit_template_at(
         }
     }
     starts.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let steps = [
-        rect.width / 10.0,
-        rect.width / 10.0,
-        0.08 * scale,
-        0.1,
-        0.1,
-        0.1,
-        0.15,
-    ];
+    let steps = search_steps(rect.width, scale);
     (starts.iter().take(STARTS_REFINED))
         .map(|&(_, state)| refine(state, steps, &fit))
         .min_by(|a, b| a.0.total_cmp(&b.0))
@@ -243,8 +235,8 @@ pub(crate) fn fit_template_at(
 }
 
 /// The least ε of `template` on `frame` by [`refine`]'s local search from `state`, where the
-/// face is `face_width` pixels wide (the steps of [`fit_template_at`]'s search), and the state
-/// it is reached at: for a track whose pose is known, where it may be (`crate::auto`).
+/// face is `face_width` pixels wide ([`search_steps`], as in [`fit_template_at`]), and the
+/// state it is reached at: for a track whose pose is known, where it may be (`crate::auto`).
 pub(crate) fn refine_template_at(
     template: &Template,
     frame: &GrayImage,
@@ -253,16 +245,14 @@ pub(crate) fn refine_template_at(
     face_width: f32,
 ) -> (f64, [f32; DIMS]) {
     let fit = |s: &[f32; DIMS]| residual_error_through(s, template, frame, lens);
-    let steps = [
-        face_width / 10.0,
-        face_width / 10.0,
-        0.08 * state[SCALE],
-        0.1,
-        0.1,
-        0.1,
-        0.15,
-    ];
-    refine(state, steps, &fit)
+    refine(state, search_steps(face_width, state[SCALE]), &fit)
+}
+
+/// The local search's first steps for a face `face_width` pixels wide at scale `scale`: a
+/// tenth of the face in position, 8 % of the scale, 0.1 rad of each turn, 0.15 of α.
+fn search_steps(face_width: f32, scale: f32) -> [f32; DIMS] {
+    let shift = face_width / 10.0;
+    [shift, shift, 0.08 * scale, 0.1, 0.1, 0.1, 0.15]
 }
 
 /// The starting α stays within what the tracker's state allows.

@@ -12,8 +12,7 @@
 //! So a track below [`FAINT_CONFIDENCE`] for [`FAINT_FRAMES`] frames in a row has lost its face
 //! and ends: its person may be found again when the face comes back.
 
-use std::collections::BTreeMap;
-
+use super::tracked::Streaks;
 use super::{AutoTracker, Tracked};
 use crate::error::FaceError;
 
@@ -26,33 +25,20 @@ pub const FAINT_FRAMES: usize = 15;
 
 /// The frames in a row each running track has been faint.
 #[derive(Debug, Clone, Default)]
-pub(super) struct Faint {
-    frames: BTreeMap<usize, usize>,
-}
+pub(super) struct Faint(Streaks);
 
 impl Faint {
     /// After a step of `tracks`: counts the faint tracks, forgets the others, and gives the
     /// tracks faint for [`FAINT_FRAMES`].
     pub(super) fn update(&mut self, tracks: &[Tracked]) -> Vec<usize> {
-        let mut now = BTreeMap::new();
         // A NaN confidence is no evidence of a face either.
-        let faint = |t: &&Tracked| t.confidence.is_nan() || t.confidence < FAINT_CONFIDENCE;
-        for t in tracks.iter().filter(faint) {
-            let frames = self.frames.get(&t.track).copied().unwrap_or(0) + 1;
-            now.insert(t.track, frames);
-        }
-        self.frames = now;
-        (self.frames.iter())
-            .filter(|&(_, &frames)| frames >= FAINT_FRAMES)
-            .map(|(&track, _)| track)
-            .collect()
+        let faint = |t: &Tracked| t.confidence.is_nan() || t.confidence < FAINT_CONFIDENCE;
+        self.0.update(tracks, faint, FAINT_FRAMES)
     }
-}
 
-impl Faint {
     /// Track `track` was moved or restarted on a detection: its count starts again.
     pub(super) fn forget(&mut self, track: usize) {
-        self.frames.remove(&track);
+        self.0.forget(track);
     }
 }
 
@@ -67,10 +53,7 @@ impl AutoTracker {
     /// After a step: ends the tracks faint for [`FAINT_FRAMES`] ([`Faint`]); the tracks ended.
     pub(super) fn end_faint(&mut self) -> Result<Vec<usize>, FaceError> {
         let faint = self.faint.update(&self.tracked);
-        for &track in &faint {
-            self.tracker.end_track(track)?;
-        }
-        self.tracked.retain(|t| !faint.contains(&t.track));
+        self.end_tracks(&faint)?;
         Ok(faint)
     }
 }

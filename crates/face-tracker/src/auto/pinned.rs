@@ -11,8 +11,7 @@
 //! So a track that is both for [`PINNED_FRAMES`] frames in a row has lost its face and ends: its
 //! person may be found again when the face comes back.
 
-use std::collections::BTreeMap;
-
+use super::tracked::Streaks;
 use super::{AutoTracker, Tracked};
 use crate::error::FaceError;
 use crate::tracker::MAX_TURN;
@@ -31,26 +30,15 @@ pub const PINNED_FRAMES: usize = 30;
 
 /// The frames in a row each running track has been pinned.
 #[derive(Debug, Clone, Default)]
-pub(super) struct Pinned {
-    frames: BTreeMap<usize, usize>,
-}
+pub(super) struct Pinned(Streaks);
 
 impl Pinned {
     /// After a step of `tracks` (failing at ε above `failure_error`): counts the pinned tracks,
     /// forgets the others, and gives the tracks pinned for [`PINNED_FRAMES`].
     pub(super) fn update(&mut self, tracks: &[Tracked], failure_error: f64) -> Vec<usize> {
-        let mut now = BTreeMap::new();
-        for t in tracks {
-            if t.turn >= PINNED_TURN && t.error >= PINNED_ERROR_SHARE * failure_error {
-                let frames = self.frames.get(&t.track).copied().unwrap_or(0) + 1;
-                now.insert(t.track, frames);
-            }
-        }
-        self.frames = now;
-        (self.frames.iter())
-            .filter(|&(_, &frames)| frames >= PINNED_FRAMES)
-            .map(|(&track, _)| track)
-            .collect()
+        let pinned =
+            |t: &Tracked| t.turn >= PINNED_TURN && t.error >= PINNED_ERROR_SHARE * failure_error;
+        self.0.update(tracks, pinned, PINNED_FRAMES)
     }
 }
 
@@ -59,10 +47,7 @@ impl AutoTracker {
     pub(super) fn end_pinned(&mut self) -> Result<Vec<usize>, FaceError> {
         let failing = f64::from(self.config.tracker.failure_error);
         let pinned = self.pinned.update(&self.tracked, failing);
-        for &track in &pinned {
-            self.tracker.end_track(track)?;
-        }
-        self.tracked.retain(|t| !pinned.contains(&t.track));
+        self.end_tracks(&pinned)?;
         Ok(pinned)
     }
 }
