@@ -287,7 +287,8 @@ fn packed_dispatch_matches_cpu_within_tolerance() {
 /// whole workgroup a particle.
 #[test]
 fn packed_dispatch_with_any_lanes_matches_cpu_within_tolerance() {
-    // 16 and 4 are what the tracker takes for 16 and 64 faces (`packed_lanes_for`).
+    // 16 and 4 are what the tracker takes for 16 and 64 faces (`packed_lanes_for`); up to
+    // `STAGED_MAX_LANES` (16) the kernel stages the template in workgroup memory, above it not.
     for lanes in [1, 4, 8, 16, 32, 256] {
         check(FaceDispatch::Packed { lanes }, 3);
     }

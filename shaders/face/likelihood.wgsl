@@ -1,7 +1,8 @@
 // The sparse-template face likelihood (eq. 10-13 of the face paper) on the GPU. Two layouts:
 // weigh_faces is the paper's (one workgroup per particle, one invocation per feature point,
 // looping when a template has more points than the workgroup, the sums reduced in workgroup
-// memory); weigh_faces_packed puts WG / LANES particles in a workgroup, LANES invocations each. The grid's
+// memory); weigh_faces_packed puts WG / LANES particles in a workgroup, LANES invocations each,
+// and weigh_faces_packed_staged does too with the face's template staged in workgroup memory. The grid's
 // y is the face: one dispatch weighs every face of a frame (the batched form), or one dispatch
 // per face with `face_offset` (the paper's form). CPU twin:
 // face_tracker::likelihood::residual_error_through (residual_error through weak perspective).
@@ -89,6 +90,17 @@ fn bilinear(x: f32, y: f32) -> f32 {
     return 255.0 * textureSampleLevel(frame, frame_sampler, at, 0.0).r;
 }
 
+// bilinear without its branch: the texture is read either way (clamp-to-edge keeps any place, NaN included, harmless), so that
+// the caller's fetches need not wait behind a branch.
+fn bilinear_or_outside(x: f32, y: f32) -> f32 {
+    let w1 = f32(fp.width - 1u);
+    let h1 = f32(fp.height - 1u);
+    let inside = x >= 0.0 && y >= 0.0 && x <= w1 && y <= h1;
+    let at = vec2<f32>((x + 0.5) * fp.texel_x, (y + 0.5) * fp.texel_y);
+    let level = 255.0 * textureSampleLevel(frame, frame_sampler, at, 0.0).r;
+    return select(-1.0, level, inside);
+}
+
 // Lens::MIN_DISTANCE_SHARE.
 const MIN_DISTANCE_SHARE: f32 = 0.05;
 
@@ -171,6 +183,21 @@ fn accumulate(t: u32, x: FacePose, first: u32, step: u32) -> vec2<f32> {
     return vec2<f32>(rho_sum, visible);
 }
 
+// (rho, 1) for a template point (P, J) with normal N that faces the camera in pose x, (0, 0) for
+// one that faces away. Without branches (a point outside the frame is sampled at a clamped place
+// and its rho replaced by 1), so that a loop's texture fetches of several points can be in
+// flight together; the same values as accumulate's.
+fn point_terms(x: FacePose, pj: vec4<f32>, n: vec3<f32>) -> vec2<f32> {
+    let facing = (x.r * n).z >= 0.0;
+    let q = x.r * pj.xyz;
+    let p = through_lens(vec2<f32>(x.scale * q.x + x.tx, x.scale * q.y + x.ty), x.scale * q.z);
+    let intensity = bilinear_or_outside(p.x, p.y);
+    let d = x.alpha * intensity - pj.w;
+    let d2 = d * d;
+    let rho = select(d2 / (d2 + pj.w * pj.w), 1.0, intensity < 0.0);
+    return select(vec2<f32>(0.0, 0.0), vec2<f32>(rho, 1.0), facing);
+}
+
 // Sums each group of `lanes` consecutive invocations' (rho, shown) in workgroup memory (lanes a
 // power of two dividing WG; called by the whole workgroup); the group's first invocation gets
 // the total.
@@ -239,6 +266,75 @@ fn weigh_faces_packed(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(wo
     var sums = vec2<f32>(0.0, 0.0);
     if (live) {
         sums = accumulate(t, particle_pose(t, m), lane, LANES);
+    }
+    let total = reduce_groups(lid, LANES, sums);
+    if (live && lane == 0u) {
+        finish(t, m, total);
+    }
+}
+
+// Face t's template points staged WG at a time in workgroup memory (every particle of a packed
+// workgroup weighs the same face), and the count of its points, made workgroup-uniform.
+var<workgroup> staged_points: array<vec4<f32>, 512>;
+var<workgroup> staged_count: u32;
+
+// `so_far` plus accumulate's sums over the staged chunk's points first, first + step, ... below
+// `count`, four a pass.
+fn accumulate_staged(so_far: vec2<f32>, x: FacePose, first: u32, step: u32, count: u32) -> vec2<f32> {
+    var sums = so_far;
+    var i = first;
+    for (; i + 3u * step < count; i = i + 4u * step) {
+        let a = point_terms(x, staged_points[2u * i], staged_points[2u * i + 1u].xyz);
+        let b = point_terms(x, staged_points[2u * (i + step)], staged_points[2u * (i + step) + 1u].xyz);
+        let c = point_terms(x, staged_points[2u * (i + 2u * step)], staged_points[2u * (i + 2u * step) + 1u].xyz);
+        let d = point_terms(x, staged_points[2u * (i + 3u * step)], staged_points[2u * (i + 3u * step) + 1u].xyz);
+        sums = sums + a;
+        sums = sums + b;
+        sums = sums + c;
+        sums = sums + d;
+    }
+    for (; i < count; i = i + step) {
+        sums = sums + point_terms(x, staged_points[2u * i], staged_points[2u * i + 1u].xyz);
+    }
+    return sums;
+}
+
+// The packed layout for many particles a workgroup (few lanes each: the launcher takes it up to
+// face_tracker::likelihood::gpu::STAGED_MAX_LANES): the face's template is read from global
+// memory once a workgroup, not once a particle, and each lane's points are weighed four at a
+// time without branches. With 64 lanes (four particles a workgroup) the staging cost more than
+// it saved (docs/BENCHMARKS.md, "Template points in workgroup memory").
+@compute @workgroup_size(256)
+fn weigh_faces_packed_staged(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
+    let lid = lid3.x;
+    let slot = lid / LANES;
+    let lane = lid % LANES;
+    let m = wid.x * (WG / LANES) + slot;
+    let t = fp.face_offset + wid.y;
+    let live = m < params.particles && t < params.targets;
+    if (lid == 0u) {
+        staged_count = select(0u, min(point_counts[t], fp.max_points), t < params.targets);
+    }
+    let count = workgroupUniformLoad(&staged_count);
+    var pose = face_pose(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    if (live) {
+        pose = particle_pose(t, m);
+    }
+    var sums = vec2<f32>(0.0, 0.0);
+    // Chunks of WG points, a multiple of LANES: each lane meets its points in the order
+    // accumulate would.
+    for (var chunk = 0u; chunk < count; chunk = chunk + WG) {
+        let i = chunk + lid;
+        if (i < count) {
+            let base = (t * fp.max_points + i) * 2u;
+            staged_points[2u * lid] = points[base];
+            staged_points[2u * lid + 1u] = points[base + 1u];
+        }
+        workgroupBarrier();
+        if (live) {
+            sums = accumulate_staged(sums, pose, lane, LANES, min(WG, count - chunk));
+        }
+        workgroupBarrier();
     }
     let total = reduce_groups(lid, LANES, sums);
     if (live && lane == 0u) {

@@ -1,8 +1,9 @@
 //! Where the fast capsule kernel's work goes, counted on the host for the benchmark scene of
 //! `benches/capsule_likelihood.rs` (the body paper's Fig. 5 and 6): how many capsules survive each
-//! tile's cone test, how many (point, capsule) pairs pass the bounding-sphere test and have their
-//! roots solved, and how many of a subgroup's 32 lanes do useful work when any lane solves
-//! (the kernel runs a subgroup's lanes in step, so one lane's solve costs all 32).
+//! tile's cone test (and how many would also survive a test of the tile's depth range ± τ), how
+//! many (point, capsule) pairs pass the bounding-sphere test and have their roots solved, and how
+//! many of a subgroup's 32 lanes do useful work when any lane solves (the kernel runs a
+//! subgroup's lanes in step, so one lane's solve costs all 32).
 //!
 //! `cargo run --release -p body-tracker --example likelihood_work [SAMPLES] [POINTS]`
 
@@ -69,6 +70,7 @@ struct Counts {
     points: u64,
     sphere_hits: u64,
     split_candidates: [u64; 3],
+    depth_candidates: u64,
 }
 
 /// The bounding spheres of a capsule cut into `pieces` equal lengths.
@@ -102,6 +104,22 @@ fn main() {
             let candidates: Vec<usize> =
                 (0..K).filter(|&k| meets_cone(cone, &spheres[k])).collect();
             n.tiles += 1;
+            let base = tile * FAST_POINTS * TILE;
+            let depths = ordered[base..(base + FAST_POINTS * TILE).min(ordered.len())]
+                .iter()
+                .filter(|r| r[3] >= 0.0)
+                .map(|r| r[3]);
+            let (lo, hi) = depths.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), d| {
+                (lo.min(d), hi.max(d))
+            });
+            n.depth_candidates += candidates
+                .iter()
+                .filter(|&&k| {
+                    let dist = spheres[k].0.norm();
+                    let big_r = (spheres[k].0.norm_squared() - spheres[k].1).max(0.0).sqrt();
+                    !(dist + big_r < lo - TAU || dist - big_r > hi + TAU)
+                })
+                .count() as u64;
             n.candidates += candidates.len() as u64;
             for (slot, pieces) in [2usize, 3, 4].into_iter().enumerate() {
                 n.split_candidates[slot] += capsules
@@ -109,7 +127,6 @@ fn main() {
                     .filter(|c| piece_spheres(c, pieces).iter().any(|s| meets_cone(cone, s)))
                     .count() as u64;
             }
-            let base = tile * FAST_POINTS * TILE;
             for &k in &candidates {
                 let capsule = std::slice::from_ref(&capsules[k]);
                 for p in 0..FAST_POINTS {
@@ -164,6 +181,10 @@ fn main() {
         n.split_candidates[0] as f64 / n.tiles as f64,
         n.split_candidates[1] as f64 / n.tiles as f64,
         n.split_candidates[2] as f64 / n.tiles as f64
+    );
+    println!(
+        "capsules meeting a tile's cone and its depth range (+-tau): {:.1}",
+        n.depth_candidates as f64 / n.tiles as f64
     );
     println!(
         "per point: {:.2} rays meet the bounding sphere",

@@ -26,7 +26,8 @@ pub enum FaceDispatch {
     /// The paper's layout, every face of the frame in one dispatch (grid: particles × faces).
     Batched,
     /// `lanes` invocations a particle looping over the points (a power of two up to 256: 256 /
-    /// `lanes` particles a workgroup), every face in one dispatch.
+    /// `lanes` particles a workgroup), every face in one dispatch; up to [`STAGED_MAX_LANES`]
+    /// the workgroup reads its face's template into workgroup memory first.
     Packed { lanes: u32 },
     /// The packed kernel with the lanes a particle chosen from the frame's particles
     /// ([`packed_lanes_for`]): the tracker's choice.
@@ -51,6 +52,14 @@ pub fn packed_lanes_for(particles: usize) -> u32 {
 
 /// Invocations in a workgroup of the face kernels (`WG` in the shader).
 const WORKGROUP: u32 = 256;
+
+/// The most lanes a particle for which the packed weighing stages each face's template in
+/// workgroup memory (`weigh_faces_packed_staged`: sixteen or more particles a workgroup share
+/// one read of it). Measured on an NVIDIA H200 (docs/BENCHMARKS.md, "Template points in
+/// workgroup memory"): 64 faces with 4 lanes weighed in 33 µs instead of 37.5, 16 faces with 16
+/// in 16.3 µs instead of 17.0; with 64 lanes (four particles a workgroup) staging was slower,
+/// 12.3 µs against 10.3 for 4 faces.
+pub const STAGED_MAX_LANES: u32 = 16;
 
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
@@ -349,7 +358,8 @@ fn check_lanes(lanes: u32) -> Result<(), GpuError> {
     )))
 }
 
-/// The weighing kernel: the packed one with `lanes` a particle, else a workgroup a particle.
+/// The weighing kernel: the packed one with `lanes` a particle (its template staged in workgroup
+/// memory up to [`STAGED_MAX_LANES`]), else a workgroup a particle.
 /// Its workgroup memory is not zeroed first: every invocation writes its own sums before the
 /// reduction reads any (`reduce_groups`).
 fn weighing_kernel(ctx: &GpuContext, lanes: Option<u32>) -> Result<Kernel, GpuError> {
@@ -358,10 +368,10 @@ fn weighing_kernel(ctx: &GpuContext, lanes: Option<u32>) -> Result<Kernel, GpuEr
         constants: constants.as_ref().map_or(&[], |c| c.as_slice()),
         zero_workgroup_memory: false,
     };
-    let entry = if lanes.is_some() {
-        "weigh_faces_packed"
-    } else {
-        "weigh_faces"
+    let entry = match lanes {
+        Some(l) if l <= STAGED_MAX_LANES => "weigh_faces_packed_staged",
+        Some(_) => "weigh_faces_packed",
+        None => "weigh_faces",
     };
     let source = stage_source(super::SHADER);
     Kernel::with_options(ctx, "face likelihood", &source, entry, options)
