@@ -313,7 +313,10 @@ fn weigh_faces_packed_staged(@builtin(local_invocation_id) lid3: vec3<u32>, @bui
     let t = fp.face_offset + wid.y;
     let live = m < params.particles && t < params.targets;
     if (lid == 0u) {
-        staged_count = select(0u, min(point_counts[t], fp.max_points), t < params.targets);
+        staged_count = 0u;
+        if (t < params.targets) {
+            staged_count = min(point_counts[t], fp.max_points);
+        }
     }
     let count = workgroupUniformLoad(&staged_count);
     var pose = face_pose(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
