@@ -2,9 +2,9 @@
 // weigh_faces is the paper's (one workgroup per particle, one invocation per feature point,
 // looping when a template has more points than the workgroup, the sums reduced in workgroup
 // memory); weigh_faces_packed puts WG / LANES particles in a workgroup, LANES invocations each,
-// and weigh_faces_packed_staged does too with the face's template staged in workgroup memory. The grid's
-// y is the face: one dispatch weighs every face of a frame (the batched form), or one dispatch
-// per face with `face_offset` (the paper's form). CPU twin:
+// and weigh_faces_packed_staged does too with the face's template staged in workgroup memory.
+// The grid's y is the face: one dispatch weighs every face of a frame (the batched form), or one
+// dispatch per face with `face_offset` (the paper's form). CPU twin:
 // face_tracker::likelihood::residual_error_through (residual_error through weak perspective).
 // Launcher: face_tracker::likelihood::gpu::FaceLikelihoodGpu.
 //
@@ -90,8 +90,8 @@ fn bilinear(x: f32, y: f32) -> f32 {
     return 255.0 * textureSampleLevel(frame, frame_sampler, at, 0.0).r;
 }
 
-// bilinear without its branch: the texture is read either way (clamp-to-edge keeps any place, NaN included, harmless), so that
-// the caller's fetches need not wait behind a branch.
+// bilinear without its branch: the texture is read either way (clamp-to-edge makes any place,
+// NaN included, harmless), so that the caller's fetches need not wait behind a branch.
 fn bilinear_or_outside(x: f32, y: f32) -> f32 {
     let w1 = f32(fp.width - 1u);
     let h1 = f32(fp.height - 1u);
