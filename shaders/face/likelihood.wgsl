@@ -77,28 +77,32 @@ fn rotation_z(a: f32) -> mat3x3<f32> {
     return mat3x3<f32>(vec3<f32>(c, s, 0.0), vec3<f32>(-s, c, 0.0), vec3<f32>(0.0, 0.0, 1.0));
 }
 
-// Bilinear sample at (x, y) through the texture unit, or -1 outside [0, w-1] x [0, h-1] (as
-// GrayImage::bilinear; the CPU twin is face_tracker::likelihood's Pixels::bilinear). Inside,
-// clamp-to-edge makes the last row and column interpolate within their cell, as the CPU's does.
-fn bilinear(x: f32, y: f32) -> f32 {
-    let w1 = f32(fp.width - 1u);
-    let h1 = f32(fp.height - 1u);
-    if (!(x >= 0.0 && y >= 0.0 && x <= w1 && y <= h1)) {
-        return -1.0;
-    }
+// Whether (x, y) lies in [0, w-1] x [0, h-1], where the frame is sampled (false for NaN).
+fn inside_frame(x: f32, y: f32) -> bool {
+    return x >= 0.0 && y >= 0.0 && x <= f32(fp.width - 1u) && y <= f32(fp.height - 1u);
+}
+
+// The texture unit's bilinear sample at pixel (x, y): pixel (x, y) is the texture's
+// ((x + 0.5) / width, (y + 0.5) / height). Inside the frame, clamp-to-edge makes the last row and
+// column interpolate within their cell, as the CPU's does; outside (NaN included) it is harmless.
+fn level_at(x: f32, y: f32) -> f32 {
     let at = vec2<f32>((x + 0.5) * fp.texel_x, (y + 0.5) * fp.texel_y);
     return 255.0 * textureSampleLevel(frame, frame_sampler, at, 0.0).r;
 }
 
-// bilinear without its branch: the texture is read either way (clamp-to-edge makes any place,
-// NaN included, harmless), so that the caller's fetches need not wait behind a branch.
+// Bilinear sample at (x, y) through the texture unit, or -1 outside the frame (as
+// GrayImage::bilinear; the CPU twin is face_tracker::likelihood's Pixels::bilinear).
+fn bilinear(x: f32, y: f32) -> f32 {
+    if (!inside_frame(x, y)) {
+        return -1.0;
+    }
+    return level_at(x, y);
+}
+
+// bilinear without its branch: the texture is read either way, so that the caller's fetches
+// need not wait behind a branch.
 fn bilinear_or_outside(x: f32, y: f32) -> f32 {
-    let w1 = f32(fp.width - 1u);
-    let h1 = f32(fp.height - 1u);
-    let inside = x >= 0.0 && y >= 0.0 && x <= w1 && y <= h1;
-    let at = vec2<f32>((x + 0.5) * fp.texel_x, (y + 0.5) * fp.texel_y);
-    let level = 255.0 * textureSampleLevel(frame, frame_sampler, at, 0.0).r;
-    return select(-1.0, level, inside);
+    return select(-1.0, level_at(x, y), inside_frame(x, y));
 }
 
 // Lens::MIN_DISTANCE_SHARE.
@@ -255,21 +259,32 @@ fn weigh_faces(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup
 // loop.
 override LANES: u32 = 64u;
 
+// A packed invocation's place: its lane among its particle's LANES, particle m of face t, and
+// whether that particle exists.
+struct PackedLane {
+    lane: u32,
+    m: u32,
+    t: u32,
+    live: bool,
+}
+
+fn packed_lane(lid: u32, wid: vec3<u32>) -> PackedLane {
+    let m = wid.x * (WG / LANES) + lid / LANES;
+    let t = fp.face_offset + wid.y;
+    return PackedLane(lid % LANES, m, t, m < params.particles && t < params.targets);
+}
+
 @compute @workgroup_size(256)
 fn weigh_faces_packed(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
-    let slot = lid / LANES;
-    let lane = lid % LANES;
-    let m = wid.x * (WG / LANES) + slot;
-    let t = fp.face_offset + wid.y;
-    let live = m < params.particles && t < params.targets;
+    let p = packed_lane(lid, wid);
     var sums = vec2<f32>(0.0, 0.0);
-    if (live) {
-        sums = accumulate(t, particle_pose(t, m), lane, LANES);
+    if (p.live) {
+        sums = accumulate(p.t, particle_pose(p.t, p.m), p.lane, LANES);
     }
     let total = reduce_groups(lid, LANES, sums);
-    if (live && lane == 0u) {
-        finish(t, m, total);
+    if (p.live && p.lane == 0u) {
+        finish(p.t, p.m, total);
     }
 }
 
@@ -307,11 +322,8 @@ fn accumulate_staged(so_far: vec2<f32>, x: FacePose, first: u32, step: u32, coun
 @compute @workgroup_size(256)
 fn weigh_faces_packed_staged(@builtin(local_invocation_id) lid3: vec3<u32>, @builtin(workgroup_id) wid: vec3<u32>) {
     let lid = lid3.x;
-    let slot = lid / LANES;
-    let lane = lid % LANES;
-    let m = wid.x * (WG / LANES) + slot;
-    let t = fp.face_offset + wid.y;
-    let live = m < params.particles && t < params.targets;
+    let p = packed_lane(lid, wid);
+    let t = p.t;
     if (lid == 0u) {
         staged_count = 0u;
         if (t < params.targets) {
@@ -320,8 +332,8 @@ fn weigh_faces_packed_staged(@builtin(local_invocation_id) lid3: vec3<u32>, @bui
     }
     let count = workgroupUniformLoad(&staged_count);
     var pose = face_pose(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    if (live) {
-        pose = particle_pose(t, m);
+    if (p.live) {
+        pose = particle_pose(t, p.m);
     }
     var sums = vec2<f32>(0.0, 0.0);
     // Chunks of WG points, a multiple of LANES: each lane meets its points in the order
@@ -334,14 +346,14 @@ fn weigh_faces_packed_staged(@builtin(local_invocation_id) lid3: vec3<u32>, @bui
             staged_points[2u * lid + 1u] = points[base + 1u];
         }
         workgroupBarrier();
-        if (live) {
-            sums = accumulate_staged(sums, pose, lane, LANES, min(WG, count - chunk));
+        if (p.live) {
+            sums = accumulate_staged(sums, pose, p.lane, LANES, min(WG, count - chunk));
         }
         workgroupBarrier();
     }
     let total = reduce_groups(lid, LANES, sums);
-    if (live && lane == 0u) {
-        finish(t, m, total);
+    if (p.live && p.lane == 0u) {
+        finish(t, p.m, total);
     }
 }
 

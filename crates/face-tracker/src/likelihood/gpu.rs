@@ -56,9 +56,9 @@ const WORKGROUP: u32 = 256;
 /// The most lanes a particle for which the packed weighing stages each face's template in
 /// workgroup memory (`weigh_faces_packed_staged`: sixteen or more particles a workgroup share
 /// one read of it). Measured on an NVIDIA H200 (docs/BENCHMARKS.md, "Template points in
-/// workgroup memory"): 64 faces with 4 lanes weighed in 33 µs instead of 37.5, 16 faces with 16
-/// in 16.3 µs instead of 17.0; with 64 lanes (four particles a workgroup) staging was slower,
-/// 12.3 µs against 10.3 for 4 faces.
+/// workgroup memory"): 64 faces with 4 lanes weighed in 32.9–33.3 µs a layer instead of
+/// 37.3–37.8, 16 faces with 16 in 16.2–16.5 µs instead of 16.8–17.2; with 64 lanes (four
+/// particles a workgroup) staging was slower, 12.1–12.5 µs against 10.0–10.4 for 4 faces.
 pub const STAGED_MAX_LANES: u32 = 16;
 
 #[repr(C)]
