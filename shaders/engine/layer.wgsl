@@ -40,6 +40,15 @@
 
 const STAGE_CAPACITY: u32 = 4096u;
 const LAYER_WG: u32 = 256u;
+// Whether select_* gathers the ancestors' values into `selected` (false: move_gathering reads
+// them itself, from the snapshot the layer before wrote).
+override GATHER: bool = true;
+// Whether move_gathering also keeps the values it writes in the next layer's snapshot.
+override WRITES_SNAPSHOT: bool = false;
+// Two snapshots of every target's values, each state_len long, written by the moves of layers
+// 0, 1, ... in turn (layer l writes half (l + 1) % 2 and, from layer 1 on, reads half l % 2):
+// what move_gathering reads its ancestors from, kept apart from the `states` it writes.
+@group(0) @binding(18) var<storage, read_write> snapshots: array<f32>;
 // The layer's log-likelihoods while the previous layer settles; then the CDF while the target
 // resamples.
 var<workgroup> scratch: array<f32, STAGE_CAPACITY>;
@@ -140,7 +149,9 @@ fn select_target(lid: u32, t: u32, stratified: bool) {
             log_weights[base + k] = equal;
         }
     }
-    gather_selected(lid, t);
+    if (GATHER) {
+        gather_selected(lid, t);
+    }
 }
 
 // Every dimension of target t's ancestors into `selected`. The ancestors go to workgroup memory
@@ -237,26 +248,99 @@ fn select_stratified(@builtin(local_invocation_id) lid: vec3<u32>, @builtin(work
     select_target(lid.x, wid.y, true);
 }
 
-// Dimensions 2j and 2j + 1 of particle m of target t moved from `selected` into `states`, both
-// from one Philox block (counter_gaussian's draws, the block computed once a pair); one
-// invocation per (particle, pair) so that even one target's move fills many SMs.
-@compute @workgroup_size(64)
-fn move_selected(@builtin(global_invocation_id) gid: vec3<u32>) {
+// The start of snapshot half `layer % 2`.
+fn snapshot_half(layer: u32) -> u32 {
+    return (layer % 2u) * params.targets * params.particles * params.dims;
+}
+
+// A move's invocation: dimensions d and d + 1 of particle m of target t, and their Philox
+// block (counter_gaussian's draws, computed once a pair).
+struct MovedPair {
+    live: bool,
+    t: u32,
+    m: u32,
+    d: u32,
+    block: vec4<u32>,
+}
+
+fn moved_pair(gid: vec3<u32>) -> MovedPair {
     let n = params.particles;
     let t = gid.y;
     let pairs = (params.dims + 1u) / 2u;
     if (gid.x >= n * pairs || t >= params.targets) {
-        return;
+        return MovedPair(false, 0u, 0u, 0u, vec4<u32>(0u));
     }
     let m = gid.x % n;
     let d = 2u * (gid.x / n);
     let step = vec2<u32>(params.step_lo, params.step_hi);
-    let block = gaussian_block(diffusion_keys[t], m, d, step);
-    let i = state_index(t, d, m);
-    states[i] = moved_by(t, d, selected[i], gaussian_of_block(block, d));
-    if (d + 1u < params.dims) {
-        let j = state_index(t, d + 1u, m);
-        states[j] = moved_by(t, d + 1u, selected[j], gaussian_of_block(block, d + 1u));
+    return MovedPair(true, t, m, d, gaussian_block(diffusion_keys[t], m, d, step));
+}
+
+// Dimensions 2j and 2j + 1 of particle m of target t moved from `selected` into `states`, both
+// from one Philox block; one invocation per (particle, pair) so that even one target's move
+// fills many SMs.
+@compute @workgroup_size(64)
+fn move_selected(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let p = moved_pair(gid);
+    if (!p.live) {
+        return;
+    }
+    let i = state_index(p.t, p.d, p.m);
+    states[i] = moved_by(p.t, p.d, selected[i], gaussian_of_block(p.block, p.d));
+    if (p.d + 1u < params.dims) {
+        let j = state_index(p.t, p.d + 1u, p.m);
+        states[j] = moved_by(p.t, p.d + 1u, selected[j], gaussian_of_block(p.block, p.d + 1u));
+    }
+}
+
+// move_selected keeping what it writes in the next layer's snapshot too (layer 0 of a step
+// whose later layers gather as they move).
+@compute @workgroup_size(64)
+fn move_keeping_snapshot(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let p = moved_pair(gid);
+    if (!p.live) {
+        return;
+    }
+    let kept = snapshot_half(params.layer + 1u);
+    let i = state_index(p.t, p.d, p.m);
+    let first = moved_by(p.t, p.d, selected[i], gaussian_of_block(p.block, p.d));
+    states[i] = first;
+    snapshots[kept + i] = first;
+    if (p.d + 1u < params.dims) {
+        let j = state_index(p.t, p.d + 1u, p.m);
+        let second = moved_by(p.t, p.d + 1u, selected[j], gaussian_of_block(p.block, p.d + 1u));
+        states[j] = second;
+        snapshots[kept + j] = second;
+    }
+}
+
+// move_selected for a layer after the first whose select did not gather (GATHER false): the
+// particle's ancestor read from `ancestors`, its values from the snapshot the layer before
+// wrote, and (WRITES_SNAPSHOT, all but the last layer) the moved values kept in the next one.
+// The same values as a gather then move_selected; the gather's loads, serial in the select's
+// one workgroup, spread over the GPU here.
+@compute @workgroup_size(64)
+fn move_gathering(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let p = moved_pair(gid);
+    if (!p.live) {
+        return;
+    }
+    let a = ancestors[p.t * params.particles + p.m];
+    let earlier = snapshot_half(params.layer);
+    let kept = snapshot_half(params.layer + 1u);
+    let i = state_index(p.t, p.d, p.m);
+    let first = moved_by(p.t, p.d, snapshots[earlier + state_index(p.t, p.d, a)], gaussian_of_block(p.block, p.d));
+    states[i] = first;
+    if (WRITES_SNAPSHOT) {
+        snapshots[kept + i] = first;
+    }
+    if (p.d + 1u < params.dims) {
+        let j = state_index(p.t, p.d + 1u, p.m);
+        let second = moved_by(p.t, p.d + 1u, snapshots[earlier + state_index(p.t, p.d + 1u, a)], gaussian_of_block(p.block, p.d + 1u));
+        states[j] = second;
+        if (WRITES_SNAPSHOT) {
+            snapshots[kept + j] = second;
+        }
     }
 }
 

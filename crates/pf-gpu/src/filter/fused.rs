@@ -1,6 +1,7 @@
 //! The fused step (`shaders/engine/layer.wgsl`): each annealing layer is a dispatch of one
 //! workgroup per target that normalises the layer before it, resamples in workgroup memory and
-//! gathers its ancestors' states, a dispatch of one invocation per particle and pair of
+//! gathers its ancestors' states (from layer 1 on, where the step allows, the move gathers
+//! instead: `super::gathering`), a dispatch of one invocation per particle and pair of
 //! dimensions that moves them (the random numbers spread over the whole GPU), then the likelihood's own dispatches; the frame ends
 //! with the last layer's normalisation and the estimate. All of it is one compute pass: each
 //! layer's parameters are a slice of one uniform buffer, bound by a bind group of its own, so no
@@ -14,7 +15,10 @@
 use pf_core::batch::BatchShape;
 
 use super::SINGLE_WORKGROUP_SCAN_LIMIT;
+use super::gathering::GatheringMoves;
 use super::lag_window::LagStep;
+pub(super) use super::layer_bindings::LayerParams;
+use super::layer_bindings::selecting_entries;
 use super::profile::{DispatchProfiler, Passes};
 use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
@@ -133,6 +137,9 @@ pub(super) struct FusedLayers {
     keeping_lineage: Option<SelectKeepingLineage>,
     /// Whether that select is used (else the lineage's own dispatches, the reference).
     lineage_in_select: bool,
+    /// From layer 1 on, the moves gathering the ancestors' values themselves (two or more
+    /// layers); used where the step allows ([`FusedLayers::gathering_for`]).
+    gathering: Option<GatheringMoves>,
 }
 
 /// `select_*_keeping_lineage` and its bind group per layer: the lineage composed in the
@@ -211,6 +218,18 @@ impl FusedLayers {
                 (9, streams.states.binding()),
             ],
         )?;
+        let gathering = if layers.count >= 2 {
+            Some(GatheringMoves::new(
+                ctx,
+                &source,
+                select_entry,
+                streams,
+                layers,
+                shape.state_len(),
+            )?)
+        } else {
+            None
+        };
         let settling = Kernel::new(ctx, "fused settle", &source, "settle_last_layer")?;
         let settling_group = settling.bind(
             ctx,
@@ -234,7 +253,22 @@ impl FusedLayers {
             select_entry,
             keeping_lineage: None,
             lineage_in_select: lineage_fits_in_select(ctx),
+            gathering,
         })
+    }
+
+    /// The gathering moves where a step of `likelihood` can take them: not where layer 0
+    /// moves by the likelihood's own dynamics (its moved values are not the move's to keep),
+    /// nor where the select composes the lineage (that select gathers).
+    fn gathering_for(
+        &self,
+        likelihood: &dyn GpuLikelihood,
+        keeps_lineage: bool,
+    ) -> Option<&GatheringMoves> {
+        let composing = keeps_lineage && self.composes_lineage();
+        self.gathering
+            .as_ref()
+            .filter(|_| !likelihood.propagates() && !composing)
     }
 
     /// From the next step on, composes the lineage in each layer's select where the adapter
@@ -324,26 +358,6 @@ fn bind_selecting(
     kernel.bind(ctx, &selecting_entries(s, layers, layer))
 }
 
-/// The bindings of `select_*` for `layer`.
-fn selecting_entries<'a>(
-    s: &'a Streams,
-    layers: &'a LayerParams<'_>,
-    layer: usize,
-) -> Vec<(u32, wgpu::BindingResource<'a>)> {
-    vec![
-        (0, layers.slice(layer)),
-        (1, layers.slice(layer.saturating_sub(1))),
-        (2, s.log_weights.binding()),
-        (3, s.log_likelihood.binding()),
-        (4, s.weights.binding()),
-        (5, s.stats.binding()),
-        (6, s.selected.binding()),
-        (7, s.ancestors.binding()),
-        (8, s.resampling_keys.binding()),
-        (9, s.states.binding()),
-    ]
-}
-
 /// `move_selected`'s bind group for `layer`.
 fn bind_moving(
     ctx: &GpuContext,
@@ -365,24 +379,6 @@ fn bind_moving(
             (14, s.velocity.binding()),
         ],
     )
-}
-
-/// The per-layer parameter blocks in one uniform buffer, `stride` bytes apart (the adapter's
-/// uniform offset alignment).
-pub(super) struct LayerParams<'a> {
-    pub buffer: &'a wgpu::Buffer,
-    pub stride: u64,
-    pub count: usize,
-}
-
-impl LayerParams<'_> {
-    fn slice(&self, layer: usize) -> wgpu::BindingResource<'_> {
-        wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-            buffer: self.buffer,
-            offset: layer as u64 * self.stride,
-            size: wgpu::BufferSize::new(std::mem::size_of::<FrameParams>() as u64),
-        })
-    }
 }
 
 /// Bytes between two layers' parameter blocks: a block rounded up to the uniform offset
@@ -466,9 +462,14 @@ impl GpuFilter {
         grids: &Grids,
     ) {
         let keeps_lineage = self.lineage.is_some();
+        let gathering = fused.gathering_for(likelihood, keeps_lineage);
+        let layers = self.annealing.layers;
         passes.dispatch(
             || format!("layer {layer}: select"),
-            |pass| fused.record_select(pass, layer, keeps_lineage, grids.per_target),
+            |pass| match gathering {
+                Some(moves) if layer > 0 => moves.record_search(pass, layer, grids.per_target),
+                _ => fused.record_select(pass, layer, keeps_lineage, grids.per_target),
+            },
         );
         if layer == 0 && likelihood.propagates() {
             passes.dispatch(
@@ -486,10 +487,11 @@ impl GpuFilter {
         } else {
             passes.dispatch(
                 || format!("layer {layer}: move"),
-                |pass| {
-                    fused
+                |pass| match gathering {
+                    Some(moves) => moves.record_move(pass, layer, layers, grids.per_pair),
+                    None => fused
                         .moving
-                        .record(pass, &fused.moving_groups[layer], grids.per_pair)
+                        .record(pass, &fused.moving_groups[layer], grids.per_pair),
                 },
             );
         }

@@ -10,7 +10,9 @@ use pf_core::anneal::Annealing;
 use pf_core::batch::{BatchConfig, BatchShape};
 
 mod fused;
+mod gathering;
 mod lag_window;
+mod layer_bindings;
 mod likelihood;
 mod lineage;
 mod params;
