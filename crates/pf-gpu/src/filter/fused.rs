@@ -24,7 +24,7 @@ use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::kernels::{Kernel, sources, stage_source};
+use crate::kernels::{Kernel, KernelOptions, sources, stage_source};
 
 /// How a [`GpuFilter`] records a frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -147,6 +147,9 @@ pub(super) struct FusedLayers {
 struct SelectKeepingLineage {
     kernel: Kernel,
     groups: Vec<wgpu::BindGroup>,
+    /// The same without the gather (`GATHER` false), for the layers after the first where the
+    /// moves gather ([`GatheringMoves`]); built where the step has them.
+    searching: Option<(Kernel, Vec<wgpu::BindGroup>)>,
 }
 
 /// The line of `layer.wgsl` that sizes its workgroup array.
@@ -258,17 +261,9 @@ impl FusedLayers {
     }
 
     /// The gathering moves where a step of `likelihood` can take them: not where layer 0
-    /// moves by the likelihood's own dynamics (its moved values are not the move's to keep),
-    /// nor where the select composes the lineage (that select gathers).
-    fn gathering_for(
-        &self,
-        likelihood: &dyn GpuLikelihood,
-        keeps_lineage: bool,
-    ) -> Option<&GatheringMoves> {
-        let composing = keeps_lineage && self.composes_lineage();
-        self.gathering
-            .as_ref()
-            .filter(|_| !likelihood.propagates() && !composing)
+    /// moves by the likelihood's own dynamics (its moved values are not the move's to keep).
+    fn gathering_for(&self, likelihood: &dyn GpuLikelihood) -> Option<&GatheringMoves> {
+        self.gathering.as_ref().filter(|_| !likelihood.propagates())
     }
 
     /// From the next step on, composes the lineage in each layer's select where the adapter
@@ -287,15 +282,35 @@ impl FusedLayers {
         }
         let source = layer_source(shape.particles)?;
         let entry = format!("{}_keeping_lineage", self.select_entry);
+        let bind_layers = |kernel: &Kernel| {
+            (0..layers.count)
+                .map(|layer| {
+                    let mut entries = selecting_entries(streams, layers, layer);
+                    entries.extend(lineage_bindings(layer));
+                    kernel.bind(ctx, &entries)
+                })
+                .collect::<Result<Vec<_>, _>>()
+        };
         let kernel = Kernel::new(ctx, "fused select keeping the lineage", &source, &entry)?;
-        let groups = (0..layers.count)
-            .map(|layer| {
-                let mut entries = selecting_entries(streams, layers, layer);
-                entries.extend(lineage_bindings(layer));
-                kernel.bind(ctx, &entries)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        self.keeping_lineage = Some(SelectKeepingLineage { kernel, groups });
+        let groups = bind_layers(&kernel)?;
+        let searching = match self.gathering {
+            Some(_) => {
+                let options = KernelOptions {
+                    constants: &[("GATHER", 0.0)],
+                    ..KernelOptions::default()
+                };
+                let name = "fused search keeping the lineage";
+                let kernel = Kernel::with_options(ctx, name, &source, &entry, options)?;
+                let groups = bind_layers(&kernel)?;
+                Some((kernel, groups))
+            }
+            None => None,
+        };
+        self.keeping_lineage = Some(SelectKeepingLineage {
+            kernel,
+            groups,
+            searching,
+        });
         Ok(())
     }
 
@@ -323,19 +338,29 @@ impl FusedLayers {
     }
 
     /// Records layer `layer`'s select: the one that composes the lineage where the filter keeps
-    /// it (`keeps_lineage`) and it was built.
+    /// it (`keeps_lineage`) and it was built; after layer 0, where `gathering` moves gather,
+    /// the search alone.
     fn record_select(
         &self,
         pass: &mut wgpu::ComputePass<'_>,
         layer: usize,
         keeps_lineage: bool,
+        gathering: Option<&GatheringMoves>,
         grid: [u32; 3],
     ) {
-        match &self.keeping_lineage {
-            Some(select) if keeps_lineage && self.lineage_in_select => {
-                select.kernel.record(pass, &select.groups[layer], grid)
-            }
-            _ => self
+        let composing = self
+            .keeping_lineage
+            .as_ref()
+            .filter(|_| keeps_lineage && self.lineage_in_select);
+        match (composing, gathering) {
+            (Some(select), Some(_)) if layer > 0 => match &select.searching {
+                Some((kernel, groups)) => kernel.record(pass, &groups[layer], grid),
+                // Not built: the select that gathers (the gathering move reads its snapshot).
+                None => select.kernel.record(pass, &select.groups[layer], grid),
+            },
+            (None, Some(moves)) if layer > 0 => moves.record_search(pass, layer, grid),
+            (Some(select), _) => select.kernel.record(pass, &select.groups[layer], grid),
+            (None, _) => self
                 .selecting
                 .record(pass, &self.selecting_groups[layer], grid),
         }
@@ -462,14 +487,11 @@ impl GpuFilter {
         grids: &Grids,
     ) {
         let keeps_lineage = self.lineage.is_some();
-        let gathering = fused.gathering_for(likelihood, keeps_lineage);
+        let gathering = fused.gathering_for(likelihood);
         let layers = self.annealing.layers;
         passes.dispatch(
             || format!("layer {layer}: select"),
-            |pass| match gathering {
-                Some(moves) if layer > 0 => moves.record_search(pass, layer, grids.per_target),
-                _ => fused.record_select(pass, layer, keeps_lineage, grids.per_target),
-            },
+            |pass| fused.record_select(pass, layer, keeps_lineage, gathering, grids.per_target),
         );
         if layer == 0 && likelihood.propagates() {
             passes.dispatch(

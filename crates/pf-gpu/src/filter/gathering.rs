@@ -6,8 +6,9 @@
 //! gathers from `states`, which the trackers write between frames, and keeps the first snapshot.
 //! The same values in the same order as the gathering select, so the same particles.
 //!
-//! Used where every layer moves with the engine's diffusion (not a likelihood's own dynamics)
-//! and the select does not compose the lineage; elsewhere the fused step gathers in the select.
+//! Used where every layer moves with the engine's diffusion (not a likelihood's own dynamics);
+//! elsewhere the fused step gathers in the select. A select that composes the lineage has its
+//! own searching variant (`fused.rs`, `SelectKeepingLineage::searching`).
 
 use super::layer_bindings::{LayerParams, selecting_entries};
 use super::setup::Streams;
