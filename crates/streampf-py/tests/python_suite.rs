@@ -75,7 +75,9 @@ fn the_python_suite_passes() {
         pythonpath.push(existing);
     }
     let status = Command::new(&python)
+        // The ten slowest tests are listed, so that a CI run shows where its Python minutes go.
         .args(["-m", "pytest", "-q", "-p", "no:cacheprovider"])
+        .arg("--durations=10")
         .arg(&tests)
         .env("PYTHONPATH", pythonpath)
         .env("STREAMPF_BIN", profile.join("streampf"))
