@@ -18,7 +18,7 @@ use super::SINGLE_WORKGROUP_SCAN_LIMIT;
 use super::gathering::GatheringMoves;
 use super::lag_window::LagStep;
 pub(super) use super::layer_bindings::LayerParams;
-use super::layer_bindings::selecting_entries;
+use super::layer_bindings::{moving_entries, selecting_entries};
 use super::profile::{DispatchProfiler, Passes};
 use super::setup::{Streams, groups_for};
 use super::{FrameParams, GpuFilter, GpuLikelihood, GpuResampler, LikelihoodPhase};
@@ -391,19 +391,8 @@ fn bind_moving(
     layers: &LayerParams<'_>,
     layer: usize,
 ) -> Result<wgpu::BindGroup, GpuError> {
-    kernel.bind(
-        ctx,
-        &[
-            (0, layers.slice(layer)),
-            (6, s.selected.binding()),
-            (9, s.states.binding()),
-            (10, s.sigma.binding()),
-            (11, s.lower.binding()),
-            (12, s.upper.binding()),
-            (13, s.diffusion_keys.binding()),
-            (14, s.velocity.binding()),
-        ],
-    )
+    let entries = moving_entries(s, layers, layer, (6, s.selected.binding()));
+    kernel.bind(ctx, &entries)
 }
 
 /// Bytes between two layers' parameter blocks: a block rounded up to the uniform offset

@@ -10,7 +10,7 @@
 //! elsewhere the fused step gathers in the select. A select that composes the lineage has its
 //! own searching variant (`fused.rs`, `SelectKeepingLineage::searching`).
 
-use super::layer_bindings::{LayerParams, selecting_entries};
+use super::layer_bindings::{LayerParams, moving_entries, selecting_entries};
 use super::setup::Streams;
 use crate::context::GpuContext;
 use crate::error::GpuError;
@@ -106,20 +106,9 @@ impl GatheringMoves {
         } else {
             (7, s.ancestors.binding())
         };
-        self.move_kernel(layer, layers.count).bind(
-            ctx,
-            &[
-                (0, layers.slice(layer)),
-                source,
-                (9, s.states.binding()),
-                (10, s.sigma.binding()),
-                (11, s.lower.binding()),
-                (12, s.upper.binding()),
-                (13, s.diffusion_keys.binding()),
-                (14, s.velocity.binding()),
-                (18, self.snapshots.binding()),
-            ],
-        )
+        let mut entries = moving_entries(s, layers, layer, source);
+        entries.push((18, self.snapshots.binding()));
+        self.move_kernel(layer, layers.count).bind(ctx, &entries)
     }
 
     /// Records layer `layer`'s select (after layer 0: the search alone; layer 0's is the

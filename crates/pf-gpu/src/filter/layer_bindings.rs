@@ -1,6 +1,7 @@
 //! What the fused layer's kernels (`shaders/engine/layer.wgsl`) bind in common: each layer's
-//! slice of the parameter buffer, and the select's bindings, shared by the gathering select
-//! (`super::fused`) and the one that leaves the gather to the move (`super::gathering`).
+//! slice of the parameter buffer, the select's bindings, shared by the gathering select
+//! (`super::fused`) and the one that leaves the gather to the move (`super::gathering`), and the
+//! bindings every move takes.
 
 use super::FrameParams;
 use super::setup::Streams;
@@ -40,5 +41,25 @@ pub(super) fn selecting_entries<'a>(
         (7, s.ancestors.binding()),
         (8, s.resampling_keys.binding()),
         (9, s.states.binding()),
+    ]
+}
+
+/// The bindings of a move for `layer`, reading its particles from `source` (`selected`, or the
+/// ancestors of a move that gathers).
+pub(super) fn moving_entries<'a>(
+    s: &'a Streams,
+    layers: &'a LayerParams<'_>,
+    layer: usize,
+    source: (u32, wgpu::BindingResource<'a>),
+) -> Vec<(u32, wgpu::BindingResource<'a>)> {
+    vec![
+        (0, layers.slice(layer)),
+        source,
+        (9, s.states.binding()),
+        (10, s.sigma.binding()),
+        (11, s.lower.binding()),
+        (12, s.upper.binding()),
+        (13, s.diffusion_keys.binding()),
+        (14, s.velocity.binding()),
     ]
 }
