@@ -38,8 +38,9 @@ pub enum StepLayout {
 }
 
 /// The most values (particles × dimensions) a target may have for the fused step to be the
-/// default. Its select's one workgroup gathers a target's values alone, where the staged step
-/// spreads them over many workgroups: that pays for few values a target and costs for many.
+/// default. Its select's one workgroup resamples a target alone (and, in layer 0 or where the
+/// moves cannot gather, gathers its values there too), where the staged step spreads that work
+/// over many workgroups: that pays for few values a target and costs for many.
 /// Measured on an NVIDIA H100 (docs/BENCHMARKS.md): the face tracker (1 000 × 7 a face) fused took
 /// 0.36 ms of GPU time a step for one face (0.52 staged, in an earlier build); the body tracker
 /// (3 500 samples × its 30-odd angles, one target) 39.4 ms an annealed step against 35.0 staged
