@@ -72,7 +72,7 @@ fn case() -> impl Strategy<Value = Case> {
     (
         (
             1usize..=3,
-            prop_oneof![Just(1usize), Just(256), Just(257), 2usize..400],
+            prop_oneof![Just(1usize), Just(256), Just(257), Just(1025), 2usize..400],
         ),
         1usize..=6,
         (1usize..=4, 1usize..=3, 0.3f32..0.8),

@@ -84,7 +84,14 @@ struct Case {
 fn case() -> impl Strategy<Value = Case> {
     (
         1usize..=4,
-        prop_oneof![Just(1usize), Just(2), Just(256), Just(257), 3usize..600],
+        prop_oneof![
+            Just(1usize),
+            Just(2),
+            Just(256),
+            Just(257),
+            Just(1025),
+            3usize..600
+        ],
         2usize..=8,
         (1usize..=4, 0.2f32..0.8, any::<bool>()),
         (any::<u64>(), any::<bool>(), any::<bool>(), any::<usize>()),

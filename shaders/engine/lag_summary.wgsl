@@ -84,14 +84,31 @@ fn weight_of(log_weight: f32) -> f32 {
     return exp(log_weight);
 }
 
-// Target t's newest particle m's ancestor in the lagged frame (n, past the particles, where
-// the trace meets a particle without an ancestor).
-fn lagged_ancestor(t: u32, m: u32, n: u32) -> u32 {
-    var a = lineage[t * params.particles + m];
-    for (var k = 1u; k < lag_params.lag && a < n; k = k + 1u) {
-        a = window_lineage[particle_at(ring_slot(k), t, a)];
+// Target t's newest particles `lanes(first)`'s ancestors in the lagged frame (n, past the
+// particles, where the trace meets a particle without an ancestor). The four traces advance
+// together, their loads issued before any is used: a trace is `lag` dependent loads, and one
+// particle at a time an invocation's four particles waited for four times as many (as
+// layer.wgsl's settle). A lane past the particles traces particle `first` (< n).
+fn lagged_ancestors(t: u32, first: u32, n: u32) -> vec4<u32> {
+    let ms = lanes(first);
+    let at = t * params.particles + select(vec4<u32>(first), ms, ms < vec4<u32>(n));
+    var a = vec4<u32>(lineage[at.x], lineage[at.y], lineage[at.z], lineage[at.w]);
+    for (var k = 1u; k < lag_params.lag; k = k + 1u) {
+        let live = a < vec4<u32>(n);
+        if (!any(live)) {
+            break;
+        }
+        let ring_at = particle_at(ring_slot(k), t, 0u) + select(vec4<u32>(0u), a, live);
+        let before = vec4<u32>(window_lineage[ring_at.x], window_lineage[ring_at.y], window_lineage[ring_at.z], window_lineage[ring_at.w]);
+        a = select(a, before, live);
     }
-    return min(a, n);
+    return min(a, vec4<u32>(n));
+}
+
+// The four newest particles an invocation takes at a time from `first`: LAG_WG apart, so that
+// the workgroup's loads of each lane are consecutive.
+fn lanes(first: u32) -> vec4<u32> {
+    return first + vec4<u32>(0u, 1u, 2u, 3u) * LAG_WG;
 }
 
 // The effective sample size of the lagged frame's traced weights, each lagged particle's the
@@ -102,9 +119,15 @@ fn traced_ess(lid: u32, t: u32, n: u32) -> f32 {
         atomicStore(&ancestor_weight[m], 0u);
     }
     workgroupBarrier();
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        let w = newest_weight(t, m);
-        atomicAdd(&ancestor_weight[lagged_ancestor(t, m, n)], u32(round(w * FIXED_ONE)));
+    for (var first = lid; first < n; first = first + 4u * LAG_WG) {
+        let a = lagged_ancestors(t, first, n);
+        let ms = lanes(first);
+        for (var c = 0u; c < 4u; c = c + 1u) {
+            if (ms[c] < n) {
+                let w = newest_weight(t, ms[c]);
+                atomicAdd(&ancestor_weight[a[c]], u32(round(w * FIXED_ONE)));
+            }
+        }
     }
     workgroupBarrier();
     for (var m = lid; m < n; m = m + LAG_WG) {
@@ -226,19 +249,27 @@ fn summarise_target(lid: u32, d: u32, t: u32) {
     let lagged = ring_slot(lag_params.lag);
     // Each newest particle's ancestor lag frames back: the ancestor's value with the newest
     // particle's weight.
-    for (var m = lid; m < n; m = m + LAG_WG) {
-        var a = lagged_ancestor(t, m, n);
-        if (a == n) {
-            atomicStore(&broken, 1u);
-            a = 0u;
-        }
-        cloud_weights[m] = newest_weight(t, m);
-        var value = 0.0;
+    // Four particles at a time (lagged_ancestors), the ancestors' values loaded before any is
+    // stored; a broken trace's (ancestor n) reads particle 0's.
+    for (var first = lid; first < n; first = first + 4u * LAG_WG) {
+        let traced = lagged_ancestors(t, first, n);
+        let a = select(vec4<u32>(0u), traced, traced < vec4<u32>(n));
+        var value = vec4<f32>(0.0);
         if (!sharing) {
-            value = state_at(lagged, t, d, a);
+            value = vec4<f32>(state_at(lagged, t, d, a.x), state_at(lagged, t, d, a.y), state_at(lagged, t, d, a.z), state_at(lagged, t, d, a.w));
         }
-        values[m] = value;
-        atomicStore(&ancestor_weight[m], a);
+        let ms = lanes(first);
+        for (var c = 0u; c < 4u; c = c + 1u) {
+            let m = ms[c];
+            if (m < n) {
+                if (traced[c] == n) {
+                    atomicStore(&broken, 1u);
+                }
+                cloud_weights[m] = newest_weight(t, m);
+                values[m] = value[c];
+                atomicStore(&ancestor_weight[m], a[c]);
+            }
+        }
     }
     workgroupBarrier();
     if (lid == 0u) {

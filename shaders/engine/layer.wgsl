@@ -209,8 +209,21 @@ fn compose_lineage(lid: u32, t: u32) {
     let n = params.particles;
     let base = t * n;
     if (params.layer > 0u) {
-        for (var k = lid; k < n; k = k + LAYER_WG) {
-            lineage_after[base + k] = lineage_before[base + ancestors[base + k]];
+        // Four particles a step, their loads issued before any is used (as settle's): a
+        // particle's lineage is two dependent loads, and one particle at a time an invocation
+        // waited for eight. A lane past the particles reads particle k (this invocation's own
+        // write) and stores nothing.
+        for (var k = lid; k < n; k = k + 4u * LAYER_WG) {
+            let ks = vec4<u32>(k, k + LAYER_WG, k + 2u * LAYER_WG, k + 3u * LAYER_WG);
+            let live = ks < vec4<u32>(n);
+            let at = base + select(vec4<u32>(k), ks, live);
+            let a = vec4<u32>(ancestors[at.x], ancestors[at.y], ancestors[at.z], ancestors[at.w]);
+            let composed = vec4<u32>(lineage_before[base + a.x], lineage_before[base + a.y], lineage_before[base + a.z], lineage_before[base + a.w]);
+            for (var c = 0u; c < 4u; c = c + 1u) {
+                if (live[c]) {
+                    lineage_after[base + ks[c]] = composed[c];
+                }
+            }
         }
         return;
     }
