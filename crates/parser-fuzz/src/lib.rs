@@ -69,9 +69,9 @@ const OPENCV_CALIBRATION_YAML: &str = "%YAML:1.0\n---\nimage_width: 640\nimage_h
 const OPENCV_CALIBRATION_JSON: &str = r#"{"imageSize": [640, 480], "cameraMatrix": {"type_id": "opencv-matrix", "rows": 3, "cols": 3, "dt": "d", "data": [657.5, 0.0, 319.5, 0.0, 657.5, 239.5, 0.0, 0.0, 1.0]}, "distCoeffs": [0.1, 0.0, 0.0, 0.0]}"#;
 
 /// A cascade of two stages and three features (a two-node tree, stumps, a three-rectangle
-/// feature, the `tilted` flag) in OpenCV's format, cut down from its frontal-face cascade
-/// (`haarcascade_frontalface_alt2.xml`, whose own loading the detection tests cover): the
-/// cascade target's seed. The 540 kB file itself parsed at about 160 inputs/s in the mutation
+/// feature, the `tilted` flag) in OpenCV's format, modelled on its frontal-face cascade
+/// (`haarcascade_frontalface_alt2.xml`, whose first classifier and feature it keeps; the
+/// detection tests load the file itself): the cascade target's seed. The 540 kB file itself parsed at about 160 inputs/s in the mutation
 /// fuzzer, and AFL++ ran it 322 times in its 10 s: too slow to fuzz.
 pub const SMALL_CASCADE: &str = r#"<?xml version="1.0"?>
 <opencv_storage>
