@@ -34,7 +34,8 @@ pub use filter::{
     DispatchTime, FUSED_DEFAULT_MAX_VALUES, GpuFilter, GpuLikelihood, GpuResampler, GpuStage,
     GpuStepReport, LagFrame, LaggedSummaries, LaggedTarget, LikelihoodInputs, LikelihoodPhase,
     LikelihoodReadbacks, MAX_LAG, MAX_LAG_PARTICLES, NoLikelihood, ParticlesBack, PendingStep,
-    ReadbackSource, StepLayout, TargetStats, fused_layout_refusal, fused_workgroup_bytes,
+    ReadbackSource, RecordingId, StepLayout, TargetStats, fused_layout_refusal,
+    fused_workgroup_bytes,
 };
 pub use image::GrayTexture;
 pub use kernels::Kernel;

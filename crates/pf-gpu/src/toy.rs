@@ -3,7 +3,7 @@
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, RecordingId};
 use crate::kernels::{Kernel, sources, stage_source};
 use crate::stream::DeviceStream;
 
@@ -14,6 +14,8 @@ pub struct ToyGaussianLikelihood {
     kernel: Kernel,
     bind_group: Option<wgpu::BindGroup>,
     groups: [u32; 3],
+    /// Names the bind group and grid `record` records, until the next `prepare`.
+    recording: Option<RecordingId>,
 }
 
 impl ToyGaussianLikelihood {
@@ -36,6 +38,7 @@ impl ToyGaussianLikelihood {
             )?,
             bind_group: None,
             groups: [0; 3],
+            recording: None,
         })
     }
 
@@ -69,6 +72,7 @@ impl GpuLikelihood for ToyGaussianLikelihood {
             inputs.shape.targets as u32,
             1,
         ];
+        self.recording = Some(RecordingId::fresh());
         Ok(())
     }
 
@@ -83,6 +87,10 @@ impl GpuLikelihood for ToyGaussianLikelihood {
         if let Some(group) = &self.bind_group {
             self.kernel.record(pass, group, self.groups);
         }
+    }
+
+    fn recording_id(&self) -> Option<RecordingId> {
+        self.recording
     }
 }
 

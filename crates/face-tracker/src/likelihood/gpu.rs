@@ -10,7 +10,9 @@ use bytemuck::{Pod, Zeroable};
 use pf_gpu::GpuContext;
 use pf_gpu::GpuError;
 use pf_gpu::GrayTexture;
-use pf_gpu::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource};
+use pf_gpu::filter::{
+    GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource, RecordingId,
+};
 use pf_gpu::kernels::{Kernel, KernelOptions, stage_source};
 use pf_gpu::stream::DeviceStream;
 use pf_gpu::wgpu;
@@ -113,6 +115,9 @@ pub struct FaceLikelihoodGpu {
     /// The packed kernel's lanes a particle, chosen by `prepare` (`None`: a workgroup a
     /// particle).
     lanes: Option<u32>,
+    /// Names what `prepare` built (the kernels, groups and grids `record` records, the
+    /// readbacks' buffers); the rest of this likelihood's state is data written before a step.
+    recording: Option<RecordingId>,
 }
 
 impl FaceLikelihoodGpu {
@@ -191,6 +196,7 @@ impl FaceLikelihoodGpu {
             groups: Vec::new(),
             particles: 0,
             lanes: None,
+            recording: None,
         })
     }
 
@@ -307,6 +313,7 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             group,
             errors: estimate_errors,
         });
+        self.recording = Some(RecordingId::fresh());
         Ok(())
     }
 
@@ -345,6 +352,10 @@ impl GpuLikelihood for FaceLikelihoodGpu {
             .iter()
             .map(|check| ReadbackSource::of(Self::ESTIMATE_ERRORS, &check.errors))
             .collect()
+    }
+
+    fn recording_id(&self) -> Option<RecordingId> {
+        self.recording
     }
 }
 

@@ -413,6 +413,7 @@ impl GpuFilter {
     /// Records whole steps as `layout` from the next step on (the same particles either way);
     /// [`StepLayout::Fused`] is refused, with the reason, where it does not fit.
     pub fn set_step_layout(&mut self, layout: StepLayout) -> Result<(), GpuError> {
+        self.forget_prerecorded();
         if let (StepLayout::Fused, Some(why)) = (layout, &self.fused_refusal) {
             return Err(GpuError::InvalidConfig(format!(
                 "the fused step does not fit this filter: {why}"

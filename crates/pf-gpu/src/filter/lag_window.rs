@@ -265,6 +265,7 @@ impl GpuFilter {
                 "a lag window while a filter step is in flight: finish it first".into(),
             ));
         }
+        self.forget_prerecorded();
         // Built before the lineage is kept, so that a window the adapter refuses leaves none.
         let mut window = LagWindow::new(ctx, &self.shape, lag, compare_filtered)?;
         self.keep_lineage(ctx)?;
@@ -282,6 +283,7 @@ impl GpuFilter {
     /// stays kept). Refused while a step is in flight. A tracker whose later GPU refuses a
     /// window takes it back from the earlier ones, so that no GPU summarises for nothing.
     pub fn drop_lag_window(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        self.forget_prerecorded();
         if self.in_flight > 0 {
             return Err(GpuError::InvalidConfig(
                 "dropping the lag window while a filter step is in flight: finish it first".into(),

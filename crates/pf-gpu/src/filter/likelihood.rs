@@ -141,6 +141,31 @@ pub trait GpuLikelihood {
     fn readbacks(&self) -> Vec<ReadbackSource<'_>> {
         Vec::new()
     }
+
+    /// What lets the filter record the next step's commands while the GPU runs this one
+    /// (`GpuFilter`'s prerecording): an id that names everything `record` and `readbacks`
+    /// depend on (bind groups, pipelines, dispatch sizes, buffers), taken fresh
+    /// ([`RecordingId::fresh`]) whenever any of it changes, as `prepare` does. `None` (the
+    /// default): what it records may change from step to step, so every step is recorded anew.
+    /// A frame's data (observations written with `queue.write_buffer` before the step) is not
+    /// part of it.
+    fn recording_id(&self) -> Option<RecordingId> {
+        None
+    }
+}
+
+/// Names one state of a likelihood's recording ([`GpuLikelihood::recording_id`]): unique in the
+/// process, so that two likelihoods, or one before and after a `prepare`, never share one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RecordingId(u64);
+
+impl RecordingId {
+    /// An id no other call has returned.
+    pub fn fresh() -> Self {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        static NEXT: AtomicU64 = AtomicU64::new(1);
+        Self(NEXT.fetch_add(1, Ordering::Relaxed))
+    }
 }
 
 /// A likelihood that records nothing (the log-likelihood stream keeps its contents).

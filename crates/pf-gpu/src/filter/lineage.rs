@@ -136,6 +136,7 @@ impl super::GpuFilter {
     /// where the adapter binds its buffers, else a dispatch more per layer; what smoothing from
     /// the ancestry needs, `pf_core::smooth::ancestry`).
     pub fn keep_lineage(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        self.forget_prerecorded();
         if self.lineage.is_none() {
             self.lineage = Some(Lineage::new(
                 ctx,
@@ -162,6 +163,7 @@ impl super::GpuFilter {
     /// The same values either way; refused where the adapter cannot bind them, or where the
     /// fused step does not fit this filter.
     pub fn set_lineage_in_select(&mut self, ctx: &GpuContext, on: bool) -> Result<(), GpuError> {
+        self.forget_prerecorded();
         match &mut self.fused {
             Some(fused) => fused.set_lineage_in_select(ctx, on),
             None if !on => Ok(()),

@@ -16,6 +16,7 @@ mod layer_bindings;
 mod likelihood;
 mod lineage;
 mod params;
+mod prerecord;
 mod profile;
 mod record;
 mod setup;
@@ -26,7 +27,7 @@ pub use fused::{
 };
 pub use likelihood::{
     GpuLikelihood, LikelihoodInputs, LikelihoodPhase, LikelihoodReadbacks, NoLikelihood,
-    ReadbackSource,
+    ReadbackSource, RecordingId,
 };
 pub use params::{FrameParams, TargetStats};
 pub use profile::DispatchTime;
@@ -202,6 +203,9 @@ pub struct GpuFilter {
     timer: Option<StepTimer>,
     /// Each dispatch timed in a pass of its own, when asked ([`Self::profile_dispatches`]).
     profiler: Option<profile::DispatchProfiler>,
+    /// The next whole step's commands, recorded while the GPU ran this one (prerecord.rs).
+    /// Every method that changes what a step records drops them (`forget_prerecorded`).
+    prerecording: prerecord::Prerecording,
     step: u64,
     /// The configuration's seed (the targets' random keys derive from it).
     seed: u64,
@@ -285,6 +289,7 @@ impl GpuFilter {
             has_best: config.best > 0,
             timer,
             profiler: None,
+            prerecording: prerecord::Prerecording::default(),
             streams,
             stages,
             groups,
@@ -392,29 +397,31 @@ impl GpuFilter {
             ));
         }
         self.fit_likelihood_readbacks(ctx, &likelihood.readbacks())?;
-        let mut encoder = ctx
-            .device
-            .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-                label: Some("filter step"),
-            });
         let started = std::time::Instant::now();
         let back = self.next_back;
-        let mut lagged = false;
-        let submission = ctx.scoped("recording filter stages", || {
-            if let Some(timer) = &self.timer {
-                timer.begin(&mut encoder);
+        let (submission, lagged) = match self.take_prerecorded(stages, likelihood) {
+            Some(commands) => {
+                let submission = ctx.scoped("submitting the filter step recorded ahead", || {
+                    self.write_layer_params(ctx, stages);
+                    ctx.queue.submit([commands])
+                })?;
+                (submission, false)
             }
-            lagged = self.record_stages(ctx, &mut encoder, stages, likelihood);
-            if let Some(timer) = &self.timer {
-                timer.end(&mut encoder);
-                self.step_backs[back].record_copy(&mut encoder, STEP_BACK_TICKS, timer.resolved());
-            }
-            ctx.queue.submit([encoder.finish()])
-        })?;
+            None => ctx.scoped("recording filter stages", || {
+                self.write_layer_params(ctx, stages);
+                let (commands, lagged) = self.encode_commands(ctx, stages, likelihood);
+                (ctx.queue.submit([commands]), lagged)
+            })?,
+        };
         // Every readback is mapped behind one wait: one poll a frame.
         let map = self.step_backs[back].request_map();
         self.next_back = 1 - back;
         self.in_flight += 1;
+        if self.in_flight == 1 && GpuStage::ALL.iter().all(|s| stages.contains(s)) {
+            // A lone whole step: the host would wait for the GPU next, so record the step after
+            // it now (prerecord.rs).
+            self.prerecord_next(ctx, likelihood);
+        }
         Ok(PendingStep {
             submission,
             back,
@@ -518,6 +525,7 @@ impl GpuFilter {
     /// Builds the step's two staging buffers for the filter's own sections, the likelihood's and
     /// the lag window's.
     fn refit_step_backs(&mut self, ctx: &GpuContext) -> Result<(), GpuError> {
+        self.forget_prerecorded();
         let mut bytes = self.own_sections.to_vec();
         bytes.extend(self.likelihood_sections.iter().map(|&(_, b)| b));
         bytes.extend(&self.lag_sections);

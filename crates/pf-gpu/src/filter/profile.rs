@@ -175,6 +175,7 @@ impl GpuFilter {
     /// the adapter has no timestamp queries, or for a staged step (whose stages
     /// [`Self::run_stages`] already times one by one).
     pub fn profile_dispatches(&mut self, ctx: &GpuContext, on: bool) -> Result<(), GpuError> {
+        self.forget_prerecorded();
         if !on {
             self.profiler = None;
             return Ok(());

@@ -11,11 +11,25 @@ use super::{
 use crate::context::GpuContext;
 
 impl GpuFilter {
-    /// Records the given stages, in the step's order: the selection, moving, measuring and
-    /// weighing stages once per annealing layer (each layer with the next step index), then the
-    /// estimate, and for a whole step the lag window (where kept). Returns whether the step
-    /// summarises a lagged frame.
+    /// Writes the frame's layer parameters, then records the given stages, in the step's order:
+    /// the selection, moving, measuring and weighing stages once per annealing layer (each
+    /// layer with the next step index), then the estimate, and for a whole step the lag window
+    /// (where kept). Returns whether the step summarises a lagged frame.
     pub(super) fn record_stages(
+        &mut self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+    ) -> bool {
+        self.write_layer_params(ctx, stages);
+        self.record_commands(ctx, encoder, stages, likelihood)
+    }
+
+    /// [`Self::record_stages`] but the parameters: the commands alone, which read the
+    /// parameters from their buffers when they run (so that they can be recorded a step ahead:
+    /// `prerecord.rs`).
+    pub(super) fn record_commands(
         &mut self,
         ctx: &GpuContext,
         encoder: &mut wgpu::CommandEncoder,
@@ -24,7 +38,7 @@ impl GpuFilter {
     ) -> bool {
         let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
         let lag_step = whole_step.then(|| self.prepare_lag_step(ctx)).flatten();
-        self.record_frame(ctx, encoder, stages, likelihood, lag_step);
+        self.record_frame(encoder, stages, likelihood, lag_step);
         let lagged = lag_step.is_some_and(|step| self.record_lag_readback(encoder, step));
         if let Some(profiler) = &mut self.profiler {
             profiler.resolve(encoder);
@@ -32,16 +46,18 @@ impl GpuFilter {
         lagged
     }
 
-    /// [`Self::record_stages`] but the lag window's readback: the frame, and the lag window's
-    /// dispatches at its end for a whole step (`lag_step`; in the fused step's own pass).
-    fn record_frame(
-        &mut self,
-        ctx: &GpuContext,
-        encoder: &mut wgpu::CommandEncoder,
-        stages: &[GpuStage],
-        likelihood: &dyn GpuLikelihood,
-        lag_step: Option<LagStep>,
-    ) {
+    /// Whether `stages` run as the fused step (a whole step, where the fused layers fit).
+    fn runs_fused(&self, stages: &[GpuStage]) -> bool {
+        let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
+        whole_step && self.layout == StepLayout::Fused && self.fused.is_some()
+    }
+
+    /// The frame's parameter block per layer (keyed by the next step indices, which it
+    /// advances) into `layer_params`; for the fused step also the first layer's into
+    /// `params_buffer`, the likelihood's view of the parameters (the frame's shape, and the step a
+    /// likelihood's own dynamics draw with). The staged step copies each layer's block there in
+    /// its commands.
+    pub(super) fn write_layer_params(&mut self, ctx: &GpuContext, stages: &[GpuStage]) {
         let layers = self.annealing.layers;
         let blocks: Vec<FrameParams> = (0..layers)
             .map(|layer| {
@@ -57,13 +73,22 @@ impl GpuFilter {
                 .copy_from_slice(bytemuck::bytes_of(block));
         }
         ctx.queue.write_buffer(&self.layer_params, 0, &strided);
-
-        let whole_step = GpuStage::ALL.iter().all(|s| stages.contains(s));
-        if let (true, StepLayout::Fused, Some(fused)) = (whole_step, self.layout, &self.fused) {
-            // The likelihood's view of the parameters: the frame's first layer (its shape, and
-            // the step a likelihood's own dynamics draw with).
+        if self.runs_fused(stages) {
             ctx.queue
                 .write_buffer(&self.params_buffer, 0, bytemuck::bytes_of(&blocks[0]));
+        }
+    }
+
+    /// The frame's commands, and the lag window's dispatches at its end for a whole step
+    /// (`lag_step`; in the fused step's own pass).
+    fn record_frame(
+        &mut self,
+        encoder: &mut wgpu::CommandEncoder,
+        stages: &[GpuStage],
+        likelihood: &dyn GpuLikelihood,
+        lag_step: Option<LagStep>,
+    ) {
+        if let (true, Some(fused)) = (self.runs_fused(stages), &self.fused) {
             let mut profiler = self.profiler.take();
             self.record_fused(encoder, fused, likelihood, profiler.as_mut(), lag_step);
             self.profiler = profiler;
@@ -74,7 +99,7 @@ impl GpuFilter {
             profiler.forget();
         }
         let block_bytes = std::mem::size_of::<FrameParams>() as u64;
-        for layer in 0..layers {
+        for layer in 0..self.annealing.layers {
             encoder.copy_buffer_to_buffer(
                 &self.layer_params,
                 layer as u64 * self.layer_stride,

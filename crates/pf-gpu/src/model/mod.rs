@@ -51,7 +51,7 @@ use wgpu::naga;
 
 use crate::context::GpuContext;
 use crate::error::GpuError;
-use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase};
+use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, RecordingId};
 use crate::kernels::{Kernel, sources};
 use crate::stream::DeviceStream;
 
@@ -255,6 +255,8 @@ struct Bound {
     measure: wgpu::BindGroup,
     propagate: Option<wgpu::BindGroup>,
     groups: [u32; 3],
+    /// Names these bindings and groups: what `record` records, until the next `prepare`.
+    recording: RecordingId,
 }
 
 /// A model given as WGSL whose `Observation` and `Constants` sizes are known only at run time
@@ -502,6 +504,10 @@ impl<O: Pod, C: Pod> GpuLikelihood for WgslModel<O, C> {
     fn propagates(&self) -> bool {
         self.raw.propagates()
     }
+
+    fn recording_id(&self) -> Option<RecordingId> {
+        self.raw.recording_id()
+    }
 }
 
 impl GpuLikelihood for RawWgslModel {
@@ -542,6 +548,7 @@ impl GpuLikelihood for RawWgslModel {
                 inputs.shape.targets as u32,
                 1,
             ],
+            recording: RecordingId::fresh(),
         });
         Ok(())
     }
@@ -567,5 +574,9 @@ impl GpuLikelihood for RawWgslModel {
 
     fn propagates(&self) -> bool {
         self.propagate.is_some()
+    }
+
+    fn recording_id(&self) -> Option<RecordingId> {
+        self.bound.as_ref().map(|b| b.recording)
     }
 }
