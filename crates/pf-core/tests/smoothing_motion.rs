@@ -17,7 +17,7 @@
 use pf_core::batch::{BatchConfig, BatchFilter, BatchShape, gaussian_clouds};
 use pf_core::kalman::RandomWalk;
 use pf_core::resample::Systematic;
-use pf_core::smooth::motion::{CANDIDATE_SCALES, smooth_values_by_evidence};
+use pf_core::smooth::motion::{CANDIDATE_SCALES, OnlineMotion, smooth_values_by_evidence};
 use pf_core::smooth::{Cloud, GaussianTransition};
 use pf_core::{RandomStreams, Stage};
 
@@ -198,5 +198,70 @@ fn a_walk_at_the_filters_own_motion_keeps_it() {
     for run in filtered(&ys, 31) {
         let (_, choices) = smooth_values_by_evidence(&run, &transition()).unwrap();
         assert!(choices[0].scale >= 0.5, "chose {:?}", choices[0]);
+    }
+}
+
+/// A track's clouds in two values: the walk as it is, and the walk as an angle (wrapped into
+/// [−π, π), so that its particles cross ±π), each frame drifting on by `drift`.
+fn with_an_angle(run: &[Cloud], drift: [f32; 2]) -> Vec<Cloud> {
+    (run.iter())
+        .map(|c| {
+            let wrapped = c.states.iter().map(|&x| {
+                let turns = ((x + std::f32::consts::PI) / std::f32::consts::TAU).floor();
+                x - turns * std::f32::consts::TAU
+            });
+            Cloud {
+                states: c.states.iter().copied().chain(wrapped).collect(),
+                weights: c.weights.clone(),
+                drift: drift.to_vec(),
+            }
+        })
+        .collect()
+}
+
+/// The evidence taken frame by frame (`OnlineMotion`, what `--smooth-lag L --smooth-motion auto`
+/// runs), each window's first frame smoothed as it fills: fed a whole track, it chooses what the
+/// whole track's evidence chooses, and the frames left in its last window are smoothed as the
+/// whole track's smoother smooths them (the backward pass from the last frame is the same),
+/// bit for bit; the lagged rows' means lie within their intervals. Walks that move slower than
+/// the filter's search and at its pace, a value that is an angle, drifts.
+#[test]
+fn the_evidence_frame_by_frame_chooses_and_smooths_as_the_whole_tracks() {
+    const LAG: usize = 5;
+    let transition = GaussianTransition {
+        sigma: vec![FILTER_SIGMA as f32; 2],
+        angular: vec![false, true],
+    };
+    for (step, seed, drift) in [(0.1, 11, [0.0, 0.0]), (FILTER_SIGMA, 12, [0.05, -0.1])] {
+        let (_, ys) = simulate(step, seed);
+        for run in filtered(&ys, seed + 100).iter().take(3) {
+            let run = with_an_angle(run, drift);
+            let (whole, choices) = smooth_values_by_evidence(&run, &transition).unwrap();
+            let mut online = OnlineMotion::new(transition.clone());
+            let mut first = 0;
+            for (t, cloud) in run.iter().enumerate() {
+                online.push(cloud).unwrap();
+                if t + 1 - first > LAG {
+                    let row = online.smooth_first(&run[first..=t]).unwrap();
+                    for s in &row {
+                        assert!(
+                            s.lower <= s.mean && s.mean <= s.upper,
+                            "frame {first}: {s:?}"
+                        );
+                    }
+                    first += 1;
+                }
+            }
+            assert_eq!(online.choices(), choices, "step {step}");
+            if step < 0.5 {
+                // The slow walk's motion is not the search's: a re-weighted filter smooths it.
+                assert!(choices.iter().all(|c| c.scale < 1.0), "{choices:?}");
+            }
+            let rest = online.smooth_all(&run[first..]).unwrap();
+            assert_eq!(rest.len(), LAG);
+            assert_eq!(rest[..], whole[first..], "step {step}");
+            // A window that is not the one the evidence holds is an error, not garbage.
+            assert!(online.smooth_all(&run[first + 1..]).is_err());
+        }
     }
 }

@@ -53,9 +53,10 @@ pub struct SmoothArgs {
     /// of the tracker's own diffusion over a frame (its annealing layers' random walks composed,
     /// the default 1): below 1 it holds the track to slower motion, steadier and with narrower
     /// intervals, and lags a head that turns (docs/ACCURACY.md, "Smoothing against the mesh's
-    /// jitter"). From 0.001 to 1000. `auto` (with --smooth full): each track's values each get
-    /// the share the evidence favours among 1, 1/2 ... 1/64 (the filter re-weighted to each; on
-    /// the CPU's cores, wherever the tracker runs). The ancestry smoother has no motion to scale.
+    /// jitter"). From 0.001 to 1000. `auto`: each track's values each get the share the
+    /// evidence favours among 1, 1/2 ... 1/64 (the filter re-weighted to each; on the CPU's
+    /// cores, wherever the tracker runs): over the whole track with --smooth full, over the
+    /// track's frames so far with --smooth-lag. The ancestry smoother has no motion to scale.
     #[arg(
         long,
         value_name = "SCALE|auto",
@@ -97,16 +98,10 @@ impl LagSmootherArg {
 
 impl SmoothArgs {
     /// Refuses what the arguments alone show cannot be smoothed as asked, before a run touches
-    /// its output: `--smooth-motion` with `--lag-smoother ancestry`, which has no motion, and
-    /// `--smooth-motion auto` with `--smooth-lag`, whose windows of L frames carry too little
-    /// evidence to choose a motion by (measured on the synthetic faces at a lag of 10: 1.88 px
-    /// and 2.94°, worse than the filter's 1.76 px and 2.85°).
+    /// its output: `--smooth-motion` with `--lag-smoother ancestry`, which has no motion. (With
+    /// `--smooth-lag`, `--smooth-motion auto` chooses by the evidence of every frame of a track
+    /// so far: `pf_core::smooth::motion::OnlineMotion`.)
     pub fn check(&self) -> anyhow::Result<()> {
-        if self.by_evidence() && self.smooth_lag.is_some() {
-            anyhow::bail!(
-                "--smooth-motion auto chooses each track's motion from the whole track: use it with --smooth full (or give --smooth-lag a scale)"
-            );
-        }
         if self.smooth_motion.is_some() && self.lag_smoother == LagSmootherArg::Ancestry {
             anyhow::bail!(
                 "--smooth-motion scales the marginal smoother's motion; --lag-smoother ancestry has none: use --lag-smoother marginal (or auto)"
@@ -234,7 +229,7 @@ impl Smoother {
     /// create it without a GPU).
     pub fn choosing_motion_by_evidence(mut self) -> Self {
         let chooser = std::sync::Arc::new(EvidenceMotion::default());
-        self.tracks = self.tracks.on(chooser.clone());
+        self.tracks = self.tracks.choosing_motion_by_evidence(chooser.clone());
         self.by_evidence = Some(chooser);
         self
     }

@@ -348,8 +348,6 @@ fn bad_smoothing_options_are_refused() {
         &["--smooth", "full", "--smooth-motion", "inf"],
         &["--smooth-lag", "2", "--smooth-motion", "slow"],
         &["--smooth", "full", "--smooth-motion", "automatic"],
-        // The evidence chooses a motion from a whole track, not from a lag's window.
-        &["--smooth-lag", "2", "--smooth-motion", "auto"],
         &["--smooth-motion", "auto"],
         // Too small a scale leaves σ 0 (a value left out), too large one overflows.
         &["--smooth", "full", "--smooth-motion", "1e-44"],
@@ -431,6 +429,59 @@ fn a_slower_smoothing_motion_narrows_the_intervals_and_keeps_the_last_frame() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The rows of `auto`'s smoothed.csv (the motion chosen by the evidence) are `own`'s (the
+/// tracker's motion), each mean within its interval and each interval taking in `own`'s (up to
+/// a twentieth of its width: the two smoothers' weights differ by the Gauss transform's
+/// rounding).
+fn takes_in_the_trackers_motion(own: &Path, auto: &Path) {
+    let (header, mut own) = rows(&own.join("smoothed.csv"));
+    let (_, mut auto) = rows(&auto.join("smoothed.csv"));
+    check_intervals(&header, &auto, 2);
+    let key = |r: &Vec<String>| (r[1].parse::<u64>().unwrap(), r[0].parse::<u64>().unwrap());
+    own.sort_by_key(key);
+    auto.sort_by_key(key);
+    let keys = |rows: &[Vec<String>]| -> Vec<(u64, u64)> { rows.iter().map(key).collect() };
+    assert_eq!(keys(&own), keys(&auto));
+    let number = |r: &[String], k: usize| -> f64 { r[k].parse().unwrap() };
+    for (o, a) in own.iter().zip(&auto) {
+        for k in (2..header.len()).step_by(3) {
+            let slack = 0.05 * (number(o, k + 2) - number(o, k + 1));
+            assert!(
+                number(a, k + 1) <= number(o, k + 1) + slack,
+                "{}: {a:?} against {o:?}",
+                header[k]
+            );
+            assert!(
+                number(a, k + 2) >= number(o, k + 2) - slack,
+                "{}: {a:?} against {o:?}",
+                header[k]
+            );
+        }
+    }
+}
+
+/// `--smooth-lag L --smooth-motion auto`: each window's first frame under the motion the
+/// evidence of the track's frames so far chooses; the same rows as the marginal lag smoother at
+/// the tracker's motion, every interval taking in its, and the run naming the motion chosen.
+#[test]
+fn the_evidence_chooses_the_lag_smoothing_motion_as_frames_come() {
+    let dir = scratch("face-smoothing-lag-auto");
+    face_run(
+        &dir.join("own"),
+        &["--smooth-lag", "3", "--lag-smoother", "marginal"],
+    );
+    let text = face_run(
+        &dir.join("auto"),
+        &["--smooth-lag", "3", "--smooth-motion", "auto"],
+    );
+    assert!(
+        text.contains("the evidence chose the smoother's motion"),
+        "{text}"
+    );
+    takes_in_the_trackers_motion(&dir.join("own"), &dir.join("auto"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `--smooth-motion auto`: the same rows as the tracker's own motion, each mean within its
 /// interval, each interval taking in the tracker's motion's (up to a twentieth of its width: the
 /// two smoothers' weights differ by the Gauss transform's rounding), the run naming the motion
@@ -449,29 +500,7 @@ fn the_evidence_chooses_the_smoothing_motion_face_and_body() {
     for name in ["tx", "ty", "scale", "rx", "ry", "rz", "alpha"] {
         assert!(line.contains(&format!(" {name} ")), "{line}");
     }
-    let (header, own) = rows(&dir.join("own/smoothed.csv"));
-    let (_, auto) = rows(&dir.join("auto/smoothed.csv"));
-    check_intervals(&header, &auto, 2);
-    let keys = |rows: &[Vec<String>]| -> Vec<(String, String)> {
-        rows.iter().map(|r| (r[0].clone(), r[1].clone())).collect()
-    };
-    assert_eq!(keys(&own), keys(&auto));
-    let number = |r: &[String], k: usize| -> f64 { r[k].parse().unwrap() };
-    for (o, a) in own.iter().zip(&auto) {
-        for k in (2..header.len()).step_by(3) {
-            let slack = 0.05 * (number(o, k + 2) - number(o, k + 1));
-            assert!(
-                number(a, k + 1) <= number(o, k + 1) + slack,
-                "{}: {a:?} against {o:?}",
-                header[k]
-            );
-            assert!(
-                number(a, k + 2) >= number(o, k + 2) - slack,
-                "{}: {a:?} against {o:?}",
-                header[k]
-            );
-        }
-    }
+    takes_in_the_trackers_motion(&dir.join("own"), &dir.join("auto"));
     let body = dir.join("body");
     let text = ok(&streampf(&[
         "body",

@@ -5,6 +5,7 @@
 //! frame); and how often intervals hold the truth ([`Coverage`]). The command line's `--smooth` writes
 //! these rows to smoothed.csv; Python's trackers return them.
 
+mod by_evidence;
 mod coverage;
 mod lagged;
 pub use coverage::Coverage;
@@ -18,6 +19,7 @@ use std::sync::Arc;
 use crate::batch::{BatchShape, weighted_means};
 use crate::error::PfError;
 use crate::smooth::ancestry::{trace_back, traceable};
+use crate::smooth::motion::{EvidenceMotion, OnlineMotion};
 use crate::smooth::{
     Cloud, CpuSmoother, GaussianTransition, Summary, TargetParticles, ValueSmoother, summarise,
 };
@@ -125,6 +127,9 @@ pub struct SmoothedRow {
 struct TrackFrames {
     frames: VecDeque<WaitingFrame>,
     last_mean: Option<Vec<f32>>,
+    /// The evidence of every frame so far for each candidate motion, when the lag windows are
+    /// smoothed under the motion it chooses ([`TrackSmoother::choosing_motion_by_evidence`]).
+    evidence: Option<OnlineMotion>,
 }
 
 /// The smoothing of tracks as they are filtered, without I/O (the CLI's `Smoother` writes its
@@ -150,6 +155,9 @@ pub struct TrackSmoother {
     tracks: BTreeMap<usize, TrackFrames>,
     /// Where the smoothing runs: the CPU unless [`TrackSmoother::on`] says otherwise.
     backend: Arc<dyn ValueSmoother>,
+    /// The evidence's choices of motion, when it chooses them
+    /// ([`TrackSmoother::choosing_motion_by_evidence`]).
+    evidence: Option<Arc<EvidenceMotion>>,
 }
 
 impl TrackSmoother {
@@ -165,6 +173,7 @@ impl TrackSmoother {
             gain,
             tracks: BTreeMap::new(),
             backend: Arc::new(CpuSmoother),
+            evidence: None,
         }
     }
 
@@ -239,6 +248,8 @@ impl TrackSmoother {
         }
         if self.traces_ancestry() {
             rows.extend(self.smooth_first_by_ancestry(&due)?);
+        } else if self.chooses_lag_motion() {
+            rows.extend(self.smooth_windows_by_evidence(&due)?);
         } else {
             rows.extend(self.smooth_windows(&due)?);
         }
@@ -297,6 +308,7 @@ impl TrackSmoother {
             &cloud.weights,
             &self.transition.angular,
         );
+        let by_evidence = self.chooses_lag_motion();
         let entry = self.tracks.entry(track).or_default();
         cloud.drift = drift(
             self.gain,
@@ -305,6 +317,9 @@ impl TrackSmoother {
             &self.transition.angular,
         );
         entry.last_mean = Some(mean);
+        if by_evidence {
+            by_evidence::push_evidence(entry, &cloud, &self.transition)?;
+        }
         entry.frames.push_back(WaitingFrame {
             frame,
             cloud,
@@ -392,6 +407,9 @@ impl TrackSmoother {
                 })
                 .collect::<Result<_, PfError>>()?;
             return Ok(per_track.into_iter().flatten().collect());
+        }
+        if self.chooses_lag_motion() {
+            return self.flush_by_evidence(&waiting);
         }
         let clouds: Vec<Vec<Cloud>> = (waiting.iter())
             .map(|(_, w)| w.frames.iter().map(|f| f.cloud.clone()).collect())

@@ -22,6 +22,9 @@
 //! A frame the tracker's own motion cannot reach from the one before (a restart elsewhere: every
 //! predictive density 0) starts the chain afresh: its filtered weights, no evidence either way.
 
+mod online;
+pub use online::OnlineMotion;
+
 use rayon::prelude::*;
 
 use super::gauss::gauss_transform;
@@ -76,16 +79,7 @@ impl ValueFrames {
             .map(|(clouds, values)| {
                 let drift = f64::from(clouds[0].drift[d]);
                 let from: Vec<f64> = values[0].iter().map(|x| x + drift).collect();
-                let to = values[1].clone();
-                if !angular {
-                    return (from, to);
-                }
-                let reference = from.first().copied().unwrap_or(0.0);
-                let near = |x: f64| reference + f64::from(wrap_angle_floor((x - reference) as f32));
-                (
-                    from.into_iter().map(near).collect(),
-                    to.into_iter().map(near).collect(),
-                )
+                value_pair(&from, &values[1], angular)
             })
             .collect();
         Self {
@@ -93,6 +87,21 @@ impl ValueFrames {
             pairs,
         }
     }
+}
+
+/// A pair of frames' values as the transforms take them: `from` (the earlier frame's, moved by
+/// its drift) and `to`, an angle's both taken within π of `from`'s first value, so that a
+/// difference across ±π is the short way round.
+fn value_pair(from: &[f64], to: &[f64], angular: bool) -> (Vec<f64>, Vec<f64>) {
+    if !angular {
+        return (from.to_vec(), to.to_vec());
+    }
+    let reference = from.first().copied().unwrap_or(0.0);
+    let near = |x: f64| reference + f64::from(wrap_angle_floor((x - reference) as f32));
+    (
+        from.iter().map(|&x| near(x)).collect(),
+        to.iter().map(|&x| near(x)).collect(),
+    )
 }
 
 /// Divides `values` by their sum; `None` when the sum is not positive and finite.
@@ -118,23 +127,43 @@ fn reweighted(
     let mut weights = vec![frames.weights[0].clone()];
     let mut gain = 0.0;
     for (t, tracker) in tracker_predictive.iter().enumerate() {
-        let (from, to) = &frames.pairs[t];
         let filtered = &frames.weights[t + 1];
         if tracker.iter().all(|p| *p == 0.0) {
             weights.push(filtered.clone());
             continue;
         }
-        let ours = gauss_transform(from, &weights[t], to, sigma);
-        // Each density's 1/σ: the ratio of N(·; ·, sigma²) to N(·; ·, tracker_sigma²).
-        let scale = tracker_sigma / sigma;
-        let moved: Vec<f64> = (filtered.iter().zip(&ours).zip(tracker))
-            .map(|((w, p), q)| if *q > 0.0 { w * scale * p / q } else { 0.0 })
-            .collect();
-        let (next, total) = normalised(moved)?;
-        gain += total.ln();
+        let (next, frame_gain) = reweigh_frame(
+            &frames.pairs[t],
+            &weights[t],
+            filtered,
+            tracker,
+            (tracker_sigma, sigma),
+        )?;
+        gain += frame_gain;
         weights.push(next);
     }
     Some((weights, gain))
+}
+
+/// One frame of [`reweighted`]: `filtered` (the frame's weights) re-weighted as if the motion
+/// from the frame before (`pair`, its re-weighted weights `previous`) were `sigma` where the
+/// tracker's is `tracker_sigma` (whose predictive density at the frame's particles is
+/// `tracker`), and the frame's log-evidence gain; `None` when the motion cannot explain it.
+fn reweigh_frame(
+    (from, to): &(Vec<f64>, Vec<f64>),
+    previous: &[f64],
+    filtered: &[f64],
+    tracker: &[f64],
+    (tracker_sigma, sigma): (f64, f64),
+) -> Option<(Vec<f64>, f64)> {
+    let ours = gauss_transform(from, previous, to, sigma);
+    // Each density's 1/σ: the ratio of N(·; ·, sigma²) to N(·; ·, tracker_sigma²).
+    let scale = tracker_sigma / sigma;
+    let moved: Vec<f64> = (filtered.iter().zip(&ours).zip(tracker))
+        .map(|((w, p), q)| if *q > 0.0 { w * scale * p / q } else { 0.0 })
+        .collect();
+    let (next, total) = normalised(moved)?;
+    Some((next, total.ln()))
 }
 
 /// The marginal smoother's backward pass over one value under `sigma`, from the filter's
@@ -168,9 +197,15 @@ struct Reweighted {
 /// The median over frames of the re-weighted filter's effective sample size against the
 /// filter's own.
 fn kept_sample_size(weights: &[Vec<f64>], filtered: &[Vec<f64>]) -> f64 {
-    let mut kept: Vec<f64> = (weights.iter().zip(filtered))
+    let kept: Vec<f64> = (weights.iter().zip(filtered))
         .map(|(w, f)| effective_sample_size(w) / effective_sample_size(f))
         .collect();
+    median_kept(&kept)
+}
+
+/// The median of each frame's kept share of the effective sample size (0 for none).
+fn median_kept(kept: &[f64]) -> f64 {
+    let mut kept = kept.to_vec();
     kept.sort_by(f64::total_cmp);
     kept.get(kept.len() / 2).copied().unwrap_or(0.0)
 }
@@ -327,6 +362,14 @@ impl EvidenceMotion {
     /// Every track's choices so far (`[track smoothed][value]`, in the order they were smoothed).
     pub fn choices(&self) -> Vec<Vec<MotionChoice>> {
         self.choices.lock().map(|c| c.clone()).unwrap_or_default()
+    }
+
+    /// Keeps one track's `choices` for the report (a lag smoother's, made as its frames came:
+    /// [`OnlineMotion`]).
+    pub fn record(&self, choices: Vec<MotionChoice>) {
+        if let Ok(mut all) = self.choices.lock() {
+            all.push(choices);
+        }
     }
 
     /// The median chosen scale of each of `dims` values over the tracks smoothed (`None` before
