@@ -28,7 +28,7 @@ use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_m
 use pf_core::anneal::{Annealing, Tempering};
 use pf_core::batch::{BatchConfig, BatchShape, gaussian_clouds};
 use pf_core::resample::{Metropolis, Systematic};
-use pf_core::smooth::motion::smooth_values_by_evidence;
+use pf_core::smooth::motion::{OnlineMotion, smooth_values_by_evidence};
 use pf_core::smooth::{Cloud, GaussianTransition, smooth_values};
 use pf_core::{RandomStreams, Resampler, ResamplerKind, Stage};
 use pf_gpu::engine::Filter;
@@ -39,6 +39,7 @@ use pf_gpu::{
     ContextOptions, GpuContext, GpuFilter, GpuLikelihood, GpuResampler, GpuStage, NoLikelihood,
     StepLayout,
 };
+use std::collections::VecDeque;
 
 const D: usize = 7;
 const M: usize = 1000;
@@ -509,6 +510,33 @@ fn bench_smoother(c: &mut Criterion) {
     // the tracker ran on): one target's whole run; 64 targets cost 64 times it.
     group.bench_function("cpu_by_evidence_full_run_1000_frames_1_target", |b| {
         b.iter(|| std::hint::black_box(smooth_values_by_evidence(&run[0], &transition).unwrap()))
+    });
+    // The same with a lag (`--smooth-lag 8 --smooth-motion auto`): a frame of 4 targets, each
+    // re-weighted for every candidate motion and its window's first frame smoothed.
+    let mut online: Vec<(OnlineMotion, VecDeque<Cloud>)> = (0..cpu_targets)
+        .map(|t| {
+            let mut motion = OnlineMotion::new(transition.clone());
+            let mut window = VecDeque::new();
+            for k in 0..8 {
+                let cloud = &run[t][k % frames];
+                motion.push(cloud).unwrap();
+                window.push_back(cloud.clone());
+            }
+            (motion, window)
+        })
+        .collect();
+    let mut next = 8;
+    group.bench_function("cpu_by_evidence_fixed_lag_8_a_frame_4_targets", |b| {
+        b.iter(|| {
+            for (t, (motion, window)) in online.iter_mut().enumerate() {
+                let cloud = &run[t][next % frames];
+                motion.push(cloud).unwrap();
+                window.push_back(cloud.clone());
+                std::hint::black_box(motion.smooth_first(window.make_contiguous()).unwrap());
+                window.pop_front();
+            }
+            next += 1;
+        })
     });
     group.finish();
 }

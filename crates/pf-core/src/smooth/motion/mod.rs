@@ -409,8 +409,10 @@ impl ValueSmoother for EvidenceMotion {
     }
 
     /// Each window's first frame at the motion the window's own evidence chooses. Few frames
-    /// choose poorly (the synthetic faces at a lag of 10 smoothed worse than the filter), which
-    /// is why `--smooth-motion auto` refuses `--smooth-lag`; a library caller may still ask.
+    /// choose poorly (the synthetic faces at a lag of 10 smoothed worse than the filter), so
+    /// `--smooth-lag L --smooth-motion auto` chooses by the evidence of the track's frames so
+    /// far instead ([`OnlineMotion`], which `TrackSmoother::choosing_motion_by_evidence` keeps
+    /// per track); this stays for a caller that has windows alone.
     fn smooth_first_many(
         &self,
         tracks: &[&[Cloud]],
