@@ -262,6 +262,14 @@ fn the_evidence_frame_by_frame_chooses_and_smooths_as_the_whole_tracks() {
             assert_eq!(rest[..], whole[first..], "step {step}");
             // A window that is not the one the evidence holds is an error, not garbage.
             assert!(online.smooth_all(&run[first + 1..]).is_err());
+            // Each frame smoothed as soon as it comes (the window emptied every time): the
+            // evidence's chain goes on all the same.
+            let mut at_once = OnlineMotion::new(transition.clone());
+            for (t, cloud) in run.iter().enumerate() {
+                at_once.push(cloud).unwrap();
+                at_once.smooth_first(&run[t..=t]).unwrap();
+            }
+            assert_eq!(at_once.choices(), choices, "step {step}, no lag");
         }
     }
 }

@@ -26,13 +26,15 @@ use crate::smooth::{Cloud, GaussianTransition, Summary};
 use crate::weights::effective_sample_size;
 
 /// One candidate motion of one value: the evidence it gained, the share of the filter's
-/// effective sample size it kept at each frame, and its re-weighted weights at each frame still
-/// in the window (the front: the window's first).
+/// effective sample size it kept at each frame, its re-weighted weights at each frame still in
+/// the window (the front: the window's first) and at the last frame (the next frame's chain
+/// goes on from them, whether or not the window still holds it).
 #[derive(Debug, Clone)]
 struct Candidate {
     gain: f64,
     kept: Vec<f64>,
     window: VecDeque<Vec<f64>>,
+    last: Option<Vec<f64>>,
 }
 
 /// One value's evidence so far.
@@ -63,6 +65,7 @@ impl OnlineMotion {
                     gain: 0.0,
                     kept: Vec::new(),
                     window: VecDeque::new(),
+                    last: None,
                 });
                 CANDIDATE_SCALES.len()
             ],
@@ -163,7 +166,7 @@ impl ValueEvidence {
         for (k, slot) in self.candidates.iter_mut().enumerate() {
             let Some(candidate) = slot else { continue };
             let scale = CANDIDATE_SCALES[k];
-            let next = match (&pair, &tracker, candidate.window.back()) {
+            let next = match (&pair, &tracker, &candidate.last) {
                 (Some(pair), Some(tracker), Some(previous)) if reachable && scale != 1.0 => {
                     let Some((next, gain)) = reweigh_frame(
                         pair,
@@ -183,7 +186,8 @@ impl ValueEvidence {
             candidate
                 .kept
                 .push(effective_sample_size(&next) / effective_sample_size(filtered));
-            candidate.window.push_back(next);
+            candidate.window.push_back(next.clone());
+            candidate.last = Some(next);
         }
         let drift = f64::from(cloud.drift[d]);
         self.last = Some((values.iter().map(|x| x + drift).collect(), filtered.clone()));
