@@ -280,7 +280,8 @@ fn lone_steps_are_prerecorded_until_what_they_recorded_changes() {
     );
     side.act(&ctx, Action::Step);
     assert_eq!(side.filter.prerecorded_steps(), 5);
-    side.act(&ctx, Action::SwitchLayout);
+    // The fused layout is these shapes' default: the step after a switch to the staged one.
+    side.filter.set_step_layout(StepLayout::Staged).unwrap();
     side.act(&ctx, Action::Step);
     assert_eq!(side.filter.prerecorded_steps(), 5, "another layout");
     side.filter.set_prerecording(false);
