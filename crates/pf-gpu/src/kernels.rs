@@ -149,8 +149,38 @@ pub struct Kernel {
     layout: wgpu::BindGroupLayout,
 }
 
-/// How a [`Kernel`] is built beyond its source: the values of its `override` constants, and
-/// whether its workgroup memory starts zeroed.
+/// Whether wgpu adds its own runtime checks to a kernel's compiled code.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum ShaderChecks {
+    /// wgpu's defaults: every dynamic index into a workgroup or function array clamped into
+    /// range, and every loop given a counter that ends it after 2^64 iterations. For WGSL the
+    /// project has not written (a plug-in model's, [`crate::model::WgslModel`]).
+    #[default]
+    Checked,
+    /// Neither: for the project's own kernels, whose indices stay in range and whose loops end
+    /// by their own logic, as their GPU-against-CPU tests hold them. Storage buffers stay
+    /// bounded either way: wgpu asks Vulkan for robust buffer access, so an access past a
+    /// buffer's end reads zero or is dropped by the hardware. What it saves is the hot loops'
+    /// counters and clamps: on an NVIDIA H200 the toy plug-in's five-layer step took 129 µs of
+    /// GPU time checked and 114 µs trusted, the body's capsule weighing 4.0 ms and 3.7 ms
+    /// (docs/BENCHMARKS.md, "Trusted kernels"). A kernel that broke the promise would compute
+    /// garbage on the device (never Rust's memory), which those tests exist to catch.
+    Trusted,
+}
+
+impl ShaderChecks {
+    fn runtime_checks(self) -> wgpu::ShaderRuntimeChecks {
+        let mut checks = wgpu::ShaderRuntimeChecks::checked();
+        if self == Self::Trusted {
+            checks.bounds_checks = false;
+            checks.force_loop_bounding = false;
+        }
+        checks
+    }
+}
+
+/// How a [`Kernel`] is built beyond its source: the values of its `override` constants, whether
+/// its workgroup memory starts zeroed, and whether wgpu checks its indices and loops.
 #[derive(Debug, Clone, Copy)]
 pub struct KernelOptions<'a> {
     /// `(name, value)` of each pipeline-overridable constant set (the others keep their WGSL
@@ -161,6 +191,8 @@ pub struct KernelOptions<'a> {
     /// before it reads it can do without (`false`), which pays in kernels of many small
     /// workgroups.
     pub zero_workgroup_memory: bool,
+    /// wgpu's runtime checks ([`ShaderChecks::Checked`] unless the kernel is the project's own).
+    pub checks: ShaderChecks,
 }
 
 impl Default for KernelOptions<'_> {
@@ -168,14 +200,37 @@ impl Default for KernelOptions<'_> {
         Self {
             constants: &[],
             zero_workgroup_memory: true,
+            checks: ShaderChecks::Checked,
+        }
+    }
+}
+
+impl KernelOptions<'static> {
+    /// The defaults for one of the project's own kernels: [`ShaderChecks::Trusted`].
+    pub fn trusted() -> Self {
+        Self {
+            checks: ShaderChecks::Trusted,
+            ..Self::default()
         }
     }
 }
 
 impl Kernel {
-    /// Builds `entry` of `source`. Invalid WGSL is a [`GpuError::Shader`] with naga's message.
+    /// Builds `entry` of `source`, with wgpu's runtime checks. Invalid WGSL is a
+    /// [`GpuError::Shader`] with naga's message.
     pub fn new(ctx: &GpuContext, name: &str, source: &str, entry: &str) -> Result<Self, GpuError> {
         Self::with_options(ctx, name, source, entry, KernelOptions::default())
+    }
+
+    /// Builds `entry` of one of the project's own kernels, without wgpu's index and loop checks
+    /// ([`ShaderChecks::Trusted`] says what that promises).
+    pub fn trusted(
+        ctx: &GpuContext,
+        name: &str,
+        source: &str,
+        entry: &str,
+    ) -> Result<Self, GpuError> {
+        Self::with_options(ctx, name, source, entry, KernelOptions::trusted())
     }
 
     /// Builds `entry` of `source` with `options` (its override constants, its workgroup
@@ -192,12 +247,17 @@ impl Kernel {
             message,
         })?;
         let built = ctx.scoped(&format!("building kernel {name}"), || {
-            let module = ctx
-                .device
-                .create_shader_module(wgpu::ShaderModuleDescriptor {
-                    label: Some(name),
-                    source: wgpu::ShaderSource::Wgsl(source.into()),
-                });
+            let descriptor = wgpu::ShaderModuleDescriptor {
+                label: Some(name),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            };
+            // SAFETY: the checks are dropped only for ShaderChecks::Trusted, the project's own
+            // kernels, whose indices stay in range and whose loops end (see its doc); storage
+            // buffers stay bounded by the device's robust buffer access either way.
+            let module = unsafe {
+                ctx.device
+                    .create_shader_module_trusted(descriptor, options.checks.runtime_checks())
+            };
             let pipeline = ctx
                 .device
                 .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {

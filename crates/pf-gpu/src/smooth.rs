@@ -198,8 +198,8 @@ impl GpuSmoother {
     /// Builds the kernels.
     pub fn new(ctx: &GpuContext) -> Result<Self, GpuError> {
         Ok(Self {
-            predictive: Kernel::new(ctx, "smoother predictive", SHADER, "predictive")?,
-            reweigh: Kernel::new(ctx, "smoother reweigh", SHADER, "reweigh")?,
+            predictive: Kernel::trusted(ctx, "smoother predictive", SHADER, "predictive")?,
+            reweigh: Kernel::trusted(ctx, "smoother reweigh", SHADER, "reweigh")?,
         })
     }
 

@@ -30,7 +30,7 @@ impl ToyGaussianLikelihood {
         Ok(Self {
             observed: DeviceStream::zeroed(ctx, "toy observations", targets * sigma.len())?,
             inv_sigma: DeviceStream::from_slice(ctx, "toy inverse sigma", &inv)?,
-            kernel: Kernel::new(
+            kernel: Kernel::trusted(
                 ctx,
                 "toy likelihood",
                 &stage_source(sources::TOY_LIKELIHOOD),

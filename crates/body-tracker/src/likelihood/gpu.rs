@@ -214,7 +214,7 @@ fn kernels_of(ctx: &GpuContext, kind: CapsuleKernel) -> Result<Vec<Kernel>, GpuE
     };
     entries
         .iter()
-        .map(|e| Kernel::new(ctx, e, SHADER, e))
+        .map(|e| Kernel::trusted(ctx, e, SHADER, e))
         .collect()
 }
 

@@ -256,8 +256,8 @@ impl BodyLikelihoodGpu {
             .collect::<Result<Vec<_>, GpuError>>()?;
         let bones = DeviceStream::from_slice(ctx, "bones", &config.bones)?;
         let frames = DeviceStream::zeroed(ctx, "bone frames", frames_len)?;
-        let kinematics = Kernel::new(ctx, "forward kinematics", SHADER, "forward_kinematics")?;
-        let to_log_likelihood = Kernel::new(
+        let kinematics = Kernel::trusted(ctx, "forward kinematics", SHADER, "forward_kinematics")?;
+        let to_log_likelihood = Kernel::trusted(
             ctx,
             "log-likelihood from sums",
             SHADER,

@@ -223,7 +223,7 @@ impl GpuCascade {
         }
         let CascadeWords { words, sections } = CascadeWords::new(&cascade)?;
         let kernel =
-            |entry: &str| Kernel::new(&ctx, &format!("haar cascade {entry}"), SOURCE, entry);
+            |entry: &str| Kernel::trusted(&ctx, &format!("haar cascade {entry}"), SOURCE, entry);
         let passes = Passes {
             integral_rows: kernel("integral_rows")?,
             integral_columns: kernel("integral_columns")?,

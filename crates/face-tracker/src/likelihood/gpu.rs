@@ -13,7 +13,7 @@ use pf_gpu::GrayTexture;
 use pf_gpu::filter::{
     GpuLikelihood, LikelihoodInputs, LikelihoodPhase, ReadbackSource, RecordingId,
 };
-use pf_gpu::kernels::{Kernel, KernelOptions, stage_source};
+use pf_gpu::kernels::{Kernel, KernelOptions, ShaderChecks, stage_source};
 use pf_gpu::stream::DeviceStream;
 use pf_gpu::wgpu;
 
@@ -158,7 +158,7 @@ impl FaceLikelihoodGpu {
         if let FaceDispatch::Packed { lanes } = dispatch {
             check_lanes(lanes)?;
         }
-        let estimate_kernel = Kernel::new(
+        let estimate_kernel = Kernel::trusted(
             ctx,
             "face estimate check",
             &stage_source(super::SHADER),
@@ -378,6 +378,7 @@ fn weighing_kernel(ctx: &GpuContext, lanes: Option<u32>) -> Result<Kernel, GpuEr
     let options = KernelOptions {
         constants: constants.as_ref().map_or(&[], |c| c.as_slice()),
         zero_workgroup_memory: false,
+        checks: ShaderChecks::Trusted,
     };
     let entry = match lanes {
         Some(l) if l <= STAGED_MAX_LANES => "weigh_faces_packed_staged",

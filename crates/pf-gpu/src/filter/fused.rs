@@ -205,9 +205,9 @@ impl FusedLayers {
         } else {
             "select_systematic"
         };
-        let selecting = Kernel::new(ctx, "fused select", &source, select_entry)?;
-        let moving = Kernel::new(ctx, "fused move", &source, "move_selected")?;
-        let copying = Kernel::new(ctx, "fused copy", &source, "copy_selected")?;
+        let selecting = Kernel::trusted(ctx, "fused select", &source, select_entry)?;
+        let moving = Kernel::trusted(ctx, "fused move", &source, "move_selected")?;
+        let copying = Kernel::trusted(ctx, "fused copy", &source, "copy_selected")?;
         let selecting_groups = (0..layers.count)
             .map(|layer| bind_selecting(ctx, &selecting, streams, layers, layer))
             .collect::<Result<Vec<_>, _>>()?;
@@ -234,7 +234,7 @@ impl FusedLayers {
         } else {
             None
         };
-        let settling = Kernel::new(ctx, "fused settle", &source, "settle_last_layer")?;
+        let settling = Kernel::trusted(ctx, "fused settle", &source, "settle_last_layer")?;
         let settling_group = settling.bind(
             ctx,
             &[
@@ -292,13 +292,13 @@ impl FusedLayers {
                 })
                 .collect::<Result<Vec<_>, _>>()
         };
-        let kernel = Kernel::new(ctx, "fused select keeping the lineage", &source, &entry)?;
+        let kernel = Kernel::trusted(ctx, "fused select keeping the lineage", &source, &entry)?;
         let groups = bind_layers(&kernel)?;
         let searching = match self.gathering {
             Some(_) => {
                 let options = KernelOptions {
                     constants: &[("GATHER", 0.0)],
-                    ..KernelOptions::default()
+                    ..KernelOptions::trusted()
                 };
                 let name = "fused search keeping the lineage";
                 let kernel = Kernel::with_options(ctx, name, &source, &entry, options)?;

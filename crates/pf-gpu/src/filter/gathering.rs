@@ -47,12 +47,12 @@ impl GatheringMoves {
         let with = |name: &str, entry: &str, constants: &[(&str, f64)]| {
             let options = KernelOptions {
                 constants,
-                ..KernelOptions::default()
+                ..KernelOptions::trusted()
             };
             Kernel::with_options(ctx, name, source, entry, options)
         };
         let searching = with("fused search", select_entry, &[("GATHER", 0.0)])?;
-        let first = Kernel::new(ctx, "fused first move", source, "move_keeping_snapshot")?;
+        let first = Kernel::trusted(ctx, "fused first move", source, "move_keeping_snapshot")?;
         let middle = with(
             "fused gathering move",
             "move_gathering",

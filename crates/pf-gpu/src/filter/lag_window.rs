@@ -122,7 +122,7 @@ impl LagWindow {
             SORT_SIZE_LINE,
             &format!("const SORT_SIZE: u32 = {}u;", sort_size(shape.particles)),
         );
-        let kernel = Kernel::new(ctx, "lag summary", &source, "summarise_lagged")?;
+        let kernel = Kernel::trusted(ctx, "lag summary", &source, "summarise_lagged")?;
         let states = DeviceStream::zeroed(ctx, "lag window states", slots * shape.state_len())?;
         let log_weights =
             DeviceStream::zeroed(ctx, "lag window log-weights", slots * shape.particle_len())?;

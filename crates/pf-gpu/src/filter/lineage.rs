@@ -44,9 +44,9 @@ impl Lineage {
         params: &wgpu::Buffer,
     ) -> Result<Self, GpuError> {
         let source = stage_source(sources::LINEAGE);
-        let first = Kernel::new(ctx, "lineage (first layer)", &source, "first_layer")?;
-        let later = Kernel::new(ctx, "lineage (later layer)", &source, "later_layer")?;
-        let clear = Kernel::new(ctx, "lineage (clear restarts)", &source, "clear_restarts")?;
+        let first = Kernel::trusted(ctx, "lineage (first layer)", &source, "first_layer")?;
+        let later = Kernel::trusted(ctx, "lineage (later layer)", &source, "later_layer")?;
+        let clear = Kernel::trusted(ctx, "lineage (clear restarts)", &source, "clear_restarts")?;
         let n = shape.particle_len();
         let buffers = [
             DeviceStream::zeroed(ctx, "lineage (even layers)", n)?,

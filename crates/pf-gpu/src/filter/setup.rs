@@ -267,7 +267,7 @@ impl Stages {
     /// Builds the gather, diffuse, normalise and estimate kernels (and the best-M′ mean).
     pub(super) fn new(ctx: &GpuContext, with_best: bool) -> Result<Self, GpuError> {
         let kernel =
-            |source: &str, entry: &str| Kernel::new(ctx, entry, &stage_source(source), entry);
+            |source: &str, entry: &str| Kernel::trusted(ctx, entry, &stage_source(source), entry);
         Ok(Self {
             gather: kernel(sources::GATHER, "gather")?,
             diffuse: kernel(sources::DIFFUSE, "diffuse")?,
@@ -390,7 +390,7 @@ pub(super) fn resample_dispatches(
     let per_particle = [groups_for(m, 64), t, 1];
     let blocks = [groups_for(m, RESAMPLE_BLOCK), t, 1];
     let make = |entry: &str, bindings: &[u32], groups: [u32; 3]| -> Result<Dispatch, GpuError> {
-        let kernel = Kernel::new(ctx, entry, &source, entry)?;
+        let kernel = Kernel::trusted(ctx, entry, &source, entry)?;
         let entries: Vec<(u32, wgpu::BindingResource<'_>)> = bindings
             .iter()
             .map(|&i| {

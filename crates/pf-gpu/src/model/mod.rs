@@ -329,6 +329,8 @@ impl RawWgslModel {
         let propagates = has_function(&module, "propagate");
         let source = generate(model.wgsl, shape.dims, propagates);
         compile(name, &source, user_lines)?;
+        // The user's WGSL keeps wgpu's runtime checks (Kernel::new; ShaderChecks::Checked): the
+        // engine cannot know that its indices stay in range and its loops end.
         let measure = Kernel::new(ctx, &format!("{name} (measure)"), &source, "model_measure")?;
         let propagate = if propagates {
             Some(Kernel::new(
