@@ -20,7 +20,15 @@ pub struct ContextOptions {
     pub poll_timeout: Duration,
     /// Only adapters whose name contains this (case-insensitive); `WGPU_ADAPTER_NAME` by default.
     pub adapter_name: Option<String>,
+    /// Build every kernel with wgpu's runtime checks, the project's own too (which are otherwise
+    /// built without: [`crate::kernels::ShaderChecks::Trusted`]): for a kernel suspected of
+    /// indexing past an array, whose reads are then clamped into it. On by default when
+    /// `STREAMPF_CHECK_KERNELS=1`.
+    pub check_every_kernel: bool,
 }
+
+/// The environment variable that turns [`ContextOptions::check_every_kernel`] on by default.
+pub const CHECK_KERNELS_VAR: &str = "STREAMPF_CHECK_KERNELS";
 
 impl Default for ContextOptions {
     fn default() -> Self {
@@ -30,6 +38,7 @@ impl Default for ContextOptions {
             prefer_software: false,
             poll_timeout: Duration::from_secs(60),
             adapter_name: std::env::var("WGPU_ADAPTER_NAME").ok(),
+            check_every_kernel: std::env::var_os(CHECK_KERNELS_VAR).is_some_and(|v| v == "1"),
         }
     }
 }
@@ -58,6 +67,7 @@ pub struct GpuContext {
     summary: AdapterSummary,
     limits: wgpu::Limits,
     timestamps: bool,
+    check_every_kernel: bool,
     lost: Arc<Mutex<Option<String>>>,
     poll_timeout: Duration,
 }
@@ -172,6 +182,7 @@ impl GpuContext {
             summary,
             limits,
             timestamps: features.contains(wanted),
+            check_every_kernel: options.check_every_kernel,
             lost,
             poll_timeout: options.poll_timeout,
         })
@@ -190,6 +201,12 @@ impl GpuContext {
     /// Whether GPU timings come from timestamp queries (else: wall clock).
     pub fn has_timestamps(&self) -> bool {
         self.timestamps
+    }
+
+    /// Whether every kernel is built with wgpu's runtime checks
+    /// ([`ContextOptions::check_every_kernel`]).
+    pub fn checks_every_kernel(&self) -> bool {
+        self.check_every_kernel
     }
 
     /// Loses the device on purpose, through the same path a driver reset or a removed GPU takes

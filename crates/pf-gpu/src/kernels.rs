@@ -251,12 +251,16 @@ impl Kernel {
                 label: Some(name),
                 source: wgpu::ShaderSource::Wgsl(source.into()),
             };
+            let checks = match ctx.checks_every_kernel() {
+                true => ShaderChecks::Checked,
+                false => options.checks,
+            };
             // SAFETY: the checks are dropped only for ShaderChecks::Trusted, the project's own
             // kernels, whose indices stay in range and whose loops end (see its doc); storage
             // buffers stay bounded by the device's robust buffer access either way.
             let module = unsafe {
                 ctx.device
-                    .create_shader_module_trusted(descriptor, options.checks.runtime_checks())
+                    .create_shader_module_trusted(descriptor, checks.runtime_checks())
             };
             let pipeline = ctx
                 .device

@@ -29,7 +29,7 @@ pub mod stream;
 pub mod timing;
 pub mod toy;
 
-pub use context::{ContextOptions, GpuContext};
+pub use context::{CHECK_KERNELS_VAR, ContextOptions, GpuContext};
 pub use filter::{
     DispatchTime, FUSED_DEFAULT_MAX_VALUES, GpuFilter, GpuLikelihood, GpuResampler, GpuStage,
     GpuStepReport, LagFrame, LaggedSummaries, LaggedTarget, LikelihoodInputs, LikelihoodPhase,

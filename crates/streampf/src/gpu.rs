@@ -3,11 +3,20 @@
 use anyhow::Context;
 use pf_gpu::{ContextOptions, GpuContext, GpuError};
 
+/// The options for opening the GPU; says so when every kernel is to keep wgpu's runtime checks
+/// (`STREAMPF_CHECK_KERNELS=1`, for a kernel suspected of reading past an array).
 fn options(allow_software: bool) -> ContextOptions {
-    ContextOptions {
+    let options = ContextOptions {
         allow_software,
         ..ContextOptions::default()
+    };
+    if options.check_every_kernel {
+        eprintln!(
+            "note: every GPU kernel keeps wgpu's index and loop checks ({}=1)",
+            pf_gpu::CHECK_KERNELS_VAR
+        );
     }
+    options
 }
 
 /// The library's error in the command line's words: a software adapter is taken with
