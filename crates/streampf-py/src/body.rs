@@ -23,7 +23,7 @@ use crate::errors::{body, runtime_error, value_error, whole, whole_opt};
 pub struct BodyTracker {
     /// Locked only with the GIL released.
     tracker: Mutex<body_tracker::BodyTracker>,
-    /// `smooth=True`: every frame's samples, for `smoothed()` (locked with the GIL released,
+    /// `smooth=True` or `smooth_lag=L`: every frame's samples, for `smoothed()` (locked with the GIL released,
     /// after `tracker` when both are).
     smoothing: Mutex<Option<Smoothing>>,
     skeleton: Skeleton,
@@ -66,7 +66,7 @@ impl BodyTracker {
         initial_pose = None, *, capsules = 19, skeleton = None, particles = 1500,
         backend = "auto", allow_software = false, seed = 1, layers = None, partitioned = true,
         coarse_points = DEFAULT_COARSE_POINTS as i128, coarse_layers = DEFAULT_COARSE_LAYERS as i128,
-        smooth = false, smooth_motion = None
+        smooth = false, smooth_motion = None, smooth_lag = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -84,8 +84,9 @@ impl BodyTracker {
         coarse_layers: i128,
         smooth: bool,
         smooth_motion: Option<&Bound<'_, PyAny>>,
+        smooth_lag: Option<i128>,
     ) -> PyResult<Self> {
-        let motion = crate::smoothing::smooth_motion(smooth, smooth_motion)?;
+        let request = crate::smoothing::smooth_request(smooth, smooth_lag, smooth_motion)?;
         let coarse = match whole::<usize>("coarse_layers", coarse_layers)? {
             0 => None,
             layers => Some(CoarseLayers {
@@ -114,14 +115,14 @@ impl BodyTracker {
         let tracker = py
             .detach(|| body_tracker::BodyTracker::new(for_tracker, &start, config, backend))
             .map_err(body)?;
-        let smoothing = match smooth {
-            true => Some(Smoothing::new(
+        let smoothing = match request {
+            Some(request) => Some(Smoothing::new(
                 tracker.transition().map_err(body)?,
-                motion,
+                request,
                 tracker.motion_gain(),
                 tracker.gpu_context(),
             )?),
-            false => None,
+            None => None,
         };
         Ok(Self {
             smoothing: Mutex::new(smoothing),
@@ -219,13 +220,14 @@ impl BodyTracker {
         self.track(py, points)
     }
 
-    /// Every frame so far, smoothed by the frames after it (needs `smooth=True`): `frame`, and
+    /// Every frame so far, smoothed by the frames after it (needs `smooth=True`, or `smooth_lag=L`:
+    /// then each frame by at most L after it): `frame`, and
     /// the pose's smoothed `mean`, `lower`, `upper` (a 95 % interval), each (frames, P).
     fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let rows = py.detach(|| match &*self.smoothing.lock().map_err(|_| poisoned())? {
             Some(smoothing) => smoothing.rows(),
             None => Err(value_error(
-                "smoothed() needs BodyTracker(..., smooth=True)",
+                "smoothed() needs BodyTracker(..., smooth=True) or smooth_lag=L",
             )),
         })?;
         let out = rows_dict(py, &rows, self.skeleton.dofs())?;
@@ -272,15 +274,17 @@ impl BodyTracker {
         if points.is_empty() {
             return Err(value_error("a frame needs at least one point"));
         }
-        let result: FrameResult = py.detach(|| {
+        let (result, smoothed) = py.detach(|| {
             let mut tracker = self.lock()?;
-            let result = tracker.step(&points).map_err(body)?;
+            let result: FrameResult = tracker.step(&points).map_err(body)?;
             let mut smoothing = self.smoothing.lock().map_err(|_| poisoned())?;
+            let mut smoothed = None;
             if let Some(smoothing) = smoothing.as_mut() {
                 let (_, states, log_weights) = tracker.particles().map_err(body)?;
-                smoothing.add(vec![(0, states, log_weights).into()])?;
+                let rows = smoothing.add(vec![(0, states, log_weights).into()])?;
+                smoothed = smoothing.lagging().then_some(rows);
             }
-            Ok::<_, PyErr>(result)
+            Ok::<_, PyErr>((result, smoothed))
         })?;
         let d = PyDict::new(py);
         let dofs = result.pose.len();
@@ -291,6 +295,11 @@ impl BodyTracker {
         d.set_item("log_evidence", result.log_evidence)?;
         d.set_item("confidence", result.confidence)?;
         d.set_item("points", result.points)?;
+        if let Some(rows) = smoothed {
+            let rows = rows_dict(py, &rows, dofs)?;
+            rows.del_item("track")?;
+            d.set_item("smoothed", rows)?;
+        }
         Ok(d)
     }
 }

@@ -1,6 +1,7 @@
 //! `streampf.FaceTracker`: the face tracker on numpy frames, with or without the detector.
 
-use crate::smoothing::{Smoothing, rows_dict};
+use crate::smoothing::{SmoothRequest, Smoothing, rows_dict};
+use pf_core::smooth_tracks::SmoothedRow;
 use std::sync::Mutex;
 
 use face_tracker::detect::{Cascade, DetectConfig, DetectorPlacement, FaceDetector, GpuCascade};
@@ -39,26 +40,25 @@ struct Inner {
     engine: Engine,
     /// Frames stepped.
     frames: usize,
-    /// `smooth=True`: every frame's clouds, for `smoothed()`.
+    /// `smooth=True` or `smooth_lag=L`: every frame's clouds, for `smoothed()` (and the rows due
+    /// at each step, with a lag).
     smoothing: Option<Smoothing>,
 }
 
 impl Inner {
-    /// A tracker with no frame stepped, smoothing when `smooth` (its motion scaled by `motion`,
-    /// `smooth_motion=`).
-    fn new(engine: Engine, smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResult<Self> {
-        let motion = crate::smoothing::smooth_motion(smooth, motion)?;
-        let smoothing = match smooth {
-            true => {
+    /// A tracker with no frame stepped, smoothing as `request` asks.
+    fn new(engine: Engine, request: Option<SmoothRequest>) -> PyResult<Self> {
+        let smoothing = match request {
+            Some(request) => {
                 let tracker = engine.tracker();
                 Some(Smoothing::new(
                     tracker.transition(),
-                    motion,
+                    request,
                     tracker.motion_gain(),
                     tracker.gpu_context(),
                 )?)
             }
-            false => None,
+            None => None,
         };
         Ok(Self {
             engine,
@@ -67,17 +67,14 @@ impl Inner {
         })
     }
 
-    /// A step's estimates to the smoother, when smoothing.
-    fn smooth(&mut self, estimates: &[FaceEstimate]) -> PyResult<()> {
-        if let Some(smoothing) = self.smoothing.as_mut() {
-            smoothing.add(
-                self.engine
-                    .tracker()
-                    .track_clouds(estimates)
-                    .map_err(face)?,
-            )?;
-        }
-        Ok(())
+    /// A step's estimates to the smoother, when smoothing; with a lag, the rows now due.
+    fn smooth(&mut self, estimates: &[FaceEstimate]) -> PyResult<Option<Vec<SmoothedRow>>> {
+        let Some(smoothing) = self.smoothing.as_mut() else {
+            return Ok(None);
+        };
+        let clouds = self.engine.tracker().track_clouds(estimates);
+        let rows = smoothing.add(clouds.map_err(face)?)?;
+        Ok(smoothing.lagging().then_some(rows))
     }
 }
 
@@ -86,6 +83,8 @@ struct StepOut {
     estimates: Vec<FaceEstimate>,
     started: Vec<usize>,
     restarted: Vec<usize>,
+    /// With `smooth_lag=L`: the rows smoothed at this step.
+    smoothed: Option<Vec<SmoothedRow>>,
 }
 
 /// Tracks faces in frames given as numpy arrays (`uint8`, H×W gray or H×W×3 colour).
@@ -285,7 +284,7 @@ impl FaceTracker {
         detect_every = 5, min_face = 40, backend = "auto", allow_software = false, seed = 1,
         layers = None, channel_order = "rgb", detector = "auto", fov = None, face_model = "auto",
         smooth = false, camera = None, scene_cut = Some(face_tracker::scene_cut::DEFAULT_SCENE_CUT),
-        smooth_motion = None, enlarge_below = None
+        smooth_motion = None, enlarge_below = None, smooth_lag = None
     ))]
     #[allow(clippy::too_many_arguments)]
     fn new(
@@ -311,8 +310,10 @@ impl FaceTracker {
         scene_cut: Option<f32>,
         smooth_motion: Option<&Bound<'_, PyAny>>,
         enlarge_below: Option<&Bound<'_, PyAny>>,
+        smooth_lag: Option<i128>,
     ) -> PyResult<Self> {
         let (width, height) = frame_size(width, height)?;
+        let smoothing = crate::smoothing::smooth_request(smooth, smooth_lag, smooth_motion)?;
         let max_faces: usize = whole("max_faces", max_faces)?;
         let particles: usize = whole("particles", particles)?;
         let detect_every: usize = whole("detect_every", detect_every)?;
@@ -345,7 +346,7 @@ impl FaceTracker {
             .detach(|| build_engine(size, max_faces, built_in, config, backend, detecting))
             .map_err(face)?;
         Ok(Self {
-            inner: Mutex::new(Inner::new(engine, smooth, smooth_motion)?),
+            inner: Mutex::new(Inner::new(engine, smoothing)?),
             buffer: Mutex::new(Vec::new()),
             size,
             order,
@@ -419,11 +420,12 @@ impl FaceTracker {
                 };
                 let estimates = tracker.step_pixels(width, height, pixels).map_err(face)?;
                 inner.frames += 1;
-                inner.smooth(&estimates)?;
+                let smoothed = inner.smooth(&estimates)?;
                 Ok(StepOut {
                     estimates,
                     started: Vec::new(),
                     restarted: Vec::new(),
+                    smoothed,
                 })
             })?;
             return step_dict(py, out);
@@ -433,9 +435,9 @@ impl FaceTracker {
         let image = gray_frame(frame, self.size, self.order, buffer)?;
         let (out, image) = py.detach(|| {
             let out = self.lock().and_then(|mut inner| {
-                let out = step_engine(&mut inner.engine, &image).map_err(face)?;
+                let mut out = step_engine(&mut inner.engine, &image).map_err(face)?;
                 inner.frames += 1;
-                inner.smooth(&out.estimates)?;
+                out.smoothed = inner.smooth(&out.estimates)?;
                 Ok(out)
             });
             (out, image)
@@ -444,13 +446,14 @@ impl FaceTracker {
         step_dict(py, out?)
     }
 
-    /// Every tracked face-frame so far, smoothed by the frames after it (needs `smooth=True`):
+    /// Every tracked face-frame so far, smoothed by the frames after it (needs `smooth=True` or
+    /// `smooth_lag=L`; with a lag, each frame by at most L after it):
     /// `frame`, `track`, and the state's smoothed `mean`, `lower`, `upper` (a 95 % interval).
     fn smoothed<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let rows = py.detach(|| match &self.lock()?.smoothing {
             Some(smoothing) => smoothing.rows(),
             None => Err(value_error(
-                "smoothed() needs FaceTracker(..., smooth=True)",
+                "smoothed() needs FaceTracker(..., smooth=True) or smooth_lag=L",
             )),
         })?;
         rows_dict(py, &rows, face_tracker::projection::DIMS)
@@ -495,6 +498,7 @@ fn step_engine(engine: &mut Engine, image: &GrayImage) -> Result<StepOut, face_t
             estimates: t.step(image)?,
             started: Vec::new(),
             restarted: Vec::new(),
+            smoothed: None,
         },
         Engine::Detecting(a) => {
             let frame = a.step(image)?;
@@ -502,6 +506,7 @@ fn step_engine(engine: &mut Engine, image: &GrayImage) -> Result<StepOut, face_t
                 estimates: frame.estimates,
                 started: frame.started.iter().map(|s| s.0).collect(),
                 restarted: frame.restarted.iter().map(|s| s.0).collect(),
+                smoothed: None,
             }
         }
     })
@@ -581,5 +586,8 @@ fn step_dict(py: Python<'_>, out: StepOut) -> PyResult<Bound<'_, PyDict>> {
     let (started, restarted) = (out.started.len(), out.restarted.len());
     d.set_item("started", to_numpy(py, ids(out.started), &[started])?)?;
     d.set_item("restarted", to_numpy(py, ids(out.restarted), &[restarted])?)?;
+    if let Some(rows) = out.smoothed {
+        d.set_item("smoothed", rows_dict(py, &rows, DIMS)?)?;
+    }
     Ok(d)
 }

@@ -1,34 +1,71 @@
-//! `smooth=True` on `FaceTracker` and `BodyTracker`: every frame's filtered clouds go to the
-//! command line's smoother (`pf_core::smooth_tracks::TrackSmoother`, each track whole); `smoothed()`
-//! smooths what was tracked so far, the tracks still running included, and returns it as numpy
-//! arrays.
+//! `smooth=True` and `smooth_lag=L` on `FaceTracker` and `BodyTracker`: every frame's filtered
+//! clouds go to the command line's smoother (`pf_core::smooth_tracks::TrackSmoother`, each track
+//! whole, or L frames behind); `smoothed()` smooths what was tracked so far, the tracks still
+//! running included, and returns it as numpy arrays; with a lag, each step returns the rows due.
 
 use pf_core::smooth::GaussianTransition;
 use pf_core::smooth::motion::{EvidenceMotion, SmoothMotion};
-use pf_core::smooth_tracks::{SmoothedRow, TrackCloud, TrackSmoother};
+use pf_core::smooth_tracks::{LagSmoother, SmoothedRow, TrackCloud, TrackSmoother};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use std::sync::Arc;
 
 use crate::arrays::to_numpy;
 use crate::errors::runtime_error;
 
-/// A tracker's smoothing: the smoother, the rows of the tracks that ended, the frames seen.
+/// A tracker's smoothing: the smoother, the rows smoothed so far (of the tracks that ended, and
+/// with a lag every row due), the frames seen.
 pub struct Smoothing {
     smoother: TrackSmoother,
     ended: Vec<SmoothedRow>,
     frames: usize,
+    lagging: bool,
+}
+
+/// The longest lag `smooth_lag=` takes (the command line's `--smooth-lag` range).
+const MAX_LAG: usize = 1000;
+
+/// What a tracker's smoothing arguments ask for: whole tracks (`lag` `None`, `smooth=True`) or a
+/// lag of L frames (`smooth_lag=L`), under `motion`.
+#[derive(Debug, Clone, Copy)]
+pub struct SmoothRequest {
+    lag: Option<usize>,
+    motion: SmoothMotion,
+}
+
+/// `smooth=`, `smooth_lag=` and `smooth_motion=` read together: no smoothing (`None`), whole
+/// tracks or a lag, each refused with a clear error where they do not fit (both `smooth=True`
+/// and a lag; a lag outside 1 to 1 000; a motion with nothing to scale).
+pub fn smooth_request(
+    smooth: bool,
+    smooth_lag: Option<i128>,
+    motion: Option<&Bound<'_, PyAny>>,
+) -> PyResult<Option<SmoothRequest>> {
+    let lag: Option<usize> = crate::errors::whole_opt("smooth_lag", smooth_lag)?;
+    if let Some(lag) = lag.filter(|l| !(1..=MAX_LAG).contains(l)) {
+        return Err(pyo3::exceptions::PyValueError::new_err(format!(
+            "smooth_lag is a number of frames from 1 to {MAX_LAG}, not {lag}"
+        )));
+    }
+    if smooth && lag.is_some() {
+        return Err(pyo3::exceptions::PyValueError::new_err(
+            "smooth=True smooths whole tracks and smooth_lag=L smooths L frames behind: choose one",
+        ));
+    }
+    let motion = smooth_motion(smooth || lag.is_some(), motion)?;
+    Ok((smooth || lag.is_some()).then_some(SmoothRequest { lag, motion }))
 }
 
 /// `smooth_motion=`: a scale of the smoother's motion (`pf_core::smooth::MOTION_SCALES`) or
-/// `"auto"` (each value's chosen by the evidence), only with `smooth=True` (it would scale
+/// `"auto"` (each value's chosen by the evidence), only with a smoother (it would scale
 /// nothing); `None` is the tracker's own motion.
-pub fn smooth_motion(smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResult<SmoothMotion> {
+fn smooth_motion(smooth: bool, motion: Option<&Bound<'_, PyAny>>) -> PyResult<SmoothMotion> {
     let Some(motion) = motion.filter(|m| !m.is_none()) else {
         return Ok(SmoothMotion::Scale(1.0));
     };
     if !smooth {
         return Err(pyo3::exceptions::PyValueError::new_err(
-            "smooth_motion scales the smoother's motion: pass smooth=True too",
+            "smooth_motion scales the smoother's motion: pass smooth=True or smooth_lag=L too",
         ));
     }
     motion_argument("smooth_motion", motion)
@@ -56,41 +93,52 @@ pub fn motion_argument(name: &str, motion: &Bound<'_, PyAny>) -> PyResult<Smooth
 }
 
 impl Smoothing {
-    /// Whole-track smoothing under the tracker's dynamics, on `gpu` (the tracker's GPU) when it
-    /// has one (`pf_gpu::smooth::OnGpu`), else on the CPU's cores.
-    /// `motion` scales the transition's σ (`smooth_motion=`; 1: the tracker's own diffusion) or
-    /// lets the evidence choose it per value (`"auto"`: on the CPU's cores).
+    /// Smoothing as `request` asks, under the tracker's dynamics: on `gpu` (the tracker's GPU)
+    /// when it has one (`pf_gpu::smooth::OnGpu`), else on the CPU's cores. The motion scales the
+    /// transition's σ (1: the tracker's own diffusion) or is chosen per value by the evidence
+    /// (`"auto"`: on the CPU's cores; with a lag, by the evidence of the track's frames so far).
+    /// A lag smooths each window by the marginal smoother, as the command line's `--smooth-lag`
+    /// does for an annealed tracker (the trackers here do not keep the particles' lineage).
     pub fn new(
         transition: GaussianTransition,
-        motion: SmoothMotion,
+        request: SmoothRequest,
         gain: f32,
         gpu: Option<&pf_gpu::GpuContext>,
     ) -> PyResult<Self> {
-        let transition = motion
-            .apply(transition)
+        let transition = (request.motion.apply(transition))
             .map_err(|e| pyo3::exceptions::PyValueError::new_err(e.to_string()))?;
-        let mut smoother = TrackSmoother::new(None, transition, gain);
-        if motion == SmoothMotion::ByEvidence {
-            smoother = smoother.on(std::sync::Arc::new(EvidenceMotion::default()));
+        let mut smoother = TrackSmoother::new(request.lag, transition, gain);
+        if request.lag.is_some() {
+            smoother = smoother.lagging_by(LagSmoother::Marginal);
+        }
+        if request.motion == SmoothMotion::ByEvidence {
+            smoother = smoother.choosing_motion_by_evidence(Arc::new(EvidenceMotion::default()));
         } else if let Some(ctx) = gpu {
             let on_gpu = pf_gpu::smooth::OnGpu::new(ctx)
                 .map_err(|e| runtime_error(format!("building the GPU smoother: {e}")))?;
-            smoother = smoother.on(std::sync::Arc::new(on_gpu));
+            smoother = smoother.on(Arc::new(on_gpu));
         }
         Ok(Self {
             smoother,
             ended: Vec::new(),
             frames: 0,
+            lagging: request.lag.is_some(),
         })
     }
 
-    /// The next frame's clouds, one for each target tracked in it.
-    pub fn add(&mut self, clouds: Vec<TrackCloud>) -> PyResult<()> {
+    /// Whether rows come out as frames arrive (`smooth_lag=L`), each frame L frames behind.
+    pub fn lagging(&self) -> bool {
+        self.lagging
+    }
+
+    /// The next frame's clouds, one for each target tracked in it; returns the rows smoothed
+    /// now (with a lag: each track's frame L back, and the last frames of a track that ended).
+    pub fn add(&mut self, clouds: Vec<TrackCloud>) -> PyResult<Vec<SmoothedRow>> {
         let rows = (self.smoother.add_frame(self.frames, clouds))
             .map_err(|e| runtime_error(format!("smoothing: {e:#}")))?;
-        self.ended.extend(rows);
+        self.ended.extend(rows.iter().cloned());
         self.frames += 1;
-        Ok(())
+        Ok(rows)
     }
 
     /// Every frame tracked so far, smoothed (a running track over the frames it has), in frame

@@ -130,3 +130,21 @@ def test_smoothing_gives_every_frame_with_an_interval(walk):
     assert np.abs(s["mean"][:, :3] - walk["truth"][:6, :3]).max() < 0.2
     with pytest.raises(ValueError, match="smooth=True"):
         streampf.BodyTracker(walk["truth"][0], particles=64, backend="cpu").smoothed()
+
+
+def test_a_lag_smooths_each_frame_as_frames_come(walk):
+    tracker = streampf.BodyTracker(walk["truth"][0], particles=128, backend="cpu", smooth_lag=2)
+    dofs = len(walk["pose_names"])
+    online = []
+    for k, points in enumerate(walk["points"][:6]):
+        rows = tracker.step(points)["smoothed"]
+        assert list(rows["frame"]) == ([k - 2] if k >= 2 else []) and "track" not in rows
+        assert rows["mean"].shape == (1 if k >= 2 else 0, dofs)
+        assert np.all(rows["lower"] <= rows["mean"]) and np.all(rows["mean"] <= rows["upper"])
+        online.append(rows["mean"])
+    s = tracker.smoothed()
+    assert list(s["frame"]) == list(range(6))
+    np.testing.assert_array_equal(s["mean"][:4], np.concatenate(online))
+    assert np.abs(s["mean"][:, :3] - walk["truth"][:6, :3]).max() < 0.2
+    with pytest.raises(ValueError, match="smooth_lag"):
+        streampf.BodyTracker(walk["truth"][0], particles=64, backend="cpu", smooth_lag=0)

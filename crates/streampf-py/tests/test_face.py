@@ -259,10 +259,10 @@ def test_smoothing_gives_every_tracked_face_frame_with_an_interval(two_face_vide
         streampf.FaceTracker(width, height, backend="cpu").smoothed()
 
 
-def smoothed_two_faces(video, motion):
-    """Two faces of ``video`` tracked over its first 8 frames and smoothed with ``motion``: the
-    smoothed rows and the filtered states, (16, 7)."""
-    frames = video["frames"][:8]
+def smoothed_two_faces(video, motion, count=8):
+    """Two faces of ``video`` tracked over its first ``count`` frames and smoothed whole with
+    ``motion``: the smoothed rows and the filtered states, (2 count, 7)."""
+    frames = video["frames"][:count]
     height, width = frames.shape[1:3]
     tracker = streampf.FaceTracker(
         width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
@@ -316,6 +316,56 @@ def test_a_slower_smoothing_motion_narrows_the_intervals(two_face_video):
         streampf.FaceTracker(width, height, backend="cpu", smooth_motion="auto")
     with pytest.raises(ValueError, match="smooth=True"):
         streampf.BodyTracker(backend="cpu", smooth_motion=0.5)
+
+
+def test_a_lag_smooths_each_face_frame_as_frames_come(two_face_video):
+    """``smooth_lag=3``: step k returns frame k - 3 of both tracks smoothed, and ``smoothed()``
+    every frame so far: the rows the steps returned, then the last three smoothed by what
+    follows them. The evidence's motion works with a lag too; bad lags are clear errors."""
+    video = two_face_video
+    frames = video["frames"][:10]
+    height, width = frames.shape[1:3]
+    lag = 3
+    for motion in (None, "auto"):
+        tracker = streampf.FaceTracker(
+            width, height, max_faces=2, particles=300, backend="cpu", face_model="generic",
+            smooth_lag=lag, smooth_motion=motion,
+        )
+        for rect in video["rects"]:
+            tracker.add_face(frames[0], tuple(float(v) for v in rect))
+        due, states = [], []
+        for k, frame in enumerate(frames):
+            out = tracker.step(frame)
+            states.append(out["state"])
+            rows = out["smoothed"]
+            expected = [k - lag] * 2 if k >= lag else []
+            assert list(rows["frame"]) == expected and list(rows["track"]) == [0, 1][: len(expected)]
+            assert rows["mean"].shape == (len(expected), 7)
+            assert np.all(rows["lower"] <= rows["mean"]) and np.all(rows["mean"] <= rows["upper"])
+            due.append(rows)
+        s = tracker.smoothed()
+        assert list(s["frame"]) == [f for f in range(10) for _ in range(2)]
+        assert list(s["track"]) == [0, 1] * 10
+        online = np.concatenate([rows["mean"] for rows in due])
+        np.testing.assert_array_equal(s["mean"][: len(online)], online)
+        if motion is None:
+            # A track's last frame is smoothed by nothing after it, as whole-track smoothing
+            # leaves it; the frames before moved by at most the lag's worth of later frames.
+            whole, _ = smoothed_two_faces({**video, "frames": frames}, None, len(frames))
+            np.testing.assert_array_equal(s["mean"][-2:], whole["mean"][-2:])
+            assert not np.array_equal(s["mean"][:2], whole["mean"][:2])
+        # Near the filtered faces, not a different face.
+        filtered = np.stack(states).reshape(-1, 7)
+        assert np.abs(s["mean"][:, :2] - filtered[:, :2]).max() < 10.0
+    # Without a lag the step has no rows to give.
+    plain = streampf.FaceTracker(width, height, backend="cpu", smooth=True)
+    plain.add_face(frames[0], tuple(float(v) for v in video["rects"][0]))
+    assert "smoothed" not in plain.step(frames[0])
+    for bad in [0, -1, 1001]:
+        with pytest.raises(ValueError, match="smooth_lag"):
+            streampf.FaceTracker(width, height, backend="cpu", smooth_lag=bad)
+    with pytest.raises(ValueError, match="choose one"):
+        streampf.FaceTracker(width, height, backend="cpu", smooth=True, smooth_lag=3)
 
 
 def test_small_faces_are_enlarged_by_default():

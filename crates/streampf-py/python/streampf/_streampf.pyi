@@ -75,6 +75,7 @@ class FaceTracker:
         scene_cut: Optional[float] = 0.25,
         smooth_motion: Union[float, str, None] = None,
         enlarge_below: Optional[float] = None,
+        smooth_lag: Optional[int] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every tracked face-frame so far smoothed by the frames after it
@@ -82,7 +83,14 @@ class FaceTracker:
         int64, the state's ``mean``, ``lower`` and ``upper`` (a 95 % interval), (n, 7) float32,
         in frame and track order. Reads the clouds back every frame on a GPU. ``smooth_motion``
         scales the smoother's motion (1: the tracker's own), or ``"auto"`` lets the evidence
-        choose each track's values' motion (on the CPU's cores), as ``--smooth-motion``."""
+        choose each track's values' motion (on the CPU's cores), as ``--smooth-motion``.
+
+        With ``smooth_lag=L`` (1 to 1 000; not with ``smooth=True``) instead, online as
+        ``--smooth-lag L``: each ``step`` also returns ``smoothed``, the rows due at that frame
+        (each track's frame L back, smoothed by the L frames after it with the marginal smoother,
+        and a track's last frames when it ends), and ``smoothed()`` every row so far, the frames
+        of the last L smoothed by what follows them. ``smooth_motion="auto"`` then chooses each
+        value's motion by the evidence of the track's frames so far."""
     @property
     def device(self) -> str:
         """"CPU", or the GPUs' names."""
@@ -116,7 +124,9 @@ class FaceTracker:
           likelihood's constant (summed over frames: the track's log-likelihood);
         - ``lost`` (n,) bool: the track ended at this frame;
         - ``started``, ``restarted`` (int64): tracks the detector started or restarted before
-          this frame's step.
+          this frame's step;
+        - with ``smooth_lag=L``, ``smoothed``: the rows smoothed at this frame, a dict as
+          ``smoothed()`` returns.
 
         ValueError for a frame of the wrong dtype, shape or memory order (the tracker is left as
         it was). A gray frame is read in place with the GIL released: do not write to it from
@@ -153,11 +163,13 @@ class BodyTracker:
         coarse_layers: int = 7,
         smooth: bool = False,
         smooth_motion: Union[float, str, None] = None,
+        smooth_lag: Optional[int] = None,
     ) -> None: ...
     def smoothed(self) -> Dict[str, np.ndarray]:
         """With ``smooth=True``: every frame so far smoothed by the frames after it: ``frame``
         (n,) int64 and the pose's ``mean``, ``lower`` and ``upper`` (a 95 % interval), (n, P)
-        float32."""
+        float32. With ``smooth_lag=L`` instead (1 to 1 000), as ``FaceTracker``'s: each ``step``
+        also returns ``smoothed`` (frame t − L at frame t), and this every row so far."""
     @property
     def device(self) -> str: ...
     @property
