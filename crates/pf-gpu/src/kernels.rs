@@ -158,13 +158,14 @@ pub enum ShaderChecks {
     #[default]
     Checked,
     /// Neither: for the project's own kernels, whose indices stay in range and whose loops end
-    /// by their own logic, as their GPU-against-CPU tests hold them. Storage buffers stay
-    /// bounded either way: wgpu asks Vulkan for robust buffer access, so an access past a
-    /// buffer's end reads zero or is dropped by the hardware. What it saves is the hot loops'
-    /// counters and clamps: on an NVIDIA H200 the toy plug-in's five-layer step took 129 µs of
-    /// GPU time checked and 114 µs trusted, the body's capsule weighing 4.0 ms and 3.7 ms
+    /// by their own logic, as their GPU-against-CPU tests hold them. On Vulkan, storage buffers
+    /// stay bounded either way (robust buffer access, which every Vulkan device has and wgpu
+    /// turns on: an access past a buffer's end stays inside the buffer or is dropped). What it
+    /// saves is the hot loops' counters and clamps: on an NVIDIA H200 the toy plug-in's
+    /// five-layer step took 129 µs of GPU time checked and 122 µs with the engine's kernels
+    /// trusted (its own kernel keeps the checks), the body's capsule weighing 4.0 ms and 3.7 ms
     /// (docs/BENCHMARKS.md, "Trusted kernels"). A kernel that broke the promise would compute
-    /// garbage on the device (never Rust's memory), which those tests exist to catch.
+    /// garbage on the device (never in Rust's memory), which those tests exist to catch.
     Trusted,
 }
 
@@ -256,8 +257,8 @@ impl Kernel {
                 false => options.checks,
             };
             // SAFETY: the checks are dropped only for ShaderChecks::Trusted, the project's own
-            // kernels, whose indices stay in range and whose loops end (see its doc); storage
-            // buffers stay bounded by the device's robust buffer access either way.
+            // kernels, whose indices stay in range and whose loops end (see its doc); on Vulkan
+            // storage buffers stay bounded by the device's robust buffer access either way.
             let module = unsafe {
                 ctx.device
                     .create_shader_module_trusted(descriptor, checks.runtime_checks())
