@@ -25,6 +25,13 @@ pub struct ContextOptions {
     /// indexing past an array, whose reads are then clamped into it. On by default when
     /// `STREAMPF_CHECK_KERNELS=1`.
     pub check_every_kernel: bool,
+    /// Build a plug-in model's kernels ([`crate::model`]: the WGSL a researcher writes) without
+    /// wgpu's runtime checks too, as the project's own are. Off by default: only for a model
+    /// whose indices stay in range and whose loops end, which its check against its CPU twin
+    /// ([`crate::model::check_against_cpu`]) on random particles, edges included, is there to
+    /// find out (about 6 % of the toy plug-in's five-layer step on an
+    /// NVIDIA H200, docs/BENCHMARKS.md, "Trusted kernels"). [`Self::check_every_kernel`] wins.
+    pub trust_model_kernels: bool,
 }
 
 /// The environment variable that turns [`ContextOptions::check_every_kernel`] on by default.
@@ -39,6 +46,7 @@ impl Default for ContextOptions {
             poll_timeout: Duration::from_secs(60),
             adapter_name: std::env::var("WGPU_ADAPTER_NAME").ok(),
             check_every_kernel: std::env::var_os(CHECK_KERNELS_VAR).is_some_and(|v| v == "1"),
+            trust_model_kernels: false,
         }
     }
 }
@@ -68,6 +76,7 @@ pub struct GpuContext {
     limits: wgpu::Limits,
     timestamps: bool,
     check_every_kernel: bool,
+    trust_model_kernels: bool,
     lost: Arc<Mutex<Option<String>>>,
     poll_timeout: Duration,
 }
@@ -183,6 +192,7 @@ impl GpuContext {
             limits,
             timestamps: features.contains(wanted),
             check_every_kernel: options.check_every_kernel,
+            trust_model_kernels: options.trust_model_kernels,
             lost,
             poll_timeout: options.poll_timeout,
         })
@@ -207,6 +217,12 @@ impl GpuContext {
     /// ([`ContextOptions::check_every_kernel`]).
     pub fn checks_every_kernel(&self) -> bool {
         self.check_every_kernel
+    }
+
+    /// Whether a plug-in model's kernels are built without wgpu's runtime checks
+    /// ([`ContextOptions::trust_model_kernels`]).
+    pub fn trusts_model_kernels(&self) -> bool {
+        self.trust_model_kernels
     }
 
     /// Loses the device on purpose, through the same path a driver reset or a removed GPU takes

@@ -147,6 +147,7 @@ pub struct Kernel {
     name: String,
     pipeline: wgpu::ComputePipeline,
     layout: wgpu::BindGroupLayout,
+    checks: ShaderChecks,
 }
 
 /// Whether wgpu adds its own runtime checks to a kernel's compiled code.
@@ -167,6 +168,15 @@ pub enum ShaderChecks {
     /// (docs/BENCHMARKS.md, "Trusted kernels"). A kernel that broke the promise would compute
     /// garbage on the device (never in Rust's memory), which those tests exist to catch.
     Trusted,
+}
+
+/// The checks a kernel asking for `asked` is built with on `ctx`: every check where the context
+/// checks every kernel ([`crate::ContextOptions::check_every_kernel`]).
+fn effective_checks(ctx: &GpuContext, asked: ShaderChecks) -> ShaderChecks {
+    match ctx.checks_every_kernel() {
+        true => ShaderChecks::Checked,
+        false => asked,
+    }
 }
 
 impl ShaderChecks {
@@ -252,10 +262,7 @@ impl Kernel {
                 label: Some(name),
                 source: wgpu::ShaderSource::Wgsl(source.into()),
             };
-            let checks = match ctx.checks_every_kernel() {
-                true => ShaderChecks::Checked,
-                false => options.checks,
-            };
+            let checks = effective_checks(ctx, options.checks);
             // SAFETY: the checks are dropped only for ShaderChecks::Trusted, the project's own
             // kernels, whose indices stay in range and whose loops end (see its doc); on Vulkan
             // storage buffers stay bounded by the device's robust buffer access either way.
@@ -287,12 +294,18 @@ impl Kernel {
             name: name.to_string(),
             pipeline,
             layout,
+            checks: effective_checks(ctx, options.checks),
         })
     }
 
     /// The kernel's label.
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// Whether it was built with wgpu's runtime checks.
+    pub fn checks(&self) -> ShaderChecks {
+        self.checks
     }
 
     /// The compute pipeline.

@@ -52,7 +52,7 @@ use wgpu::naga;
 use crate::context::GpuContext;
 use crate::error::GpuError;
 use crate::filter::{GpuLikelihood, LikelihoodInputs, LikelihoodPhase, RecordingId};
-use crate::kernels::{Kernel, sources};
+use crate::kernels::{Kernel, KernelOptions, ShaderChecks, sources};
 use crate::stream::DeviceStream;
 
 /// A model's WGSL and its name (used in labels and error messages).
@@ -329,18 +329,22 @@ impl RawWgslModel {
         let propagates = has_function(&module, "propagate");
         let source = generate(model.wgsl, shape.dims, propagates);
         compile(name, &source, user_lines)?;
-        // The user's WGSL keeps wgpu's runtime checks (Kernel::new; ShaderChecks::Checked): the
+        // The user's WGSL keeps wgpu's runtime checks unless the context trusts models: the
         // engine cannot know that its indices stay in range and its loops end.
-        let measure = Kernel::new(ctx, &format!("{name} (measure)"), &source, "model_measure")?;
-        let propagate = if propagates {
-            Some(Kernel::new(
-                ctx,
-                &format!("{name} (propagate)"),
-                &source,
-                "model_propagate",
-            )?)
-        } else {
-            None
+        let options = KernelOptions {
+            checks: match ctx.trusts_model_kernels() {
+                true => ShaderChecks::Trusted,
+                false => ShaderChecks::Checked,
+            },
+            ..KernelOptions::default()
+        };
+        let kernel = |role: &str, entry: &str| {
+            Kernel::with_options(ctx, &format!("{name} ({role})"), &source, entry, options)
+        };
+        let measure = kernel("measure", "model_measure")?;
+        let propagate = match propagates {
+            true => Some(kernel("propagate", "model_propagate")?),
+            false => None,
         };
         // WGSL structs are whole 32-bit words, which the layout checks above made the host's.
         let words = |bytes: usize| bytes / 4;
@@ -420,6 +424,11 @@ impl RawWgslModel {
     pub fn name(&self) -> &str {
         &self.name
     }
+
+    /// Whether its kernels keep wgpu's runtime checks (`ContextOptions::trust_model_kernels`).
+    pub fn kernel_checks(&self) -> ShaderChecks {
+        self.measure.checks()
+    }
 }
 
 /// A model given as WGSL, with its observations `O` (one per target) and constants `C` on the
@@ -487,6 +496,11 @@ impl<O: Pod, C: Pod> WgslModel<O, C> {
     /// The model's name (from its [`ModelSource`]).
     pub fn name(&self) -> &str {
         self.raw.name()
+    }
+
+    /// Whether its kernels keep wgpu's runtime checks (`ContextOptions::trust_model_kernels`).
+    pub fn kernel_checks(&self) -> ShaderChecks {
+        self.raw.kernel_checks()
     }
 }
 
