@@ -29,8 +29,8 @@ pub struct ContextOptions {
     /// wgpu's runtime checks too, as the project's own are. Off by default: only for a model
     /// whose indices stay in range and whose loops end, which its check against its CPU twin
     /// ([`crate::model::check_against_cpu`]) on random particles, edges included, is there to
-    /// find out (about 6 % of the toy plug-in's five-layer step on an
-    /// NVIDIA H200, docs/BENCHMARKS.md, "Trusted kernels"). [`Self::check_every_kernel`] wins.
+    /// find out (docs/BENCHMARKS.md, "Trusted kernels", has what it saved the toy plug-in).
+    /// [`Self::check_every_kernel`] wins.
     pub trust_model_kernels: bool,
 }
 
@@ -77,6 +77,9 @@ pub struct GpuContext {
     timestamps: bool,
     check_every_kernel: bool,
     trust_model_kernels: bool,
+    /// Whether the device runs on Vulkan, whose robust buffer access bounds storage buffers
+    /// whatever a kernel's checks (the only backend whose kernels are built trusted).
+    vulkan: bool,
     lost: Arc<Mutex<Option<String>>>,
     poll_timeout: Duration,
 }
@@ -193,6 +196,7 @@ impl GpuContext {
             timestamps: features.contains(wanted),
             check_every_kernel: options.check_every_kernel,
             trust_model_kernels: options.trust_model_kernels,
+            vulkan: info.backend == wgpu::Backend::Vulkan,
             lost,
             poll_timeout: options.poll_timeout,
         })
@@ -213,10 +217,11 @@ impl GpuContext {
         self.timestamps
     }
 
-    /// Whether every kernel is built with wgpu's runtime checks
-    /// ([`ContextOptions::check_every_kernel`]).
+    /// Whether every kernel is built with wgpu's runtime checks: where
+    /// [`ContextOptions::check_every_kernel`] asks, and off Vulkan (Metal, DX12 and GL have no
+    /// robust buffer access to bound a storage buffer without them).
     pub fn checks_every_kernel(&self) -> bool {
-        self.check_every_kernel
+        self.check_every_kernel || !self.vulkan
     }
 
     /// Whether a plug-in model's kernels are built without wgpu's runtime checks

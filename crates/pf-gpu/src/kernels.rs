@@ -158,34 +158,37 @@ pub enum ShaderChecks {
     /// project has not written (a plug-in model's, [`crate::model::WgslModel`]).
     #[default]
     Checked,
-    /// Neither: for the project's own kernels, whose indices stay in range and whose loops end
-    /// by their own logic, as their GPU-against-CPU tests hold them. On Vulkan, storage buffers
-    /// stay bounded either way (robust buffer access, which every Vulkan device has and wgpu
-    /// turns on: an access past a buffer's end stays inside the buffer or is dropped). What it
+    /// Neither (nor the clamps of `textureLoad`'s coordinates): for the project's own kernels,
+    /// whose indices stay in range and whose loops end by their own logic, as their
+    /// GPU-against-CPU tests and `tests/trusted_kernels.rs` hold them. Used on Vulkan only
+    /// ([`GpuContext::checks_every_kernel`]), whose robust buffer access (every Vulkan device has
+    /// it and wgpu turns it on) keeps a storage buffer's accesses inside it either way. What it
     /// saves is the hot loops' counters and clamps: on an NVIDIA H200 the toy plug-in's
     /// five-layer step took 129 µs of GPU time checked and 122 µs with the engine's kernels
     /// trusted (its own kernel keeps the checks), the body's capsule weighing 4.0 ms and 3.7 ms
-    /// (docs/BENCHMARKS.md, "Trusted kernels"). A kernel that broke the promise would compute
-    /// garbage on the device (never in Rust's memory), which those tests exist to catch.
+    /// (docs/BENCHMARKS.md, "Trusted kernels"). A kernel that broke the promise would index past
+    /// a workgroup or function array: garbage on a GPU, and on a software adapter (whose
+    /// workgroup memory is the host's) the host process's memory, which is why the tests run the
+    /// kernels there trusted and checked and compare the bits.
     Trusted,
 }
 
 /// The checks a kernel asking for `asked` is built with on `ctx`: every check where the context
-/// checks every kernel ([`crate::ContextOptions::check_every_kernel`]).
+/// checks every kernel ([`GpuContext::checks_every_kernel`]: asked for, or off Vulkan).
 fn effective_checks(ctx: &GpuContext, asked: ShaderChecks) -> ShaderChecks {
-    match ctx.checks_every_kernel() {
-        true => ShaderChecks::Checked,
-        false => asked,
+    if ctx.checks_every_kernel() {
+        ShaderChecks::Checked
+    } else {
+        asked
     }
 }
 
 impl ShaderChecks {
     fn runtime_checks(self) -> wgpu::ShaderRuntimeChecks {
         let mut checks = wgpu::ShaderRuntimeChecks::checked();
-        if self == Self::Trusted {
-            checks.bounds_checks = false;
-            checks.force_loop_bounding = false;
-        }
+        let trusted = self == Self::Trusted;
+        checks.bounds_checks = !trusted;
+        checks.force_loop_bounding = !trusted;
         checks
     }
 }
@@ -257,15 +260,16 @@ impl Kernel {
             kernel: name.to_string(),
             message,
         })?;
+        let checks = effective_checks(ctx, options.checks);
         let built = ctx.scoped(&format!("building kernel {name}"), || {
             let descriptor = wgpu::ShaderModuleDescriptor {
                 label: Some(name),
                 source: wgpu::ShaderSource::Wgsl(source.into()),
             };
-            let checks = effective_checks(ctx, options.checks);
             // SAFETY: the checks are dropped only for ShaderChecks::Trusted, the project's own
-            // kernels, whose indices stay in range and whose loops end (see its doc); on Vulkan
-            // storage buffers stay bounded by the device's robust buffer access either way.
+            // kernels (or a model its author trusts), whose indices stay in range and whose loops
+            // end (see its doc), and only on Vulkan, whose robust buffer access bounds storage
+            // buffers either way (effective_checks).
             let module = unsafe {
                 ctx.device
                     .create_shader_module_trusted(descriptor, checks.runtime_checks())
@@ -294,7 +298,7 @@ impl Kernel {
             name: name.to_string(),
             pipeline,
             layout,
-            checks: effective_checks(ctx, options.checks),
+            checks,
         })
     }
 

@@ -17,7 +17,8 @@ use crate::errors::runtime_error;
 /// with a lag every row due), the frames seen.
 pub struct Smoothing {
     smoother: TrackSmoother,
-    ended: Vec<SmoothedRow>,
+    /// Every row smoothed so far (kept for `smoothed()`: a row a value, track and frame).
+    so_far: Vec<SmoothedRow>,
     frames: usize,
     lagging: bool,
 }
@@ -120,7 +121,7 @@ impl Smoothing {
         }
         Ok(Self {
             smoother,
-            ended: Vec::new(),
+            so_far: Vec::new(),
             frames: 0,
             lagging: request.lag.is_some(),
         })
@@ -132,11 +133,13 @@ impl Smoothing {
     }
 
     /// The next frame's clouds, one for each target tracked in it; returns the rows smoothed
-    /// now (with a lag: each track's frame L back, and the last frames of a track that ended).
+    /// now (with a lag: each track's frame L back, and the last frames of a track that ended),
+    /// in frame and track order.
     pub fn add(&mut self, clouds: Vec<TrackCloud>) -> PyResult<Vec<SmoothedRow>> {
-        let rows = (self.smoother.add_frame(self.frames, clouds))
+        let mut rows = (self.smoother.add_frame(self.frames, clouds))
             .map_err(|e| runtime_error(format!("smoothing: {e:#}")))?;
-        self.ended.extend(rows.iter().cloned());
+        rows.sort_by_key(|r| (r.frame, r.track));
+        self.so_far.extend(rows.iter().cloned());
         self.frames += 1;
         Ok(rows)
     }
@@ -146,7 +149,7 @@ impl Smoothing {
     pub fn rows(&self) -> PyResult<Vec<SmoothedRow>> {
         let running = (self.smoother.clone().finish())
             .map_err(|e| runtime_error(format!("smoothing: {e:#}")))?;
-        let mut rows: Vec<SmoothedRow> = self.ended.iter().cloned().chain(running).collect();
+        let mut rows: Vec<SmoothedRow> = self.so_far.iter().cloned().chain(running).collect();
         rows.sort_by_key(|r| (r.frame, r.track));
         Ok(rows)
     }

@@ -11,7 +11,7 @@ fn options(allow_software: bool) -> ContextOptions {
         ..ContextOptions::default()
     };
     if options.check_every_kernel {
-        eprintln!(
+        errln!(
             "note: every GPU kernel keeps wgpu's index and loop checks ({}=1)",
             pf_gpu::CHECK_KERNELS_VAR
         );

@@ -332,9 +332,10 @@ impl RawWgslModel {
         // The user's WGSL keeps wgpu's runtime checks unless the context trusts models: the
         // engine cannot know that its indices stay in range and its loops end.
         let options = KernelOptions {
-            checks: match ctx.trusts_model_kernels() {
-                true => ShaderChecks::Trusted,
-                false => ShaderChecks::Checked,
+            checks: if ctx.trusts_model_kernels() {
+                ShaderChecks::Trusted
+            } else {
+                ShaderChecks::Checked
             },
             ..KernelOptions::default()
         };
